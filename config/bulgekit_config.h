@@ -1,0 +1,57 @@
+// bulgekit feature configuration: defaults, hard limits and per-board sizes.
+// The portable core (src/) includes only this file for its sizes, so the same
+// numbers hold in the unit tests, the simulator and the Marlin build. A Marlin
+// build may override any of them from Configuration_adv.h (see config/).
+#ifndef BULGEKIT_CONFIG_H
+#define BULGEKIT_CONFIG_H
+
+// ---- sizes (RAM) --------------------------------------------------------------
+#ifndef BK_MAP_ARENA_BYTES
+#if defined(__AVR__)
+#define BK_MAP_ARENA_BYTES 2048  // compact map bytes kept on an ATmega2560
+#else
+#define BK_MAP_ARENA_BYTES 2048  // host tests use the AVR size so both targets agree
+#endif
+#endif
+#ifndef BK_LAYER_POINTS_MAX
+#define BK_LAYER_POINTS_MAX 64  // decoded working set: bulge points of one layer
+#endif
+
+// ---- bulge defaults (Takahashi & Miyashita: 0.4 mm nozzle, 0.3 mm layers) ----------
+#ifndef BK_DEFAULT_DWELL_MS
+#define BK_DEFAULT_DWELL_MS 100
+#endif
+#ifndef BK_DEFAULT_EXTRA_E_MM
+#define BK_DEFAULT_EXTRA_E_MM 0.1f
+#endif
+#ifndef BK_DEFAULT_TOLERANCE_MM
+#define BK_DEFAULT_TOLERANCE_MM 0.25f
+#endif
+// Pieces shorter than this are not cut off: the point dwells at the move end.
+#ifndef BK_MIN_PIECE_MM
+#define BK_MIN_PIECE_MM 0.1f
+#endif
+
+// ---- bulge hard limits (a request beyond them is an Error:, never clipped) ---------
+#ifndef BK_MAX_DWELL_MS
+#define BK_MAX_DWELL_MS 2000
+#endif
+#ifndef BK_MAX_EXTRA_E_MM
+#define BK_MAX_EXTRA_E_MM 1.0f
+#endif
+#ifndef BK_MAX_TOLERANCE_MM
+#define BK_MAX_TOLERANCE_MM 2.0f
+#endif
+
+// ---- width by feedrate ------------------------------------------------------------
+#ifndef BK_DEFAULT_FILAMENT_DIA_MM
+#define BK_DEFAULT_FILAMENT_DIA_MM 1.75f
+#endif
+#ifndef BK_DEFAULT_WIDTH_MIN_SPEED
+#define BK_DEFAULT_WIDTH_MIN_SPEED 5.0f  // mm/s, L
+#endif
+#ifndef BK_DEFAULT_WIDTH_MAX_SPEED
+#define BK_DEFAULT_WIDTH_MAX_SPEED 150.0f  // mm/s, U
+#endif
+
+#endif  // BULGEKIT_CONFIG_H

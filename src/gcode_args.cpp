@@ -1,0 +1,157 @@
+#include "gcode_args.h"
+
+namespace bk {
+
+static char upper(char c) { return (c >= 'a' && c <= 'z') ? (char)(c - 'a' + 'A') : c; }
+static bool is_end(char c) { return c == 0 || c == ';' || c == '*' || c == '\n' || c == '\r'; }
+static bool is_space(char c) { return c == ' ' || c == '\t'; }
+static bool is_digit(char c) { return c >= '0' && c <= '9'; }
+static bool is_letter(char c) { c = upper(c); return c >= 'A' && c <= 'Z'; }
+
+bool GcodeArgs::parse(const char *p) {
+  count_ = 0;
+  code_letter_ = 0;
+  code_ = -1;
+  while (is_space(*p)) p++;
+  if (upper(*p) == 'N') {  // line number
+    p++;
+    while (is_digit(*p) || *p == '-') p++;
+    while (is_space(*p)) p++;
+  }
+  char c = upper(*p);
+  if (c != 'M' && c != 'G') return false;
+  p++;
+  if (!is_digit(*p)) return false;
+  int32_t code = 0;
+  while (is_digit(*p)) {
+    code = code * 10 + (*p - '0');
+    if (code > 9999) return false;
+    p++;
+  }
+  code_letter_ = c;
+  code_ = (int16_t)code;
+  // Words: a letter, then its text up to the next blank or the end.
+  while (!is_end(*p)) {
+    if (is_space(*p)) {
+      p++;
+      continue;
+    }
+    const char *start = p;
+    while (!is_end(*p) && !is_space(*p)) p++;
+    if (count_ < MAX_WORDS) {
+      Word &w = words_[count_++];
+      w.letter = is_letter(*start) ? upper(*start) : '?';
+      w.text = start + 1;
+      w.len = (uint8_t)((p - start - 1) > 255 ? 255 : (p - start - 1));
+      if (!is_letter(*start)) w.text = start, w.len = (uint8_t)(p - start);
+    } else {
+      // More words than we keep: mark so callers reject the line rather than
+      // silently ignoring parameters.
+      words_[MAX_WORDS - 1].letter = '?';
+    }
+  }
+  return true;
+}
+
+const GcodeArgs::Word *GcodeArgs::find(char letter) const {
+  letter = upper(letter);
+  for (uint8_t i = 0; i < count_; i++)
+    if (words_[i].letter == letter) return &words_[i];
+  return nullptr;
+}
+
+bool GcodeArgs::has(char letter) const { return find(letter) != nullptr; }
+
+char GcodeArgs::unknown(const char *allowed) const {
+  for (uint8_t i = 0; i < count_; i++) {
+    char l = words_[i].letter;
+    const char *a = allowed;
+    bool ok = false;
+    while (*a) ok |= (upper(*a++) == l);
+    if (!ok) return l;
+  }
+  return 0;
+}
+
+bool GcodeArgs::raw(char letter, const char *&text, uint8_t &len) const {
+  const Word *w = find(letter);
+  if (!w) return false;
+  text = w->text;
+  len = w->len;
+  return true;
+}
+
+// Strict decimal: [+-]digits[.digits] or [+-].digits; at least one digit.
+ArgStatus GcodeArgs::get_float(char letter, float &out) const {
+  const Word *w = find(letter);
+  if (!w) return ARG_ABSENT;
+  if (w->len == 0) return ARG_EMPTY;
+  const char *s = w->text, *e = w->text + w->len;
+  bool neg = false;
+  if (*s == '+' || *s == '-') neg = (*s++ == '-');
+  // Accumulate as an integer mantissa and a decimal exponent: exact for the
+  // few digits G-code uses, and cheaper on AVR than repeated float multiplies.
+  uint32_t mant = 0;
+  int8_t frac_digits = 0;
+  uint8_t digits = 0;
+  bool dot = false;
+  for (; s < e; s++) {
+    if (*s == '.') {
+      if (dot) return ARG_BAD;
+      dot = true;
+    } else if (is_digit(*s)) {
+      digits++;
+      if (mant < 100000000u) {
+        mant = mant * 10 + (uint32_t)(*s - '0');
+        if (dot) frac_digits++;
+      } else if (!dot) {
+        return ARG_BAD;  // integer part too large to be a sane setting
+      }
+    } else {
+      return ARG_BAD;
+    }
+  }
+  if (!digits) return ARG_BAD;
+  float v = (float)mant;
+  while (frac_digits--) v /= 10.0f;
+  out = neg ? -v : v;
+  return ARG_OK;
+}
+
+ArgStatus GcodeArgs::get_ulong(char letter, uint32_t &out) const {
+  const Word *w = find(letter);
+  if (!w) return ARG_ABSENT;
+  if (w->len == 0) return ARG_EMPTY;
+  const char *s = w->text, *e = w->text + w->len;
+  if (*s == '+') s++;
+  if (s == e) return ARG_BAD;
+  uint32_t v = 0;
+  for (; s < e; s++) {
+    if (!is_digit(*s)) return ARG_BAD;
+    uint32_t d = (uint32_t)(*s - '0');
+    if (v > (0xFFFFFFFFu - d) / 10) return ARG_BAD;  // overflow
+    v = v * 10 + d;
+  }
+  out = v;
+  return ARG_OK;
+}
+
+ArgStatus GcodeArgs::get_long(char letter, int32_t &out) const {
+  const Word *w = find(letter);
+  if (!w) return ARG_ABSENT;
+  if (w->len == 0) return ARG_EMPTY;
+  const char *s = w->text, *e = w->text + w->len;
+  bool neg = false;
+  if (*s == '+' || *s == '-') neg = (*s++ == '-');
+  if (s == e) return ARG_BAD;
+  uint32_t v = 0;
+  for (; s < e; s++) {
+    if (!is_digit(*s)) return ARG_BAD;
+    v = v * 10 + (uint32_t)(*s - '0');
+    if (v > 0x7FFFFFFFu) return ARG_BAD;
+  }
+  out = neg ? -(int32_t)v : (int32_t)v;
+  return ARG_OK;
+}
+
+}  // namespace bk

@@ -1,0 +1,58 @@
+// M-code argument logic shared by M720-M723: reads letter/value words from the
+// raw command text (what Marlin's parser.command_ptr points at), so the same
+// checks run in the unit tests and in the firmware. No heap, no STL.
+#ifndef BK_GCODE_ARGS_H
+#define BK_GCODE_ARGS_H
+
+#include <stdint.h>
+
+namespace bk {
+
+enum ArgStatus : int8_t {
+  ARG_ABSENT = 0,   // the letter does not appear
+  ARG_OK = 1,       // present with a well-formed value
+  ARG_EMPTY = 2,    // present with no value ("M720 S")
+  ARG_BAD = -1,     // present with a malformed value ("P1x", "E.", "S--1")
+};
+
+// A parsed command line: "M720 S1 P100" -> code 720, words S, P. Words are the
+// letters that start a parameter; the text after the code may also hold one
+// raw payload word (M721 D...) that callers read with raw().
+class GcodeArgs {
+ public:
+  // Parses text such as "N12 M720 S1 P100*57" (line number and checksum are
+  // skipped; a ';' comment ends the line). Returns false if the text does not
+  // start with an M or G code.
+  bool parse(const char *line);
+
+  char code_letter() const { return code_letter_; }
+  int16_t code() const { return code_; }
+  bool has(char letter) const;  // letter appears at all (with or without value)
+  bool none() const { return count_ == 0; }  // no parameters at all
+  // Value accessors. Letters are case-insensitive.
+  ArgStatus get_float(char letter, float &out) const;
+  ArgStatus get_long(char letter, int32_t &out) const;      // integer only, no '.'
+  ArgStatus get_ulong(char letter, uint32_t &out) const;    // 0..4294967295
+  // The raw word after letter (up to the next space, ';' or '*'): pointer and length.
+  bool raw(char letter, const char *&text, uint8_t &len) const;
+  // The first letter present that is not in allowed ("SPET"), or 0.
+  char unknown(const char *allowed) const;
+
+  static const uint8_t MAX_WORDS = 12;
+
+ private:
+  struct Word {
+    char letter;
+    const char *text;  // first char after the letter
+    uint8_t len;
+  };
+  const Word *find(char letter) const;
+  Word words_[MAX_WORDS];
+  uint8_t count_ = 0;
+  char code_letter_ = 0;
+  int16_t code_ = -1;
+};
+
+}  // namespace bk
+
+#endif  // BK_GCODE_ARGS_H

@@ -1,0 +1,70 @@
+// M-code argument parsing: values, malformed words, line numbers, checksums.
+#include "bktest.h"
+#include "gcode_args.h"
+
+using bk::GcodeArgs;
+
+static void test_code_and_words(void) {
+  GcodeArgs a;
+  TEST_ASSERT_TRUE(a.parse("N12 M720 S1 P100 E0.1 T.25*57"));
+  TEST_ASSERT_EQUAL_INT('M', a.code_letter());
+  TEST_ASSERT_EQUAL_INT(720, a.code());
+  float f = 0;
+  TEST_ASSERT_EQUAL_INT(bk::ARG_OK, a.get_float('E', f));
+  TEST_ASSERT_FLOAT_WITHIN(1e-7f, 0.1f, f);
+  TEST_ASSERT_EQUAL_INT(bk::ARG_OK, a.get_float('t', f));
+  TEST_ASSERT_FLOAT_WITHIN(1e-7f, 0.25f, f);
+  int32_t l = 0;
+  TEST_ASSERT_EQUAL_INT(bk::ARG_OK, a.get_long('P', l));
+  TEST_ASSERT_EQUAL_INT(100, l);
+  TEST_ASSERT_EQUAL_INT(bk::ARG_ABSENT, a.get_long('X', l));
+  TEST_ASSERT_EQUAL_INT(0, a.unknown("SPET"));
+  TEST_ASSERT_EQUAL_INT('T', a.unknown("SPE"));
+}
+
+static void test_malformed_values(void) {
+  GcodeArgs a;
+  float f;
+  int32_t l;
+  TEST_ASSERT_TRUE(a.parse("M720 P1x E. S--1 T"));
+  TEST_ASSERT_EQUAL_INT(bk::ARG_BAD, a.get_long('P', l));
+  TEST_ASSERT_EQUAL_INT(bk::ARG_BAD, a.get_float('E', f));
+  TEST_ASSERT_EQUAL_INT(bk::ARG_BAD, a.get_float('S', f));
+  TEST_ASSERT_EQUAL_INT(bk::ARG_EMPTY, a.get_float('T', f));
+  TEST_ASSERT_TRUE(a.parse("M720 P1.5"));
+  TEST_ASSERT_EQUAL_INT(bk::ARG_BAD, a.get_long('P', l));  // integer expected
+  TEST_ASSERT_FALSE(a.parse("X10"));
+  TEST_ASSERT_FALSE(a.parse("M"));
+}
+
+static void test_ulong_range_and_comment(void) {
+  GcodeArgs a;
+  uint32_t u = 0;
+  TEST_ASSERT_TRUE(a.parse("m721 s2048 c4294967295 ; comment X1"));
+  TEST_ASSERT_EQUAL_INT(721, a.code());
+  TEST_ASSERT_EQUAL_INT(bk::ARG_OK, a.get_ulong('C', u));
+  TEST_ASSERT_EQUAL_UINT32(4294967295u, u);
+  TEST_ASSERT_FALSE(a.has('X'));  // after the comment
+  TEST_ASSERT_TRUE(a.parse("M721 C4294967296"));
+  TEST_ASSERT_EQUAL_INT(bk::ARG_BAD, a.get_ulong('C', u));
+}
+
+static void test_raw_word(void) {
+  GcodeArgs a;
+  TEST_ASSERT_TRUE(a.parse("N7 M721 O40 DMFRGGZDFMZTWQ2LK*99"));
+  const char *t;
+  uint8_t n;
+  TEST_ASSERT_TRUE(a.raw('D', t, n));
+  TEST_ASSERT_EQUAL_INT(16, n);
+  TEST_ASSERT_EQUAL_INT('M', t[0]);
+  TEST_ASSERT_EQUAL_INT('K', t[15]);
+}
+
+int main(void) {
+  UNITY_BEGIN();
+  RUN_TEST(test_code_and_words);
+  RUN_TEST(test_malformed_values);
+  RUN_TEST(test_ulong_range_and_comment);
+  RUN_TEST(test_raw_word);
+  return UNITY_END();
+}
