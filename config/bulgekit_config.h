@@ -54,4 +54,30 @@
 #define BK_DEFAULT_WIDTH_MAX_SPEED 150.0f  // mm/s, U
 #endif
 
+// ---- width mode (M723): hard limits (a request beyond them is an Error:) ----------
+#ifndef BK_WIDTH_MAX_FLOW_MM3S
+#define BK_WIDTH_MAX_FLOW_MM3S 100.0f  // Q; well above what FDM hotends melt
+#endif
+#ifndef BK_WIDTH_MAX_E_RATE
+#define BK_WIDTH_MAX_E_RATE 50.0f  // r, mm/s of filament, from R or from Q and D
+#endif
+#ifndef BK_WIDTH_MIN_FILAMENT_DIA
+#define BK_WIDTH_MIN_FILAMENT_DIA 1.0f
+#endif
+#ifndef BK_WIDTH_MAX_FILAMENT_DIA
+#define BK_WIDTH_MAX_FILAMENT_DIA 3.5f
+#endif
+#ifndef BK_WIDTH_MAX_LAYER_MM
+#define BK_WIDTH_MAX_LAYER_MM 2.0f  // H
+#endif
+#ifndef BK_WIDTH_MAX_LINE_MM
+#define BK_WIDTH_MAX_LINE_MM 5.0f  // W of one move
+#endif
+#ifndef BK_WIDTH_MIN_SPEED_LIMIT
+#define BK_WIDTH_MIN_SPEED_LIMIT 0.1f  // lowest L accepted, mm/s
+#endif
+#ifndef BK_WIDTH_MAX_SPEED_LIMIT
+#define BK_WIDTH_MAX_SPEED_LIMIT 1000.0f  // highest U accepted, mm/s
+#endif
+
 #endif  // BULGEKIT_CONFIG_H
