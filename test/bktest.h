@@ -29,8 +29,8 @@ extern "C" {
 
 // --- runner -------------------------------------------------------------------
 void bkt_begin(void);
-// Prints the closing line and returns the number of failures. On AVR it ends
-// the simulation (cli + sleep) and does not return.
+// Prints the closing line; returns 0, or 65 if any case failed (main's exit
+// status). On AVR it ends the simulation (cli + sleep) and does not return.
 int bkt_end(void);
 void bkt_run(void (*fn)(void), const char *name, const char *file, int line);
 void bkt_ignore(const char *file, int line, const char *msg);

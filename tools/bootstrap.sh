@@ -1,0 +1,47 @@
+#!/usr/bin/env bash
+# Prepares the offline PlatformIO rig. Idempotent and quick when already done:
+#  1. checks the system tools (avr-gcc, avr-libc, libsimavr, g++, python packages),
+#  2. installs SCons from PyPI's wheel as PlatformIO's local `tool-scons` package
+#     (the version PlatformIO pins), so PlatformIO never downloads it,
+#  3. builds the simulator harness bksim and the core runner bkcore into .build/bin.
+# Missing system packages: run tools/install-deps.sh (apt + pip) first.
+set -euo pipefail
+source "$(dirname "${BASH_SOURCE[0]}")/env.sh"
+cd "$BK_ROOT"
+
+missing=()
+for tool in gcc g++ avr-gcc avr-g++ avr-size pkg-config; do
+  command -v "$tool" >/dev/null || missing+=("$tool")
+done
+[ -f /usr/lib/avr/include/avr/io.h ] || missing+=("avr-libc")
+pkg-config --exists simavr 2>/dev/null || missing+=("libsimavr-dev")
+python3 -c "import platformio, SCons" 2>/dev/null || missing+=("python: platformio scons")
+if [ ${#missing[@]} -gt 0 ]; then
+  echo "bootstrap: missing: ${missing[*]}" >&2
+  echo "bootstrap: run 'bash tools/install-deps.sh' (apt-get + pip) first" >&2
+  exit 1
+fi
+
+python3 tools/pio_offline.py
+
+mkdir -p .build/bin
+build_if_stale() {  # output, then sources..., then -- compiler command
+  local out=$1; shift
+  local srcs=()
+  while [ "$1" != "--" ]; do srcs+=("$1"); shift; done
+  shift
+  local stale=0
+  [ -x "$out" ] || stale=1
+  for s in "${srcs[@]}"; do [ "$s" -nt "$out" ] && stale=1; done
+  if [ $stale = 1 ]; then
+    echo "bootstrap: building $out"
+    "$@"
+  fi
+}
+build_if_stale .build/bin/bksim tools/sim/bksim.c -- \
+  gcc -O2 -Wall -Wextra -o .build/bin/bksim tools/sim/bksim.c $(pkg-config --cflags --libs simavr) -lelf
+if [ -f tools/bkcore/main.cpp ]; then
+  core_srcs=(tools/bkcore/main.cpp src/*.cpp src/*.h config/*.h)
+  build_if_stale .build/bin/bkcore "${core_srcs[@]}" -- \
+    g++ -std=gnu++11 -O2 -Wall -Wextra -Isrc -Iconfig -o .build/bin/bkcore tools/bkcore/main.cpp src/*.cpp
+fi

@@ -1,0 +1,291 @@
+/*
+ * bksim — the bulgekit simulator harness: runs an AVR ELF in libsimavr (Debian's
+ * simavr 1.6) as fast as the host allows and
+ *   - copies UART0 output to stdout byte for byte (CR dropped unless --raw),
+ *   - feeds UART0 input from a file or stdin, paced by the UART's XON/XOFF,
+ *   - records port pin edges with cycle timestamps (for step traces),
+ *   - enforces a cycle cap so a hung program fails in seconds,
+ *   - counts cycles between benchmark markers: the program writes 1 then 2 to
+ *     GPIOR0; the count is printed on stderr with --markers and returned to the
+ *     program on four reads of GPIOR1 (low byte first).
+ *
+ * Exit status: 0 = the program stopped by itself (cli + sleep) and, unless
+ * --no-test, printed bktest's closing line with 0 failed. 65 = tests failed,
+ * 66 = no closing line, 70 = cycle cap reached, 71 = crash, 72 = usage or I/O.
+ * (Codes above 64 so PlatformIO does not report them as signal numbers.)
+ */
+#include <errno.h>
+#include <stdarg.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <unistd.h>
+
+#include <simavr/avr_ioport.h>
+#include <simavr/avr_uart.h>
+#include <simavr/sim_avr.h>
+#include <simavr/sim_elf.h>
+#include <simavr/sim_io.h>
+#include <simavr/sim_irq.h>
+
+/* ATmega2560 data-space addresses (I/O address + 0x20). */
+#define ADDR_GPIOR0 0x3E
+#define ADDR_GPIOR1 0x4A
+#define ADDR_UCSR0A 0xC0
+#define ADDR_UCSR0B 0xC1
+#define UDRE0_BIT 5
+#define TXEN0_BIT 3
+
+static avr_t *avr;
+
+/* ---- UART output and the closing-line check ------------------------------------ */
+static int opt_raw, opt_quiet;
+static char line_buf[256];
+static size_t line_len;
+static long summary_passed = -1, summary_failed = -1;
+
+static void check_line(void) {
+  long p, f;
+  line_buf[line_len] = 0;
+  /* bktest's closing line: "N passed, N failed" (optionally ", N skipped") */
+  if (sscanf(line_buf, "%ld passed, %ld failed", &p, &f) == 2) {
+    summary_passed = p;
+    summary_failed = f;
+  }
+  line_len = 0;
+}
+
+static void uart_out_hook(struct avr_irq_t *irq, uint32_t value, void *param) {
+  (void)irq;
+  (void)param;
+  char c = (char)value;
+  if (c == '\r' && !opt_raw) return;
+  if (!opt_quiet) fputc(c, stdout);
+  if (c == '\n') {
+    fflush(stdout);
+    check_line();
+  } else if (line_len < sizeof line_buf - 1) {
+    line_buf[line_len++] = c;
+  }
+}
+
+/* ---- UART input, paced by the UART's own flow-control IRQs -------------------------- */
+static FILE *in_file;
+static int in_xoff, in_eof;
+static avr_irq_t *uart_in_irq;
+
+static void feed_input(void) {
+  while (in_file && !in_xoff && !in_eof) {
+    int c = fgetc(in_file);
+    if (c == EOF) {
+      in_eof = 1;
+      break;
+    }
+    avr_raise_irq(uart_in_irq, (uint32_t)c);
+  }
+}
+static void uart_xon_hook(struct avr_irq_t *irq, uint32_t value, void *param) {
+  (void)irq; (void)value; (void)param;
+  in_xoff = 0;
+  feed_input();
+}
+static void uart_xoff_hook(struct avr_irq_t *irq, uint32_t value, void *param) {
+  (void)irq; (void)value; (void)param;
+  in_xoff = 1;
+}
+
+/* simavr's own messages ("Loaded N .text ...") would mix with the program's
+   output on stdout: keep errors and warnings only, on stderr. */
+static void quiet_logger(struct avr_t *a, const int level, const char *fmt, va_list ap) {
+  (void)a;
+  if (level <= LOG_WARNING) vfprintf(stderr, fmt, ap);
+}
+
+/* ---- pin edges --------------------------------------------------------------------- */
+static FILE *trace_file;
+static void pin_hook(struct avr_irq_t *irq, uint32_t value, void *param) {
+  (void)irq;
+  uintptr_t id = (uintptr_t)param;
+  fprintf(trace_file, "%llu %c%u %u\n", (unsigned long long)avr->cycle, (char)(id >> 8),
+          (unsigned)(id & 0xFF), (unsigned)(value & 1));
+}
+
+/* ---- benchmark markers ------------------------------------------------------------- */
+static int opt_markers;
+static avr_cycle_count_t mark_begin;
+static uint32_t mark_last;
+static uint8_t mark_read_index;
+static unsigned long mark_count;
+
+static void gpior0_write(struct avr_t *a, avr_io_addr_t addr, uint8_t v, void *param) {
+  (void)param;
+  a->data[addr] = v;
+  if (v == 1) {
+    mark_begin = a->cycle;
+  } else if (v == 2) {
+    /* a->cycle already includes the 1-cycle OUT that wrote the begin marker and
+       this one; an empty BEGIN/END pair therefore measures 1 cycle. */
+    avr_cycle_count_t d = a->cycle - mark_begin;
+    mark_last = d > 0xFFFFFFFFull ? 0xFFFFFFFFu : (uint32_t)d;
+    mark_read_index = 0;
+    mark_count++;
+    if (opt_markers) fprintf(stderr, "bksim: marker %lu: %u cycles\n", mark_count, mark_last);
+  }
+}
+static uint8_t gpior1_read(struct avr_t *a, avr_io_addr_t addr, void *param) {
+  (void)a; (void)addr; (void)param;
+  uint8_t b = (uint8_t)(mark_last >> (8 * (mark_read_index & 3)));
+  mark_read_index++;
+  return b;
+}
+
+/* simavr would usleep() in real time while the AVR sleeps; we only want cycles. */
+static void no_sleep(avr_t *a, avr_cycle_count_t how_long) { (void)a; (void)how_long; }
+
+static void usage(void) {
+  fprintf(stderr,
+          "usage: bksim [options] program.elf\n"
+          "  -m MCU            (default atmega2560)\n"
+          "  -f HZ             clock (default 16000000)\n"
+          "  --cycles N        cycle cap (default 800000000, ~50 s simulated); exceeding it fails\n"
+          "  --input FILE|-    feed UART0 input from FILE or stdin (XON/XOFF paced)\n"
+          "  --trace FILE      write pin edges: '<cycle> <port><pin> <level>'\n"
+          "  --trace-pins LIST pins to trace, e.g. F0,F1,F6,F7,L3,L1,A4,A6 (default: none)\n"
+          "  --markers         print benchmark marker cycle counts on stderr\n"
+          "  --no-test         do not require a bktest closing line\n"
+          "  --raw             keep CR characters in the output\n"
+          "  --quiet           do not copy UART output to stdout\n");
+  exit(72);
+}
+
+int main(int argc, char **argv) {
+  const char *mcu = "atmega2560", *elf = NULL, *input = NULL, *trace = NULL, *pins = NULL;
+  unsigned long freq = 16000000UL;
+  unsigned long long cap = 800000000ULL;
+  int opt_test = 1;
+  for (int i = 1; i < argc; i++) {
+    const char *a = argv[i];
+    const char *next = i + 1 < argc ? argv[i + 1] : NULL;
+    if (!strcmp(a, "-m") && next) mcu = argv[++i];
+    else if (!strcmp(a, "-f") && next) freq = strtoul(argv[++i], NULL, 10);
+    else if (!strcmp(a, "--cycles") && next) cap = strtoull(argv[++i], NULL, 10);
+    else if (!strcmp(a, "--input") && next) input = argv[++i];
+    else if (!strcmp(a, "--trace") && next) trace = argv[++i];
+    else if (!strcmp(a, "--trace-pins") && next) pins = argv[++i];
+    else if (!strcmp(a, "--markers")) opt_markers = 1;
+    else if (!strcmp(a, "--no-test")) opt_test = 0;
+    else if (!strcmp(a, "--raw")) opt_raw = 1;
+    else if (!strcmp(a, "--quiet")) opt_quiet = 1;
+    else if (a[0] == '-' ) usage();
+    else if (!elf) elf = a;
+    else usage();
+  }
+  if (!elf) usage();
+
+  avr_global_logger_set(quiet_logger);
+  elf_firmware_t fw;
+  memset(&fw, 0, sizeof fw);
+  if (elf_read_firmware(elf, &fw) != 0) {
+    fprintf(stderr, "bksim: cannot read ELF '%s'\n", elf);
+    return 72;
+  }
+  if (!fw.mmcu[0]) strncpy(fw.mmcu, mcu, sizeof fw.mmcu - 1);
+  if (!fw.frequency) fw.frequency = (uint32_t)freq;
+  avr = avr_make_mcu_by_name(fw.mmcu);
+  if (!avr) {
+    fprintf(stderr, "bksim: unknown MCU '%s'\n", fw.mmcu);
+    return 72;
+  }
+  avr_init(avr);
+  avr->log = 1; /* errors only */
+  avr_load_firmware(avr, &fw);
+  avr->sleep = no_sleep;
+
+  /* UART0: no console echo, no real-time sleeping in poll loops. */
+  uint32_t flags = 0;
+  avr_ioctl(avr, AVR_IOCTL_UART_GET_FLAGS('0'), &flags);
+  flags &= ~(uint32_t)(AVR_UART_FLAG_STDIO | AVR_UART_FLAG_POLL_SLEEP);
+  avr_ioctl(avr, AVR_IOCTL_UART_SET_FLAGS('0'), &flags);
+  avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_OUTPUT),
+                          uart_out_hook, NULL);
+  uart_in_irq = avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_INPUT);
+  if (input) {
+    in_file = strcmp(input, "-") ? fopen(input, "rb") : stdin;
+    if (!in_file) {
+      fprintf(stderr, "bksim: cannot open input '%s': %s\n", input, strerror(errno));
+      return 72;
+    }
+    avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_OUT_XON),
+                            uart_xon_hook, NULL);
+    avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_OUT_XOFF),
+                            uart_xoff_hook, NULL);
+  }
+  avr_register_io_write(avr, ADDR_GPIOR0, gpior0_write, NULL);
+  avr_register_io_read(avr, ADDR_GPIOR1, gpior1_read, NULL);
+
+  if (trace) {
+    trace_file = fopen(trace, "w");
+    if (!trace_file) {
+      fprintf(stderr, "bksim: cannot write trace '%s': %s\n", trace, strerror(errno));
+      return 72;
+    }
+    const char *p = pins ? pins : "";
+    while (*p) {
+      char port = p[0];
+      int pin = p[1] - '0';
+      if (port < 'A' || port > 'L' || pin < 0 || pin > 7) {
+        fprintf(stderr, "bksim: bad pin '%s' in --trace-pins (want e.g. F0,L3)\n", p);
+        return 72;
+      }
+      avr_irq_t *irq = avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ(port), pin);
+      if (!irq) {
+        fprintf(stderr, "bksim: no port %c on %s\n", port, fw.mmcu);
+        return 72;
+      }
+      avr_irq_register_notify(irq, pin_hook, (void *)(uintptr_t)((port << 8) | pin));
+      p += 2;
+      if (*p == ',') p++;
+    }
+  }
+
+  int state = cpu_Running;
+  int capped = 0, tx_primed = 0;
+  while (1) {
+    /* simavr 1.6 quirk: real hardware resets UCSR0A with UDRE0 set, simavr may
+       leave it clear when the transmitter is enabled, and a polled writer then
+       spins forever. Set it once, the first time TXEN0 is seen. */
+    if (!tx_primed && (avr->data[ADDR_UCSR0B] & (1 << TXEN0_BIT))) {
+      avr->data[ADDR_UCSR0A] |= (1 << UDRE0_BIT);
+      tx_primed = 1;
+    }
+    state = avr_run(avr);
+    if (state == cpu_Done || state == cpu_Crashed) break;
+    if (avr->cycle >= cap) {
+      capped = 1;
+      break;
+    }
+    if (in_file && !in_xoff && !in_eof) feed_input();
+  }
+  fflush(stdout);
+  if (line_len) check_line();
+  if (trace_file) fclose(trace_file);
+  fprintf(stderr, "bksim: %llu cycles (%.3f s simulated)\n", (unsigned long long)avr->cycle,
+          (double)avr->cycle / (double)fw.frequency);
+  if (capped) {
+    fprintf(stderr, "bksim: FAIL: cycle cap of %llu reached (hung program?)\n", cap);
+    return 70;
+  }
+  if (state == cpu_Crashed) {
+    fprintf(stderr, "bksim: FAIL: program crashed\n");
+    return 71;
+  }
+  if (opt_test) {
+    if (summary_failed < 0) {
+      fprintf(stderr, "bksim: FAIL: no closing 'N passed, N failed' line\n");
+      return 66;
+    }
+    return summary_failed ? 65 : 0;
+  }
+  return 0;
+}
