@@ -39,7 +39,7 @@ build_if_stale() {  # output, then sources..., then -- compiler command
   fi
 }
 build_if_stale .build/bin/bksim tools/sim/bksim.c -- \
-  gcc -O2 -Wall -Wextra -o .build/bin/bksim tools/sim/bksim.c $(pkg-config --cflags --libs simavr) -lelf
+  gcc -O2 -Wall -Wextra -o .build/bin/bksim tools/sim/bksim.c $(pkg-config --cflags --libs simavr) -lelf -lutil
 if [ -f tools/bkcore/main.cpp ]; then
   core_srcs=(tools/bkcore/main.cpp src/*.cpp src/*.h config/*.h)
   build_if_stale .build/bin/bkcore "${core_srcs[@]}" -- \

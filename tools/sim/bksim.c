@@ -3,6 +3,8 @@
  * simavr 1.6) as fast as the host allows and
  *   - copies UART0 output to stdout byte for byte (CR dropped unless --raw),
  *   - feeds UART0 input from a file or stdin, paced by the UART's XON/XOFF,
+ *   - or (--pty) bridges UART0 to a pseudo-terminal, so a host program such as
+ *     `bulgekit send` or Pronterface talks to the simulated board,
  *   - records port pin edges with cycle timestamps (for step traces),
  *   - enforces a cycle cap so a hung program fails in seconds,
  *   - counts cycles between benchmark markers: the program writes 1 then 2 to
@@ -20,6 +22,9 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <fcntl.h>
+#include <pty.h>
+#include <termios.h>
 #include <unistd.h>
 
 #include <simavr/avr_ioport.h>
@@ -36,11 +41,13 @@
 #define ADDR_UCSR0B 0xC1
 #define UDRE0_BIT 5
 #define TXEN0_BIT 3
+#define RXEN0_BIT 4
 
 static avr_t *avr;
 
 /* ---- UART output and the closing-line check ------------------------------------ */
 static int opt_raw, opt_quiet;
+static int pty_master = -1;
 static char line_buf[256];
 static size_t line_len;
 static long summary_passed = -1, summary_failed = -1;
@@ -60,6 +67,10 @@ static void uart_out_hook(struct avr_irq_t *irq, uint32_t value, void *param) {
   (void)irq;
   (void)param;
   char c = (char)value;
+  if (pty_master >= 0) {
+    /* the host on the PTY sees the raw byte stream, CR included */
+    if (write(pty_master, &c, 1) < 0) { /* host not reading: drop, as a real line would */ }
+  }
   if (c == '\r' && !opt_raw) return;
   if (!opt_quiet) fputc(c, stdout);
   if (c == '\n') {
@@ -76,6 +87,13 @@ static int in_xoff, in_eof;
 static avr_irq_t *uart_in_irq;
 
 static void feed_input(void) {
+  /* simavr drops bytes that arrive while the receiver is off */
+  if (!(avr->data[ADDR_UCSR0B] & (1 << RXEN0_BIT))) return;
+  while (pty_master >= 0 && !in_xoff) {
+    unsigned char c;
+    if (read(pty_master, &c, 1) != 1) break; /* non-blocking: nothing waiting */
+    avr_raise_irq(uart_in_irq, c);
+  }
   while (in_file && !in_xoff && !in_eof) {
     int c = fgetc(in_file);
     if (c == EOF) {
@@ -104,9 +122,14 @@ static void quiet_logger(struct avr_t *a, const int level, const char *fmt, va_l
 
 /* ---- pin edges --------------------------------------------------------------------- */
 static FILE *trace_file;
+static uint8_t pin_level[12]; /* last level per port A..L, one bit per pin */
 static void pin_hook(struct avr_irq_t *irq, uint32_t value, void *param) {
   (void)irq;
   uintptr_t id = (uintptr_t)param;
+  /* simavr also reports a pin when its direction is set; keep real edges only */
+  uint8_t *lv = &pin_level[(id >> 8) - 'A'], bit = (uint8_t)(1u << (id & 7));
+  if (!!(*lv & bit) == (value & 1)) return;
+  *lv ^= bit;
   fprintf(trace_file, "%llu %c%u %u\n", (unsigned long long)avr->cycle, (char)(id >> 8),
           (unsigned)(id & 0xFF), (unsigned)(value & 1));
 }
@@ -150,6 +173,7 @@ static void usage(void) {
           "  -f HZ             clock (default 16000000)\n"
           "  --cycles N        cycle cap (default 800000000, ~50 s simulated); exceeding it fails\n"
           "  --input FILE|-    feed UART0 input from FILE or stdin (XON/XOFF paced)\n"
+          "  --pty LINK        bridge UART0 to a new pseudo-terminal and symlink LINK to it\n"
           "  --trace FILE      write pin edges: '<cycle> <port><pin> <level>'\n"
           "  --trace-pins LIST pins to trace, e.g. F0,F1,F6,F7,L3,L1,A4,A6 (default: none)\n"
           "  --markers         print benchmark marker cycle counts on stderr\n"
@@ -161,6 +185,7 @@ static void usage(void) {
 
 int main(int argc, char **argv) {
   const char *mcu = "atmega2560", *elf = NULL, *input = NULL, *trace = NULL, *pins = NULL;
+  const char *pty_link = NULL;
   unsigned long freq = 16000000UL;
   unsigned long long cap = 800000000ULL;
   int opt_test = 1;
@@ -171,6 +196,7 @@ int main(int argc, char **argv) {
     else if (!strcmp(a, "-f") && next) freq = strtoul(argv[++i], NULL, 10);
     else if (!strcmp(a, "--cycles") && next) cap = strtoull(argv[++i], NULL, 10);
     else if (!strcmp(a, "--input") && next) input = argv[++i];
+    else if (!strcmp(a, "--pty") && next) pty_link = argv[++i];
     else if (!strcmp(a, "--trace") && next) trace = argv[++i];
     else if (!strcmp(a, "--trace-pins") && next) pins = argv[++i];
     else if (!strcmp(a, "--markers")) opt_markers = 1;
@@ -210,16 +236,38 @@ int main(int argc, char **argv) {
   avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_OUTPUT),
                           uart_out_hook, NULL);
   uart_in_irq = avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_INPUT);
+  if (pty_link) {
+    int slave;
+    char name[128];
+    if (openpty(&pty_master, &slave, name, NULL, NULL) != 0) {
+      fprintf(stderr, "bksim: openpty failed: %s\n", strerror(errno));
+      return 72;
+    }
+    /* raw mode on the slave side, so bytes pass unchanged */
+    struct termios t;
+    tcgetattr(slave, &t);
+    cfmakeraw(&t);
+    tcsetattr(slave, TCSANOW, &t);
+    fcntl(pty_master, F_SETFL, fcntl(pty_master, F_GETFL) | O_NONBLOCK);
+    unlink(pty_link);
+    if (symlink(name, pty_link) != 0) {
+      fprintf(stderr, "bksim: cannot link %s -> %s: %s\n", pty_link, name, strerror(errno));
+      return 72;
+    }
+    fprintf(stderr, "bksim: UART0 on %s (%s)\n", pty_link, name);
+  }
+  if (input || pty_link) {
+    avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_OUT_XON),
+                            uart_xon_hook, NULL);
+    avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_OUT_XOFF),
+                            uart_xoff_hook, NULL);
+  }
   if (input) {
     in_file = strcmp(input, "-") ? fopen(input, "rb") : stdin;
     if (!in_file) {
       fprintf(stderr, "bksim: cannot open input '%s': %s\n", input, strerror(errno));
       return 72;
     }
-    avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_OUT_XON),
-                            uart_xon_hook, NULL);
-    avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_OUT_XOFF),
-                            uart_xoff_hook, NULL);
   }
   avr_register_io_write(avr, ADDR_GPIOR0, gpior0_write, NULL);
   avr_register_io_read(avr, ADDR_GPIOR1, gpior1_read, NULL);
@@ -265,11 +313,12 @@ int main(int argc, char **argv) {
       capped = 1;
       break;
     }
-    if (in_file && !in_xoff && !in_eof) feed_input();
+    if (!in_xoff && (pty_master >= 0 || (in_file && !in_eof))) feed_input();
   }
   fflush(stdout);
   if (line_len) check_line();
   if (trace_file) fclose(trace_file);
+  if (pty_link) unlink(pty_link);
   fprintf(stderr, "bksim: %llu cycles (%.3f s simulated)\n", (unsigned long long)avr->cycle,
           (double)avr->cycle / (double)fw.frequency);
   if (capped) {
