@@ -1,0 +1,311 @@
+"""G-code stream parser: positions, extrusion modes and slicer feature tags.
+
+The parser follows Marlin's reading of G0/G1/G2/G3/G92/G90/G91/M82/M83:
+G90/G91 set every axis including E, M82/M83 then override E alone, G92 sets
+only the axes it names.  Arcs are linearised into chords (flagged on the
+moves) so walls printed with arc fitting still have a toolpath.
+
+Feature tags tell whether a move belongs to the outer wall.  Recognised:
+  PrusaSlicer/SuperSlicer/Slic3r PE  ;TYPE:External perimeter
+  OrcaSlicer/BambuStudio             ;TYPE:Outer wall   ; FEATURE: Outer wall
+  Cura, ideaMaker                    ;TYPE:WALL-OUTER
+  Simplify3D                         ; outer perimeter
+Any other tag of the same family ends the outer wall.
+"""
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass
+from typing import Iterable, Iterator
+
+from .strokes import BulgekitError
+
+
+class GcodeError(BulgekitError):
+    """A G-code line could not be understood (message names file and line)."""
+
+
+# Role names (normalised to lower case) that mean "outer wall".
+OUTER_ROLES = frozenset({
+    "external perimeter",  # PrusaSlicer, SuperSlicer
+    "outer wall",          # OrcaSlicer, BambuStudio
+    "wall-outer",          # Cura, ideaMaker
+    "outer perimeter",     # Simplify3D
+})
+
+# Simplify3D writes bare comments; only these exact ones are feature tags.
+_S3D_ROLES = frozenset({
+    "outer perimeter", "inner perimeter", "infill", "solid layer", "support",
+    "dense support", "skirt", "raft", "bridge", "gap fill", "prime pillar",
+    "ooze shield",
+})
+
+_LAYER_TAGS = (";LAYER_CHANGE", ";LAYER:", "; CHANGE_LAYER", "; layer ")
+
+
+def feature_of_comment(comment: str) -> str | None:
+    """Role named by a whole-line comment (text after ';'), lower case, or None."""
+    c = comment.strip()
+    if c[:5].upper() == "TYPE:":
+        return c[5:].strip().lower()
+    if c[:8].upper() == "FEATURE:":
+        return c[8:].strip().lower()
+    low = c.lower()
+    if low in _S3D_ROLES:
+        return low
+    return None
+
+
+def is_outer(role: str | None) -> bool:
+    return role is not None and role in OUTER_ROLES
+
+
+@dataclass(slots=True)
+class Move:
+    """One linear piece of motion in host coordinates (mm, mm/min)."""
+    index: int       # running number of the move in the file (0-based)
+    line_no: int     # 1-based source line
+    x0: float
+    y0: float
+    z0: float
+    x1: float
+    y1: float
+    z1: float
+    e: float         # filament of this move (end E - start E, host terms)
+    e_start: float   # host E at the start (absolute, whatever the mode)
+    f: float
+    outer: bool      # inside an outer-wall feature section
+    role: str | None
+    arc: bool = False  # a chord of a linearised G2/G3
+
+    @property
+    def xy_len(self) -> float:
+        return math.hypot(self.x1 - self.x0, self.y1 - self.y0)
+
+    @property
+    def extruding(self) -> bool:
+        return self.e > 0.0 and (self.x0 != self.x1 or self.y0 != self.y1)
+
+
+_WORD = re.compile(r"([A-Z])([^A-Z\s]*)")
+_NUM = re.compile(r"[-+]?(?:\d+\.?\d*|\.\d+)$")
+
+ARC_CHORD_MM = 0.5  # chord length used to linearise G2/G3 (Marlin uses 1 mm)
+
+
+def parse_words(code: str, where: str) -> dict[str, float]:
+    """X10 Y-2.5 ... -> {'X': 10.0, ...}.  Raises GcodeError naming `where`."""
+    out: dict[str, float] = {}
+    for letter, val in _WORD.findall(code.upper()):
+        if letter == "N" and not out:
+            continue
+        if not _NUM.match(val):
+            raise GcodeError(f"{where}: unparsable value {letter}{val!r}")
+        out[letter] = float(val)
+    return out
+
+
+def split_code(raw: str) -> tuple[str, str | None]:
+    """Code part (without comment and checksum) and whole-line comment text."""
+    s = raw.strip()
+    if s.startswith(";"):
+        return "", s[1:]
+    i = s.find(";")
+    if i >= 0:
+        s = s[:i]
+    i = s.find("*")
+    if i >= 0:
+        s = s[:i]
+    i = s.find("(")  # parenthesised comments (rare in FDM output)
+    if i >= 0:
+        s = s[:i]
+    s = s.strip()
+    if s[:1] in ("N", "n"):
+        parts = s.split(None, 1)
+        s = parts[1] if len(parts) > 1 else ""
+    return s, None
+
+
+class GcodeState:
+    """Machine state as the G-code drives it (Marlin semantics)."""
+
+    def __init__(self) -> None:
+        self.x = self.y = self.z = self.e = 0.0
+        self.f = 1500.0
+        self.abs_xyz = True
+        self.abs_e = True
+        self.role: str | None = None
+        self.outer = False
+        self.n_moves = 0
+        self.features_seen = 0
+        self.outer_seen = 0
+
+
+@dataclass(slots=True)
+class Line:
+    """One source line with what it did."""
+    line_no: int
+    raw: str
+    cmd: str | None              # 'G1', 'G92', 'M83', ... (None: comment/blank)
+    words: dict | None
+    moves: list                  # Move objects (several for a linearised arc)
+    role_change: str | None      # feature role named by this line's comment
+
+
+def parse_lines(lines: Iterable[str], source: str = "<gcode>",
+                state: GcodeState | None = None) -> Iterator[Line]:
+    """Parse a G-code stream; yields one Line per input line."""
+    st = state or GcodeState()
+    for no, raw in enumerate(lines, 1):
+        code, comment = split_code(raw)
+        if not code:
+            role = None
+            if comment is not None:
+                role = feature_of_comment(comment)
+                if role is not None:
+                    st.role = role
+                    st.outer = is_outer(role)
+                    st.features_seen += 1
+                    if st.outer:
+                        st.outer_seen += 1
+            yield Line(no, raw, None, None, [], role)
+            continue
+        head = code.split(None, 1)
+        cmd = head[0].upper()
+        # normalise G01 -> G1, M082 -> M82
+        if len(cmd) > 1 and cmd[0] in "GM" and cmd[1:].isdigit():
+            cmd = cmd[0] + str(int(cmd[1:]))
+        where = f"{source}:{no}"
+        rest = head[1] if len(head) > 1 else ""
+        moves: list[Move] = []
+        words = None
+        if cmd in ("G0", "G1"):
+            words = parse_words(rest, where)
+            moves.append(_linear(st, words, no))
+        elif cmd in ("G2", "G3"):
+            words = parse_words(rest, where)
+            moves.extend(_arc(st, words, no, cmd == "G2", where))
+        elif cmd == "G92":
+            words = parse_words(rest, where)
+            for k in ("X", "Y", "Z", "E"):
+                if k in words:
+                    setattr(st, k.lower(), words[k])
+        elif cmd == "G90":
+            st.abs_xyz = st.abs_e = True
+        elif cmd == "G91":
+            st.abs_xyz = st.abs_e = False
+        elif cmd == "M82":
+            st.abs_e = True
+        elif cmd == "M83":
+            st.abs_e = False
+        yield Line(no, raw, cmd, words, moves, None)
+
+
+def _target(st: GcodeState, w: dict) -> tuple[float, float, float, float]:
+    if st.abs_xyz:
+        x = w.get("X", st.x)
+        y = w.get("Y", st.y)
+        z = w.get("Z", st.z)
+    else:
+        x = st.x + w.get("X", 0.0)
+        y = st.y + w.get("Y", 0.0)
+        z = st.z + w.get("Z", 0.0)
+    e = w.get("E", st.e) if st.abs_e else st.e + w.get("E", 0.0)
+    return x, y, z, e
+
+
+def _linear(st: GcodeState, w: dict, no: int) -> Move:
+    x, y, z, e = _target(st, w)
+    if "F" in w:
+        st.f = w["F"]
+    m = Move(st.n_moves, no, st.x, st.y, st.z, x, y, z, e - st.e, st.e, st.f,
+             st.outer, st.role)
+    st.n_moves += 1
+    st.x, st.y, st.z, st.e = x, y, z, e
+    return m
+
+
+def _arc(st: GcodeState, w: dict, no: int, cw: bool, where: str) -> list[Move]:
+    x, y, z, e = _target(st, w)
+    if "F" in w:
+        st.f = w["F"]
+    x0, y0 = st.x, st.y
+    if "R" in w:
+        r = w["R"]
+        dx, dy = x - x0, y - y0
+        d = math.hypot(dx, dy)
+        if d == 0 or abs(r) < d / 2 - 1e-6:
+            raise GcodeError(f"{where}: arc radius R{r} cannot reach the end point")
+        h = math.sqrt(max(r * r - d * d / 4, 0.0))
+        # R>0: the shorter arc; the centre side depends on the direction
+        s = (-1 if cw else 1) * (1 if r > 0 else -1)
+        cx = x0 + dx / 2 - s * h * dy / d
+        cy = y0 + dy / 2 + s * h * dx / d
+    elif "I" in w or "J" in w:
+        cx, cy = x0 + w.get("I", 0.0), y0 + w.get("J", 0.0)
+    else:
+        raise GcodeError(f"{where}: arc without I/J or R")
+    r0 = math.hypot(x0 - cx, y0 - cy)
+    a0 = math.atan2(y0 - cy, x0 - cx)
+    a1 = math.atan2(y - cy, x - cx)
+    sweep = a1 - a0
+    if cw:
+        if sweep >= -1e-9:
+            sweep -= 2 * math.pi
+    else:
+        if sweep <= 1e-9:
+            sweep += 2 * math.pi
+    length = abs(sweep) * r0
+    n = max(1, math.ceil(length / ARC_CHORD_MM))
+    out = []
+    zs, es = st.z, st.e
+    for i in range(1, n + 1):
+        t = i / n
+        if i == n:
+            px, py = x, y
+        else:
+            a = a0 + sweep * t
+            px, py = cx + r0 * math.cos(a), cy + r0 * math.sin(a)
+        pz = zs + (z - zs) * t
+        pe = es + (e - es) * t
+        m = Move(st.n_moves, no, st.x, st.y, st.z, px, py, pz, pe - st.e, st.e,
+                 st.f, st.outer, st.role, arc=True)
+        st.n_moves += 1
+        st.x, st.y, st.z, st.e = px, py, pz, pe
+        out.append(m)
+    st.x, st.y, st.z, st.e = x, y, z, e
+    return out
+
+
+def read_text(path) -> list[str]:
+    """Lines of a G-code file (keeps line ends)."""
+    with open(path, "r", encoding="utf-8", errors="replace", newline="") as f:
+        return f.read().splitlines(keepends=True)
+
+
+def iter_moves(lines: Iterable[str], source: str = "<gcode>") -> Iterator[Move]:
+    for ln in parse_lines(lines, source):
+        yield from ln.moves
+
+
+_HEADER_HEIGHT = (
+    re.compile(r"^;\s*layer_height\s*=\s*([0-9.]+)", re.M),      # Prusa/Orca/Slic3r
+    re.compile(r"^;Layer height:\s*([0-9.]+)", re.M),            # Cura
+    re.compile(r"^;\s*layerHeight,([0-9.]+)", re.M),             # Simplify3D
+    re.compile(r"^;Layer Height:\s*([0-9.]+)", re.M | re.I),     # ideaMaker
+)
+
+
+def header_layer_height(text: str) -> float | None:
+    """Layer height the slicer wrote in its settings comments, if any."""
+    for rx in _HEADER_HEIGHT:
+        m = rx.search(text)
+        if m:
+            try:
+                v = float(m.group(1))
+            except ValueError:
+                continue
+            if v > 0:
+                return v
+    return None

@@ -1,0 +1,305 @@
+"""Outer-wall toolpaths per layer, parameterised by arc length.
+
+A stroke is drawn on the unrolled outer wall: u (mm along the wall) and v
+(mm above the bed).  For each layer the wall is the outer-wall toolpath as
+the slicer printed it.  u = 0 is where a ray from the layer's centroid in
+a fixed reference direction (default: towards the front, -Y) meets the wall
+(the outermost crossing), and u grows counter-clockwise seen from above,
+i.e. left to right for someone looking at the wall from outside.  Using a
+fixed direction instead of the slicer's seam keeps u = 0 at the same place
+on every layer, so a stroke lands where it was drawn whatever the seam or
+print direction of each layer.
+
+Spiral (vase) walls are cut into layer windows of one layer height around
+the grid of layer heights, the same windows the firmware matches moves in.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Iterable, Sequence
+
+import numpy as np
+
+from .gcode import Move, header_layer_height, parse_lines
+from .strokes import BulgekitError
+
+
+class WallError(BulgekitError):
+    """The G-code has no usable outer wall."""
+
+
+@dataclass
+class Wall:
+    """The outer wall of one layer: a polyline in print order."""
+    z: float                 # layer z, mm (0.01 mm grid)
+    xy: np.ndarray           # (N+1, 2) vertices in print order
+    s: np.ndarray            # (N+1,) arc length at the vertices
+    move_index: np.ndarray   # (N,) running move number of each segment
+    height: float = 0.0      # bead height (z - previous layer z)
+    ccw: bool = True         # printed counter-clockwise seen from above
+    s_ref: float = 0.0       # arc length (print order) where u == 0
+    centroid: tuple[float, float] = (0.0, 0.0)
+
+    @property
+    def length(self) -> float:
+        return float(self.s[-1])
+
+    # u <-> s: u runs counter-clockwise from the reference, s in print order
+    def s_of_u(self, u):
+        L = self.length
+        u = np.asarray(u, dtype=float)
+        s = self.s_ref + u if self.ccw else self.s_ref - u
+        return np.mod(s, L)
+
+    def u_of_s(self, s):
+        L = self.length
+        s = np.asarray(s, dtype=float)
+        u = s - self.s_ref if self.ccw else self.s_ref - s
+        return np.mod(u, L)
+
+    def xy_of_s(self, s) -> np.ndarray:
+        s = np.atleast_1d(np.asarray(s, dtype=float))
+        x = np.interp(s, self.s, self.xy[:, 0])
+        y = np.interp(s, self.s, self.xy[:, 1])
+        return np.stack([x, y], axis=1)
+
+    def xy_of_u(self, u) -> np.ndarray:
+        return self.xy_of_s(self.s_of_u(u))
+
+    def project(self, x: float, y: float) -> tuple[float, float]:
+        """(s, distance) of the wall point nearest (x, y)."""
+        a = self.xy[:-1]
+        d = self.xy[1:] - a
+        l2 = np.einsum("ij,ij->i", d, d)
+        l2[l2 == 0] = 1e-18
+        t = np.clip(((x - a[:, 0]) * d[:, 0] + (y - a[:, 1]) * d[:, 1]) / l2, 0, 1)
+        px = a[:, 0] + t * d[:, 0]
+        py = a[:, 1] + t * d[:, 1]
+        dist = np.hypot(px - x, py - y)
+        i = int(np.argmin(dist))
+        return float(self.s[i] + t[i] * (self.s[i + 1] - self.s[i])), float(dist[i])
+
+
+@dataclass
+class WallModel:
+    walls: list[Wall]
+    layer_height: float
+    geometric: bool = False          # found without feature comments
+    source: str = ""
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def zs(self) -> np.ndarray:
+        return np.array([w.z for w in self.walls])
+
+    @property
+    def v_range(self) -> tuple[float, float]:
+        w0 = self.walls[0]
+        return (w0.z - w0.height, self.walls[-1].z)
+
+    def layer_of_v(self, v) -> np.ndarray:
+        """Index of the layer whose bead holds height v (-1 outside the wall)."""
+        v = np.atleast_1d(np.asarray(v, dtype=float))
+        zs = self.zs
+        bottoms = zs - np.array([w.height for w in self.walls])
+        i = np.searchsorted(zs, v - 1e-9, side="left")
+        out = np.full(v.shape, -1, dtype=int)
+        ok = i < len(zs)
+        ii = np.where(ok, i, 0)
+        inside = ok & (v >= bottoms[ii] - 1e-9)
+        out[inside] = ii[inside]
+        return out
+
+
+def _signed_area(xy: np.ndarray) -> float:
+    x, y = xy[:, 0], xy[:, 1]
+    return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1)))
+
+
+def _centroid(xy: np.ndarray) -> tuple[float, float]:
+    x, y = xy[:, 0], xy[:, 1]
+    xn, yn = np.roll(x, -1), np.roll(y, -1)
+    cr = x * yn - xn * y
+    a = cr.sum() / 2
+    if abs(a) < 1e-12:
+        return float(x.mean()), float(y.mean())
+    return float(((x + xn) * cr).sum() / (6 * a)), float(((y + yn) * cr).sum() / (6 * a))
+
+
+def _ray_hit(xy: np.ndarray, s: np.ndarray, c, direction) -> float:
+    """Arc length of the outermost crossing of the ray c + t*direction."""
+    cx, cy = c
+    dx, dy = direction
+    a = xy[:-1]
+    b = xy[1:]
+    ex = b[:, 0] - a[:, 0]
+    ey = b[:, 1] - a[:, 1]
+    den = dx * ey - dy * ex
+    with np.errstate(divide="ignore", invalid="ignore"):
+        wx = a[:, 0] - cx
+        wy = a[:, 1] - cy
+        t = (wx * ey - wy * ex) / den            # along the ray
+        w = (wx * dy - wy * dx) / den            # along the segment
+    ok = (np.abs(den) > 1e-12) & (t > 0) & (w >= 0) & (w <= 1)
+    if ok.any():
+        idx = np.nonzero(ok)[0]
+        k = idx[np.argmax(t[idx])]
+        return float(s[k] + w[k] * (s[k + 1] - s[k]))
+    # open gap or odd shape: the vertex best aligned with the direction
+    proj = (xy[:, 0] - cx) * dx + (xy[:, 1] - cy) * dy
+    return float(s[int(np.argmax(proj))])
+
+
+def _median_distance(pts: np.ndarray, poly: np.ndarray) -> float:
+    """Median distance from (up to 64 of) pts to the polyline poly."""
+    if len(pts) > 64:
+        pts = pts[np.linspace(0, len(pts) - 1, 64).astype(int)]
+    a = poly[:-1][None, :, :]
+    d = (poly[1:] - poly[:-1])[None, :, :]
+    p = pts[:, None, :]
+    l2 = np.maximum((d * d).sum(-1), 1e-18)
+    t = np.clip(((p - a) * d).sum(-1) / l2, 0, 1)
+    q = a + t[..., None] * d
+    return float(np.median(np.sqrt(((q - p) ** 2).sum(-1)).min(axis=1)))
+
+
+class _Chain:
+    __slots__ = ("pts", "idx", "bucket")
+
+    def __init__(self, bucket, x, y):
+        self.bucket = bucket
+        self.pts = [(x, y)]
+        self.idx: list[int] = []
+
+
+def _closed(c: _Chain, gap: float) -> bool:
+    (x0, y0), (x1, y1) = c.pts[0], c.pts[-1]
+    return math.hypot(x1 - x0, y1 - y0) <= gap
+
+
+def extract_walls(moves: Iterable[Move], layer_height: float | None = None,
+                  geometric: bool = False, ref_angle_deg: float = -90.0,
+                  source: str = "<gcode>", header_height: float | None = None
+                  ) -> WallModel:
+    """Outer walls per layer from parsed moves.
+
+    geometric=False uses the moves the slicer tagged as outer wall;
+    geometric=True uses every extruding move and keeps, per layer, the closed
+    loop of largest area (the outermost one).
+    """
+    chains: list[_Chain] = []
+    cur: _Chain | None = None
+    planar_count: dict[int, int] = {}
+    eligible_moves: list[Move] = []
+    any_outer = False
+    for m in moves:
+        if m.outer:
+            any_outer = True
+        ok = m.extruding and (geometric or m.outer)
+        if ok:
+            eligible_moves.append(m)
+            if abs(m.z1 - m.z0) < 1e-6:
+                zc = round(m.z1 * 100)
+                planar_count[zc] = planar_count.get(zc, 0) + 1
+        elif m.x0 != m.x1 or m.y0 != m.y1 or (not geometric and not m.outer):
+            eligible_moves.append(None)  # chain break
+    if not geometric and not any_outer:
+        raise WallError(
+            f"{source}: no outer-wall feature comments found (;TYPE:External perimeter, "
+            ";TYPE:Outer wall, ;TYPE:WALL-OUTER, ; outer perimeter). Slice with feature "
+            "comments enabled, or use geometric mode (M720 S2): pass --geometric to take "
+            "the outermost closed loop of each layer as the wall.")
+    # A layer has many moves at its z; a spiral wall only now and then two
+    # consecutive moves at the same rounded z.
+    zs_planar = sorted(z for z, n in planar_count.items() if n >= 4)
+    planar_set = set(zs_planar)
+    h = layer_height or header_height
+    if not h:
+        diffs = np.diff(np.array(zs_planar)) if len(zs_planar) > 1 else np.array([])
+        diffs = diffs[diffs >= 5]
+        h = float(np.bincount(diffs).argmax()) / 100 if len(diffs) else 0.2
+    h_cmm = max(1, round(h * 100))
+
+    def bucket_of(m: Move) -> int:
+        if abs(m.z1 - m.z0) < 1e-6 and round(m.z1 * 100) in planar_set:
+            return round(m.z1 * 100)
+        # spiral: snap to the layer grid above the highest planar layer below
+        zmid = (m.z0 + m.z1) * 50
+        base = 0
+        for zp in zs_planar:
+            if zp <= zmid + 1e-6:
+                base = zp
+            else:
+                break
+        return base + round((zmid - base) / h_cmm) * h_cmm
+
+    for m in eligible_moves:
+        if m is None:
+            cur = None
+            continue
+        b = bucket_of(m)
+        if (cur is None or cur.bucket != b
+                or abs(cur.pts[-1][0] - m.x0) > 1e-4 or abs(cur.pts[-1][1] - m.y0) > 1e-4):
+            cur = _Chain(b, m.x0, m.y0)
+            chains.append(cur)
+        cur.pts.append((m.x1, m.y1))
+        cur.idx.append(m.index)
+
+    by_bucket: dict[int, list[_Chain]] = {}
+    for c in chains:
+        if len(c.pts) >= 3:
+            by_bucket.setdefault(c.bucket, []).append(c)
+    direction = (math.cos(math.radians(ref_angle_deg)), math.sin(math.radians(ref_angle_deg)))
+    notes: list[str] = []
+    gap = max(2.0, 3 * h)
+    chosen: dict[int, _Chain] = {}
+    upper: np.ndarray | None = None
+    # Geometric mode goes top-down: the wall of a layer must lie near the wall
+    # of the layer above, which rejects a skirt (it stands off the part) even
+    # though it is the largest loop of the first layer.
+    order = sorted(by_bucket, reverse=geometric)
+    for b in order:
+        cands = by_bucket[b]
+        closed = [c for c in cands if _closed(c, gap)]
+        pool = closed or cands
+        if geometric and upper is not None:
+            near = [c for c in pool if _median_distance(np.array(c.pts), upper) <= max(1.0, 3 * h)]
+            pool = near or pool
+        best = max(pool, key=lambda c: abs(_signed_area(np.array(c.pts))))
+        if not closed:
+            notes.append(f"layer z {b / 100:.2f}: no closed outer loop, using the largest open one")
+        chosen[b] = best
+        upper = np.array(best.pts, dtype=float)
+    walls: list[Wall] = []
+    prev_z = None
+    for b in sorted(chosen):
+        best = chosen[b]
+        xy = np.array(best.pts, dtype=float)
+        seg = np.hypot(np.diff(xy[:, 0]), np.diff(xy[:, 1]))
+        s = np.concatenate([[0.0], np.cumsum(seg)])
+        area = _signed_area(xy)
+        cen = _centroid(xy)
+        z = b / 100
+        height = (z - prev_z) if prev_z is not None else min(z, h)
+        if prev_z is not None and height > 1.5 * h:
+            height = h  # a layer without wall in between
+        prev_z = z
+        w = Wall(z=z, xy=xy, s=s, move_index=np.array(best.idx), height=height,
+                 ccw=area >= 0, centroid=cen)
+        w.s_ref = _ray_hit(xy, s, cen, direction)
+        walls.append(w)
+    if not walls:
+        what = "extruding closed loops" if geometric else "outer-wall extrusions"
+        raise WallError(f"{source}: no {what} found")
+    return WallModel(walls, h_cmm / 100, geometric, source, notes)
+
+
+def walls_from_gcode(path, layer_height: float | None = None, geometric: bool = False,
+                     ref_angle_deg: float = -90.0) -> WallModel:
+    with open(path, "r", encoding="utf-8", errors="replace", newline="") as f:
+        text = f.read()
+    lines = text.splitlines(keepends=True)
+    moves = (m for ln in parse_lines(lines, str(path)) for m in ln.moves)
+    return extract_walls(moves, layer_height, geometric, ref_angle_deg, str(path),
+                         header_layer_height(text))
