@@ -201,7 +201,8 @@ def _check_path_data(d: str) -> str | None:
                 if k == 0 and groups > 0:
                     i = start
                     break
-                return f"command {cmd} needs {nargs} numbers, bad or missing argument near {d[start:start + 16]!r}"
+                return (f"command {cmd} needs {nargs} numbers; bad or missing number {k + 1} at "
+                        f"{(d[i:i + 12] or 'end of data')!r}")
             else:
                 groups += 1
                 continue
@@ -245,6 +246,17 @@ def _parse_svg_xml(path: str) -> bytes:
     root = tb.close()
     if root.tag not in ("{%s}svg" % _SVG_NS, "svg"):
         raise InputError(f"{path}:{root.get(_LINE_ATTR)}: root element is <{root.tag.split('}')[-1]}>, not <svg>")
+    # svgelements draws <symbol> contents in place as well as at each <use>;
+    # moving them into <defs> leaves only the instances.
+    symbols = []
+    for parent in root.iter():
+        for child in list(parent):
+            if child.tag in ("{%s}symbol" % _SVG_NS, "symbol"):
+                parent.remove(child)
+                symbols.append(child)
+    if symbols:
+        defs = ET.SubElement(root, "{%s}defs" % _SVG_NS if root.tag.startswith("{") else "defs")
+        defs.extend(symbols)
     ET.register_namespace("", _SVG_NS)
     return ET.tostring(root)
 
@@ -318,12 +330,16 @@ def load_svg(path: str, *, offset: tuple[float, float] = (0.0, 0.0), scale: floa
     except Exception as e:  # svgelements raises assorted types on odd attributes
         raise InputError(f"{path}: cannot interpret SVG: {e}") from None
 
+    # svgelements converts lengths to px with its own rounded 1 mm = 3.7795296
+    # px; undoing it with the same factor keeps mm drawings exact (px and
+    # inch drawings then differ from 25.4/96 by 5e-7, far below a nozzle).
+    mm_per_px = 1.0 / float(se.Length("1mm").value(ppi=96.0))
     # The page height fixes where v = 0 is; svgelements reports it in px.
     page_h_mm = None
     try:
         h = float(doc.height)
         if doc.values.get("height") is not None or doc.viewbox is not None:
-            page_h_mm = h * MM_PER_PX
+            page_h_mm = h * mm_per_px
     except (TypeError, ValueError, AttributeError):
         page_h_mm = None
 
@@ -336,7 +352,7 @@ def load_svg(path: str, *, offset: tuple[float, float] = (0.0, 0.0), scale: floa
         return f"{s} <{tag}{' id=' + repr(eid) if eid else ''}>"
 
     def to_mm(pt):
-        return (float(pt[0]) * MM_PER_PX, float(pt[1]) * MM_PER_PX)
+        return (float(pt[0]) * mm_per_px, float(pt[1]) * mm_per_px)
 
     for el in doc.elements():
         tag = el.values.get("tag", type(el).__name__.lower())
@@ -366,7 +382,7 @@ def load_svg(path: str, *, offset: tuple[float, float] = (0.0, 0.0), scale: floa
                     raise InputError(f"{loc}: negative radius {a}={v}")
             bb = el.bbox()
             if bb is not None:
-                x0, y0, x1, y1 = (float(c) * MM_PER_PX for c in bb)
+                x0, y0, x1, y1 = (float(c) * mm_per_px for c in bb)
                 if max(x1 - x0, y1 - y0) <= 2 * dot_radius_mm:
                     raw.append(([((x0 + x1) / 2, (y0 + y1) / 2)], w, loc))
                     continue
@@ -381,7 +397,12 @@ def load_svg(path: str, *, offset: tuple[float, float] = (0.0, 0.0), scale: floa
                 current = [pen]
             elif isinstance(seg, se.Close):
                 if current is not None and pen is not None:
-                    current.append(pen)
+                    # Land exactly on the start: arcs of circles end a few
+                    # ulps off it, which would leave the outline open.
+                    if len(current) > 1 and math.dist(current[-1], pen) < 1e-9:
+                        current[-1] = pen
+                    else:
+                        current.append(pen)
                     pieces.append(current)
                 current = None
             else:
