@@ -80,4 +80,19 @@
 #define BK_WIDTH_MAX_SPEED_LIMIT 1000.0f  // highest U accepted, mm/s
 #endif
 
+// ---- planner (src/bulge_planner, src/move_state) ----------------------------------
+// Bulge points one ActionList carries; a move passing more is continued with
+// BulgePlanner::plan_more(). Each point costs up to 2 actions (line + dwell).
+#ifndef BK_PLAN_HITS_MAX
+#define BK_PLAN_HITS_MAX 3
+#endif
+// Feedrate before the first F word (Marlin's power-on value), mm/min.
+#ifndef BK_MOVE_DEFAULT_FEED_MM_MIN
+#define BK_MOVE_DEFAULT_FEED_MM_MIN 1500.0f
+#endif
+// Room for one M720/M722 reply line ("echo:..." or "Error:..."), with the NUL.
+#ifndef BK_PLAN_REPLY_MAX
+#define BK_PLAN_REPLY_MAX 72
+#endif
+
 #endif  // BULGEKIT_CONFIG_H

@@ -1,0 +1,503 @@
+#include "bulge_planner.h"
+
+#include <math.h>
+#include <string.h>
+
+#include "gcode_args.h"
+
+#ifdef __AVR__
+#include <avr/pgmspace.h>
+#define BK_P(s) PSTR(s)
+#define BK_RD(p) pgm_read_byte(p)
+#else
+#define BK_P(s) (s)
+#define BK_RD(p) (*(p))
+#endif
+
+namespace bk {
+
+// ---- reply text (messages stay in flash on AVR) -----------------------------
+
+namespace {
+
+struct Reply {
+  char *p;
+  uint8_t left;  // room for characters, the NUL excluded
+  Reply(char *buf, uint8_t size) : p(buf), left(size ? (uint8_t)(size - 1) : 0) {
+    if (size) *p = 0;
+  }
+  void ch(char c) {
+    if (!left) return;
+    *p++ = c;
+    *p = 0;
+    left--;
+  }
+  void text_P(const char *s) {
+    for (char c; (c = (char)BK_RD(s)) != 0; s++) ch(c);
+  }
+  void raw(const char *s, uint8_t n) {
+    while (n--) ch(*s++);
+  }
+  void num(uint32_t v) {
+    char d[10];
+    uint8_t n = 0;
+    do d[n++] = (char)('0' + v % 10); while ((v /= 10) && n < 10);
+    while (n) ch(d[--n]);
+  }
+  void fix3(float v) {  // non-negative settings only
+    uint32_t m = (uint32_t)(v * 1000.0f + 0.5f);
+    num(m / 1000);
+    ch('.');
+    uint16_t f = (uint16_t)(m % 1000);
+    ch((char)('0' + f / 100));
+    ch((char)('0' + f / 10 % 10));
+    ch((char)('0' + f % 10));
+  }
+  // "Error:M720 P" + the word exactly as the host wrote it
+  void word(const GcodeArgs &a, const char *code_P, char letter) {
+    text_P(BK_P("Error:"));
+    text_P(code_P);
+    ch(' ');
+    ch(letter);
+    const char *t;
+    uint8_t n;
+    if (a.raw(letter, t, n)) raw(t, n);
+  }
+};
+
+}  // namespace
+
+// ---- setup --------------------------------------------------------------------
+
+void BulgePlanner::reset() {
+  mode_ = BULGE_OFF;
+  marker_ = false;
+  dwell_ms_ = BK_DEFAULT_DWELL_MS;
+  extra_e_ = BK_DEFAULT_EXTRA_E_MM;
+  tol_mm_ = BK_DEFAULT_TOLERANCE_MM;
+  store_ = nullptr;
+  has_layer_ = has_miss_ = cache_ok_ = overflow_ = active_ = false;
+  q_um_ = 50;
+  lh_cmm_ = 30;
+  miss_z_ = 0;
+  cache_z_ = 0.0f;  // z 0 is 0 cmm: a consistent starting pair
+  cache_z_cmm_ = 0;
+  cache_x_ = cache_y_ = 0.0f;
+  cache_qx_ = cache_qy_ = 0;
+  len_ = len2_ = t_done_ = 0.0f;
+  layer_.count = 0;
+  layer_.z_cmm = 0;
+  carry_ = pending_ = 0.0f;
+  nhit_ = 0;
+  memset(fired_, 0, sizeof(fired_));
+  clear_stats();
+  derive();
+}
+
+void BulgePlanner::clear_stats() { memset(&stats_, 0, sizeof(stats_)); }
+
+// Values that depend on the quantum and the tolerance, computed once here
+// rather than per move.
+void BulgePlanner::derive() {
+  q_mm_ = (float)q_um_ * 0.001f;
+  inv_q_ = 1000.0f / (float)q_um_;
+  tol2_ = tol_mm_ * tol_mm_;
+  // Move ends are truncated to whole quanta (error < 1 q per axis, < sqrt(2) q
+  // in distance), so the integer prefilter widens the tolerance by 2 q: it may
+  // pass a few extra candidates to the exact test but never rejects a hit.
+  tol_q_ = (int16_t)(ceilf(tol_mm_ * inv_q_) + 2.0f);
+  cache_ok_ = false;
+}
+
+void BulgePlanner::map_changed() {
+  has_layer_ = has_miss_ = false;
+  layer_.count = 0;
+  if (store_ && store_->loaded()) {
+    const MapInfo &in = store_->info();
+    if (in.quantum_um != q_um_ || in.layer_height_cmm != lh_cmm_) {
+      q_um_ = in.quantum_um;
+      lh_cmm_ = in.layer_height_cmm;
+      derive();
+    }
+  }
+}
+
+// Sort by x, then y, so a move's x range is found by binary search. Insertion
+// sort: stable, no recursion, and run once per layer.
+static void sort_points(MapLayer &l) {
+  for (uint8_t i = 1; i < l.count; i++) {
+    MapPoint p = l.pts[i];
+    uint8_t j = i;
+    while (j && (l.pts[j - 1].x > p.x || (l.pts[j - 1].x == p.x && l.pts[j - 1].y > p.y))) {
+      l.pts[j] = l.pts[j - 1];
+      j--;
+    }
+    l.pts[j] = p;
+  }
+}
+
+void BulgePlanner::load_layer(const MapLayer &layer, uint8_t quantum_um, uint8_t layer_height_cmm) {
+  layer_.z_cmm = layer.z_cmm;
+  layer_.count = layer.count > BK_LAYER_POINTS_MAX ? BK_LAYER_POINTS_MAX : layer.count;
+  memcpy(layer_.pts, layer.pts, sizeof(MapPoint) * layer_.count);
+  sort_points(layer_);
+  memset(fired_, 0, sizeof(fired_));
+  if (quantum_um != q_um_ || layer_height_cmm != lh_cmm_) {
+    q_um_ = quantum_um ? quantum_um : 1;
+    lh_cmm_ = layer_height_cmm;
+    derive();
+  }
+  has_layer_ = true;
+  has_miss_ = false;
+  stats_.layers_loaded++;
+}
+
+// ---- layer window --------------------------------------------------------------
+
+// True when a layer within half a layer height of z_cmm is loaded, asking the
+// store when z has left the current one. Continuously rising z (spiral vase)
+// walks from layer to layer the same way.
+bool BulgePlanner::window(int32_t z_cmm) {
+  if (has_layer_) {
+    int32_t d = z_cmm - (int32_t)layer_.z_cmm;
+    if (d < 0) d = -d;
+    if (2 * d <= (int32_t)lh_cmm_) return true;
+  }
+  if (!store_ || (has_miss_ && z_cmm == miss_z_)) return false;
+  if (!store_->loaded() || store_->empty()) return false;
+  const uint16_t old_z = layer_.z_cmm;
+  const bool had = has_layer_;
+  if (!store_->find_layer(z_cmm, layer_)) {
+    has_miss_ = true;  // find_layer leaves layer_ alone on a miss
+    miss_z_ = z_cmm;
+    return false;
+  }
+  has_miss_ = false;
+  has_layer_ = true;
+  sort_points(layer_);
+  stats_.layers_loaded++;
+  memset(fired_, 0, sizeof(fired_));
+  // Printing moved up: the layers below are done, give their bytes back (room
+  // for appended records). Never on the way down, so nothing still needed goes.
+  if (!had || layer_.z_cmm > old_z) store_->release_below(layer_.z_cmm);
+  return true;
+}
+
+// ---- matching -------------------------------------------------------------------
+
+static int32_t to_q(float mm, float inv_q) {
+  float v = mm * inv_q;
+  if (v > 1.0e8f) v = 1.0e8f;  // far off any map; keeps the cast defined
+  if (v < -1.0e8f) v = -1.0e8f;
+  return (int32_t)v;  // truncation; derive() widens the tolerance for it
+}
+
+bool BulgePlanner::eligible(const Move &m) {
+  if (mode_ == BULGE_OFF || (mode_ == BULGE_MARKED && !marker_)) return false;
+  if (!m.extruding()) return false;
+  int32_t zc;
+  if (m.z1 == cache_z_) {
+    zc = cache_z_cmm_;
+  } else {
+    float v = m.z1 * 100.0f;
+    zc = v >= 0.0f ? (int32_t)(v + 0.5f) : -(int32_t)(0.5f - v);
+    cache_z_ = m.z1;
+    cache_z_cmm_ = zc;
+  }
+  return window(zc) && layer_.count;
+}
+
+// Finds the unfired points within the tolerance of segment m_ and keeps the
+// BK_PLAN_HITS_MAX nearest to its start in hit_t_/hit_i_ (sorted by t).
+// overflow_ tells that more were found than kept.
+void BulgePlanner::collect() {
+  nhit_ = 0;
+  overflow_ = false;
+  int32_t ax, ay;
+  if (cache_ok_ && m_.x0 == cache_x_ && m_.y0 == cache_y_) {
+    ax = cache_qx_;
+    ay = cache_qy_;
+  } else {
+    ax = to_q(m_.x0, inv_q_);
+    ay = to_q(m_.y0, inv_q_);
+  }
+  const int32_t bx = to_q(m_.x1, inv_q_), by = to_q(m_.y1, inv_q_);
+  cache_x_ = m_.x1;
+  cache_y_ = m_.y1;
+  cache_qx_ = bx;
+  cache_qy_ = by;
+  cache_ok_ = true;
+
+  // Bounding box of the capsule around the segment, in quanta.
+  const int32_t x_lo = (ax < bx ? ax : bx) - tol_q_, x_hi = (ax < bx ? bx : ax) + tol_q_;
+  const int32_t y_lo = (ay < by ? ay : by) - tol_q_, y_hi = (ay < by ? by : ay) + tol_q_;
+  const MapPoint *pts = layer_.pts;
+  const uint8_t n = layer_.count;
+  if (x_hi < pts[0].x || x_lo > pts[n - 1].x) return;
+
+  // Below 2^14 quanta per side every product of the line test fits int32.
+  const bool narrow = (x_hi - x_lo) < 16384 && (y_hi - y_lo) < 16384;
+  const int16_t dx = (int16_t)(bx - ax), dy = (int16_t)(by - ay);
+  int32_t lim = 0;
+  if (narrow) {
+    // |cross| / |d| is the distance to the line; |d| is bounded above by
+    // max + min/2 (no sqrt), so the test is loose, never tight.
+    uint16_t adx = (uint16_t)(dx < 0 ? -dx : dx), ady = (uint16_t)(dy < 0 ? -dy : dy);
+    uint16_t lub = adx > ady ? (uint16_t)(adx + ady / 2) : (uint16_t)(ady + adx / 2);
+    lim = (int32_t)tol_q_ * (int32_t)lub;
+  }
+
+  // First point with x >= x_lo.
+  uint8_t lo = 0, hi = n;
+  while (lo < hi) {
+    uint8_t mid = (uint8_t)((lo + hi) >> 1);
+    if ((int32_t)pts[mid].x < x_lo)
+      lo = (uint8_t)(mid + 1);
+    else
+      hi = mid;
+  }
+
+  bool have_len = false;
+  float fdx = 0, fdy = 0;
+  for (uint8_t i = lo; i < n && (int32_t)pts[i].x <= x_hi; i++) {
+    const int16_t py = pts[i].y;
+    if (py < y_lo || py > y_hi) continue;
+    if (fired_[i >> 3] & (uint8_t)(1 << (i & 7))) continue;
+    if (narrow) {
+      const int16_t ux = (int16_t)(pts[i].x - ax), uy = (int16_t)(py - ay);
+      int32_t cross = (int32_t)ux * dy - (int32_t)uy * dx;
+      if (cross < 0) cross = -cross;
+      if (cross > lim) continue;
+    }
+    // Exact test in mm against the host's own segment.
+    if (!have_len) {
+      fdx = m_.x1 - m_.x0;
+      fdy = m_.y1 - m_.y0;
+      len2_ = fdx * fdx + fdy * fdy;
+      have_len = true;
+    }
+    const float ux = (float)pts[i].x * q_mm_ - m_.x0, uy = (float)py * q_mm_ - m_.y0;
+    float t = (ux * fdx + uy * fdy) / len2_;
+    if (t < 0.0f) t = 0.0f;
+    if (t > 1.0f) t = 1.0f;
+    const float ex = ux - t * fdx, ey = uy - t * fdy;
+    if (ex * ex + ey * ey > tol2_) continue;
+    // Insert by t; keep the nearest BK_PLAN_HITS_MAX, the rest come later.
+    uint8_t k = nhit_;
+    if (k == BK_PLAN_HITS_MAX) {
+      overflow_ = true;
+      if (t >= hit_t_[k - 1]) continue;
+      k--;
+    } else {
+      nhit_++;
+    }
+    while (k && hit_t_[k - 1] > t) {
+      hit_t_[k] = hit_t_[k - 1];
+      hit_i_[k] = hit_i_[k - 1];
+      k--;
+    }
+    hit_t_[k] = t;
+    hit_i_[k] = i;
+  }
+}
+
+// ---- output ----------------------------------------------------------------------
+
+void BulgePlanner::line_to(ActionList &out, float t, float e) {
+  Action &a = out.a[out.count++];
+  a.kind = Action::LINE;
+  a.ms = 0;
+  if (t >= 1.0f) {
+    a.x = m_.x1;  // the host's own numbers, not a recomputation
+    a.y = m_.y1;
+    a.z = m_.z1;
+  } else {
+    a.x = m_.x0 + t * (m_.x1 - m_.x0);
+    a.y = m_.y0 + t * (m_.y1 - m_.y0);
+    a.z = m_.z0 == m_.z1 ? m_.z1 : m_.z0 + t * (m_.z1 - m_.z0);
+  }
+  a.e = e + pending_;
+  out.e_added += pending_;
+  stats_.extra_applied += pending_;
+  pending_ = 0.0f;
+}
+
+// Turns the collected hits into actions; true when the move continues in
+// plan_more().
+bool BulgePlanner::emit(ActionList &out) {
+  if (nhit_) len_ = sqrtf(len2_);
+  for (uint8_t h = 0; h < nhit_; h++) {
+    float t = hit_t_[h];
+    const uint8_t i = hit_i_[h];
+    fired_[i >> 3] |= (uint8_t)(1 << (i & 7));
+    stats_.points_fired++;
+    if ((t - t_done_) * len_ < BK_MIN_PIECE_MM) {
+      // Too close to where the head already is (the move start, or the stop
+      // before): stop there instead of queueing a sub-step piece.
+    } else {
+      if ((1.0f - t) * len_ < BK_MIN_PIECE_MM) t = 1.0f;  // stop at the move end
+      line_to(out, t, m_.e * (t - t_done_));
+      t_done_ = t;
+    }
+    const uint16_t ms = (uint16_t)(((uint32_t)dwell_ms_ * layer_.pts[i].w + 127) / 255);
+    Action *last = out.count ? &out.a[out.count - 1] : nullptr;
+    if (last && last->kind == Action::DWELL) {
+      // Points closer than the minimum piece share one stop.
+      uint32_t sum = (uint32_t)last->ms + ms;
+      last->ms = sum > 0xFFFF ? 0xFFFF : (uint16_t)sum;
+    } else {
+      Action &a = out.a[out.count++];
+      a.kind = Action::DWELL;
+      a.ms = ms;
+      a.x = a.y = a.z = a.e = 0.0f;
+    }
+    pending_ += extra_e_;
+  }
+  if (overflow_) return true;
+  if (t_done_ < 1.0f) {
+    line_to(out, 1.0f, m_.e * (1.0f - t_done_));
+  } else {
+    carry_ += pending_;  // the stop was at the last vertex: the next piece gets it
+    pending_ = 0.0f;
+  }
+  active_ = false;
+  return false;
+}
+
+void BulgePlanner::drop_carry() {
+  if (carry_ != 0.0f) {
+    stats_.extra_dropped += carry_;
+    carry_ = 0.0f;
+  }
+}
+
+bool BulgePlanner::plan(const Move &m, ActionList &out) {
+  out.count = 0;
+  out.e_added = 0.0f;
+  active_ = false;
+  if (!eligible(m)) {
+    drop_carry();
+    Action &a = out.a[out.count++];
+    a.kind = Action::LINE;
+    a.ms = 0;
+    a.x = m.x1;
+    a.y = m.y1;
+    a.z = m.z1;
+    a.e = m.e;
+    return false;
+  }
+  m_ = m;
+  t_done_ = 0.0f;
+  pending_ = carry_;
+  carry_ = 0.0f;
+  active_ = true;
+  collect();
+  if (nhit_) stats_.moves_split++;
+  return emit(out);
+}
+
+bool BulgePlanner::plan_more(ActionList &out) {
+  out.count = 0;
+  out.e_added = 0.0f;
+  if (!active_) return false;
+  collect();
+  return emit(out);
+}
+
+// ---- M720 / M722 --------------------------------------------------------------------
+
+bool BulgePlanner::m720(const GcodeArgs &a, char *reply, uint8_t size) {
+  Reply r(reply, size);
+  if (a.none()) {
+    r.text_P(BK_P("echo:  M720 S"));
+    r.num(mode_);
+    r.text_P(BK_P(" P"));
+    r.num(dwell_ms_);
+    r.text_P(BK_P(" E"));
+    r.fix3(extra_e_);
+    r.text_P(BK_P(" T"));
+    r.fix3(tol_mm_);
+    return true;
+  }
+  const char *code = BK_P("M720");
+  const char bad = a.unknown("SPET");
+  if (bad) {
+    r.text_P(BK_P("Error:M720 unknown parameter "));
+    r.ch(bad);
+    return false;
+  }
+  // Check everything first, then apply: all or nothing.
+  int32_t s = mode_, p = dwell_ms_;
+  float e = extra_e_, t = tol_mm_;
+  ArgStatus st = a.get_long('S', s);
+  if (st != ARG_ABSENT && (st != ARG_OK || s < 0 || s > 2)) {
+    r.word(a, code, 'S');
+    r.text_P(BK_P(": mode must be 0 (off), 1 (marked) or 2 (geometric)"));
+    return false;
+  }
+  st = a.get_long('P', p);
+  if (st != ARG_ABSENT && (st != ARG_OK || p < 0)) {
+    r.word(a, code, 'P');
+    r.text_P(BK_P(": dwell must be a whole number of ms, 0.."));
+    r.num(BK_MAX_DWELL_MS);
+    return false;
+  }
+  if (p > BK_MAX_DWELL_MS) {
+    r.word(a, code, 'P');
+    r.text_P(BK_P(" exceeds max dwell "));
+    r.num(BK_MAX_DWELL_MS);
+    r.text_P(BK_P(" ms"));
+    return false;
+  }
+  st = a.get_float('E', e);
+  if (st != ARG_ABSENT && (st != ARG_OK || e < 0.0f)) {
+    r.word(a, code, 'E');
+    r.text_P(BK_P(": extra must be 0.."));
+    r.fix3(BK_MAX_EXTRA_E_MM);
+    r.text_P(BK_P(" mm"));
+    return false;
+  }
+  if (e > BK_MAX_EXTRA_E_MM) {
+    r.word(a, code, 'E');
+    r.text_P(BK_P(" exceeds max extra "));
+    r.fix3(BK_MAX_EXTRA_E_MM);
+    r.text_P(BK_P(" mm"));
+    return false;
+  }
+  st = a.get_float('T', t);
+  if (st != ARG_ABSENT && (st != ARG_OK || t < 0.01f - 1e-6f || t > BK_MAX_TOLERANCE_MM)) {
+    r.word(a, code, 'T');
+    r.text_P(BK_P(": tolerance must be 0.010.."));
+    r.fix3(BK_MAX_TOLERANCE_MM);
+    r.text_P(BK_P(" mm"));
+    return false;
+  }
+  mode_ = (uint8_t)s;
+  dwell_ms_ = (uint16_t)p;
+  extra_e_ = e;
+  if (t != tol_mm_) {
+    tol_mm_ = t;
+    derive();
+  }
+  return true;
+}
+
+bool BulgePlanner::m722(const GcodeArgs &a, char *reply, uint8_t size) {
+  Reply r(reply, size);
+  const char bad = a.unknown("S");
+  if (bad) {
+    r.text_P(BK_P("Error:M722 unknown parameter "));
+    r.ch(bad);
+    return false;
+  }
+  int32_t s = -1;
+  ArgStatus st = a.get_long('S', s);
+  if (st != ARG_OK || (s != 0 && s != 1)) {
+    r.text_P(BK_P("Error:M722 needs S1 (enter outer wall) or S0 (leave)"));
+    return false;
+  }
+  marker_ = s == 1;
+  return true;
+}
+
+}  // namespace bk

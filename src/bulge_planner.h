@@ -1,0 +1,163 @@
+// Outer-wall segment planner: splits extruding moves at the bulge points of
+// the current layer (Takahashi & Miyashita, sec. 5.3).
+//
+// For a move Pa->Pb extruding E_ab and a bulge point Pt on it:
+//   Pa->Pt  extrudes E_at = E_ab * |PaPt| / |PaPb|          (eq. 1)
+//   dwell   P ms at Pt (times w/255 when the map has weights)
+//   Pt->Pb  extrudes its proportional share plus the extra E
+// Several points on one move are taken in order from Pa. Pieces always lie on
+// the host's own segment (Pt is projected onto it), so XYZ never change; the
+// extra filament is reported per ActionList (e_added) and goes into the
+// MoveState E offset, so the host's E never changes either.
+//
+// Typical use (the Marlin adapter calls this per G0/G1):
+//
+//   bk::Move m = state.line(words);           // or built from Marlin's
+//   bk::ActionList out;                       //   current_position/destination
+//   bool more = planner.plan(m, out);
+//   for (;;) {
+//     for (i < out.count) LINE -> line to x,y,z with E += e at m.f;
+//                         DWELL -> finish queued moves, wait ms (0 = stop only)
+//     state.add_e_offset(out.e_added);        // Marlin: current_position.e -=
+//     if (!more) break;                       //   e_added; set_e_position_mm()
+//     more = planner.plan_more(out);
+//   }
+//
+// Bounded output: an ActionList holds at most BK_PLAN_HITS_MAX bulge points
+// (2*BK_PLAN_HITS_MAX+1 actions). If the move passes more, plan() returns true
+// and plan_more() gives the next list, until it returns false. No point is
+// dropped; a caller that stops calling plan_more() leaves the rest of the move
+// unexecuted, so it must not.
+//
+// No heap, no STL; builds with avr-gcc 5.4 (gnu++11).
+#ifndef BK_BULGE_PLANNER_H
+#define BK_BULGE_PLANNER_H
+
+#include <stdint.h>
+
+#include "bulge_map.h"
+#include "bulgekit_config.h"
+#include "move_state.h"
+
+namespace bk {
+
+class GcodeArgs;
+
+enum BulgeMode : uint8_t {
+  BULGE_OFF = 0,        // every move passes through unchanged
+  BULGE_MARKED = 1,     // only between M722 S1 and M722 S0
+  BULGE_GEOMETRIC = 2,  // every extruding move; the tolerance picks the outer wall
+};
+
+struct Action {
+  enum Kind : uint8_t { LINE = 0, DWELL = 1 };
+  uint8_t kind;
+  uint16_t ms;  // DWELL: milliseconds (0 still means: stop here)
+  float x, y, z;  // LINE: target, host = machine coordinates
+  float e;        // LINE: filament for this piece (mm), extra included
+};
+
+static const uint8_t BK_PLAN_ACTIONS_MAX = 2 * BK_PLAN_HITS_MAX + 1;
+
+struct ActionList {
+  uint8_t count;
+  float e_added;  // extra filament in these lines: add to the E offset
+  Action a[BK_PLAN_ACTIONS_MAX];
+};
+
+struct PlannerStats {
+  uint32_t moves_split;    // moves that got at least one stop
+  uint32_t points_fired;   // bulge points that made a stop
+  float extra_applied;     // extra filament extruded, mm
+  float extra_dropped;     // extra of stops at a wall's last vertex that no
+                           // extruding piece followed (a travel came first), mm
+  uint16_t layers_loaded;
+};
+
+class BulgePlanner {
+ public:
+  BulgePlanner() { reset(); }
+  // Defaults from bulgekit_config.h, no layer, marker off, stats cleared.
+  void reset();
+
+  // Layer source. With a store the layer window follows the moves' z by itself:
+  // when a move's z leaves the current layer it asks store.find_layer() and
+  // releases the layers below the newly found one.
+  void attach(MapStore *store) { store_ = store; map_changed(); }
+  // Call after the map in force was replaced or cleared (M721 E of a full map,
+  // M721 X): forgets the decoded layer. Appends need no call.
+  void map_changed();
+  // Without a store (tests, tools): use this layer until the next call. The
+  // points are copied and sorted; fired marks are cleared.
+  void load_layer(const MapLayer &layer, uint8_t quantum_um, uint8_t layer_height_cmm);
+  bool has_layer() const { return has_layer_; }
+  const MapLayer &layer() const { return layer_; }  // sorted by x, then y
+
+  // A move in host coordinates. Fills out with the primitive actions; returns
+  // true if the move continues in plan_more(). A move that does not qualify
+  // (mode, marker, travel, retraction, Z-only, E-only, no layer) comes back as
+  // one LINE action equal to the move.
+  bool plan(const Move &m, ActionList &out);
+  bool plan_more(ActionList &out);
+
+  // M720 and M722 from the raw command text. reply gets one line ("echo:..."
+  // or "Error:..."), or "" when there is nothing to say. Returns false on an
+  // Error, which changes nothing.
+  bool m720(const GcodeArgs &a, char *reply, uint8_t size);
+  bool m722(const GcodeArgs &a, char *reply, uint8_t size);
+
+  BulgeMode mode() const { return (BulgeMode)mode_; }
+  uint16_t dwell_ms() const { return dwell_ms_; }
+  float extra_e() const { return extra_e_; }
+  float tolerance() const { return tol_mm_; }
+  bool in_outer_wall() const { return marker_; }
+  const PlannerStats &stats() const { return stats_; }
+  void clear_stats();
+
+ private:
+  bool eligible(const Move &m);
+  bool window(int32_t z_cmm);
+  void derive();
+  void collect();
+  bool emit(ActionList &out);
+  void line_to(ActionList &out, float t, float e);
+  void drop_carry();
+
+  // settings (M720)
+  uint8_t mode_;
+  bool marker_;  // M722 S1 seen, no S0 since
+  uint16_t dwell_ms_;
+  float extra_e_, tol_mm_;
+
+  // layer window
+  MapStore *store_;
+  bool has_layer_, has_miss_, cache_ok_, overflow_;
+  uint8_t q_um_, lh_cmm_;
+  int32_t miss_z_;        // z (cmm) known to have no layer
+  int16_t tol_q_;         // tolerance in quanta, rounded up, plus rounding margin
+  float q_mm_, inv_q_, tol2_;
+  uint8_t fired_[(BK_LAYER_POINTS_MAX + 7) / 8];
+
+  // the last move end, in quanta: the next move usually starts there
+  float cache_x_, cache_y_, cache_z_;
+  int32_t cache_qx_, cache_qy_;
+  int32_t cache_z_cmm_;
+
+  // the move being split
+  Move m_;
+  float len_, len2_;   // XY length and its square, mm
+  float t_done_;       // parameter where the next piece starts
+  float pending_;      // extra for the next piece of this move
+  float carry_;        // extra owed to the next move (stop at the last vertex)
+  bool active_;
+  uint8_t nhit_;
+  float hit_t_[BK_PLAN_HITS_MAX];
+  uint8_t hit_i_[BK_PLAN_HITS_MAX];
+
+  PlannerStats stats_;
+  MapLayer layer_;  // the decoded working set (the "arena" of this module)
+};
+
+}  // namespace bk
+
+#endif  // BK_BULGE_PLANNER_H
