@@ -1,0 +1,77 @@
+// M721: the bulge map upload over a G-code text link (see docs/mcodes.md).
+//
+//   M721 S<size> C<crc32> [A1]   begin (A1: the bytes are records to append)
+//   M721 O<offset> D<base32>     chunk, <= 64 base32 chars (40 bytes) a line
+//   M721 E                       commit: size, CRC-32 and structure checked
+//   M721 X                       clear the map
+//   M721                         status
+//
+// The bytes are staged in the map arena's free space (MapStore::stage_open),
+// so an upload costs no RAM beyond this object (about 12 bytes) and the map in
+// force is untouched until a commit passes every check. The catch: a full
+// replacement must fit beside the current map; if it does not, the Error says
+// so and "M721 X" first frees the arena.
+//
+// Pure logic: the caller parses the line with GcodeArgs, passes it in and
+// prints the reply text (Marlin glue: SERIAL_ECHOLN per line).
+#ifndef BK_MAP_UPLOAD_H
+#define BK_MAP_UPLOAD_H
+
+#include <stdint.h>
+
+#include "bulge_map.h"
+#include "gcode_args.h"
+
+namespace bk {
+
+enum UploadStatus : int8_t {
+  UPLOAD_OK = 0,         // accepted (begin, chunk, status)
+  UPLOAD_COMMITTED = 1,  // a new map or appended records are now in force
+  UPLOAD_CLEARED = 2,    // the map was cleared
+  UPLOAD_ERROR = -1,     // reply holds an "Error:" line; nothing changed
+                         // (except: a commit that fails CRC or structure checks
+                         // also closes the upload, the old map stays in force)
+};
+
+// Base32 (RFC 4648 alphabet, no padding, case-insensitive) as M721 D uses it.
+enum Base32Error : int8_t { B32_BAD_CHAR = -1, B32_BAD_LENGTH = -2, B32_BAD_TAIL = -3 };
+// Checks text and returns the decoded byte count, or a Base32Error with the
+// offending char index in bad_pos (length errors: bad_pos = len).
+int16_t base32_check(const char *s, uint8_t len, uint8_t &bad_pos);
+// Decodes text that base32_check accepted into out (base32_check bytes).
+void base32_decode(const char *s, uint8_t len, uint8_t *out);
+
+class ReplyText;  // bounded text writer, map_upload.cpp
+
+class MapUpload {
+ public:
+  explicit MapUpload(MapStore &store) : store_(store) {}
+
+  // Handles one parsed M721 line. reply gets zero or more lines separated by
+  // '\n' (no trailing newline; "" = nothing to print); reply_size should be at
+  // least BK_M721_REPLY_BYTES. Never prints "ok" (Marlin does).
+  UploadStatus handle(const GcodeArgs &args, char *reply, uint16_t reply_size);
+
+  bool open() const { return open_ && store_.stage_size() == size_; }
+  bool appending() const { return append_; }
+  uint16_t size() const { return size_; }
+  uint16_t received() const { return received_; }
+  void abort();
+
+ private:
+  UploadStatus begin(const GcodeArgs &a, ReplyText &r);
+  UploadStatus chunk(const GcodeArgs &a, ReplyText &r);
+  UploadStatus commit(ReplyText &r);
+  void status(ReplyText &r) const;
+
+  MapStore &store_;
+  uint32_t crc_ = 0;
+  uint16_t size_ = 0;
+  uint16_t received_ = 0;  // contiguous bytes from offset 0
+  bool append_ = false;
+  bool open_ = false;
+};
+
+}  // namespace bk
+
+#endif  // BK_MAP_UPLOAD_H
