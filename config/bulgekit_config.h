@@ -95,4 +95,15 @@
 #define BK_PLAN_REPLY_MAX 72
 #endif
 
+// ---- map codec (src/bulge_map, src/map_upload: M721) -------------------------------
+// Base32 characters one "M721 O<offset> D<base32>" line may carry (40 bytes):
+// with "N<n> " and "*<cs>" the line stays within Marlin's 96-byte buffer.
+#ifndef BK_M721_CHUNK_CHARS_MAX
+#define BK_M721_CHUNK_CHARS_MAX 64
+#endif
+// Room for one M721 reply (up to two lines), with the NUL.
+#ifndef BK_M721_REPLY_BYTES
+#define BK_M721_REPLY_BYTES 128
+#endif
+
 #endif  // BULGEKIT_CONFIG_H
