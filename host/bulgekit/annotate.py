@@ -1,0 +1,226 @@
+"""Annotate sliced G-code for the bulgekit firmware.
+
+The host's moves are left exactly as the slicer wrote them.  Added:
+  * at the top: M720 (settings), M721 X, then the M721 upload of the map
+    (all of it, or as many layer records as the arena takes);
+  * M722 S1 / M722 S0 after each slicer feature comment that enters / leaves
+    the outer wall (marked mode; none in geometric mode, M720 S2);
+  * M721 ... A1 appends of the next layer records just before the first
+    layer that needs one that is not on the printer yet;
+  * at the end: M722 S0 (if still inside), M720 S0 and M721 X.
+
+Streaming model (mirrors src/bulge_planner.cpp): when the nozzle first
+extrudes in a new record's layer window the firmware releases the records
+below it.  At an append point the host therefore counts as resident every
+record sent whose z is at or above the record of the layer printed last,
+and sends only what fits in the rest of the arena (BK_MAP_ARENA_BYTES).
+
+The scan is a few regular-expression passes over the whole file (no per-line
+Python work), so 100 MB annotate in a few seconds.
+"""
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass, field
+
+from . import mapformat
+from .fallback import MODE_GEOMETRIC, MODE_MARKED, Settings
+from .gcode import feature_of_comment, is_outer
+from .strokes import BulgekitError
+
+ARENA_BYTES = 2048
+
+
+class AnnotateError(BulgekitError):
+    pass
+
+
+# Candidate feature comments; feature_of_comment() has the final word, so the
+# annotator and the parser (fallback, walls) agree on every line.
+_FEATURE_RX = re.compile(
+    rb"^[ \t]*;[ \t]*(?:TYPE:|FEATURE:|outer perimeter|inner perimeter|infill|solid layer|"
+    rb"support|dense support|skirt|raft|bridge|gap fill|prime pillar|ooze shield)[^\n]*",
+    re.M | re.I)
+# G0/G1 with a Z word (layer changes, z-hops, spiral moves) and G90/G91.
+_ZLINE_RX = re.compile(rb"^[ \t]*(?:G0?[01][ \t][^\n;]*?Z[ \t]*([-+]?[0-9]*\.?[0-9]+)|G(9[01])\b)",
+                       re.M | re.I)
+# A move that extrudes in XY (X or Y and E on a G0/G1 line).
+_EXTRUDE_RX = re.compile(rb"^[ \t]*G0?[01][ \t](?=[^\n;]*[XY])[^\n;]*E", re.M | re.I)
+
+
+@dataclass
+class AnnotateResult:
+    lines_added: int = 0
+    markers: int = 0
+    initial_records: int = 0
+    appends: list[tuple[float, int, int]] = field(default_factory=list)  # (at z, records, bytes)
+    outer_sections: int = 0
+    features_seen: int = 0
+    notes: list[str] = field(default_factory=list)
+
+
+def _record_bytes(bm: mapformat.BulgeMap) -> list[bytes]:
+    return [mapformat.encode_record(l, bm.has_weights) for l in bm.layers]
+
+
+def _z_events(data: bytes):
+    """[(offset, z_cmm)] for each G0/G1 Z move followed by XY extrusion
+    before the next Z move (real layer changes; z-hops are skipped)."""
+    zs = []
+    absolute = True
+    z = 0.0
+    matches = list(_ZLINE_RX.finditer(data))
+    zlines = []
+    for mt in matches:
+        if mt.group(2) is not None:
+            absolute = mt.group(2) == b"90"
+            continue
+        v = float(mt.group(1))
+        z = v if absolute else z + v
+        zlines.append((mt.start(), mt.end(), z))
+    n = len(zlines)
+    for k, (start, end, zz) in enumerate(zlines):
+        stop = zlines[k + 1][0] if k + 1 < n else len(data)
+        line_start = start
+        if _EXTRUDE_RX.match(data, line_start) or _EXTRUDE_RX.search(data, end, stop):
+            zc = round(zz * 100)
+            if not zs or zs[-1][1] != zc:
+                zs.append((start, zc))
+    return zs
+
+
+def annotate_bytes(data: bytes, map_bytes: bytes, settings: Settings,
+                   arena: int = ARENA_BYTES, stream: bool = True, source: str = "<gcode>",
+                   result: AnnotateResult | None = None) -> bytes:
+    res = result if result is not None else AnnotateResult()
+    bm = mapformat.decode_map(map_bytes, source="map")
+    geometric = settings.mode == MODE_GEOMETRIC
+    recs = _record_bytes(bm)
+    zrec = [l.z_cmm for l in bm.layers]
+    h = bm.layer_height_cmm
+    header = bytes(map_bytes[:mapformat.HEADER_BYTES])
+    eol = b"\r\n" if b"\r\n" in data[:4096] else b"\n"
+
+    # ---- initial upload: the header and as many records as fit
+    budget = arena
+    k = 0
+    size = len(header)
+    while k < len(recs) and size + len(recs[k]) <= budget:
+        size += len(recs[k])
+        k += 1
+    if k < len(recs) and not stream:
+        over = ", ".join(f"z {zrec[i] / 100:.2f} mm" for i in range(k, len(recs)))
+        raise AnnotateError(
+            f"the map needs {len(header) + sum(map(len, recs))} bytes but the printer holds "
+            f"{arena}: layers {over} do not fit. Annotate with streaming (the default) to "
+            "send them as appends while printing.")
+    res.initial_records = k
+    first = header + b"".join(recs[:k])
+    top = [f"; bulgekit: {len(recs)} layers, {bm.point_count} points, "
+           f"{len(header) + sum(map(len, recs))} bytes"
+           + ("" if k == len(recs) else f", {len(recs) - k} layers streamed") , settings.m720(),
+           "M721 X"]
+    top += mapformat.upload_lines(first)
+    inserts: list[tuple[int, int, bytes]] = []   # (offset, order, text)
+    inserts.append((0, 0, eol.join(t.encode() for t in top) + eol))
+
+    # ---- markers
+    if not geometric:
+        inside = False
+        for mt in _FEATURE_RX.finditer(data):
+            line = mt.group(0).decode("utf-8", "replace").strip()
+            role = feature_of_comment(line[1:])
+            if role is None:
+                continue
+            res.features_seen += 1
+            outer = is_outer(role)
+            if outer != inside:
+                inside = outer
+                end = data.find(b"\n", mt.end())
+                pos = len(data) if end < 0 else end + 1
+                txt = b"M722 S1" if outer else b"M722 S0"
+                if end < 0:
+                    txt = eol + txt
+                inserts.append((pos, 1, txt + eol))
+                res.markers += 1
+                res.outer_sections += outer
+        if res.features_seen == 0:
+            raise AnnotateError(
+                f"{source}: no slicer feature comments found, so the outer wall cannot be "
+                "marked. Slice with feature comments (;TYPE:...), or annotate with --geometric "
+                "(M720 S2: every extruding move near a map point bulges, no markers).")
+        if res.outer_sections == 0:
+            raise AnnotateError(
+                f"{source}: feature comments found but none marks the outer wall "
+                "(;TYPE:External perimeter, ;TYPE:Outer wall, ;TYPE:WALL-OUTER, ; outer perimeter). "
+                "Use --geometric (M720 S2) to annotate without markers.")
+        tail_inside = inside
+    else:
+        tail_inside = False
+
+    # ---- appends before the layers that need records not yet sent
+    if k < len(recs):
+        sent_until = k                 # records [0, sent_until) were sent
+        last_layer_z = None            # z (cmm) of the layer printed last
+        for off, zc in _z_events(data):
+            if sent_until < len(recs) and 2 * (zrec[sent_until] - zc) <= h:
+                # resident: sent records at or above the record found for the
+                # layer printed last (or everything when none was found yet)
+                floor = None
+                if last_layer_z is not None:
+                    for i in range(sent_until - 1, -1, -1):
+                        if 2 * (zrec[i] - last_layer_z) <= h:
+                            floor = zrec[i]
+                            break
+                resident = sum(len(recs[i]) for i in range(sent_until)
+                               if floor is None or zrec[i] >= floor)
+                free = arena - resident
+                j = sent_until
+                size = 0
+                while j < len(recs) and size + len(recs[j]) <= free:
+                    size += len(recs[j])
+                    j += 1
+                if j == sent_until:
+                    raise AnnotateError(
+                        f"record z {zrec[j] / 100:.2f} mm ({len(recs[j])} bytes) does not fit the "
+                        f"{free} bytes free at z {zc / 100:.2f} mm")
+                payload = b"".join(recs[sent_until:j])
+                txt = [f"; bulgekit: layers {zrec[sent_until] / 100:.2f}..{zrec[j - 1] / 100:.2f} mm"]
+                txt += mapformat.upload_lines(payload, append=True, has_weights=bm.has_weights)
+                inserts.append((off, 2, eol.join(t.encode() for t in txt) + eol))
+                res.appends.append((zc / 100, j - sent_until, len(payload)))
+                sent_until = j
+            last_layer_z = zc
+        if sent_until < len(recs):
+            raise AnnotateError(
+                f"{source}: the print never reaches z {zrec[sent_until] / 100:.2f} mm; "
+                "the map does not belong to this G-code")
+
+    tail = []
+    if tail_inside:
+        tail.append(b"M722 S0")
+    tail += [b"; bulgekit: end", b"M720 S0", b"M721 X"]
+    pre = b"" if data.endswith(b"\n") or not data else eol
+    inserts.append((len(data), 3, pre + eol.join(tail) + eol))
+
+    inserts.sort(key=lambda t: (t[0], t[1]))
+    parts = []
+    pos = 0
+    for off, _, txt in inserts:
+        parts.append(data[pos:off])
+        parts.append(txt)
+        res.lines_added += txt.count(b"\n")
+        pos = off
+    parts.append(data[pos:])
+    return b"".join(parts)
+
+
+def annotate_file(src, dst, map_bytes: bytes, settings: Settings, arena: int = ARENA_BYTES,
+                  stream: bool = True) -> AnnotateResult:
+    with open(src, "rb") as f:
+        data = f.read()
+    res = AnnotateResult()
+    out = annotate_bytes(data, map_bytes, settings, arena, stream, str(src), res)
+    with open(dst, "wb") as f:
+        f.write(out)
+    return res

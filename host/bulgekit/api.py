@@ -1,0 +1,127 @@
+"""The small public API: strokes + sliced G-code -> map, annotated G-code,
+stock-firmware fallback and statistics.
+
+    import bulgekit as bk
+    strokes = bk.text_strokes("HELLO", size_mm=6, u0=-15, v0=3)
+    out = bk.build("cyl.gcode", strokes, "out/")
+    print(out.stats.text())
+
+Every user-facing failure raises a BulgekitError subclass whose message
+names the file and line, stroke or layer at fault.
+"""
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Sequence
+
+from . import annotate as _annotate
+from . import fallback as _fallback
+from . import mapbuild, mapformat, stats as _stats, wall
+from .fallback import MODE_GEOMETRIC, MODE_MARKED, Settings
+from .strokes import BulgekitError, InputError, Stroke
+
+_IMAGE_EXT = {".png", ".jpg", ".jpeg", ".bmp", ".gif", ".tif", ".tiff", ".webp"}
+
+
+def load_strokes(path, *, image_width_mm: float | None = None, offset=(0.0, 0.0),
+                 scale: float = 1.0, pitch_mm: float = 1.5) -> list[Stroke]:
+    """Strokes from a .json stroke list, an .svg drawing or a grayscale image
+    (dots; needs image_width_mm)."""
+    from . import strokes as st
+    p = os.fspath(path)
+    ext = Path(p).suffix.lower()
+    if ext == ".json":
+        out = st.load_json(p)
+        if offset != (0.0, 0.0) or scale != 1.0:
+            out = st.transform(out, offset=offset, scale=scale)
+        return out
+    if ext == ".svg":
+        return st.load_svg(p, offset=offset, scale=scale)
+    if ext in _IMAGE_EXT:
+        if not image_width_mm:
+            raise InputError(f"{p}: an image needs a width on the wall (--image-width MM)")
+        return st.image_dots(p, image_width_mm, u0=offset[0], v0=offset[1], pitch_mm=pitch_mm)
+    raise InputError(f"{p}: unknown stroke file type {ext!r} (use .json, .svg or an image)")
+
+
+def walls(gcode, *, geometric: bool = False, layer_height: float | None = None,
+          ref_angle_deg: float = -90.0) -> wall.WallModel:
+    """Outer walls per layer of a sliced file (see wall.py for u and v)."""
+    return wall.walls_from_gcode(gcode, layer_height, geometric, ref_angle_deg)
+
+
+def build_map(model: wall.WallModel, strokes: Sequence[Stroke], *, spacing: float | None = None,
+              line_width: float = mapbuild.DEFAULT_LINE_WIDTH, quantum_um: int = 50
+              ) -> mapbuild.BuildResult:
+    return mapbuild.build(strokes, model, spacing=spacing, line_width=line_width,
+                          quantum_um=quantum_um)
+
+
+def annotate(gcode, map_bytes: bytes, out, settings: Settings = Settings(), *,
+             stream: bool = True, arena: int = _annotate.ARENA_BYTES) -> _annotate.AnnotateResult:
+    return _annotate.annotate_file(gcode, out, map_bytes, settings, arena, stream)
+
+
+def fallback(gcode, map_bytes: bytes, out, settings: Settings = Settings()
+             ) -> _fallback.RewriteResult:
+    return _fallback.rewrite_file(gcode, out, mapformat.decode_map(map_bytes, source="map"),
+                                  settings)
+
+
+def stats(map_bytes: bytes, settings: Settings = Settings(), gcode=None,
+          arena: int = _stats.ARENA_BYTES) -> _stats.Stats:
+    if gcode is None:
+        return _stats.map_stats(map_bytes, settings, arena)
+    return _stats.print_stats(gcode, map_bytes, settings, arena)
+
+
+@dataclass
+class BuildOutput:
+    map_path: Path
+    gcode_path: Path
+    fallback_path: Path | None
+    stats_path: Path
+    result: mapbuild.BuildResult
+    annotate: _annotate.AnnotateResult
+    stats: _stats.Stats
+
+
+def build(gcode, strokes: Sequence[Stroke], outdir, *, name: str | None = None,
+          geometric: bool = False, spacing: float | None = None,
+          line_width: float = mapbuild.DEFAULT_LINE_WIDTH, layer_height: float | None = None,
+          ref_angle_deg: float = -90.0, settings: Settings | None = None,
+          stream: bool = True, arena: int = _annotate.ARENA_BYTES,
+          write_fallback: bool = False, quantum_um: int = 50) -> BuildOutput:
+    """Strokes + sliced G-code -> <name>.bkm, <name>.bulge.gcode, <name>.stats.txt
+    (and <name>.stock.gcode with write_fallback) in outdir."""
+    gcode = Path(gcode)
+    outdir = Path(outdir)
+    outdir.mkdir(parents=True, exist_ok=True)
+    name = name or gcode.stem
+    if settings is None:
+        settings = Settings(mode=MODE_GEOMETRIC if geometric else MODE_MARKED)
+    elif geometric and settings.mode != MODE_GEOMETRIC:
+        raise BulgekitError("geometric=True needs settings with mode 2 (M720 S2)")
+    model = walls(gcode, geometric=settings.mode == MODE_GEOMETRIC, layer_height=layer_height,
+                  ref_angle_deg=ref_angle_deg)
+    res = build_map(model, strokes, spacing=spacing, line_width=line_width,
+                    quantum_um=quantum_um)
+    if not stream and res.overflow(arena):
+        over = ", ".join(f"z {z:.2f}" for z, _ in res.overflow(arena))
+        raise mapbuild.BuildError(
+            f"the map ({len(res.map_bytes)} bytes) exceeds the printer's {arena}-byte arena; "
+            f"layers {over} mm do not fit. Allow streaming (drop --no-stream) or use fewer points.")
+    map_path = outdir / f"{name}.bkm"
+    map_path.write_bytes(res.map_bytes)
+    gpath = outdir / f"{name}.bulge.gcode"
+    ann = annotate(gcode, res.map_bytes, gpath, settings, stream=stream, arena=arena)
+    fpath = None
+    if write_fallback:
+        fpath = outdir / f"{name}.stock.gcode"
+        fallback(gcode, res.map_bytes, fpath, settings)
+    st = stats(res.map_bytes, settings, gcode, arena)
+    spath = outdir / f"{name}.stats.txt"
+    spath.write_text(st.text() + "\n", encoding="utf-8")
+    return BuildOutput(map_path, gpath, fpath, spath, res, ann, st)

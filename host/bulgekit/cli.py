@@ -1,0 +1,247 @@
+"""bulgekit command line."""
+from __future__ import annotations
+
+import functools
+import importlib.util
+import sys
+import time
+from pathlib import Path
+
+import click
+
+from . import __version__, mapformat
+from .fallback import (DEFAULT_DWELL_MS, DEFAULT_EXTRA_E_MM, DEFAULT_TOLERANCE_MM,
+                       MODE_GEOMETRIC, MODE_MARKED, Settings)
+from .strokes import BulgekitError
+
+
+def _friendly(fn):
+    """Turn expected failures into one-line messages (exit status 1)."""
+    @functools.wraps(fn)
+    def wrapper(*a, **kw):
+        try:
+            return fn(*a, **kw)
+        except (BulgekitError, mapformat.MapFormatError) as e:
+            raise click.ClickException(str(e)) from None
+        except OSError as e:
+            raise click.ClickException(f"{e.filename or ''}: {e.strerror or e}") from None
+    return wrapper
+
+
+def _settings_options(fn):
+    fn = click.option("--geometric", is_flag=True,
+                      help="Geometric mode (M720 S2): no outer-wall markers; every extruding move "
+                           "near a point bulges. For G-code without feature comments.")(fn)
+    fn = click.option("--tolerance", type=float, default=DEFAULT_TOLERANCE_MM, show_default=True,
+                      help="M720 T: how far (mm) a point may be from a move to stop it.")(fn)
+    fn = click.option("--extra", type=float, default=DEFAULT_EXTRA_E_MM, show_default=True,
+                      help="M720 E: extra filament (mm) after each stop.")(fn)
+    fn = click.option("--dwell", type=int, default=DEFAULT_DWELL_MS, show_default=True,
+                      help="M720 P: dwell (ms) at each point, scaled by its weight/255.")(fn)
+    return fn
+
+
+def _settings(dwell, extra, tolerance, geometric) -> Settings:
+    try:
+        return Settings(MODE_GEOMETRIC if geometric else MODE_MARKED, dwell, extra, tolerance)
+    except ValueError as e:
+        raise click.BadParameter(str(e)) from None
+
+
+def _pair(ctx, param, value):
+    if value is None:
+        return None
+    try:
+        a, b = (float(t) for t in value.split(","))
+    except ValueError:
+        raise click.BadParameter(f"expected U,V in mm, got {value!r}") from None
+    return (a, b)
+
+
+@click.group(context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})
+@click.version_option(__version__, prog_name="bulgekit")
+def main():
+    """Bulges on the outer wall of FDM prints (over-extrusion by dwell + extra filament).
+
+    \b
+    Typical use:
+      bulgekit build part.gcode --text "HELLO" --at 5,3 -o out/
+      -> out/part.bkm (bulge map), out/part.bulge.gcode (print this on bulgekit
+         firmware), out/part.stats.txt; --fallback adds out/part.stock.gcode for
+         stock firmware (G4 dwells + extra E + G92, the paper's rewrite).
+
+    Strokes are drawn on the unrolled outer wall: u = mm along the wall,
+    counter-clockwise (left to right seen from outside) from the front (-Y) of
+    each layer; v = mm above the bed. Run `bulgekit demo` for a worked example.
+    """
+
+
+@main.command(short_help="Strokes + sliced G-code -> map, annotated G-code, stats, preview.")
+@click.argument("gcode", type=click.Path(exists=True, dir_okay=False))
+@click.option("-s", "--strokes", "stroke_files", multiple=True, type=click.Path(exists=True, dir_okay=False),
+              help="Stroke file: .json stroke list, .svg drawing or an image (dots). Repeatable.")
+@click.option("--text", help="Write this text on the wall (single-stroke font).")
+@click.option("--text-size", type=float, default=6.0, show_default=True, help="Capital height of --text, mm.")
+@click.option("--at", callback=_pair, default="0,2", show_default=True,
+              help="U,V (mm) of --text's baseline start, or of the image's lower-left corner.")
+@click.option("--image-width", type=float, help="Width (mm) on the wall of an image stroke file.")
+@click.option("--mirror", is_flag=True, help="Mirror --text (paint rollers).")
+@click.option("-o", "--outdir", type=click.Path(file_okay=False), default="bulgekit-out", show_default=True)
+@click.option("--name", help="Output base name (default: the G-code's name).")
+@click.option("--spacing", type=float, help="Distance (mm) between points along a layer [2 x line width].")
+@click.option("--line-width", type=float, default=0.45, show_default=True, help="Outer-wall line width, mm.")
+@click.option("--layer-height", type=float, help="Layer height (mm) if the G-code does not say.")
+@click.option("--ref-angle", type=float, default=-90.0, show_default=True,
+              help="Direction (deg, from +X) from the layer centre where u = 0.")
+@click.option("--no-stream", is_flag=True, help="Fail instead of streaming a map larger than the printer's arena.")
+@click.option("--fallback", "write_fallback", is_flag=True, help="Also write <name>.stock.gcode for stock firmware.")
+@click.option("--preview/--no-preview", default=True, show_default=True, help="Write <name>.preview.png.")
+@_settings_options
+@_friendly
+def build(gcode, stroke_files, text, text_size, at, image_width, mirror, outdir, name, spacing,
+          line_width, layer_height, ref_angle, no_stream, write_fallback, preview,
+          dwell, extra, tolerance, geometric):
+    """Place strokes on GCODE's outer wall: map + annotated G-code + stats."""
+    from . import api
+    from .strokes import text_strokes
+    strokes = []
+    for f in stroke_files:
+        strokes += api.load_strokes(f, image_width_mm=image_width, offset=at)
+    if text:
+        strokes += text_strokes(text, text_size, u0=at[0], v0=at[1], mirror=mirror)
+    if not strokes:
+        raise click.UsageError("nothing to draw: give --strokes FILE and/or --text TEXT")
+    settings = _settings(dwell, extra, tolerance, geometric)
+    t0 = time.perf_counter()
+    out = api.build(gcode, strokes, outdir, name=name, spacing=spacing, line_width=line_width,
+                    layer_height=layer_height, ref_angle_deg=ref_angle, settings=settings,
+                    stream=not no_stream, write_fallback=write_fallback)
+    click.echo(out.stats.text(per_layer=False))
+    for note in out.result.notes:
+        click.echo(f"note: {note}")
+    if out.annotate.appends:
+        click.echo(f"streaming: {out.annotate.initial_records} layers at the start, "
+                   f"{len(out.annotate.appends)} appends while printing")
+    click.echo(f"wrote {out.map_path}, {out.gcode_path}, {out.stats_path}"
+               + (f", {out.fallback_path}" if out.fallback_path else ""))
+    if preview:
+        png = _preview(out, Path(outdir) / f"{name or Path(gcode).stem}.preview.png")
+        if png:
+            click.echo(f"wrote {png}")
+    click.echo(f"done in {time.perf_counter() - t0:.1f} s")
+
+
+def _preview(out, path: Path):
+    """Unrolled-wall preview via the preview module, when it is installed."""
+    if importlib.util.find_spec("bulgekit.preview") is None:
+        return None
+    from . import preview
+    pts = out.result.points
+    model = out.result.model
+    length = max(w.length for w in model.walls)
+    lo, hi = model.v_range
+    rows = [(p.u, p.z - model.walls[p.layer].height / 2, p.weight) for p in pts]
+    preview.preview_unrolled(rows, length, hi, path,
+                             title=f"{out.gcode_path.name}: bulges on the unrolled outer wall",
+                             layer_height=model.layer_height)
+    return path
+
+
+@main.command(short_help="Add M720/M721/M722 for bulgekit firmware (moves untouched).")
+@click.argument("gcode", type=click.Path(exists=True, dir_okay=False))
+@click.argument("map_file", metavar="MAP", type=click.Path(exists=True, dir_okay=False))
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="Annotated G-code to write.")
+@click.option("--no-stream", is_flag=True, help="Fail if the map is larger than the printer's arena.")
+@click.option("--arena", type=int, default=2048, show_default=True, help="Printer map arena, bytes.")
+@_settings_options
+@_friendly
+def annotate(gcode, map_file, output, no_stream, arena, dwell, extra, tolerance, geometric):
+    """Add M720/M721/M722 for the bulgekit firmware to GCODE (moves untouched)."""
+    from .annotate import annotate_file
+    settings = _settings(dwell, extra, tolerance, geometric)
+    t0 = time.perf_counter()
+    res = annotate_file(gcode, output, Path(map_file).read_bytes(), settings, arena, not no_stream)
+    dt = time.perf_counter() - t0
+    click.echo(f"wrote {output}: {res.lines_added} lines added, {res.markers} markers, "
+               f"{res.initial_records} layers uploaded at the start"
+               + (f", {len(res.appends)} appends while printing" if res.appends else "")
+               + f" ({dt:.2f} s)")
+
+
+@main.command(short_help="Rewrite for stock firmware: G4 dwell + extra E + G92.")
+@click.argument("gcode", type=click.Path(exists=True, dir_okay=False))
+@click.argument("map_file", metavar="MAP", type=click.Path(exists=True, dir_okay=False))
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="G-code to write.")
+@_settings_options
+@_friendly
+def fallback(gcode, map_file, output, dwell, extra, tolerance, geometric):
+    """Rewrite GCODE for stock firmware: split, G4 dwell, extra E, G92 E."""
+    from .fallback import rewrite_file
+    settings = _settings(dwell, extra, tolerance, geometric)
+    res = rewrite_file(gcode, output, mapformat.decode_map(Path(map_file).read_bytes(),
+                                                           source=map_file), settings)
+    st = res.stats
+    click.echo(f"wrote {output}: {st.points_fired} stops on {res.moves_split} lines, "
+               f"{st.dwell_ms_total / 1000:.1f} s dwell, {st.extra_applied:.2f} mm extra filament")
+
+
+@main.command(short_help="Points, stops per layer and added print time.")
+@click.argument("map_file", metavar="MAP", type=click.Path(exists=True, dir_okay=False))
+@click.option("-g", "--gcode", type=click.Path(exists=True, dir_okay=False),
+              help="Also run this (unannotated) G-code to count the stops that really happen.")
+@click.option("--arena", type=int, default=2048, show_default=True)
+@click.option("--accel", type=float, default=1000.0, show_default=True,
+              help="Acceleration (mm/s^2) for the stop/start time estimate.")
+@_settings_options
+@_friendly
+def stats(map_file, gcode, arena, accel, dwell, extra, tolerance, geometric):
+    """Per-layer points, stops and the time bulges add."""
+    from . import stats as st
+    settings = _settings(dwell, extra, tolerance, geometric)
+    data = Path(map_file).read_bytes()
+    if gcode:
+        s = st.print_stats(gcode, data, settings, arena, accel)
+    else:
+        s = st.map_stats(data, settings, arena)
+    click.echo(s.text())
+
+
+@main.command(short_help="Worked example: text on a sliced cylinder.")
+@click.argument("outdir", type=click.Path(file_okay=False), default="bulgekit-demo")
+@click.option("--text", default="BULGE", show_default=True)
+@_friendly
+def demo(outdir, text):
+    """Worked example: text on a sliced 40 mm cylinder -> OUTDIR."""
+    from . import api
+    from .strokes import load_json, text_strokes
+    ex = _examples_dir()
+    gcode = ex / "cylinder40x20.gcode"
+    strokes = text_strokes(text, 6.0, u0=4.0, v0=7.0)
+    extra = ex / "wave.json"
+    if extra.exists():
+        strokes += load_json(str(extra))
+    out = api.build(gcode, strokes, outdir, name="demo", write_fallback=True)
+    click.echo(out.stats.text(per_layer=False))
+    png = _preview(out, Path(outdir) / "demo.preview.png")
+    for p in (out.map_path, out.gcode_path, out.fallback_path, out.stats_path, png):
+        if p:
+            click.echo(f"wrote {p}")
+
+
+def _examples_dir() -> Path:
+    here = Path(__file__).resolve()
+    for up in here.parents:
+        cand = up / "examples"
+        if (cand / "cylinder40x20.gcode").exists():
+            return cand
+    raise BulgekitError("demo data not found: run from a bulgekit checkout (examples/cylinder40x20.gcode)")
+
+
+# The inputs helper's commands (preview, send, stroke conversion), when present.
+if importlib.util.find_spec("bulgekit.cli_io") is not None:
+    from . import cli_io
+    cli_io.register(main)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,377 @@
+"""Stock-firmware rewrite (Takahashi & Miyashita, sec. 5.3) and the reference
+planner the firmware path is checked against.
+
+`RefPlanner` mirrors src/bulge_planner.cpp decision for decision, in float32
+where the firmware computes in float, so that the same map, settings and
+G-code give the same stops:
+  * a move qualifies when it extrudes with XY motion, the mode allows it
+    (marked mode: inside the outer wall; geometric: any) and a map layer lies
+    within half a layer height of its end z;
+  * every unfired point of that layer within the tolerance of the segment
+    stops the head at its projection, in order along the move;
+  * a piece shorter than BK_MIN_PIECE_MM is not cut: the stop happens where
+    the head already is (or at the move end);
+  * the piece after a stop carries the extra filament; a stop at the last
+    vertex hands it to the next move if that move qualifies, else it is lost.
+
+`rewrite()` turns those actions back into plain G-code for stock firmware:
+G1 pieces with E proportional to their length (eq. 1), G4 P<ms> at each
+stop, the extra E added to the next piece and a G92 E that puts the host's
+E back (M82), or relative pieces (M83) which need no G92.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Iterable, Iterator
+
+import numpy as np
+
+from . import mapformat
+from .gcode import GcodeState, Line, Move, parse_lines
+
+f32 = np.float32
+
+# Mirrors of config/bulgekit_config.h
+DEFAULT_DWELL_MS = 100
+DEFAULT_EXTRA_E_MM = 0.1
+DEFAULT_TOLERANCE_MM = 0.25
+MIN_PIECE_MM = 0.1
+MAX_DWELL_MS = 2000
+MAX_EXTRA_E_MM = 1.0
+MAX_TOLERANCE_MM = 2.0
+PLAN_HITS_MAX = 3
+
+MODE_OFF, MODE_MARKED, MODE_GEOMETRIC = 0, 1, 2
+
+
+@dataclass(frozen=True)
+class Settings:
+    """M720 settings."""
+    mode: int = MODE_MARKED
+    dwell_ms: int = DEFAULT_DWELL_MS
+    extra_e: float = DEFAULT_EXTRA_E_MM
+    tolerance: float = DEFAULT_TOLERANCE_MM
+
+    def __post_init__(self):
+        if self.mode not in (0, 1, 2):
+            raise ValueError(f"mode {self.mode} must be 0, 1 or 2")
+        if not 0 <= self.dwell_ms <= MAX_DWELL_MS or int(self.dwell_ms) != self.dwell_ms:
+            raise ValueError(f"dwell {self.dwell_ms} ms outside 0..{MAX_DWELL_MS} (whole ms)")
+        if not 0 <= self.extra_e <= MAX_EXTRA_E_MM:
+            raise ValueError(f"extra E {self.extra_e} mm outside 0..{MAX_EXTRA_E_MM}")
+        if not 0.01 <= self.tolerance <= MAX_TOLERANCE_MM:
+            raise ValueError(f"tolerance {self.tolerance} mm outside 0.01..{MAX_TOLERANCE_MM}")
+
+    def m720(self) -> str:
+        return f"M720 S{self.mode} P{self.dwell_ms} E{self.extra_e:.3f} T{self.tolerance:.3f}"
+
+
+@dataclass
+class Action:
+    kind: str           # "line" or "dwell"
+    x: float = 0.0
+    y: float = 0.0
+    z: float = 0.0
+    e: float = 0.0      # filament of this piece, extra included
+    ms: int = 0
+    t: float = 1.0      # parameter along the host move (1 = its end)
+
+
+@dataclass
+class StopRecord:
+    """One stop as it happens: where, how long, which map point."""
+    line_no: int
+    x: float
+    y: float
+    z: float
+    ms: int
+    point: tuple[int, int]   # map point in quanta
+    layer_z_cmm: int
+
+
+@dataclass
+class PlanStats:
+    moves_split: int = 0
+    points_fired: int = 0
+    extra_applied: float = 0.0
+    extra_dropped: float = 0.0
+    layers_loaded: int = 0
+    dwell_ms_total: int = 0
+
+
+class RefPlanner:
+    """Python mirror of bk::BulgePlanner (no arena: the whole map is present)."""
+
+    def __init__(self, bmap: mapformat.BulgeMap | None, settings: Settings):
+        self.map = bmap
+        self.s = settings
+        self.q_um = bmap.quantum_um if bmap else 50
+        self.lh = bmap.layer_height_cmm if bmap else 30
+        self.q_mm = f32(self.q_um) * f32(0.001)
+        self.tol2 = f32(settings.tolerance) * f32(settings.tolerance)
+        self.layer = None          # (z_cmm, pts sorted [(x,y,w)], fired list)
+        self.miss_z = None
+        self.carry = f32(0)
+        self.stats = PlanStats()
+        self.stops: list[StopRecord] = []
+        self._zs = [l.z_cmm for l in bmap.layers] if bmap else []
+
+    # -- layer window (MapStore::find_layer + BulgePlanner::window)
+    def _find(self, zc: int):
+        best = None
+        best_d = 0
+        for i, z in enumerate(self._zs):
+            d = z - zc
+            if d > 0 and 2 * d > self.lh:
+                break
+            d = abs(d)
+            if 2 * d <= self.lh and (best is None or d < best_d):
+                best, best_d = i, d
+        return best
+
+    def _window(self, zc: int) -> bool:
+        if self.layer is not None and 2 * abs(zc - self.layer[0]) <= self.lh:
+            return True
+        if self.map is None or not self.map.layers:
+            return False
+        if self.miss_z is not None and zc == self.miss_z:
+            return False
+        i = self._find(zc)
+        if i is None:
+            self.miss_z = zc
+            return False
+        self.miss_z = None
+        rec = self.map.layers[i]
+        old = self.layer
+        w = rec.weights or (255,) * len(rec.points)
+        pts = sorted(((x, y, ww) for (x, y), ww in zip(rec.points, w)),
+                     key=lambda p: (p[0], p[1]))
+        if old is not None and old[0] == rec.z_cmm:
+            fired = old[2]
+        else:
+            fired = [False] * len(pts)
+        self.layer = (rec.z_cmm, pts, fired)
+        self.stats.layers_loaded += 1
+        return True
+
+    def _eligible(self, m: Move, outer: bool) -> bool:
+        if self.s.mode == MODE_OFF or (self.s.mode == MODE_MARKED and not outer):
+            return False
+        if not (f32(m.e) > 0 and (f32(m.x0) != f32(m.x1) or f32(m.y0) != f32(m.y1))):
+            return False
+        v = float(f32(m.z1) * f32(100.0))
+        zc = int(v + 0.5) if v >= 0 else -int(0.5 - v)
+        return self._window(zc) and len(self.layer[1]) > 0
+
+    def plan(self, m: Move, outer: bool | None = None) -> list[Action]:
+        """Actions for one G0/G1 move (or one arc chord)."""
+        if outer is None:
+            outer = m.outer
+        if not self._eligible(m, outer):
+            if self.carry != 0:
+                self.stats.extra_dropped += float(self.carry)
+                self.carry = f32(0)
+            return [Action("line", m.x1, m.y1, m.z1, m.e)]
+        x0, y0, z0 = f32(m.x0), f32(m.y0), f32(m.z0)
+        x1, y1, z1 = f32(m.x1), f32(m.y1), f32(m.z1)
+        e = f32(m.e)
+        fdx, fdy = x1 - x0, y1 - y0
+        len2 = fdx * fdx + fdy * fdy
+        pending = self.carry
+        self.carry = f32(0)
+        zc, pts, fired = self.layer
+        # all hits, nearest to the start first (ties: the sorted point order)
+        margin = self.s.tolerance + 3 * self.q_um / 1000
+        bx0, bx1 = min(m.x0, m.x1) - margin, max(m.x0, m.x1) + margin
+        by0, by1 = min(m.y0, m.y1) - margin, max(m.y0, m.y1) + margin
+        hits = []
+        for i, (px, py, w) in enumerate(pts):
+            if fired[i]:
+                continue
+            xm, ym = px * self.q_um / 1000, py * self.q_um / 1000
+            if xm < bx0 or xm > bx1 or ym < by0 or ym > by1:
+                continue
+            ux = f32(px) * self.q_mm - x0
+            uy = f32(py) * self.q_mm - y0
+            t = (ux * fdx + uy * fdy) / len2
+            t = min(max(t, f32(0)), f32(1))
+            ex, ey = ux - t * fdx, uy - t * fdy
+            if ex * ex + ey * ey > self.tol2:
+                continue
+            hits.append((t, i))
+        if hits:
+            self.stats.moves_split += 1
+        actions: list[Action] = []
+        ln = np.sqrt(len2, dtype=np.float32)
+        t_done = f32(0)
+        ms_scale = self.s.dwell_ms
+
+        def line_to(t, t_prev):
+            nonlocal pending
+            # filament in double (the firmware's float differs by ~1e-7 relative);
+            # an unsplit move keeps the host's exact number
+            piece_e = m.e * (float(t) - float(t_prev))
+            if t >= 1:
+                a = Action("line", m.x1, m.y1, m.z1, 0.0, t=1.0)
+            else:
+                ax = x0 + t * (x1 - x0)
+                ay = y0 + t * (y1 - y0)
+                az = m.z1 if z0 == z1 else float(z0 + t * (z1 - z0))
+                a = Action("line", float(ax), float(ay), az, 0.0, t=float(t))
+            a.e = piece_e + float(pending)
+            self.stats.extra_applied += float(pending)
+            pending = f32(0)
+            actions.append(a)
+
+        # batches of PLAN_HITS_MAX as the firmware's ActionList holds them;
+        # a dwell merges only with a dwell of the same batch
+        hits.sort(key=lambda h: h[0])
+        batch_start = 0
+        for k, (t, i) in enumerate(hits):
+            if k % PLAN_HITS_MAX == 0:
+                batch_start = len(actions)
+            fired[i] = True
+            self.stats.points_fired += 1
+            px, py, w = pts[i]
+            if (t - t_done) * ln < f32(MIN_PIECE_MM):
+                pass  # stop where the head already is
+            else:
+                if (f32(1) - t) * ln < f32(MIN_PIECE_MM):
+                    t = f32(1)
+                line_to(t, t_done)
+                t_done = t
+            ms = (ms_scale * w + 127) // 255
+            last = actions[-1] if len(actions) > batch_start else None
+            if last is not None and last.kind == "dwell":
+                last.ms = min(last.ms + ms, 0xFFFF)
+            else:
+                actions.append(Action("dwell", ms=ms))
+            self.stats.dwell_ms_total += ms
+            # where the head stops: the end of the last line, or the move start
+            lx = next((a for a in reversed(actions) if a.kind == "line"), None)
+            sx, sy, sz = (lx.x, lx.y, lx.z) if lx else (m.x0, m.y0, m.z0)
+            self.stops.append(StopRecord(m.line_no, sx, sy, sz, ms, (px, py), zc))
+            pending = pending + f32(self.s.extra_e)
+        if t_done < 1:
+            line_to(f32(1), t_done)
+        else:
+            self.carry = self.carry + pending
+        return actions
+
+
+def _fmt(v: float, nd: int = 5) -> str:
+    s = f"{v:.{nd}f}".rstrip("0").rstrip(".")
+    if s in ("-0", ""):
+        s = "0"
+    return s
+
+
+@dataclass
+class RewriteResult:
+    lines_in: int = 0
+    moves_split: int = 0
+    stops: list = field(default_factory=list)
+    stats: PlanStats | None = None
+
+
+def rewrite(lines: Iterable[str], bmap: mapformat.BulgeMap, settings: Settings,
+            source: str = "<gcode>", result: RewriteResult | None = None) -> Iterator[str]:
+    """Yield the stock-firmware G-code (lines end with '\\n')."""
+    planner = RefPlanner(bmap, settings)
+    st = GcodeState()
+    res = result if result is not None else RewriteResult()
+    yield (f"; bulgekit fallback: {len(bmap.layers)} layers, {bmap.point_count} points, "
+           f"dwell {settings.dwell_ms} ms, extra E {settings.extra_e:.3f} mm, "
+           f"tolerance {settings.tolerance:.3f} mm, mode {settings.mode}\n")
+    for ln in parse_lines(lines, source, st):
+        res.lines_in += 1
+        raw = ln.raw if ln.raw.endswith("\n") else ln.raw.rstrip("\r") + "\n"
+        if not ln.moves:
+            yield raw
+            continue
+        per_move = [(m, planner.plan(m)) for m in ln.moves]
+        if all(len(a) == 1 and a[0].kind == "line" and a[0].t == 1.0
+               and abs(a[0].e - m.e) < 1e-12 for m, a in per_move):
+            yield raw
+            continue
+        res.moves_split += 1
+        yield from _emit(ln, per_move, st)
+    res.stops = planner.stops
+    res.stats = planner.stats
+
+
+def _emit(ln: Line, per_move, st: GcodeState) -> Iterator[str]:
+    """G-code for one source line whose moves were split or got extra E."""
+    w = ln.words or {}
+    comment = ""
+    i = ln.raw.find(";")
+    if i >= 0:
+        comment = ln.raw[i:].rstrip("\r\n")
+    abs_xyz, abs_e = st.abs_xyz, st.abs_e
+    first = True
+    # host positions before the line: the first move's start
+    m0 = per_move[0][0]
+    cx, cy, cz = m0.x0, m0.y0, m0.z0
+    e_host = m0.e_start            # host E at the start of the current move
+    e_out = m0.e_start             # E as written (absolute mode)
+    added = 0.0
+    for m, acts in per_move:
+        e_host = m.e_start
+        acc = 0.0                  # filament written for this move so far
+        for a in acts:
+            if a.kind == "dwell":
+                yield f"G4 P{a.ms}\n"
+                continue
+            parts = ["G1"]
+            if a.t >= 1.0:
+                tx, ty, tz = m.x1, m.y1, m.z1
+            else:
+                tx, ty, tz = a.x, a.y, a.z
+            if abs_xyz:
+                if tx != cx or "X" in w or a.t < 1.0:
+                    parts.append(f"X{_fmt(tx, 4 if a.t < 1 else 5)}")
+                if ty != cy or "Y" in w or a.t < 1.0:
+                    parts.append(f"Y{_fmt(ty, 4 if a.t < 1 else 5)}")
+                if tz != cz or (first and "Z" in w):
+                    parts.append(f"Z{_fmt(tz, 4 if a.t < 1 else 5)}")
+            else:
+                if tx != cx:
+                    parts.append(f"X{_fmt(tx - cx, 4)}")
+                if ty != cy:
+                    parts.append(f"Y{_fmt(ty - cy, 4)}")
+                if tz != cz:
+                    parts.append(f"Z{_fmt(tz - cz, 4)}")
+            acc += a.e
+            if abs_e:
+                e_out = e_host + acc + added
+                parts.append(f"E{_fmt(e_out)}")
+            else:
+                parts.append(f"E{_fmt(a.e)}")
+            if first and "F" in w:
+                parts.append(f"F{_fmt(w['F'], 3)}")
+            first = False
+            cx, cy, cz = tx, ty, tz
+            yield " ".join(parts) + "\n"
+        extra_here = acc - m.e
+        added += extra_here
+    if abs_e and abs(added) > 1e-9:
+        # put the host's E back where the original line left it
+        yield f"G92 E{_fmt(per_move[-1][0].e_start + per_move[-1][0].e)}\n"
+    if comment:
+        yield comment + "\n"
+
+
+def rewrite_file(src, dst, bmap: mapformat.BulgeMap, settings: Settings) -> RewriteResult:
+    from .gcode import read_text
+    res = RewriteResult()
+    lines = read_text(src)
+    with open(dst, "w", encoding="utf-8", newline="") as f:
+        buf = []
+        for out in rewrite(lines, bmap, settings, str(src), res):
+            buf.append(out)
+            if len(buf) >= 4096:
+                f.write("".join(buf))
+                buf.clear()
+        f.write("".join(buf))
+    return res

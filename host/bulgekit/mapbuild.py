@@ -1,0 +1,203 @@
+"""Strokes -> bulge points on the outer-wall toolpath -> compact map.
+
+Sampling: a stroke crossing layers gives one point per layer it crosses; a
+stroke running along a layer gives points every `spacing` mm (default twice
+the line width, the smallest gap at which two bulges stay apart).  Every
+point is snapped onto that layer's outer-wall toolpath, points of different
+strokes closer than half the spacing are merged, and each layer's points are
+sorted in the order the nozzle passes them.
+
+Limits are checked, never applied silently: more than 64 points in a layer
+is an error naming the layer; a map larger than the firmware arena is
+reported with the layers that do not fit, and `annotate` can stream it.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Sequence
+
+import numpy as np
+
+from . import mapformat
+from .strokes import BulgekitError, Stroke
+from .wall import WallModel
+
+ARENA_BYTES = 2048          # BK_MAP_ARENA_BYTES
+LAYER_POINTS_MAX = mapformat.LAYER_POINTS_MAX
+DEFAULT_LINE_WIDTH = 0.45
+
+
+class BuildError(BulgekitError):
+    """Strokes that cannot become a map (message names the stroke or layer)."""
+
+
+@dataclass
+class BulgePoint:
+    layer: int          # index into the wall model
+    z: float            # layer z, mm
+    u: float            # mm along the wall from the reference (0..L)
+    s: float            # mm along the toolpath in print order
+    x: float
+    y: float
+    weight: int
+    sources: tuple[str, ...]
+
+
+@dataclass
+class BuildResult:
+    model: WallModel
+    points: list[BulgePoint]
+    layers: list[tuple[float, list[tuple[float, float]]]]   # (z, [(x, y)]) wall order
+    weights: list[list[int]] | None
+    map_bytes: bytes
+    quantum_um: int
+    spacing: float
+    record_sizes: list[int] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def bulge_map(self) -> mapformat.BulgeMap:
+        return mapformat.decode_map(self.map_bytes)
+
+    @property
+    def records_bytes(self) -> int:
+        return len(self.map_bytes) - mapformat.HEADER_BYTES
+
+    def overflow(self, arena: int = ARENA_BYTES) -> list[tuple[float, int]]:
+        """Layers (z, record bytes) beyond the arena when sent all at once."""
+        used = 0
+        out = []
+        for (z, _), size in zip(self.layers, self.record_sizes):
+            used += size
+            if used > arena - mapformat.HEADER_BYTES:
+                out.append((z, size))
+        return out
+
+
+def _stroke_samples(st: Stroke, step: float) -> np.ndarray:
+    pts = np.asarray(st.points, dtype=float).reshape(-1, 2)
+    if len(pts) == 1:
+        return pts
+    seg = np.hypot(np.diff(pts[:, 0]), np.diff(pts[:, 1]))
+    s = np.concatenate([[0.0], np.cumsum(seg)])
+    if s[-1] == 0:
+        return pts[:1]
+    n = max(2, int(math.ceil(s[-1] / step)) + 1)
+    ss = np.linspace(0.0, s[-1], n)
+    return np.stack([np.interp(ss, s, pts[:, 0]), np.interp(ss, s, pts[:, 1])], axis=1)
+
+
+def sample_strokes(strokes: Sequence[Stroke], model: WallModel, spacing: float
+                   ) -> dict[int, list[tuple[float, int, str]]]:
+    """Per layer index: (u, weight, source) before merging."""
+    if spacing <= 0:
+        raise BuildError(f"point spacing {spacing} mm must be positive")
+    out: dict[int, list[tuple[float, int, str]]] = {}
+    min_h = min(w.height for w in model.walls) or model.layer_height
+    step = max(min(spacing, min_h) / 4, 0.005)
+    lo, hi = model.v_range
+    for k, st in enumerate(strokes):
+        name = st.source or f"stroke {k + 1}"
+        if not st.points:
+            raise BuildError(f"{name}: empty stroke (no points)")
+        arr = np.asarray(st.points, dtype=float)
+        if arr.ndim != 2 or arr.shape[1] != 2 or not np.isfinite(arr).all():
+            raise BuildError(f"{name}: points must be finite (u, v) pairs")
+        if not 0 <= st.weight <= 255:
+            raise BuildError(f"{name}: weight {st.weight} outside 0..255")
+        vmin, vmax = float(arr[:, 1].min()), float(arr[:, 1].max())
+        if vmin < lo - 1e-9 or vmax > hi + 1e-9:
+            raise BuildError(
+                f"{name}: stroke spans v {vmin:.2f}..{vmax:.2f} mm, outside the outer wall's "
+                f"height {lo:.2f}..{hi:.2f} mm")
+        smp = _stroke_samples(st, step)
+        layer = model.layer_of_v(smp[:, 1])
+        if (layer < 0).any():
+            bad = float(smp[np.argmax(layer < 0), 1])
+            raise BuildError(f"{name}: v {bad:.2f} mm falls in a layer without outer wall")
+        # runs of consecutive samples in one layer
+        cuts = np.nonzero(np.diff(layer))[0] + 1
+        for run_idx in np.split(np.arange(len(smp)), cuts):
+            li = int(layer[run_idx[0]])
+            us = smp[run_idx, 0]
+            umin, umax = float(us.min()), float(us.max())
+            span = umax - umin
+            if span < spacing:
+                us_out = [(umin + umax) / 2]
+            else:
+                n = 1 + int(math.floor(span / spacing + 1e-9))
+                us_out = list(np.linspace(umin, umax, n))
+            for u in us_out:
+                out.setdefault(li, []).append((float(u), st.weight, name))
+    return out
+
+
+def _merge(samples: list[tuple[float, int, str]], length: float, min_gap: float):
+    """Merge points closer than min_gap along a closed wall of this length."""
+    pts = sorted(((u % length, w, {src}) for u, w, src in samples), key=lambda p: p[0])
+    merged: list[list] = []
+    for u, w, src in pts:
+        if merged and u - merged[-1][0] < min_gap:
+            merged[-1][1] = max(merged[-1][1], w)
+            merged[-1][2] |= src
+        else:
+            merged.append([u, w, src])
+    if len(merged) > 1 and merged[0][0] + length - merged[-1][0] < min_gap:
+        last = merged.pop()
+        merged[0][1] = max(merged[0][1], last[1])
+        merged[0][2] |= last[2]
+    return merged
+
+
+def build(strokes: Sequence[Stroke], model: WallModel, spacing: float | None = None,
+          line_width: float = DEFAULT_LINE_WIDTH, quantum_um: int = 50,
+          max_points: int = LAYER_POINTS_MAX) -> BuildResult:
+    """Place strokes on the walls and encode the map."""
+    if not strokes:
+        raise BuildError("no strokes to place")
+    spacing = spacing if spacing is not None else 2 * line_width
+    per_layer = sample_strokes(strokes, model, spacing)
+    points: list[BulgePoint] = []
+    layers = []
+    weights = []
+    too_many = []
+    for li in sorted(per_layer):
+        wall = model.walls[li]
+        merged = _merge(per_layer[li], wall.length, spacing / 2)
+        if len(merged) > max_points:
+            too_many.append((wall.z, len(merged)))
+            continue
+        us = np.array([m[0] for m in merged])
+        ss = wall.s_of_u(us)
+        xy = wall.xy_of_s(ss)
+        order = np.argsort(ss, kind="stable")
+        lpts = []
+        lw = []
+        for j in order:
+            bp = BulgePoint(li, wall.z, float(us[j]), float(ss[j]), float(xy[j, 0]),
+                            float(xy[j, 1]), int(merged[j][1]), tuple(sorted(merged[j][2])))
+            points.append(bp)
+            lpts.append((bp.x, bp.y))
+            lw.append(bp.weight)
+        layers.append((wall.z, lpts))
+        weights.append(lw)
+    if too_many:
+        detail = ", ".join(f"z {z:.2f} mm: {n}" for z, n in too_many)
+        raise BuildError(
+            f"too many points in {len(too_many)} layer(s) (at most {max_points} per layer): "
+            f"{detail}. Increase --spacing (now {spacing:.2f} mm) or simplify the strokes.")
+    if not layers:
+        raise BuildError("the strokes produced no points")
+    use_w = any(w != 255 for lw in weights for w in lw)
+    wts = weights if use_w else None
+    try:
+        data = mapformat.encode_map(layers, quantum_um=quantum_um,
+                                    layer_height_mm=model.layer_height, weights=wts)
+    except mapformat.MapFormatError as e:
+        raise BuildError(f"map encoding failed: {e}") from None
+    bm = mapformat.decode_map(data)
+    sizes = [len(mapformat.encode_record(l, bm.has_weights)) for l in bm.layers]
+    res = BuildResult(model, points, layers, wts, data, quantum_um, spacing, sizes,
+                      list(model.notes))
+    return res
