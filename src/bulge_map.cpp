@@ -254,6 +254,22 @@ uint16_t map_decode_record(const uint8_t *p, uint16_t avail, bool weights, MapLa
   return h.size;
 }
 
+MapError map_parse_header(const uint8_t *p, uint16_t len, MapInfo &info) {
+  if (len < MAP_HEADER_BYTES) return MAP_ERR_TRUNCATED;
+  if (p[0] != 'B' || p[1] != 'K' || p[2] != 'M') return MAP_ERR_MAGIC;
+  // CRC before the field checks: a flipped bit reads as corruption, while a
+  // well-formed header from a newer host reads as "unsupported version".
+  if (crc8(p, 7) != p[7]) return MAP_ERR_HEADER_CRC;
+  if (p[3] != MAP_VERSION) return MAP_ERR_VERSION;
+  if (p[4] & (uint8_t)~MAP_FLAG_WEIGHTS) return MAP_ERR_FLAGS;
+  if (!p[5] || !p[6]) return MAP_ERR_HEADER_VALUE;
+  info.version = p[3];
+  info.flags = p[4];
+  info.quantum_um = p[5];
+  info.layer_height_cmm = p[6];
+  return MAP_OK;
+}
+
 MapError map_scan(const uint8_t *p, uint16_t len, bool with_header, MapInfo &info, int32_t after_z,
                   MapScan &scan) {
   uint16_t off = 0;
@@ -261,18 +277,8 @@ MapError map_scan(const uint8_t *p, uint16_t len, bool with_header, MapInfo &inf
   scan.error_offset = 0;
   MapInfo hi = info;
   if (with_header) {
-    if (len < MAP_HEADER_BYTES) return MAP_ERR_TRUNCATED;
-    if (p[0] != 'B' || p[1] != 'K' || p[2] != 'M') return MAP_ERR_MAGIC;
-    // CRC before the field checks: a flipped bit reads as corruption, while a
-    // well-formed header from a newer host reads as "unsupported version".
-    if (crc8(p, 7) != p[7]) return MAP_ERR_HEADER_CRC;
-    if (p[3] != MAP_VERSION) return MAP_ERR_VERSION;
-    if (p[4] & (uint8_t)~MAP_FLAG_WEIGHTS) return MAP_ERR_FLAGS;
-    if (!p[5] || !p[6]) return MAP_ERR_HEADER_VALUE;
-    hi.version = p[3];
-    hi.flags = p[4];
-    hi.quantum_um = p[5];
-    hi.layer_height_cmm = p[6];
+    MapError e = map_parse_header(p, len, hi);
+    if (e != MAP_OK) return e;
     off = MAP_HEADER_BYTES;
   }
   const bool weights = hi.flags & MAP_FLAG_WEIGHTS;
@@ -308,17 +314,27 @@ void MapStore::clear() {
 }
 
 MapError MapStore::load(const uint8_t *data, uint16_t len) {
+  if (len < MAP_HEADER_BYTES) {
+    error_offset_ = 0;
+    return MAP_ERR_TRUNCATED;
+  }
+  return load_parts(data, data + MAP_HEADER_BYTES, (uint16_t)(len - MAP_HEADER_BYTES));
+}
+
+MapError MapStore::load_parts(const uint8_t *header, const uint8_t *records, uint16_t len) {
   error_offset_ = 0;
-  if (len > MAP_HEADER_BYTES && len - MAP_HEADER_BYTES > BK_MAP_ARENA_BYTES) return MAP_ERR_TOO_LARGE;
+  if (len > BK_MAP_ARENA_BYTES) return MAP_ERR_TOO_LARGE;
   MapInfo info = info_;
+  MapError e = map_parse_header(header, MAP_HEADER_BYTES, info);
+  if (e != MAP_OK) return e;
   MapScan s;
-  MapError e = map_scan(data, len, true, info, -1, s);
+  e = map_scan(records, len, false, info, -1, s);
   if (e != MAP_OK) {
-    error_offset_ = s.error_offset;
+    error_offset_ = (uint16_t)(s.error_offset + MAP_HEADER_BYTES);
     return e;
   }
-  used_ = (uint16_t)(len - MAP_HEADER_BYTES);
-  memmove(arena_, data + MAP_HEADER_BYTES, used_);  // data may lie in the arena
+  used_ = len;
+  memmove(arena_, records, len);  // records may lie in the arena (staging)
   info_ = info;
   layers_ = s.layers;
   points_ = s.points;

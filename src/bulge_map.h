@@ -104,6 +104,10 @@ struct MapScan {
 MapError map_scan(const uint8_t *p, uint16_t len, bool with_header, MapInfo &info, int32_t after_z,
                   MapScan &scan);
 
+// Checks an 8-byte header (magic, CRC, version, flags, values; in that order)
+// and fills info. len < 8 is MAP_ERR_TRUNCATED.
+MapError map_parse_header(const uint8_t *p, uint16_t len, MapInfo &info);
+
 // Decodes the record at p (already validated, or not: all checks apply except
 // the CRC) into out; returns the record's total size, or 0 on malformed data.
 uint16_t map_decode_record(const uint8_t *p, uint16_t avail, bool weights, MapLayer &out);
@@ -120,6 +124,10 @@ class MapStore {
   // the map in force is unchanged. Success closes any staging (data may point
   // into the staging area itself).
   MapError load(const uint8_t *data, uint16_t len);
+  // The same with the header apart from the records (M721 keeps the header
+  // outside the arena so a full arena's worth of records can be staged).
+  // error_offset() still counts from the header's first byte.
+  MapError load_parts(const uint8_t *header, const uint8_t *records, uint16_t len);
   // Add records after the last layer: validated, all-or-nothing, first z above
   // every z this map has held (released layers included). Success closes any
   // staging; data may point at the staging area.

@@ -103,7 +103,7 @@ void base32_decode(const char *s, uint8_t len, uint8_t *out) {
 
 // ---- M721 ------------------------------------------------------------------------------
 void MapUpload::abort() {
-  if (open()) store_.stage_close();
+  if (open_ && open()) store_.stage_close();
   open_ = false;
   size_ = received_ = 0;
 }
@@ -181,7 +181,8 @@ UploadStatus MapUpload::begin(const GcodeArgs &a, ReplyText &r) {
       r.p(BKU_STR(" is shorter than the 8-byte map header"));
       return UPLOAD_ERROR;
     }
-    if (size - MAP_HEADER_BYTES > store_.capacity()) {
+    const uint32_t records = size - MAP_HEADER_BYTES;
+    if (records > store_.capacity()) {
       r.p(BKU_STR("Error:M721 map too large: "));
       r.u(size);
       r.p(BKU_STR(" bytes, at most "));
@@ -191,10 +192,10 @@ UploadStatus MapUpload::begin(const GcodeArgs &a, ReplyText &r) {
       r.p(BKU_STR(" + header 8)"));
       return UPLOAD_ERROR;
     }
-    if (size > room) {
+    if (records > room) {
       r.p(BKU_STR("Error:M721 map too large to stage: "));
-      r.u(size);
-      r.p(BKU_STR(" bytes, "));
+      r.u(records);
+      r.p(BKU_STR(" record bytes, "));
       r.u(room);
       r.p(BKU_STR(" free of "));
       r.u(store_.capacity());
@@ -209,11 +210,11 @@ UploadStatus MapUpload::begin(const GcodeArgs &a, ReplyText &r) {
     r.u(size_);
     r.c('\n');
   }
-  store_.stage_open((uint16_t)size);  // fits: checked above
   size_ = (uint16_t)size;
   crc_ = crc;
   received_ = 0;
   append_ = app != 0;
+  store_.stage_open(stage_bytes());  // fits: checked above
   open_ = true;
   r.p(BKU_STR("echo:M721 receiving "));
   r.u(size);
@@ -268,8 +269,17 @@ UploadStatus MapUpload::chunk(const GcodeArgs &a, ReplyText &r) {
     r.u(size_);
     return UPLOAD_ERROR;
   }
-  // A resent line rewrites the same bytes at the same offset: harmless.
-  base32_decode(text, len, store_.stage_data() + off);
+  // A resent line rewrites the same bytes at the same offset: harmless. A new
+  // map's header bytes go to head_, the rest into the arena's staging area.
+  uint8_t bytes[(BK_M721_CHUNK_CHARS_MAX * 5 + 7) / 8];
+  base32_decode(text, len, bytes);
+  uint8_t *stage = store_.stage_data();
+  for (uint8_t i = 0; i < (uint8_t)n; i++) {
+    uint16_t at = (uint16_t)(off + i);
+    if (append_) stage[at] = bytes[i];
+    else if (at < MAP_HEADER_BYTES) head_[at] = bytes[i];
+    else stage[at - MAP_HEADER_BYTES] = bytes[i];
+  }
   if (off + (uint16_t)n > received_) received_ = (uint16_t)(off + (uint16_t)n);
   return UPLOAD_OK;
 }
@@ -287,7 +297,9 @@ UploadStatus MapUpload::commit(ReplyText &r) {
     r.p(BKU_STR(" bytes received"));
     return UPLOAD_ERROR;
   }
-  const uint32_t crc = crc32_update(0, store_.stage_data(), size_);
+  const uint32_t crc = append_ ? crc32_update(0, store_.stage_data(), size_)
+                               : crc32_update(crc32_update(0, head_, MAP_HEADER_BYTES), store_.stage_data(),
+                                              stage_bytes());
   if (crc != crc_) {
     r.p(BKU_STR("Error:M721 CRC mismatch: data "));
     r.u(crc);
@@ -297,7 +309,8 @@ UploadStatus MapUpload::commit(ReplyText &r) {
     abort();
     return UPLOAD_ERROR;
   }
-  MapError e = append_ ? store_.append(store_.stage_data(), size_) : store_.load(store_.stage_data(), size_);
+  MapError e = append_ ? store_.append(store_.stage_data(), size_)
+                        : store_.load_parts(head_, store_.stage_data(), stage_bytes());
   if (e != MAP_OK) {
     r.p(append_ ? BKU_STR("Error:M721 records rejected: ") : BKU_STR("Error:M721 map rejected: "));
     r.err(e);

@@ -6,11 +6,12 @@
 //   M721 X                       clear the map
 //   M721                         status
 //
-// The bytes are staged in the map arena's free space (MapStore::stage_open),
-// so an upload costs no RAM beyond this object (about 12 bytes) and the map in
-// force is untouched until a commit passes every check. The catch: a full
-// replacement must fit beside the current map; if it does not, the Error says
-// so and "M721 X" first frees the arena.
+// The record bytes are staged in the map arena's free space
+// (MapStore::stage_open) and a new map's 8-byte header in this object, so an
+// upload costs no RAM beyond this object (about 20 bytes) and the map in force
+// is untouched until a commit passes every check. The catch: a replacement's
+// records must fit beside the current map; if they do not, the Error says so
+// and "M721 X" first frees the arena.
 //
 // Pure logic: the caller parses the line with GcodeArgs, passes it in and
 // prints the reply text (Marlin glue: SERIAL_ECHOLN per line).
@@ -45,14 +46,14 @@ class ReplyText;  // bounded text writer, map_upload.cpp
 
 class MapUpload {
  public:
-  explicit MapUpload(MapStore &store) : store_(store) {}
+  explicit MapUpload(MapStore &store) : store_(store), head_() {}
 
   // Handles one parsed M721 line. reply gets zero or more lines separated by
   // '\n' (no trailing newline; "" = nothing to print); reply_size should be at
   // least BK_M721_REPLY_BYTES. Never prints "ok" (Marlin does).
   UploadStatus handle(const GcodeArgs &args, char *reply, uint16_t reply_size);
 
-  bool open() const { return open_ && store_.stage_size() == size_; }
+  bool open() const { return open_ && store_.stage_size() == stage_bytes(); }
   bool appending() const { return append_; }
   uint16_t size() const { return size_; }
   uint16_t received() const { return received_; }
@@ -64,7 +65,10 @@ class MapUpload {
   UploadStatus commit(ReplyText &r);
   void status(ReplyText &r) const;
 
+  uint16_t stage_bytes() const { return append_ ? size_ : (uint16_t)(size_ - MAP_HEADER_BYTES); }
+
   MapStore &store_;
+  uint8_t head_[MAP_HEADER_BYTES];  // a new map's header while it is uploaded
   uint32_t crc_ = 0;
   uint16_t size_ = 0;
   uint16_t received_ = 0;  // contiguous bytes from offset 0
