@@ -369,26 +369,94 @@ MapError MapStore::append(const uint8_t *records, uint16_t len) {
   return MAP_OK;
 }
 
-// Records in the arena were validated on entry, so walking them needs only the
-// bounds checks that keep a logic error from running off the arena.
+// ---- trusted fast paths --------------------------------------------------------------
+// Records in the arena were validated in full on entry (load/append), and
+// release_below moves whole records, so the layer-change path can skip the
+// checks: 16-bit maths, one-byte varints inline. x + dx is done modulo 2^16,
+// which gives the right int16 because validation proved the true sum fits.
+// This roughly halves find_layer's cycles on AVR (see test_bench_map).
+struct FastHead {
+  uint16_t z;
+  uint8_t n;
+  uint8_t body;  // offset of the body
+  uint16_t size;
+};
+
+static inline void fast_head(const uint8_t *p, FastHead &h) {
+  h.z = (uint16_t)(p[0] | ((uint16_t)p[1] << 8));
+  uint8_t o = 2, b = p[o++];
+  h.n = b & 0x7F;
+  if (b & 0x80) h.n = (uint8_t)(h.n | (p[o++] << 7));
+  b = p[o++];
+  uint16_t len = b & 0x7F;
+  if (b & 0x80) {
+    b = p[o++];
+    len |= (uint16_t)(b & 0x7F) << 7;
+    if (b & 0x80) len |= (uint16_t)p[o++] << 14;
+  }
+  h.body = o;
+  h.size = (uint16_t)(o + len + 1);
+}
+
+static inline const uint8_t *fast_delta(const uint8_t *p, uint16_t &d) {
+  uint8_t b = *p++;
+  if (!(b & 0x80)) {
+    d = (uint16_t)((uint8_t)(b >> 1) ^ (uint16_t)-(int16_t)(b & 1));
+    return p;
+  }
+  uint16_t u = b & 0x7F;
+  b = *p++;
+  if (!(b & 0x80)) {
+    u |= (uint16_t)b << 7;
+    d = (uint16_t)((u >> 1) ^ (uint16_t)-(int16_t)(u & 1));
+    return p;
+  }
+  uint32_t v = u | ((uint32_t)(b & 0x7F) << 7) | ((uint32_t)*p++ << 14);
+  d = (uint16_t)((v >> 1) ^ (uint32_t) - (int32_t)(v & 1));
+  return p;
+}
+
+static void fast_decode(const uint8_t *p, const FastHead &h, bool weights, MapLayer &out) {
+  const uint8_t *b = p + h.body;
+  uint16_t x = 0, y = 0, d;
+  MapPoint *pt = out.pts;
+  for (uint8_t i = 0; i < h.n; i++, pt++) {
+    b = fast_delta(b, d);
+    x = (uint16_t)(x + d);
+    b = fast_delta(b, d);
+    y = (uint16_t)(y + d);
+    pt->x = (int16_t)x;
+    pt->y = (int16_t)y;
+    pt->w = MAP_WEIGHT_FULL;
+  }
+  if (weights)
+    for (uint8_t i = 0; i < h.n; i++) out.pts[i].w = b[i];
+  out.z_cmm = h.z;
+  out.count = h.n;
+}
+
 bool MapStore::find_layer(int32_t z_cmm, MapLayer &out) const {
+  // Compare in 16 bits: z outside 0..65535 can only match near the ends.
   const int32_t h = info_.layer_height_cmm;
   uint16_t off = 0, best = 0xFFFF;
   int32_t best_d = 0;
+  FastHead fh, bh;
   while (off < used_) {
-    RecordHead rh;
-    if (read_head(arena_ + off, (uint16_t)(used_ - off), rh) != MAP_OK) return false;
-    int32_t d = (int32_t)rh.z - z_cmm;
+    fast_head(arena_ + off, fh);
+    if (fh.size > used_ - off) return false;  // cannot happen with validated records
+    int32_t d = (int32_t)fh.z - z_cmm;
     if (d > 0 && 2 * d > h) break;  // z only grows from here
     if (d < 0) d = -d;
     if (2 * d <= h && (best == 0xFFFF || d < best_d)) {
       best = off;
       best_d = d;
+      bh = fh;
     }
-    off = (uint16_t)(off + rh.size);
+    off = (uint16_t)(off + fh.size);
   }
   if (best == 0xFFFF) return false;
-  return map_decode_record(arena_ + best, (uint16_t)(used_ - best), info_.flags & MAP_FLAG_WEIGHTS, out) != 0;
+  fast_decode(arena_ + best, bh, info_.flags & MAP_FLAG_WEIGHTS, out);
+  return true;
 }
 
 void MapStore::release_below(int32_t z_cmm) {

@@ -20,7 +20,7 @@ using namespace bk;
 
 // RAM budget (AVR, 8 KiB): store 2 KiB + scratch 2.1 KiB + one layer 0.3 KiB.
 static MapStore store;
-static MapLayer layer;
+static MapLayer layer, checked;
 static uint8_t scratch[BK_MAP_ARENA_BYTES + 64];
 
 void setUp(void) { store.clear(); }
@@ -197,8 +197,16 @@ static void test_text_cylinder_every_layer(void) {
   uint16_t off = MAP_HEADER_BYTES, layers = 0, points = 0;
   while (off < n) {
     uint16_t z = (uint16_t)(scratch[off] | scratch[off + 1] << 8);
-    uint16_t size = map_decode_record(scratch + off, (uint16_t)(n - off), false, layer);
+    uint16_t size = map_decode_record(scratch + off, (uint16_t)(n - off), false, checked);
     TEST_ASSERT_TRUE(size > 0);
+    // find_layer's trusted fast decoder agrees with the checked one.
+    TEST_ASSERT_TRUE(store.find_layer(z, layer));
+    TEST_ASSERT_EQUAL_UINT8(checked.count, layer.count);
+    for (uint8_t k = 0; k < checked.count; k++) {
+      TEST_ASSERT_EQUAL_INT16(checked.pts[k].x, layer.pts[k].x);
+      TEST_ASSERT_EQUAL_INT16(checked.pts[k].y, layer.pts[k].y);
+      TEST_ASSERT_EQUAL_UINT8(255, layer.pts[k].w);
+    }
     TEST_ASSERT_TRUE(crc8(scratch + off, (uint16_t)(size - 1)) == scratch[off + size - 1]);
     if (!layers) TEST_ASSERT_EQUAL_UINT16(z, store.first_z());
     static const int8_t dz[] = {-14, -1, 0, 1, 15};  // -15 ties with z - 30: lower wins
