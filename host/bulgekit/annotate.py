@@ -35,17 +35,33 @@ class AnnotateError(BulgekitError):
     pass
 
 
-# Candidate feature comments; feature_of_comment() has the final word, so the
+# The scans look for a literal first (';', 'Z', 'G9') so the regex engine can
+# skip through the file at C speed, then check the line around each hit.
+# feature_of_comment() has the final word on a feature comment, so the
 # annotator and the parser (fallback, walls) agree on every line.
 _FEATURE_RX = re.compile(
-    rb"^[ \t]*;[ \t]*(?:TYPE:|FEATURE:|outer perimeter|inner perimeter|infill|solid layer|"
-    rb"support|dense support|skirt|raft|bridge|gap fill|prime pillar|ooze shield)[^\n]*",
-    re.M | re.I)
-# G0/G1 with a Z word (layer changes, z-hops, spiral moves) and G90/G91.
-_ZLINE_RX = re.compile(rb"^[ \t]*(?:G0?[01][ \t][^\n;]*?Z[ \t]*([-+]?[0-9]*\.?[0-9]+)|G(9[01])\b)",
-                       re.M | re.I)
-# A move that extrudes in XY (X or Y and E on a G0/G1 line).
-_EXTRUDE_RX = re.compile(rb"^[ \t]*G0?[01][ \t](?=[^\n;]*[XY])[^\n;]*E", re.M | re.I)
+    rb";[ \t]*(?:TYPE:|FEATURE:|outer perimeter|inner perimeter|infill|solid layer|"
+    rb"support|dense support|skirt|raft|bridge|gap fill|prime pillar|ooze shield)[^\n]*")
+_Z_RX = re.compile(rb"Z[ \t]*([-+]?[0-9]*\.?[0-9]+)")
+_G9X_RX = re.compile(rb"G9([01])\b")
+# A move that extrudes in XY (X or Y and E on a G0/G1 line), at a line start.
+_EXTRUDE_RX = re.compile(rb"\n[ \t]*G0?[01][ \t](?=[^\n;]*[XY])[^\n;]*E")
+_MOVE_HEAD = re.compile(rb"[ \t]*G0?[01][ \t]")
+
+
+def _line_start(data: bytes, pos: int) -> int:
+    return data.rfind(b"\n", 0, pos) + 1
+
+
+def _feature_comments(data: bytes):
+    """(end of line offset, role) of every whole-line feature comment."""
+    for mt in _FEATURE_RX.finditer(data):
+        ls = _line_start(data, mt.start())
+        if data[ls:mt.start()].strip(b" \t"):
+            continue  # a comment after a command, not a feature tag
+        role = feature_of_comment(mt.group(0).decode("utf-8", "replace")[1:])
+        if role is not None:
+            yield mt.end(), role
 
 
 @dataclass
@@ -66,23 +82,34 @@ def _record_bytes(bm: mapformat.BulgeMap) -> list[bytes]:
 def _z_events(data: bytes):
     """[(offset, z_cmm)] for each G0/G1 Z move followed by XY extrusion
     before the next Z move (real layer changes; z-hops are skipped)."""
-    zs = []
+    # G90/G91 switch Z between absolute and relative (end G-code often lifts
+    # with G91 / G1 Z10 / G90)
+    modes = [(m.start(), m.group(1) == b"0") for m in _G9X_RX.finditer(data)
+             if not data[_line_start(data, m.start()):m.start()].strip(b" \t")]
+    mi = 0
     absolute = True
     z = 0.0
-    matches = list(_ZLINE_RX.finditer(data))
     zlines = []
-    for mt in matches:
-        if mt.group(2) is not None:
-            absolute = mt.group(2) == b"90"
+    for mt in _Z_RX.finditer(data):
+        pos = mt.start()
+        ls = _line_start(data, pos)
+        if not _MOVE_HEAD.match(data, ls):
             continue
+        if data.find(b";", ls, pos) >= 0:
+            continue  # Z inside a comment
+        while mi < len(modes) and modes[mi][0] < pos:
+            absolute = modes[mi][1]
+            mi += 1
         v = float(mt.group(1))
         z = v if absolute else z + v
-        zlines.append((mt.start(), mt.end(), z))
+        zlines.append((ls, mt.end(), z))
+    zs = []
     n = len(zlines)
     for k, (start, end, zz) in enumerate(zlines):
         stop = zlines[k + 1][0] if k + 1 < n else len(data)
-        line_start = start
-        if _EXTRUDE_RX.match(data, line_start) or _EXTRUDE_RX.search(data, end, stop):
+        # the Z line itself, or a later line before the next Z move, extrudes
+        if _EXTRUDE_RX.match(data, start - 1 if start else 0) or \
+                _EXTRUDE_RX.search(data, end, stop):
             zc = round(zz * 100)
             if not zs or zs[-1][1] != zc:
                 zs.append((start, zc))
@@ -127,16 +154,12 @@ def annotate_bytes(data: bytes, map_bytes: bytes, settings: Settings,
     # ---- markers
     if not geometric:
         inside = False
-        for mt in _FEATURE_RX.finditer(data):
-            line = mt.group(0).decode("utf-8", "replace").strip()
-            role = feature_of_comment(line[1:])
-            if role is None:
-                continue
+        for eol_at, role in _feature_comments(data):
             res.features_seen += 1
             outer = is_outer(role)
             if outer != inside:
                 inside = outer
-                end = data.find(b"\n", mt.end())
+                end = data.find(b"\n", eol_at)
                 pos = len(data) if end < 0 else end + 1
                 txt = b"M722 S1" if outer else b"M722 S0"
                 if end < 0:

@@ -41,19 +41,20 @@ _S3D_ROLES = frozenset({
     "ooze shield",
 })
 
-_LAYER_TAGS = (";LAYER_CHANGE", ";LAYER:", "; CHANGE_LAYER", "; layer ")
 
 
 def feature_of_comment(comment: str) -> str | None:
-    """Role named by a whole-line comment (text after ';'), lower case, or None."""
+    """Role named by a whole-line comment (text after ';'), lower case, or None.
+
+    Tags are matched exactly as slicers write them (case included), so the
+    fast annotator scan and this parser always agree."""
     c = comment.strip()
-    if c[:5].upper() == "TYPE:":
+    if c.startswith("TYPE:"):
         return c[5:].strip().lower()
-    if c[:8].upper() == "FEATURE:":
+    if c.startswith("FEATURE:"):
         return c[8:].strip().lower()
-    low = c.lower()
-    if low in _S3D_ROLES:
-        return low
+    if c in _S3D_ROLES:
+        return c
     return None
 
 
