@@ -1,0 +1,119 @@
+import pytest
+
+from bulgekit import mapformat
+from bulgekit.fallback import RefPlanner, Settings, rewrite
+from bulgekit.gcode import iter_moves
+
+
+def bmap(layers, weights=None, lh=0.3):
+    return mapformat.decode_map(mapformat.encode_map(layers, layer_height_mm=lh, weights=weights))
+
+
+def run(text, layers, settings=Settings(), weights=None):
+    out = "".join(rewrite(text.splitlines(keepends=True), bmap(layers, weights), settings))
+    return [l for l in out.splitlines() if l and not l.startswith("; bulgekit")]
+
+
+HEAD = "G90\n{mode}\nG1 X0 Y0 Z0.3 F1200\n;TYPE:External perimeter\n"
+
+
+def test_paper_example_absolute_e():
+    # eq. 1: Pa->Pt gets E_ab * |PaPt|/|PaPb|; dwell; Pt->Pb gets the rest + extra; G92 restores
+    lines = run(HEAD.format(mode="M82") + "G1 X10 Y0 E1.0\n", [(0.3, [(4.0, 0.0)])])
+    assert lines[-4:] == ["G1 X4 Y0 E0.4", "G4 P100", "G1 X10 Y0 E1.1", "G92 E1"]
+
+
+def test_paper_example_relative_e_needs_no_g92():
+    lines = run(HEAD.format(mode="M83") + "G1 X10 Y0 E1.0\n", [(0.3, [(4.0, 0.0)])])
+    assert lines[-3:] == ["G1 X4 Y0 E0.4", "G4 P100", "G1 X10 Y0 E0.7"]
+
+
+def test_several_points_on_one_move_in_order_from_the_start():
+    lines = run(HEAD.format(mode="M83") + "G1 X10 Y0 E1.0\n",
+                [(0.3, [(8.0, 0.0), (2.0, 0.1), (5.0, -0.1)])],
+                Settings(dwell_ms=50, extra_e=0.2))
+    assert lines[-7:] == ["G1 X2 Y0 E0.2", "G4 P50", "G1 X5 Y0 E0.5", "G4 P50",
+                          "G1 X8 Y0 E0.5", "G4 P50", "G1 X10 Y0 E0.4"]
+
+
+def test_weights_scale_the_dwell():
+    lines = run(HEAD.format(mode="M83") + "G1 X10 Y0 E1.0\n", [(0.3, [(4.0, 0.0)])],
+                weights=[[51]])
+    assert "G4 P20" in lines
+
+
+def test_point_near_the_start_stops_where_the_head_is():
+    # closer than BK_MIN_PIECE_MM (0.1) to the move start: no sub-step piece
+    lines = run(HEAD.format(mode="M83") + "G1 X10 Y0 E1.0\n", [(0.3, [(0.05, 0.0)])])
+    assert lines[-2:] == ["G4 P100", "G1 X10 Y0 E1.1"]
+
+
+def test_stop_at_the_last_vertex_gives_the_extra_to_the_next_move():
+    text = HEAD.format(mode="M82") + "G1 X10 Y0 E1.0\nG1 X10 Y10 E2.0\n"
+    lines = run(text, [(0.3, [(9.95, 0.0)])])
+    assert lines[-4:] == ["G1 X10 Y0 E1", "G4 P100", "G1 X10 Y10 E2.1", "G92 E2"]
+
+
+def test_extra_owed_at_a_wall_end_is_dropped_by_a_travel():
+    text = HEAD.format(mode="M83") + "G1 X10 Y0 E1.0\nG1 X20 Y0\nG1 X30 Y0 E1.0\n"
+    planner = RefPlanner(bmap([(0.3, [(9.95, 0.0)])]), Settings())
+    acts = [planner.plan(m) for m in iter_moves(text.splitlines())]
+    assert [a.kind for a in acts[-3]] == ["line", "dwell"]
+    assert acts[-1][0].e == pytest.approx(1.0)           # no extra after the travel
+    assert planner.stats.extra_dropped == pytest.approx(0.1)
+
+
+def test_marked_mode_only_bulges_the_outer_wall_geometric_every_extrusion():
+    text = ("G90\nM83\nG1 X0 Y0 Z0.3\n;TYPE:Perimeter\nG1 X10 Y0 E1\n"
+            ";TYPE:External perimeter\nG1 X10 Y10 E1\n")
+    layers = [(0.3, [(5.0, 0.0), (10.0, 5.0)])]
+    marked = run(text, layers)
+    assert marked.count("G4 P100") == 1 and "G1 X10 Y5 E0.5" in marked
+    geo = run(text, layers, Settings(mode=2))
+    assert geo.count("G4 P100") == 2 and "G1 X5 Y0 E0.5" in geo
+
+
+def test_layer_window_is_half_a_layer():
+    text = ("G90\nM83\n;TYPE:External perimeter\nG1 X0 Y0 Z0.44\nG1 X10 Y0 E1\n"
+            "G1 Z0.46\nG1 X0 Y0 E1\n")
+    lines = run(text, [(0.3, [(5.0, 0.0)]), (0.6, [(2.0, 0.0)])])
+    # 0.44 is within 0.15 of 0.3 (fires (5,0)); 0.46 belongs to 0.6 (fires (2,0))
+    assert "G1 X5 Y0 E0.5" in lines and "G1 X2 Y0 E0.8" in lines
+
+
+def test_points_beyond_the_tolerance_do_not_stop():
+    lines = run(HEAD.format(mode="M83") + "G1 X10 Y0 E1.0\n", [(0.3, [(5.0, 0.3)])])
+    assert "G4 P100" not in lines
+    lines = run(HEAD.format(mode="M83") + "G1 X10 Y0 E1.0\n", [(0.3, [(5.0, 0.3)])],
+                Settings(tolerance=0.35))
+    assert "G4 P100" in lines
+
+
+def test_each_point_fires_once_per_layer():
+    text = HEAD.format(mode="M83") + "G1 X10 Y0 E1\nG1 X0 Y0 E1\n"   # back over the point
+    assert run(text, [(0.3, [(5.0, 0.0)])]).count("G4 P100") == 1
+
+
+def test_real_file_extrusion_totals_and_untouched_moves(data_dir):
+    from bulgekit.mapbuild import build
+    from bulgekit.strokes import Stroke
+    from bulgekit.wall import walls_from_gcode
+    for name in ("prusa_cyl.gcode", "prusa_cyl_m83.gcode"):
+        src = (data_dir / name).read_text().splitlines(keepends=True)
+        model = walls_from_gcode(data_dir / name)
+        res = build([Stroke(((5.0, 1.0), (5.0, 8.0))), Stroke(((20.0, 4.0), (40.0, 4.0)))], model)
+        planner_stats = {}
+        from bulgekit.fallback import RewriteResult
+        rr = RewriteResult()
+        out = list(rewrite(src, res.bulge_map, Settings(), name, rr))
+        e_in = sum(m.e for m in iter_moves(src))
+        e_out = sum(m.e for m in iter_moves(out))
+        assert rr.stats.points_fired == len(res.points)
+        assert e_out - e_in == pytest.approx(rr.stats.extra_applied, abs=1e-3)
+        assert rr.stats.extra_applied == pytest.approx(0.1 * len(res.points) - rr.stats.extra_dropped, abs=1e-6)
+        # every position of the original is still visited, in order
+        orig = [(round(m.x1, 3), round(m.y1, 3), round(m.z1, 3)) for m in iter_moves(src)]
+        new = [(round(m.x1, 3), round(m.y1, 3), round(m.z1, 3)) for m in iter_moves(out)]
+        it = iter(new)
+        assert all(p in it for p in orig)
+        assert sum(1 for l in out if l.startswith("G4 P")) == len(res.points)
