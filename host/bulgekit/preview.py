@@ -69,7 +69,7 @@ def preview_unrolled(points, wall_length: float, height: float, path, *, title: 
         for z in np.arange(layer_height, height, layer_height):
             ax.axhline(z, color="#dddddd", lw=0.4, zorder=1)
     ax.axvline(0, color="#888888", lw=1.2, ls="--", zorder=1)
-    ax.text(0, height, " seam", va="bottom", ha="left", fontsize=8, color="#555555")
+    ax.text(0, height, " u = 0", va="bottom", ha="left", fontsize=8, color="#555555")
 
     u, v, w = (pts[:, 0], pts[:, 1], pts[:, 2]) if len(pts) else (np.zeros(0),) * 3
     inside = (u >= 0) & (u <= wall_length) & (v >= 0) & (v <= height)
@@ -100,7 +100,7 @@ def preview_unrolled(points, wall_length: float, height: float, path, *, title: 
         ax.scatter(u[~inside], v[~inside], marker="x", color=_OUT_COLOR, s=max(full_area * 0.5, 9), lw=0.8,
                    zorder=4, label=f"{n_out} outside the wall")
         ax.legend(loc="upper right", fontsize=8)
-    ax.set_xlabel("u along the outer wall from the seam (mm)")
+    ax.set_xlabel("u along the outer wall, counter-clockwise from the reference (mm)")
     ax.set_ylabel("height above bed (mm)")
     head = title or "Unrolled outer wall"
     ax.set_title(f"{head} — {int(inside.sum())} bumps, wall {wall_length:.1f} × {height:.1f} mm"

@@ -373,3 +373,43 @@ def test_banner_after_handshake_started(pty_pair):
         stats = s.send(["G90", "G1 X1"], progress=False)
         assert "start" in s.boot_messages
     assert printer.executed == ["G90", "G1 X1"] and stats.resends == 0
+
+
+def test_send_cli_commands_map_and_file(pty_pair, tmp_path):
+    from click.testing import CliRunner
+
+    from bulgekit import mapformat
+    from bulgekit.cli import main
+
+    name, start = pty_pair
+    printer = start(corrupt=(4,))
+    # a map large enough for two M721 chunk lines
+    data = mapformat.encode_map([(0.3 * k, [(10.0 + i, 2.0 * i) for i in range(8)]) for k in range(1, 6)],
+                                quantum_um=50, layer_height_mm=0.3)
+    bkm = tmp_path / "m.bkm"
+    bkm.write_bytes(data)
+    g = tmp_path / "job.gcode"
+    g.write_text("G28\nG1 X1 ; move\n")
+    r = CliRunner().invoke(main, ["send", "-p", name, "--boot-wait", "0.5", "--timeout", "5", "--no-progress",
+                                  "-c", "M720", "--map", str(bkm), str(g)])
+    assert r.exit_code == 0, r.output
+    upload = mapformat.upload_lines(data)
+    assert printer.executed == ["M720"] + upload + ["G28", "G1 X1"]
+    assert "echo:  M720 S1 P100 E0.100 T0.250" in r.output
+    assert "m.bkm: " in r.output and "1 resent" in r.output and "job.gcode: 2 lines" in r.output
+
+
+def test_send_cli_refusal_and_timeout_messages(pty_pair, tmp_path):
+    from click.testing import CliRunner
+
+    from bulgekit.cli import main
+
+    name, start = pty_pair
+    start(refuse={"M720 P5000": "M720 P5000 exceeds max dwell 2000 ms"})
+    g = tmp_path / "bad.gcode"
+    g.write_text("G90\nM720 P5000\nG1 X1\n")
+    r = CliRunner().invoke(main, ["send", "-p", name, "--boot-wait", "0.5", "--timeout", "5", "--no-progress", str(g)])
+    assert r.exit_code == 1
+    assert f"{g}:2: printer refused 'M720 P5000': M720 P5000 exceeds max dwell 2000 ms" in r.output
+    r = CliRunner().invoke(main, ["send", "-p", str(tmp_path / "nope"), "--boot-wait", "0", "-c", "M105"])
+    assert r.exit_code == 1 and "cannot open" in r.output
