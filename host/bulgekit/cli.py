@@ -147,6 +147,16 @@ def _preview(out, path: Path):
     return path
 
 
+def _preview_3d(out, path: Path):
+    if importlib.util.find_spec("bulgekit.preview") is None:
+        return None
+    from . import preview
+    walls = [(w.z, w.xy) for w in out.result.model.walls]
+    bumps = [(p.x, p.y, p.z, p.weight) for p in out.result.points]
+    preview.preview_3d(walls, bumps, path, title=f"{out.gcode_path.name}: bulges on the walls")
+    return path
+
+
 @main.command(short_help="Add M720/M721/M722 for bulgekit firmware (moves untouched).")
 @click.argument("gcode", type=click.Path(exists=True, dir_okay=False))
 @click.argument("map_file", metavar="MAP", type=click.Path(exists=True, dir_okay=False))
@@ -223,7 +233,8 @@ def demo(outdir, text):
     out = api.build(gcode, strokes, outdir, name="demo", write_fallback=True)
     click.echo(out.stats.text(per_layer=False))
     png = _preview(out, Path(outdir) / "demo.preview.png")
-    for p in (out.map_path, out.gcode_path, out.fallback_path, out.stats_path, png):
+    png3 = _preview_3d(out, Path(outdir) / "demo.preview3d.png")
+    for p in (out.map_path, out.gcode_path, out.fallback_path, out.stats_path, png, png3):
         if p:
             click.echo(f"wrote {p}")
 
