@@ -9,12 +9,15 @@ from __future__ import annotations
 
 __version__ = "0.1.0"
 
-from .api import BuildOutput, annotate, build, build_map, fallback, load_strokes, stats, walls
+# Function names differ from the module names (annotate.py, fallback.py,
+# stats.py) so that `from bulgekit import annotate` keeps meaning the module.
+from .api import (BuildOutput, annotate_gcode, build, build_map, bulge_stats, fallback_gcode,
+                  load_strokes, walls)
 from .fallback import MODE_GEOMETRIC, MODE_MARKED, MODE_OFF, Settings
 from .strokes import BulgekitError, InputError, Stroke, text_strokes
 
 __all__ = [
     "BuildOutput", "BulgekitError", "InputError", "MODE_GEOMETRIC", "MODE_MARKED", "MODE_OFF",
-    "Settings", "Stroke", "annotate", "build", "build_map", "fallback", "load_strokes", "stats",
-    "text_strokes", "walls", "__version__",
+    "Settings", "Stroke", "annotate_gcode", "build", "build_map", "bulge_stats", "fallback_gcode",
+    "load_strokes", "text_strokes", "walls", "__version__",
 ]

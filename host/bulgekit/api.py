@@ -59,18 +59,18 @@ def build_map(model: wall.WallModel, strokes: Sequence[Stroke], *, spacing: floa
                           quantum_um=quantum_um)
 
 
-def annotate(gcode, map_bytes: bytes, out, settings: Settings = Settings(), *,
+def annotate_gcode(gcode, map_bytes: bytes, out, settings: Settings = Settings(), *,
              stream: bool = True, arena: int = _annotate.ARENA_BYTES) -> _annotate.AnnotateResult:
     return _annotate.annotate_file(gcode, out, map_bytes, settings, arena, stream)
 
 
-def fallback(gcode, map_bytes: bytes, out, settings: Settings = Settings()
+def fallback_gcode(gcode, map_bytes: bytes, out, settings: Settings = Settings()
              ) -> _fallback.RewriteResult:
     return _fallback.rewrite_file(gcode, out, mapformat.decode_map(map_bytes, source="map"),
                                   settings)
 
 
-def stats(map_bytes: bytes, settings: Settings = Settings(), gcode=None,
+def bulge_stats(map_bytes: bytes, settings: Settings = Settings(), gcode=None,
           arena: int = _stats.ARENA_BYTES) -> _stats.Stats:
     if gcode is None:
         return _stats.map_stats(map_bytes, settings, arena)
@@ -116,12 +116,12 @@ def build(gcode, strokes: Sequence[Stroke], outdir, *, name: str | None = None,
     map_path = outdir / f"{name}.bkm"
     map_path.write_bytes(res.map_bytes)
     gpath = outdir / f"{name}.bulge.gcode"
-    ann = annotate(gcode, res.map_bytes, gpath, settings, stream=stream, arena=arena)
+    ann = annotate_gcode(gcode, res.map_bytes, gpath, settings, stream=stream, arena=arena)
     fpath = None
     if write_fallback:
         fpath = outdir / f"{name}.stock.gcode"
-        fallback(gcode, res.map_bytes, fpath, settings)
-    st = stats(res.map_bytes, settings, gcode, arena)
+        fallback_gcode(gcode, res.map_bytes, fpath, settings)
+    st = bulge_stats(res.map_bytes, settings, gcode, arena)
     spath = outdir / f"{name}.stats.txt"
     spath.write_text(st.text() + "\n", encoding="utf-8")
     return BuildOutput(map_path, gpath, fpath, spath, res, ann, st)

@@ -82,8 +82,10 @@ def main():
               help="Stroke file: .json stroke list, .svg drawing or an image (dots). Repeatable.")
 @click.option("--text", help="Write this text on the wall (single-stroke font).")
 @click.option("--text-size", type=float, default=6.0, show_default=True, help="Capital height of --text, mm.")
-@click.option("--at", callback=_pair, default="0,2", show_default=True,
-              help="U,V (mm) of --text's baseline start, or of the image's lower-left corner.")
+@click.option("--at", callback=_pair, default="0,2", show_default=True, metavar="U,V",
+              help="U,V (mm) where --text's baseline starts.")
+@click.option("--offset", callback=_pair, default="0,0", show_default=True, metavar="U,V",
+              help="U,V (mm) shift for stroke files (an image's lower-left corner).")
 @click.option("--image-width", type=float, help="Width (mm) on the wall of an image stroke file.")
 @click.option("--mirror", is_flag=True, help="Mirror --text (paint rollers).")
 @click.option("-o", "--outdir", type=click.Path(file_okay=False), default="bulgekit-out", show_default=True)
@@ -98,7 +100,7 @@ def main():
 @click.option("--preview/--no-preview", default=True, show_default=True, help="Write <name>.preview.png.")
 @_settings_options
 @_friendly
-def build(gcode, stroke_files, text, text_size, at, image_width, mirror, outdir, name, spacing,
+def build(gcode, stroke_files, text, text_size, at, offset, image_width, mirror, outdir, name, spacing,
           line_width, layer_height, ref_angle, no_stream, write_fallback, preview,
           dwell, extra, tolerance, geometric):
     """Place strokes on GCODE's outer wall: map + annotated G-code + stats."""
@@ -106,7 +108,7 @@ def build(gcode, stroke_files, text, text_size, at, image_width, mirror, outdir,
     from .strokes import text_strokes
     strokes = []
     for f in stroke_files:
-        strokes += api.load_strokes(f, image_width_mm=image_width, offset=at)
+        strokes += api.load_strokes(f, image_width_mm=image_width, offset=offset)
     if text:
         strokes += text_strokes(text, text_size, u0=at[0], v0=at[1], mirror=mirror)
     if not strokes:

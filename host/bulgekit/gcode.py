@@ -98,11 +98,17 @@ ARC_CHORD_MM = 0.5  # chord length used to linearise G2/G3 (Marlin uses 1 mm)
 def parse_words(code: str, where: str) -> dict[str, float]:
     """X10 Y-2.5 ... -> {'X': 10.0, ...}.  Raises GcodeError naming `where`."""
     out: dict[str, float] = {}
-    for letter, val in _WORD.findall(code.upper()):
+    up = code.upper()
+    for mt in _WORD.finditer(up):
+        letter, val = mt.group(1), mt.group(2)
         if letter == "N" and not out:
             continue
         if not _NUM.match(val):
-            raise GcodeError(f"{where}: unparsable value {letter}{val!r}")
+            # name the whole word as written: "X1O" rather than "O"
+            a = up.rfind(" ", 0, mt.start()) + 1
+            b = up.find(" ", mt.start())
+            word = code[a:b if b >= 0 else len(code)]
+            raise GcodeError(f"{where}: unparsable value {word!r} in {code.strip()!r}")
         out[letter] = float(val)
     return out
 

@@ -31,7 +31,7 @@ def test_line_numbers_checksums_and_comments_are_stripped():
 
 
 def test_unparsable_value_names_file_and_line():
-    with pytest.raises(GcodeError, match=r"part\.gcode:3: unparsable value X'1\.2\.3'"):
+    with pytest.raises(GcodeError, match=r"part\.gcode:3: unparsable value 'X1\.2\.3'"):
         moves("G28\nG1 X1\nG1 X1.2.3 Y4\n", "part.gcode")
 
 

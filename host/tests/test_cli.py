@@ -1,0 +1,91 @@
+import json
+import re
+from pathlib import Path
+
+import pytest
+from click.testing import CliRunner
+
+from bulgekit import mapformat
+from bulgekit.cli import main
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def run(*args):
+    r = CliRunner().invoke(main, [str(a) for a in args], catch_exceptions=False)
+    return r
+
+
+def test_help_lists_the_commands():
+    r = run("--help")
+    assert r.exit_code == 0
+    for cmd in ("build", "annotate", "fallback", "stats", "demo"):
+        assert re.search(rf"^\s+{cmd}\s+\S", r.output, re.M), cmd
+    assert "u = mm along the wall" in r.output
+
+
+def test_build_writes_map_gcode_stats_and_fallback(tmp_path, data_dir):
+    strokes = tmp_path / "s.json"
+    strokes.write_text(json.dumps({"strokes": [{"points": [[3, 1], [3, 5]]}]}))
+    r = run("build", data_dir / "prusa_cyl.gcode", "-s", strokes, "--text", "I", "--at", "10,2",
+            "-o", tmp_path / "out", "--fallback", "--no-preview", "--dwell", "150")
+    assert r.exit_code == 0, r.output
+    out = tmp_path / "out"
+    m = mapformat.decode_map((out / "prusa_cyl.bkm").read_bytes())
+    assert m.point_count > 20
+    g = (out / "prusa_cyl.bulge.gcode").read_text()
+    assert "M720 S1 P150 E0.100 T0.250" in g and "M722 S1" in g
+    stock = (out / "prusa_cyl.stock.gcode").read_text()
+    assert stock.count("G4 P150") == m.point_count
+    assert f"stops when printed: {m.point_count} of {m.point_count}" in (out / "prusa_cyl.stats.txt").read_text()
+
+
+def test_build_without_outer_tags_points_to_geometric(tmp_path, data_dir):
+    r = run("build", data_dir / "slic3r_cyl.gcode", "--text", "I", "-o", tmp_path, "--no-preview")
+    assert r.exit_code == 1
+    assert "no outer-wall feature comments" in r.output and "--geometric" in r.output
+    r = run("build", data_dir / "slic3r_cyl.gcode", "--text", "I", "-o", tmp_path, "--no-preview",
+            "--geometric")
+    assert r.exit_code == 0, r.output
+    assert "M720 S2" in (tmp_path / "slic3r_cyl.bulge.gcode").read_text()
+
+
+def test_bad_gcode_line_is_named(tmp_path):
+    g = tmp_path / "bad.gcode"
+    g.write_text(";TYPE:External perimeter\nG1 Z0.3\nG1 X10 Y0 E1\nG1 X1O Y2 E2\n")
+    r = run("build", g, "--text", "I", "-o", tmp_path, "--no-preview")
+    assert r.exit_code == 1
+    assert f"{g}:4: unparsable value 'X1O' in 'X1O Y2 E2'" in r.output
+
+
+def test_settings_out_of_range_are_refused(tmp_path, data_dir):
+    r = run("build", data_dir / "prusa_cyl.gcode", "--text", "I", "-o", tmp_path, "--dwell", "2500")
+    assert r.exit_code == 2 and "dwell 2500 ms outside 0..2000" in r.output
+
+
+def test_annotate_fallback_and_stats_commands(tmp_path, data_dir):
+    g = data_dir / "prusa_cyl.gcode"
+    m = tmp_path / "m.bkm"
+    m.write_bytes(mapformat.encode_map([(3.0, [(100.0, 80.225)])]))
+    r = run("annotate", g, m, "-o", tmp_path / "a.gcode")
+    assert r.exit_code == 0, r.output
+    assert "33 layers" not in r.output and "markers" in r.output
+    r = run("fallback", g, m, "-o", tmp_path / "f.gcode", "--extra", "0.2")
+    assert r.exit_code == 0 and "1 stops" in r.output
+    r = run("stats", m, "--gcode", g)
+    assert r.exit_code == 0 and "stops when printed: 1 of 1 points" in r.output
+    bad = tmp_path / "bad.bkm"
+    bad.write_bytes(b"BKM\x01\x00\x32\x1e\x00")
+    r = run("stats", bad)
+    assert r.exit_code == 1 and "header CRC" in r.output
+
+
+@pytest.mark.skipif(not (REPO / "examples" / "cylinder40x20.gcode").exists(),
+                    reason="demo data lives in the repository's examples/")
+def test_demo(tmp_path):
+    r = run("demo", tmp_path)
+    assert r.exit_code == 0, r.output
+    for name in ("demo.bkm", "demo.bulge.gcode", "demo.stock.gcode", "demo.stats.txt",
+                 "demo.preview.png", "demo.preview3d.png"):
+        assert (tmp_path / name).stat().st_size > 0, name
+    assert (tmp_path / "demo.preview.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
