@@ -128,18 +128,18 @@ def annotate_bytes(data: bytes, map_bytes: bytes, settings: Settings,
     header = bytes(map_bytes[:mapformat.HEADER_BYTES])
     eol = b"\r\n" if b"\r\n" in data[:4096] else b"\n"
 
-    # ---- initial upload: the header and as many records as fit
-    budget = arena
+    # ---- initial upload: the header (kept beside the arena by the firmware)
+    # and as many records as the arena takes
     k = 0
-    size = len(header)
-    while k < len(recs) and size + len(recs[k]) <= budget:
+    size = 0
+    while k < len(recs) and size + len(recs[k]) <= arena:
         size += len(recs[k])
         k += 1
     if k < len(recs) and not stream:
         over = ", ".join(f"z {zrec[i] / 100:.2f} mm" for i in range(k, len(recs)))
         raise AnnotateError(
-            f"the map needs {len(header) + sum(map(len, recs))} bytes but the printer holds "
-            f"{arena}: layers {over} do not fit. Annotate with streaming (the default) to "
+            f"the map's layer records need {sum(map(len, recs))} bytes but the printer's arena "
+            f"holds {arena}: layers {over} do not fit. Annotate with streaming (the default) to "
             "send them as appends while printing.")
     res.initial_records = k
     first = header + b"".join(recs[:k])

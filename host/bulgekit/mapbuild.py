@@ -65,12 +65,13 @@ class BuildResult:
         return len(self.map_bytes) - mapformat.HEADER_BYTES
 
     def overflow(self, arena: int = ARENA_BYTES) -> list[tuple[float, int]]:
-        """Layers (z, record bytes) beyond the arena when sent all at once."""
+        """Layers (z, record bytes) beyond the arena when sent all at once
+        (the firmware keeps the 8-byte header beside the arena)."""
         used = 0
         out = []
         for (z, _), size in zip(self.layers, self.record_sizes):
             used += size
-            if used > arena - mapformat.HEADER_BYTES:
+            if used > arena:
                 out.append((z, size))
         return out
 

@@ -45,7 +45,7 @@ class Stats:
 
     @property
     def fits_arena(self) -> bool:
-        return self.map_bytes <= self.arena
+        return self.map_bytes - mapformat.HEADER_BYTES <= self.arena
 
     def text(self, per_layer: bool = True) -> str:
         s = self.settings

@@ -50,7 +50,9 @@ class FirmwareModel:
                 self.records, self.loaded, self.layer_z = [], False, None
             elif "S" in args:
                 size = int(args["S"])
-                if size > self.arena - self.used():
+                # a full map's 8-byte header is kept beside the arena
+                need = size if "A" in args else size - mapformat.HEADER_BYTES
+                if need > self.arena - self.used():
                     self.errors.append(f"no room for {size} bytes at {self.used()} used")
                 self.stage = dict(size=size, crc=int(args["C"]), append="A" in args, data=bytearray())
             elif "O" in args:
