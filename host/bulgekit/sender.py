@@ -40,6 +40,7 @@ _FATAL = re.compile(r"printer halted|kill\(\) called|thermal runaway|maxtemp|min
 _TRANSPORT = re.compile(r"checksum|line number|no line number|format error", re.I)
 _RESEND = re.compile(r"^(?:resend|rs)\s*:?\s*N?\s*(\d+)", re.I)
 _EXISTING_N = re.compile(r"^\s*N\d+\s+")
+_FRAMED_TAIL = re.compile(r"\s*\*\d+\s*$")
 
 
 class SendError(BulgekitError):
@@ -95,9 +96,9 @@ def clean_line(raw: str) -> str:
     """A G-code line without comment, surrounding blanks, line number or
     checksum ('' if nothing is left)."""
     s = raw.split(";", 1)[0].strip()
-    if "*" in s:
-        s = s.split("*", 1)[0].rstrip()
-    s = _EXISTING_N.sub("", s, count=1)
+    if _EXISTING_N.match(s):
+        # An already framed line: drop its number and checksum.
+        s = _FRAMED_TAIL.sub("", _EXISTING_N.sub("", s, count=1))
     return s.strip()
 
 
@@ -119,6 +120,8 @@ def prepare(lines: Iterable, name: str = "input") -> list[Line]:
         bad = [c for c in cmd if not (32 <= ord(c) < 127)]
         if bad:
             raise InputError(f"{src}: character {bad[0]!r} cannot be sent to the printer (ASCII only)")
+        if "*" in cmd:
+            raise InputError(f"{src}: '*' cannot be sent inside a command (it starts the checksum)")
         out.append(Line(cmd, src))
     return out
 

@@ -197,6 +197,9 @@ def test_clean_and_prepare():
     assert ls == [Line("G28", "job:1"), Line("M105", "job:4")]
     with pytest.raises(InputError, match="job:2: character 'é'"):
         prepare(["G28", "M117 café"], "job")
+    with pytest.raises(InputError, match=r"job:1: '\*' cannot be sent"):
+        prepare(["M117 5*3=15"], "job")
+    assert clean_line("N7 M117 hi *99") == "M117 hi"
 
 
 def test_clean_stream_all_lines_once_in_order(pty_pair):
