@@ -117,3 +117,33 @@ def test_real_file_extrusion_totals_and_untouched_moves(data_dir):
         it = iter(new)
         assert all(p in it for p in orig)
         assert sum(1 for l in out if l.startswith("G4 P")) == len(res.points)
+
+
+@pytest.mark.parametrize("name,geometric", [
+    ("prusa_cyl.gcode", False), ("prusa_cyl_m83.gcode", False), ("prusa_vase.gcode", False),
+    ("cura_cyl.gcode", False), ("slic3r_cyl.gcode", True),
+])
+def test_every_placed_point_stops_the_head_once(data_dir, name, geometric):
+    from bulgekit.mapbuild import build
+    from bulgekit.stats import print_stats
+    from bulgekit.strokes import Stroke, text_strokes
+    from bulgekit.wall import walls_from_gcode
+    g = data_dir / name
+    r = build(text_strokes("AB8", 6, u0=2, v0=1.5) + [Stroke(((60.0, 0.5), (60.0, 9.8)))],
+              walls_from_gcode(g, geometric=geometric))
+    st = print_stats(g, r.map_bytes, Settings(mode=2 if geometric else 1))
+    assert st.missed == []
+    assert st.stops == len(r.points) > 100
+
+
+def test_arc_through_a_point_is_rewritten_as_chords():
+    import math
+    g = "G90\nM82\nG1 X20 Y0 Z0.3 E0\n;TYPE:External perimeter\nG3 X10 Y10 I-10 J0 E1.5\nG1 X0 Y10 E2\n"
+    p = (10 + 10 * math.cos(math.radians(45)), 10 * math.sin(math.radians(45)))
+    lines = run(g, [(0.3, [p])])
+    assert not any(l.startswith("G3") for l in lines)
+    i = lines.index("G4 P100")
+    assert lines[i - 1].startswith("G1 X17.07107 Y7.07107 E0.75")
+    assert lines[-3:] == ["G1 X10 Y10 E1.6", "G92 E1.5", "G1 X0 Y10 E2"]
+    # unsplit arcs stay arcs
+    assert any(l.startswith("G3") for l in run(g, [(0.3, [(0.0, 50.0)])]))
