@@ -147,3 +147,9 @@ def test_arc_through_a_point_is_rewritten_as_chords():
     assert lines[-3:] == ["G1 X10 Y10 E1.6", "G92 E1.5", "G1 X0 Y10 E2"]
     # unsplit arcs stay arcs
     assert any(l.startswith("G3") for l in run(g, [(0.3, [(0.0, 50.0)])]))
+
+
+def test_relative_xyz_pieces_stay_relative():
+    g = "G91\n;TYPE:External perimeter\nG1 Z0.3\nG1 X10 Y0 E1.0\nG1 X0 Y5 E0.5\n"
+    lines = run(g, [(0.3, [(4.0, 0.0)])])
+    assert lines[-4:] == ["G1 X4 E0.4", "G4 P100", "G1 X6 E0.7", "G1 X0 Y5 E0.5"]
