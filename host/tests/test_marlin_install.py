@@ -1,0 +1,263 @@
+"""Tests for tools/marlin_install.py against a tiny synthetic Marlin tree.
+
+The fake tree is generated here: each patched file holds filler lines and the
+anchor lines the installer looks for (taken from the installer's own edit
+table), never text copied from Marlin.
+"""
+
+import hashlib
+import importlib.util
+import os
+
+import pytest
+
+REPO = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+_spec = importlib.util.spec_from_file_location("marlin_install", os.path.join(REPO, "tools", "marlin_install.py"))
+mi = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(mi)
+
+
+def fake_file_text(path, eol="\n"):
+    """Filler, then every anchor of this file, separated by more filler."""
+    lines = ["// synthetic stand-in for %s" % path, ""]
+    for ed in mi.EDITS:
+        if ed.path != path:
+            continue
+        lines += ["// filler before %s" % ed.name] + ed.anchor + ["// filler after %s" % ed.name, ""]
+    return eol.join(lines) + eol
+
+
+def make_tree(root, version="2.1.2.7", with_ini=True, eol="\n"):
+    files = {mi.VERSION_H: '#pragma once\n#ifndef SHORT_BUILD_VERSION\n  #define SHORT_BUILD_VERSION "%s"\n#endif\n' % version,
+             "Marlin/Configuration_adv.h": "#pragma once\n// options\n"}
+    for ed in mi.EDITS:
+        if ed.path == "ini/features.ini" and not with_ini:
+            continue
+        files[ed.path] = fake_file_text(ed.path, eol)
+    for rel, text in files.items():
+        full = os.path.join(root, rel)
+        os.makedirs(os.path.dirname(full), exist_ok=True)
+        with open(full, "w", encoding="utf-8", newline="") as f:
+            f.write(text)
+    os.makedirs(os.path.join(root, "Marlin", "src", "feature"), exist_ok=True)
+    return root
+
+
+def snapshot(root):
+    """{relative path: sha256} of every file, plus the set of directories."""
+    out, dirs = {}, set()
+    for dirpath, dirnames, filenames in os.walk(root):
+        dirs.add(os.path.relpath(dirpath, root))
+        for fn in filenames:
+            full = os.path.join(dirpath, fn)
+            with open(full, "rb") as f:
+                out[os.path.relpath(full, root)] = hashlib.sha256(f.read()).hexdigest()
+    return out, dirs
+
+
+def read(root, rel):
+    with open(os.path.join(root, rel), encoding="utf-8", newline="") as f:
+        return f.read()
+
+
+def quiet(*_):
+    pass
+
+
+@pytest.fixture
+def tree(tmp_path):
+    return make_tree(str(tmp_path / "checkout"))
+
+
+def test_install_puts_every_block_once_and_copies_files(tree):
+    assert mi.install(tree, out=quiet)
+    for ed in mi.EDITS:
+        text = read(tree, ed.path)
+        assert text.count("%s bulgekit:begin %s" % (ed.comment, ed.name)) == 1, (ed.path, ed.name)
+        assert text.count("%s bulgekit:end %s" % (ed.comment, ed.name)) == 1, (ed.path, ed.name)
+        first_body_line = [l for l in ed.text.split("\n") if l.strip()][0]
+        assert first_body_line in text
+    adv = read(tree, "Marlin/Configuration_adv.h")
+    assert "// bulgekit:begin config" in adv and "#define BULGE_MAP" in adv
+    assert adv.startswith("#pragma once\n// options\n")
+    for rel, data in mi.files_to_copy():
+        with open(os.path.join(tree, rel), "rb") as f:
+            assert f.read() == data, rel
+    core = os.path.join(tree, mi.CORE_DIR)
+    assert os.path.isfile(os.path.join(core, "bulge_planner.h"))
+    assert os.path.isfile(os.path.join(core, "bulgekit_config_defaults.h"))
+    assert "MarlinConfigPre.h" in read(tree, mi.CORE_DIR + "/bulgekit_config.h")
+    manifest = read(tree, mi.MANIFEST)
+    assert "file " in manifest and "# Marlin 2.1.2.7" in manifest
+
+
+def test_inserted_text_lands_at_the_anchor(tree):
+    mi.install(tree, out=quiet)
+    lines = read(tree, "Marlin/src/gcode/motion/G0_G1.cpp").split("\n")
+    i = lines.index("    prepare_line_to_destination();")
+    # the hook's if() sits right above the line it guards, inside the markers
+    assert lines[i - 1].strip() == "// bulgekit:end line"
+    assert "bulgekit.line_to_destination()" in lines[i - 3]
+    gh = read(tree, "Marlin/src/gcode/gcode.h").split("\n")
+    t = gh.index("  static void T(const int8_t tool_index);")
+    assert gh[t - 1] == "  // bulgekit:end decls"
+
+
+def test_replace_keeps_the_original_line_and_uninstall_restores_it(tree):
+    mi.install(tree, out=quiet)
+    text = read(tree, "Marlin/src/module/planner.h")
+    original = "  bool is_move() { return !(is_sync() || is_page()); }"
+    assert original not in text.split("\n")  # replaced ...
+    assert "  // bulgekit:was |" + original in text.split("\n")  # ... but kept
+    assert "|| is_dwell()" in text
+    mi.uninstall(tree, out=quiet)
+    assert original in read(tree, "Marlin/src/module/planner.h").split("\n")
+
+
+def test_second_install_changes_nothing(tree):
+    mi.install(tree, out=quiet)
+    first = snapshot(tree)
+    mtimes = {p: os.stat(os.path.join(tree, p)).st_mtime_ns for p in first[0]}
+    messages = []
+    mi.install(tree, out=messages.append)
+    assert snapshot(tree) == first
+    assert "0 file(s) patched, 0 copied" in messages[-1]
+    # files whose content did not change are not rewritten (the manifest is)
+    for p, t in mtimes.items():
+        if p != mi.MANIFEST.replace("/", os.sep):
+            assert os.stat(os.path.join(tree, p)).st_mtime_ns == t, p
+    assert mi.install(tree, check_only=True, out=quiet) is False
+
+
+def test_uninstall_restores_the_tree_byte_for_byte(tree):
+    before = snapshot(tree)
+    mi.install(tree, out=quiet)
+    assert snapshot(tree) != before
+    assert mi.uninstall(tree, out=quiet)
+    assert snapshot(tree) == before
+    assert mi.uninstall(tree, out=quiet) is False  # nothing left to remove
+
+
+def test_update_replaces_an_outdated_block(tree):
+    mi.install(tree, out=quiet)
+    rel = "Marlin/src/gcode/host/M115.cpp"
+    stale = read(tree, rel).replace('cap_line(F("BULGE_MAP")', 'cap_line(F("OLD_NAME")')
+    with open(os.path.join(tree, rel), "w", encoding="utf-8", newline="") as f:
+        f.write(stale)
+    mi.install(tree, out=quiet)
+    text = read(tree, rel)
+    assert "OLD_NAME" not in text and text.count('cap_line(F("BULGE_MAP")') == 1
+
+
+@pytest.mark.parametrize("damage", ["missing", "twice"])
+def test_bad_anchor_refuses_and_writes_nothing(tree, damage):
+    rel = "Marlin/src/module/stepper.cpp"
+    anchor = "uint32_t Stepper::block_phase_isr() {"
+    text = read(tree, rel)
+    text = text.replace(anchor, "uint32_t Stepper::renamed_isr() {") if damage == "missing" else text + anchor + "\n"
+    with open(os.path.join(tree, rel), "w", encoding="utf-8") as f:
+        f.write(text)
+    before = snapshot(tree)
+    with pytest.raises(mi.InstallError) as e:
+        mi.install(tree, out=quiet)
+    msg = str(e.value)
+    assert rel in msg and "'dwell-counter'" in msg and anchor in msg
+    assert ("not found" in msg) if damage == "missing" else ("found 2 times" in msg)
+    assert snapshot(tree) == before
+
+
+def test_missing_hook_file_refuses(tree):
+    os.remove(os.path.join(tree, "Marlin/src/gcode/host/M115.cpp"))
+    before = snapshot(tree)
+    with pytest.raises(mi.InstallError, match="M115.cpp: file missing"):
+        mi.install(tree, out=quiet)
+    assert snapshot(tree) == before
+
+
+@pytest.mark.parametrize("version,ok", [("2.1.2", True), ("2.1.2.7", True), ("2.1.2.12", True),
+                                        ("2.1.1", False), ("2.1.3", False), ("bugfix-2.1.x", False),
+                                        ("2.1.2.7-custom", False)])
+def test_version_gate(tmp_path, version, ok):
+    root = make_tree(str(tmp_path / "t"), version=version)
+    if ok:
+        assert mi.install(root, out=quiet)
+    else:
+        with pytest.raises(mi.InstallError, match="2.1.2.x"):
+            mi.install(root, out=quiet)
+        assert not os.path.exists(os.path.join(root, mi.MANIFEST))
+
+
+def test_any_version_still_checks_anchors(tmp_path):
+    root = make_tree(str(tmp_path / "t"), version="2.1.3")
+    warnings = []
+    assert mi.install(root, any_version=True, out=warnings.append)
+    assert any("warning" in w for w in warnings)
+
+
+def test_no_ini_is_skipped_with_a_note(tmp_path):
+    root = make_tree(str(tmp_path / "t"), with_ini=False)
+    before = snapshot(root)
+    notes = []
+    mi.install(root, out=notes.append)
+    assert any("ini/features.ini not present" in n for n in notes)
+    assert not os.path.exists(os.path.join(root, "ini"))
+    mi.uninstall(root, out=quiet)
+    assert snapshot(root) == before
+
+
+def test_ini_lines_use_hash_comments(tree):
+    mi.install(tree, out=quiet)
+    ini = read(tree, "ini/features.ini")
+    assert "# bulgekit:begin features" in ini and "// bulgekit" not in ini
+    assert "BULGE_MAP                              = build_src_filter=+<src/feature/bulgekit>" in ini
+
+
+def test_crlf_files_stay_crlf(tmp_path):
+    root = make_tree(str(tmp_path / "t"), eol="\r\n")
+    before = snapshot(root)
+    mi.install(root, out=quiet)
+    text = read(root, "Marlin/src/gcode/gcode.cpp")
+    assert "\r\n" in text and "\n" not in text.replace("\r\n", "")
+    mi.uninstall(root, out=quiet)
+    assert snapshot(root) == before
+
+
+def test_uninstall_refuses_edited_copies_unless_forced(tree):
+    before = snapshot(tree)
+    mi.install(tree, out=quiet)
+    edited = os.path.join(tree, "Marlin/src/feature/bulgekit/bulgekit.cpp")
+    with open(edited, "a", encoding="utf-8") as f:
+        f.write("// local change\n")
+    installed = snapshot(tree)
+    with pytest.raises(mi.InstallError, match="bulgekit.cpp"):
+        mi.uninstall(tree, out=quiet)
+    assert snapshot(tree) == installed
+    mi.uninstall(tree, force=True, out=quiet)
+    assert snapshot(tree) == before
+
+
+def test_unbalanced_markers_are_reported(tree):
+    mi.install(tree, out=quiet)
+    rel = "Marlin/src/gcode/gcode.h"
+    text = read(tree, rel).replace("  // bulgekit:end decls\n", "")
+    with open(os.path.join(tree, rel), "w", encoding="utf-8", newline="") as f:
+        f.write(text)
+    with pytest.raises(mi.InstallError, match="gcode.h:.*'decls' has no end marker"):
+        mi.uninstall(tree, out=quiet)
+
+
+def test_locate_accepts_the_marlin_folder(tree):
+    assert mi.locate(os.path.join(tree, "Marlin")) == os.path.abspath(tree)
+    assert mi.locate(tree) == os.path.abspath(tree)
+    with pytest.raises(mi.InstallError, match="not a Marlin checkout"):
+        mi.locate(os.path.join(tree, "Marlin", "src"))
+
+
+def test_main_exit_codes(tree, capsys):
+    assert mi.main([tree, "--check"]) == 0
+    assert not os.path.exists(os.path.join(tree, mi.MANIFEST))  # --check writes nothing
+    assert mi.main([tree]) == 0
+    assert mi.main([tree, "--uninstall"]) == 0
+    os.remove(os.path.join(tree, mi.VERSION_H))
+    assert mi.main([tree]) == 1
+    assert "not a Marlin checkout" in capsys.readouterr().err
