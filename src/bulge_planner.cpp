@@ -185,18 +185,38 @@ bool BulgePlanner::window(int32_t z_cmm) {
 
 // ---- matching -------------------------------------------------------------------
 
-static int32_t to_q(float mm, float inv_q) {
-  float v = mm * inv_q;
-  if (v > 1.0e8f) v = 1.0e8f;  // far off any map; keeps the cast defined
-  if (v < -1.0e8f) v = -1.0e8f;
-  return (int32_t)v;  // truncation; derive() widens the tolerance for it
+// The hot path runs once per G1 on an 8-bit CPU where every float compare or
+// multiply is a library call (~50-150 cycles), so cheap tests work on the
+// IEEE-754 bits and the per-point work is integer.
+static inline uint32_t fbits(float f) {
+  uint32_t u;
+  memcpy(&u, &f, sizeof u);
+  return u;
+}
+static inline bool fpos(float f) {  // > 0 (not -0, not NaN from the parser)
+  uint32_t u = fbits(f);
+  return u && !(u & 0x80000000UL);
+}
+
+// mm -> quanta, truncated (derive() widens the tolerance for that). Beyond
+// +-2^14 quanta the result saturates and far is set: the caller then skips the
+// integer tests, whose products would no longer fit 32 bits. The range check
+// is an integer compare of the float's bits, not a float compare.
+static inline int16_t to_q(float mm, float inv_q, bool &far) {
+  const float v = mm * inv_q;
+  const uint32_t u = fbits(v);
+  if ((u & 0x7FFFFFFFUL) >= 0x46800000UL) {  // 2^14
+    far = true;
+    return (u & 0x80000000UL) ? (int16_t)-16384 : (int16_t)16384;
+  }
+  return (int16_t)(int32_t)v;
 }
 
 bool BulgePlanner::eligible(const Move &m) {
   if (mode_ == BULGE_OFF || (mode_ == BULGE_MARKED && !marker_)) return false;
-  if (!m.extruding()) return false;
+  if (!fpos(m.e) || (fbits(m.x0) == fbits(m.x1) && fbits(m.y0) == fbits(m.y1))) return false;
   int32_t zc;
-  if (m.z1 == cache_z_) {
+  if (fbits(m.z1) == fbits(cache_z_)) {
     zc = cache_z_cmm_;
   } else {
     float v = m.z1 * 100.0f;
@@ -207,97 +227,139 @@ bool BulgePlanner::eligible(const Move &m) {
   return window(zc) && layer_.count;
 }
 
+// Exact test in mm against the host's own segment: true and t (0..1, the
+// parameter of the nearest point) when point i lies within the tolerance.
+bool BulgePlanner::exact(const Move &mv, uint8_t i, float &t) {
+  if (len2_ < 0.0f) {  // first candidate of this move
+    fdx_ = mv.x1 - mv.x0;
+    fdy_ = mv.y1 - mv.y0;
+    len2_ = fdx_ * fdx_ + fdy_ * fdy_;
+  }
+  if (len2_ == 0.0f) return false;  // -0.0 vs 0.0: no real motion
+  const float ux = (float)layer_.pts[i].x * q_mm_ - mv.x0, uy = (float)layer_.pts[i].y * q_mm_ - mv.y0;
+  t = (ux * fdx_ + uy * fdy_) / len2_;
+  if (t < 0.0f) t = 0.0f;
+  if (t > 1.0f) t = 1.0f;
+  const float ex = ux - t * fdx_, ey = uy - t * fdy_;
+  return ex * ex + ey * ey <= tol2_;
+}
+
 // Finds the unfired points within the tolerance of segment m_ and keeps the
 // BK_PLAN_HITS_MAX nearest to its start in hit_t_/hit_i_ (sorted by t).
 // overflow_ tells that more were found than kept.
-void BulgePlanner::collect() {
+void BulgePlanner::collect(const Move &mv) {
   nhit_ = 0;
   overflow_ = false;
-  int32_t ax, ay;
-  if (cache_ok_ && m_.x0 == cache_x_ && m_.y0 == cache_y_) {
+  int16_t ax, ay;
+  bool far = false;
+  if (cache_ok_ && fbits(mv.x0) == fbits(cache_x_) && fbits(mv.y0) == fbits(cache_y_)) {
     ax = cache_qx_;
     ay = cache_qy_;
+    far = cache_far_;
   } else {
-    ax = to_q(m_.x0, inv_q_);
-    ay = to_q(m_.y0, inv_q_);
+    ax = to_q(mv.x0, inv_q_, far);
+    ay = to_q(mv.y0, inv_q_, far);
   }
-  const int32_t bx = to_q(m_.x1, inv_q_), by = to_q(m_.y1, inv_q_);
-  cache_x_ = m_.x1;
-  cache_y_ = m_.y1;
+  bool far_end = false;
+  const int16_t bx = to_q(mv.x1, inv_q_, far_end), by = to_q(mv.y1, inv_q_, far_end);
+  far |= far_end;
+  cache_x_ = mv.x1;
+  cache_y_ = mv.y1;
   cache_qx_ = bx;
   cache_qy_ = by;
+  cache_far_ = far_end;
   cache_ok_ = true;
 
-  // Bounding box of the capsule around the segment, in quanta.
-  const int32_t x_lo = (ax < bx ? ax : bx) - tol_q_, x_hi = (ax < bx ? bx : ax) + tol_q_;
-  const int32_t y_lo = (ay < by ? ay : by) - tol_q_, y_hi = (ay < by ? by : ay) + tol_q_;
+  // Bounding box of the capsule around the segment, in quanta (int16: ends
+  // are within +-2^14 and tol_q_ below 2^13). A far move takes every point
+  // to the exact test.
+  int16_t x_lo = -32768, x_hi = 32767, y_lo = -32768, y_hi = 32767;
+  if (!far) {
+    x_lo = (int16_t)((ax < bx ? ax : bx) - tol_q_);
+    x_hi = (int16_t)((ax < bx ? bx : ax) + tol_q_);
+    y_lo = (int16_t)((ay < by ? ay : by) - tol_q_);
+    y_hi = (int16_t)((ay < by ? by : ay) + tol_q_);
+  }
   const MapPoint *pts = layer_.pts;
   const uint8_t n = layer_.count;
-  if (x_hi < pts[0].x || x_lo > pts[n - 1].x) return;
 
-  // Below 2^14 quanta per side every product of the line test fits int32.
-  const bool narrow = (x_hi - x_lo) < 16384 && (y_hi - y_lo) < 16384;
-  const int16_t dx = (int16_t)(bx - ax), dy = (int16_t)(by - ay);
-  int32_t lim = 0;
-  if (narrow) {
-    // |cross| / |d| is the distance to the line; |d| is bounded above by
-    // max + min/2 (no sqrt), so the test is loose, never tight.
-    uint16_t adx = (uint16_t)(dx < 0 ? -dx : dx), ady = (uint16_t)(dy < 0 ? -dy : dy);
-    uint16_t lub = adx > ady ? (uint16_t)(adx + ady / 2) : (uint16_t)(ady + adx / 2);
-    lim = (int32_t)tol_q_ * (int32_t)lub;
-  }
-
-  // First point with x >= x_lo.
+  // The first point with x >= x_lo by binary search.
   uint8_t lo = 0, hi = n;
   while (lo < hi) {
     uint8_t mid = (uint8_t)((lo + hi) >> 1);
-    if ((int32_t)pts[mid].x < x_lo)
+    if (pts[mid].x < x_lo)
       lo = (uint8_t)(mid + 1);
     else
       hi = mid;
   }
+  if (lo == n || pts[lo].x > x_hi) return;
 
-  bool have_len = false;
-  float fdx = 0, fdy = 0;
-  for (uint8_t i = lo; i < n && (int32_t)pts[i].x <= x_hi; i++) {
+  // Below 2^14 quanta of box per side every product of the line test fits
+  // int32; longer moves (over 800 mm at 50 um) go to the exact test directly.
+  const bool narrow = !far && (int32_t)x_hi - x_lo < 16384 && (int32_t)y_hi - y_lo < 16384;
+  const int16_t dx = (int16_t)(bx - ax), dy = (int16_t)(by - ay);
+  int32_t lim = -1;  // computed when a point first passes the box
+
+  // Walk the x range. Once the list is full, a point whose integer distance
+  // along the move is beyond the last kept one skips the float test.
+  int32_t dot_cut = 0;
+  len2_ = -1.0f;
+  for (uint8_t i = lo; i < n && pts[i].x <= x_hi; i++) {
     const int16_t py = pts[i].y;
-    if (py < y_lo || py > y_hi) continue;
-    if (fired_[i >> 3] & (uint8_t)(1 << (i & 7))) continue;
-    if (narrow) {
-      const int16_t ux = (int16_t)(pts[i].x - ax), uy = (int16_t)(py - ay);
-      int32_t cross = (int32_t)ux * dy - (int32_t)uy * dx;
-      if (cross < 0) cross = -cross;
-      if (cross > lim) continue;
+    if (py >= y_lo && py <= y_hi && !(fired_[i >> 3] & (uint8_t)(1 << (i & 7)))) {
+      int32_t dot = 0;
+      bool pass = true;
+      if (narrow) {
+        if (lim < 0) {
+          // |cross| / |d| is the distance to the line; |d| is bounded above by
+          // max + min/2 (no sqrt), so the test is loose, never tight.
+          uint16_t adx = (uint16_t)(dx < 0 ? -dx : dx), ady = (uint16_t)(dy < 0 ? -dy : dy);
+          uint16_t lub = adx > ady ? (uint16_t)(adx + ady / 2) : (uint16_t)(ady + adx / 2);
+          lim = (int32_t)tol_q_ * (int32_t)lub;
+        }
+        const int16_t ux = (int16_t)(pts[i].x - ax), uy = (int16_t)(py - ay);
+        int32_t cross = (int32_t)ux * dy - (int32_t)uy * dx;
+        if (cross < 0) cross = -cross;
+        pass = cross <= lim;
+        if (pass) {
+          dot = (int32_t)ux * dx + (int32_t)uy * dy;
+          // Full list: a point clearly further along than the last kept one
+          // waits for plan_more(). "Clearly" = by more than the rounding
+          // slack of the ends (tol_q_ quanta times |d|).
+          if (nhit_ == BK_PLAN_HITS_MAX && dot > dot_cut) {
+            overflow_ = true;
+            pass = false;
+          }
+        }
+      }
+      float t;
+      if (pass && exact(mv, i, t)) {
+        // Insert by t; keep the nearest BK_PLAN_HITS_MAX, the rest come later.
+        uint8_t j = nhit_;
+        bool keep = true;
+        if (j == BK_PLAN_HITS_MAX) {
+          overflow_ = true;
+          if (t >= hit_t_[j - 1])
+            keep = false;
+          else
+            j--;
+        } else {
+          nhit_++;
+        }
+        if (keep) {
+          while (j && hit_t_[j - 1] > t) {
+            hit_t_[j] = hit_t_[j - 1];
+            hit_i_[j] = hit_i_[j - 1];
+            hit_d_[j] = hit_d_[j - 1];
+            j--;
+          }
+          hit_t_[j] = t;
+          hit_i_[j] = i;
+          hit_d_[j] = dot;
+          if (nhit_ == BK_PLAN_HITS_MAX) dot_cut = hit_d_[nhit_ - 1] + lim;
+        }
+      }
     }
-    // Exact test in mm against the host's own segment.
-    if (!have_len) {
-      fdx = m_.x1 - m_.x0;
-      fdy = m_.y1 - m_.y0;
-      len2_ = fdx * fdx + fdy * fdy;
-      have_len = true;
-    }
-    const float ux = (float)pts[i].x * q_mm_ - m_.x0, uy = (float)py * q_mm_ - m_.y0;
-    float t = (ux * fdx + uy * fdy) / len2_;
-    if (t < 0.0f) t = 0.0f;
-    if (t > 1.0f) t = 1.0f;
-    const float ex = ux - t * fdx, ey = uy - t * fdy;
-    if (ex * ex + ey * ey > tol2_) continue;
-    // Insert by t; keep the nearest BK_PLAN_HITS_MAX, the rest come later.
-    uint8_t k = nhit_;
-    if (k == BK_PLAN_HITS_MAX) {
-      overflow_ = true;
-      if (t >= hit_t_[k - 1]) continue;
-      k--;
-    } else {
-      nhit_++;
-    }
-    while (k && hit_t_[k - 1] > t) {
-      hit_t_[k] = hit_t_[k - 1];
-      hit_i_[k] = hit_i_[k - 1];
-      k--;
-    }
-    hit_t_[k] = t;
-    hit_i_[k] = i;
   }
 }
 
@@ -314,12 +376,15 @@ void BulgePlanner::line_to(ActionList &out, float t, float e) {
   } else {
     a.x = m_.x0 + t * (m_.x1 - m_.x0);
     a.y = m_.y0 + t * (m_.y1 - m_.y0);
-    a.z = m_.z0 == m_.z1 ? m_.z1 : m_.z0 + t * (m_.z1 - m_.z0);
+    a.z = fbits(m_.z0) == fbits(m_.z1) ? m_.z1 : m_.z0 + t * (m_.z1 - m_.z0);
   }
-  a.e = e + pending_;
-  out.e_added += pending_;
-  stats_.extra_applied += pending_;
-  pending_ = 0.0f;
+  a.e = e;
+  if (fbits(pending_)) {
+    a.e += pending_;
+    out.e_added += pending_;
+    stats_.extra_applied += pending_;
+    pending_ = 0.0f;
+  }
 }
 
 // Turns the collected hits into actions; true when the move continues in
@@ -333,13 +398,15 @@ bool BulgePlanner::emit(ActionList &out) {
     stats_.points_fired++;
     if ((t - t_done_) * len_ < BK_MIN_PIECE_MM) {
       // Too close to where the head already is (the move start, or the stop
-      // before): stop there instead of queueing a sub-step piece.
+      // before; or, by less than a quantum of ordering slack, just behind it):
+      // stop there instead of queueing a sub-step piece.
     } else {
       if ((1.0f - t) * len_ < BK_MIN_PIECE_MM) t = 1.0f;  // stop at the move end
       line_to(out, t, m_.e * (t - t_done_));
       t_done_ = t;
     }
-    const uint16_t ms = (uint16_t)(((uint32_t)dwell_ms_ * layer_.pts[i].w + 127) / 255);
+    const uint8_t w = layer_.pts[i].w;
+    const uint16_t ms = w == MAP_WEIGHT_FULL ? dwell_ms_ : (uint16_t)(((uint32_t)dwell_ms_ * w + 127) / 255);
     Action *last = out.count ? &out.a[out.count - 1] : nullptr;
     if (last && last->kind == Action::DWELL) {
       // Points closer than the minimum piece share one stop.
@@ -354,7 +421,9 @@ bool BulgePlanner::emit(ActionList &out) {
     pending_ += extra_e_;
   }
   if (overflow_) return true;
-  if (t_done_ < 1.0f) {
+  if (!fbits(t_done_)) {
+    line_to(out, 1.0f, m_.e);  // untouched move: the host's E as it is
+  } else if (t_done_ < 1.0f) {
     line_to(out, 1.0f, m_.e * (1.0f - t_done_));
   } else {
     carry_ += pending_;  // the stop was at the last vertex: the next piece gets it
@@ -371,19 +440,36 @@ void BulgePlanner::drop_carry() {
   }
 }
 
+// The host's move unchanged, plus any extra owed from a stop at its start.
+static void whole(ActionList &out, const Move &m) {
+  Action &a = out.a[out.count++];
+  a.kind = Action::LINE;
+  a.ms = 0;
+  a.x = m.x1;
+  a.y = m.y1;
+  a.z = m.z1;
+  a.e = m.e;
+}
+
 bool BulgePlanner::plan(const Move &m, ActionList &out) {
   out.count = 0;
   out.e_added = 0.0f;
   active_ = false;
   if (!eligible(m)) {
     drop_carry();
-    Action &a = out.a[out.count++];
-    a.kind = Action::LINE;
-    a.ms = 0;
-    a.x = m.x1;
-    a.y = m.y1;
-    a.z = m.z1;
-    a.e = m.e;
+    whole(out, m);
+    return false;
+  }
+  collect(m);
+  if (!nhit_ && !overflow_) {
+    // Nothing on this move: the common case, kept free of float work.
+    whole(out, m);
+    if (fbits(carry_)) {
+      out.a[0].e += carry_;
+      out.e_added = carry_;
+      stats_.extra_applied += carry_;
+      carry_ = 0.0f;
+    }
     return false;
   }
   m_ = m;
@@ -391,8 +477,7 @@ bool BulgePlanner::plan(const Move &m, ActionList &out) {
   pending_ = carry_;
   carry_ = 0.0f;
   active_ = true;
-  collect();
-  if (nhit_) stats_.moves_split++;
+  stats_.moves_split++;
   return emit(out);
 }
 
@@ -400,7 +485,7 @@ bool BulgePlanner::plan_more(ActionList &out) {
   out.count = 0;
   out.e_added = 0.0f;
   if (!active_) return false;
-  collect();
+  collect(m_);
   return emit(out);
 }
 

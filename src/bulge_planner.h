@@ -118,7 +118,8 @@ class BulgePlanner {
   bool eligible(const Move &m);
   bool window(int32_t z_cmm);
   void derive();
-  void collect();
+  void collect(const Move &mv);
+  bool exact(const Move &mv, uint8_t i, float &t);
   bool emit(ActionList &out);
   void line_to(ActionList &out, float t, float e);
   void drop_carry();
@@ -140,12 +141,14 @@ class BulgePlanner {
 
   // the last move end, in quanta: the next move usually starts there
   float cache_x_, cache_y_, cache_z_;
-  int32_t cache_qx_, cache_qy_;
+  int16_t cache_qx_, cache_qy_;
+  bool cache_far_;
   int32_t cache_z_cmm_;
 
   // the move being split
   Move m_;
-  float len_, len2_;   // XY length and its square, mm
+  float len_, len2_;   // XY length and its square, mm (len2_ < 0: not yet known)
+  float fdx_, fdy_;    // XY extent, mm
   float t_done_;       // parameter where the next piece starts
   float pending_;      // extra for the next piece of this move
   float carry_;        // extra owed to the next move (stop at the last vertex)
@@ -153,6 +156,7 @@ class BulgePlanner {
   uint8_t nhit_;
   float hit_t_[BK_PLAN_HITS_MAX];
   uint8_t hit_i_[BK_PLAN_HITS_MAX];
+  int32_t hit_d_[BK_PLAN_HITS_MAX];  // integer distance along the move (ordering)
 
   PlannerStats stats_;
   MapLayer layer_;  // the decoded working set (the "arena" of this module)
