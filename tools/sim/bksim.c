@@ -2,7 +2,8 @@
  * bksim — the bulgekit simulator harness: runs an AVR ELF in libsimavr (Debian's
  * simavr 1.6) as fast as the host allows and
  *   - copies UART0 output to stdout byte for byte (CR dropped unless --raw),
- *   - feeds UART0 input from a file or stdin, paced by the UART's XON/XOFF,
+ *   - feeds UART0 input from a file or stdin at the configured baud rate
+ *     (optionally one line per "ok", as Marlin hosts send),
  *   - or (--pty) bridges UART0 to a pseudo-terminal, so a host program such as
  *     `bulgekit send` or Pronterface talks to the simulated board,
  *   - records port pin edges with cycle timestamps (for step traces),
@@ -39,6 +40,10 @@
 #define ADDR_GPIOR1 0x4A
 #define ADDR_UCSR0A 0xC0
 #define ADDR_UCSR0B 0xC1
+#define ADDR_UBRR0L 0xC4
+#define ADDR_UBRR0H 0xC5
+#define RXC0_BIT 7
+#define U2X0_BIT 1
 #define UDRE0_BIT 5
 #define TXEN0_BIT 3
 #define RXEN0_BIT 4
@@ -48,6 +53,7 @@ static avr_t *avr;
 /* ---- UART output and the closing-line check ------------------------------------ */
 static int opt_raw, opt_quiet;
 static int pty_master = -1;
+static long oks_seen;
 static char line_buf[256];
 static size_t line_len;
 static long summary_passed = -1, summary_failed = -1;
@@ -55,6 +61,7 @@ static long summary_passed = -1, summary_failed = -1;
 static void check_line(void) {
   long p, f;
   line_buf[line_len] = 0;
+  if (!strncmp(line_buf, "ok", 2)) oks_seen++;
   /* bktest's closing line: "N passed, N failed" (optionally ", N skipped") */
   if (sscanf(line_buf, "%ld passed, %ld failed", &p, &f) == 2) {
     summary_passed = p;
@@ -81,43 +88,51 @@ static void uart_out_hook(struct avr_irq_t *irq, uint32_t value, void *param) {
   }
 }
 
-/* ---- UART input, paced by the UART's own flow-control IRQs -------------------------- */
+/* ---- UART input, paced like a wire ------------------------------------------------
+ * One byte per byte time at the baud rate the program configured, and only while
+ * the receiver holds no unread byte (RXC0 clear). That suits polled readers and
+ * interrupt-driven ones (Marlin) alike; simavr's XON/XOFF IRQs stall the latter
+ * after 128 bytes. With --ok-pace a new line is only started after the program
+ * answered the previous one with "ok", as Marlin hosts do. */
 static FILE *in_file;
-static int in_xoff, in_eof;
+static int in_eof, opt_okpace;
 static avr_irq_t *uart_in_irq;
+static avr_cycle_count_t next_byte_cycle;
+static long lines_sent;
+
+static avr_cycle_count_t byte_cycles(void) {
+  uint16_t ubrr = (uint16_t)(avr->data[ADDR_UBRR0L] | (avr->data[ADDR_UBRR0H] << 8));
+  unsigned div = (avr->data[ADDR_UCSR0A] & (1 << U2X0_BIT)) ? 8 : 16;
+  return (avr_cycle_count_t)10 * div * (ubrr + 1u); /* start + 8 data + stop bits */
+}
 
 static void feed_input(void) {
-  /* simavr drops bytes that arrive while the receiver is off */
-  if (!(avr->data[ADDR_UCSR0B] & (1 << RXEN0_BIT))) return;
-  while (pty_master >= 0 && !in_xoff) {
-    unsigned char c;
-    if (read(pty_master, &c, 1) != 1) break; /* non-blocking: nothing waiting */
-    avr_raise_irq(uart_in_irq, c);
-  }
-  while (in_file && !in_xoff && !in_eof) {
-    int c = fgetc(in_file);
+  if (!(avr->data[ADDR_UCSR0B] & (1 << RXEN0_BIT))) return; /* simavr drops such bytes */
+  if (avr->data[ADDR_UCSR0A] & (1 << RXC0_BIT)) return;     /* unread byte waiting */
+  if (avr->cycle < next_byte_cycle) return;
+  int c = -1;
+  if (pty_master >= 0) {
+    unsigned char b;
+    if (read(pty_master, &b, 1) == 1) c = b; /* non-blocking */
+  } else if (in_file && !in_eof) {
+    if (opt_okpace && lines_sent > oks_seen) return;
+    c = fgetc(in_file);
     if (c == EOF) {
       in_eof = 1;
-      break;
+      return;
     }
-    avr_raise_irq(uart_in_irq, (uint32_t)c);
+    if (c == '\n') lines_sent++;
   }
-}
-static void uart_xon_hook(struct avr_irq_t *irq, uint32_t value, void *param) {
-  (void)irq; (void)value; (void)param;
-  in_xoff = 0;
-  feed_input();
-}
-static void uart_xoff_hook(struct avr_irq_t *irq, uint32_t value, void *param) {
-  (void)irq; (void)value; (void)param;
-  in_xoff = 1;
+  if (c < 0) return;
+  avr_raise_irq(uart_in_irq, (uint32_t)c);
+  next_byte_cycle = avr->cycle + byte_cycles();
 }
 
 /* simavr's own messages ("Loaded N .text ...") would mix with the program's
-   output on stdout: keep errors and warnings only, on stderr. */
+   output on stdout, and its ADC warnings flood a Marlin run: errors only, on stderr. */
 static void quiet_logger(struct avr_t *a, const int level, const char *fmt, va_list ap) {
   (void)a;
-  if (level <= LOG_WARNING) vfprintf(stderr, fmt, ap);
+  if (level <= LOG_ERROR) vfprintf(stderr, fmt, ap);
 }
 
 /* ---- pin edges --------------------------------------------------------------------- */
@@ -172,10 +187,13 @@ static void usage(void) {
           "  -m MCU            (default atmega2560)\n"
           "  -f HZ             clock (default 16000000)\n"
           "  --cycles N        cycle cap (default 800000000, ~50 s simulated); exceeding it fails\n"
-          "  --input FILE|-    feed UART0 input from FILE or stdin (XON/XOFF paced)\n"
+          "  --input FILE|-    feed UART0 input from FILE or stdin, one byte per byte time\n"
+          "  --ok-pace         with --input: start each line only after an \"ok\" (Marlin hosts)\n"
           "  --pty LINK        bridge UART0 to a new pseudo-terminal and symlink LINK to it\n"
           "  --trace FILE      write pin edges: '<cycle> <port><pin> <level>'\n"
           "  --trace-pins LIST pins to trace, e.g. F0,F1,F6,F7,L3,L1,A4,A6 (default: none)\n"
+          "  --settle N        end the run N cycles after the input is used up (and, with\n"
+          "                    --ok-pace, answered): for firmware that never stops\n"
           "  --markers         print benchmark marker cycle counts on stderr\n"
           "  --no-test         do not require a bktest closing line\n"
           "  --raw             keep CR characters in the output\n"
@@ -188,6 +206,7 @@ int main(int argc, char **argv) {
   const char *pty_link = NULL;
   unsigned long freq = 16000000UL;
   unsigned long long cap = 800000000ULL;
+  unsigned long long settle = 0, settle_end = 0;
   int opt_test = 1;
   for (int i = 1; i < argc; i++) {
     const char *a = argv[i];
@@ -200,6 +219,8 @@ int main(int argc, char **argv) {
     else if (!strcmp(a, "--trace") && next) trace = argv[++i];
     else if (!strcmp(a, "--trace-pins") && next) pins = argv[++i];
     else if (!strcmp(a, "--markers")) opt_markers = 1;
+    else if (!strcmp(a, "--ok-pace")) opt_okpace = 1;
+    else if (!strcmp(a, "--settle") && next) settle = strtoull(argv[++i], NULL, 10);
     else if (!strcmp(a, "--no-test")) opt_test = 0;
     else if (!strcmp(a, "--raw")) opt_raw = 1;
     else if (!strcmp(a, "--quiet")) opt_quiet = 1;
@@ -256,12 +277,6 @@ int main(int argc, char **argv) {
     }
     fprintf(stderr, "bksim: UART0 on %s (%s)\n", pty_link, name);
   }
-  if (input || pty_link) {
-    avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_OUT_XON),
-                            uart_xon_hook, NULL);
-    avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_OUT_XOFF),
-                            uart_xoff_hook, NULL);
-  }
   if (input) {
     in_file = strcmp(input, "-") ? fopen(input, "rb") : stdin;
     if (!in_file) {
@@ -300,20 +315,29 @@ int main(int argc, char **argv) {
   int state = cpu_Running;
   int capped = 0, tx_primed = 0;
   while (1) {
-    /* simavr 1.6 quirk: real hardware resets UCSR0A with UDRE0 set, simavr may
-       leave it clear when the transmitter is enabled, and a polled writer then
-       spins forever. Set it once, the first time TXEN0 is seen. */
-    if (!tx_primed && (avr->data[ADDR_UCSR0B] & (1 << TXEN0_BIT))) {
-      avr->data[ADDR_UCSR0A] |= (1 << UDRE0_BIT);
-      tx_primed = 1;
-    }
+    /* simavr 1.6 quirk: UDRE0 is not set when the transmitter is enabled, and a
+       polled writer then spins forever. Set it on every rising edge of TXEN0
+       (simavr's reset state already has TXEN0 set, and Marlin clears the UART
+       registers before enabling the transmitter again). */
+    int txen = (avr->data[ADDR_UCSR0B] & (1 << TXEN0_BIT)) != 0;
+    if (txen && !tx_primed) avr->data[ADDR_UCSR0A] |= (1 << UDRE0_BIT);
+    tx_primed = txen;
     state = avr_run(avr);
     if (state == cpu_Done || state == cpu_Crashed) break;
     if (avr->cycle >= cap) {
       capped = 1;
       break;
     }
-    if (!in_xoff && (pty_master >= 0 || (in_file && !in_eof))) feed_input();
+    if (pty_master >= 0 || (in_file && !in_eof)) feed_input();
+    /* --settle: a firmware that never stops (Marlin) ends the run N cycles
+       after its input is used up and, with --ok-pace, every line answered. */
+    if (settle && in_eof && (!opt_okpace || oks_seen >= lines_sent)) {
+      if (!settle_end) settle_end = avr->cycle + settle;
+      if (avr->cycle >= settle_end) {
+        state = cpu_Done;
+        break;
+      }
+    }
   }
   fflush(stdout);
   if (line_len) check_line();
