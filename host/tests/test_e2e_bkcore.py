@@ -1,0 +1,171 @@
+"""End to end: the annotated G-code run through the firmware core must do what
+the stock fallback does on stock firmware — same pieces, same stops, same
+dwell times, same filament.
+
+Both files go through bkcore (tools/bkcore/main.cpp + src/*.cpp, natively):
+the annotated one with its M720/M721/M722, the fallback one with bulges off
+(it has no M72x), so the core's plain G-code path plays the stock firmware.
+bkcore prints one line per primitive action:
+    line X<x> Y<y> Z<z> E<de> F<f>    (E: filament of the piece, extra included)
+    dwell <ms>
+and a closing "summary ..." line.
+"""
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import subprocess
+from pathlib import Path
+
+import pytest
+
+from bulgekit.annotate import AnnotateResult, annotate_bytes
+from bulgekit.fallback import RewriteResult, Settings, rewrite
+from bulgekit.mapbuild import build
+from bulgekit.strokes import Stroke, text_strokes
+from bulgekit.wall import walls_from_gcode
+
+REPO = Path(__file__).resolve().parents[2]
+DATA = Path(__file__).parent / "data"
+
+
+def _sources():
+    return [REPO / "tools" / "bkcore" / "main.cpp"] + sorted((REPO / "src").glob("*.cpp")) \
+        + sorted((REPO / "src").glob("*.h")) + sorted((REPO / "config").glob("*.h"))
+
+
+@pytest.fixture(scope="module")
+def bkcore(tmp_path_factory) -> str:
+    """BULGEKIT_BKCORE, else .build/bin/bkcore when newer than its sources,
+    else a fresh build with g++ (never a skip: a missing core is a failure)."""
+    env = os.environ.get("BULGEKIT_BKCORE")
+    if env:
+        assert Path(env).is_file(), f"BULGEKIT_BKCORE={env} does not exist"
+        return env
+    srcs = _sources()
+    assert srcs[0].is_file(), f"{srcs[0]} is missing: the firmware core runner is needed"
+    built = REPO / ".build" / "bin" / "bkcore"
+    if built.is_file() and all(s.stat().st_mtime <= built.stat().st_mtime for s in srcs):
+        return str(built)
+    cxx = shutil.which("g++")
+    assert cxx, "g++ is needed to build bkcore"
+    out = tmp_path_factory.mktemp("bkcore") / "bkcore"
+    cmd = [cxx, "-std=gnu++11", "-O2", "-Wall", "-Wextra", f"-I{REPO / 'src'}", f"-I{REPO / 'config'}",
+           "-o", str(out), str(srcs[0])] + [str(s) for s in sorted((REPO / "src").glob("*.cpp"))]
+    r = subprocess.run(cmd, capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    return str(out)
+
+
+_LINE = re.compile(r"^line X(\S+) Y(\S+) Z(\S+) E(\S+) F(\S+)$")
+
+
+def run_core(exe: str, gcode: str):
+    r = subprocess.run([exe], input=gcode, capture_output=True, text=True, timeout=120)
+    actions, summary, errors = [], {}, []
+    for l in r.stdout.splitlines():
+        m = _LINE.match(l)
+        if m:
+            actions.append(("line",) + tuple(float(v) for v in m.groups()))
+        elif l.startswith("dwell "):
+            actions.append(("dwell", int(l.split()[1])))
+        elif l.startswith("summary "):
+            for kv in l.split()[1:]:
+                k, _, v = kv.partition(":")
+                if v:
+                    summary[k] = v
+            summary["pos"] = re.search(r"pos:(X\S+ Y\S+ Z\S+)", l).group(1)
+        elif l.startswith("Error:"):
+            errors.append(l)
+    assert r.returncode == (1 if errors else 0), r.stderr
+    return actions, summary, errors
+
+
+def e_tolerance(gcode: str) -> float:
+    """Filament of one piece agrees to 2e-5 mm plus 3 float32 ulps of the largest
+    absolute E in the file: with M82 both paths take differences of float32 E
+    positions (Cura's reach 2900 mm here, ulp 2.4e-4) from different operands."""
+    import numpy as np
+    big = max((abs(float(v)) for v in re.findall(r"^G[0-9]+ [^;\n]*E([-+]?[0-9.]+)", gcode, re.M)),
+              default=0.0)
+    return 2e-5 + 3 * float(np.spacing(np.float32(big)))
+
+
+def compare(a, b, e_tol):
+    """Same actions in the same order; positions to the printed 0.001 mm (the
+    fallback writes split points with 4 decimals), filament to e_tol."""
+    assert len(a) == len(b), f"{len(a)} actions vs {len(b)}"
+    for i, (x, y) in enumerate(zip(a, b)):
+        assert x[0] == y[0], f"action {i}: {x} vs {y}"
+        if x[0] == "dwell":
+            assert x == y, f"action {i}: {x} vs {y}"
+        else:
+            for k in (1, 2, 3):
+                assert abs(x[k] - y[k]) <= 0.0015, f"action {i}: {x} vs {y}"
+            assert abs(x[4] - y[4]) <= e_tol, f"action {i}: {x} vs {y}"
+            assert x[5] == y[5], f"action {i}: {x} vs {y}"
+
+
+CASES = {
+    # name: (file, geometric, strokes, settings, arena)
+    "prusa_m82": ("prusa_cyl.gcode", False, "text", Settings(), 2048),
+    "prusa_m83_zhop_weights": ("prusa_cyl_m83.gcode", False, "weighted", Settings(dwell_ms=180, extra_e=0.25), 2048),
+    "cura": ("cura_cyl.gcode", False, "text", Settings(), 2048),
+    "vase": ("prusa_vase.gcode", False, "text", Settings(dwell_ms=60), 2048),
+    "slic3r_geometric": ("slic3r_cyl.gcode", True, "text", Settings(mode=2), 2048),
+    "prusa_streamed": ("prusa_cyl.gcode", False, "dense", Settings(tolerance=0.3), 2048),
+    "prusa_streamed_small_arena": ("prusa_cyl_m83.gcode", False, "dense", Settings(), 900),
+}
+
+
+def strokes_for(kind):
+    if kind == "text":
+        return text_strokes("Hi8", 5.0, u0=3.0, v0=2.0) + [Stroke(((40.0, 0.3), (70.0, 9.9)))]
+    if kind == "weighted":
+        return [Stroke(((u, 1.0), (u, 8.0)), weight=w) for u, w in ((5.0, 255), (9.0, 128), (13.0, 10))] \
+            + [Stroke(((20.0, 5.0), (50.0, 5.0)), weight=0)]
+    if kind == "dense":
+        return [Stroke(((float(u), 0.5), (float(u), 9.8))) for u in range(0, 120, 3)]
+    raise ValueError(kind)
+
+
+@pytest.mark.parametrize("case", list(CASES))
+def test_firmware_path_matches_stock_fallback(bkcore, case):
+    name, geometric, kind, settings, arena = CASES[case]
+    path = DATA / name
+    src = path.read_bytes()
+    r = build(strokes_for(kind), walls_from_gcode(path, geometric=geometric))
+    ares = AnnotateResult()
+    annotated = annotate_bytes(src, r.map_bytes, settings, arena=arena, result=ares).decode()
+    if kind == "dense":
+        assert ares.appends, "this case is meant to stream the map"
+    rres = RewriteResult()
+    stock = "".join(rewrite(src.decode().splitlines(keepends=True), r.bulge_map, settings, name, rres))
+    assert "M72" not in stock
+
+    fw, fw_sum, fw_err = run_core(bkcore, annotated)
+    st, st_sum, st_err = run_core(bkcore, stock)
+    assert fw_err == [] and st_err == []
+    # every point fired once, on both paths
+    n = len(r.points)
+    assert int(fw_sum["points"]) == n == rres.stats.points_fired
+    assert sum(1 for x in fw if x[0] == "dwell") - sum(1 for x in st if x[0] == "dwell") == 0
+    compare(fw, st, e_tolerance(src.decode()))
+    assert int(fw_sum["dwell_ms"]) == int(st_sum["dwell_ms"])
+    slicer_dwell = sum(int(v) for v in re.findall(r"^G4 P([0-9]+)", src.decode(), re.M))
+    assert int(fw_sum["dwell_ms"]) == rres.stats.dwell_ms_total + slicer_dwell
+    # filament: what the firmware drove = what the stock file asks for
+    total = float(st_sum["e_out"])
+    assert float(fw_sum["e_out"]) == pytest.approx(total, abs=2e-3 + 2e-6 * total)
+    assert float(fw_sum["e_out"]) - float(fw_sum["e_gcode"]) == pytest.approx(float(fw_sum["extra"]), abs=2e-3)
+    # the firmware sums the extras in float32: 1e-5 relative over a thousand stops
+    assert float(fw_sum["extra"]) == pytest.approx(rres.stats.extra_applied, rel=2e-5, abs=1e-5)
+    assert float(fw_sum["dropped"]) == pytest.approx(rres.stats.extra_dropped, rel=2e-5, abs=1e-5)
+    # the host's coordinates were never disturbed by the firmware path
+    # the host's coordinates are never disturbed by the firmware path: it ends
+    # where the unannotated file ends, E included
+    _, orig_sum, _ = run_core(bkcore, src.decode())
+    assert fw_sum["pos"] == st_sum["pos"] == orig_sum["pos"]
+    assert float(fw_sum["host_e"]) == float(orig_sum["host_e"])
+    assert float(orig_sum["e_out"]) == pytest.approx(float(fw_sum["e_gcode"]), abs=1e-6)
