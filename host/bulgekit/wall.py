@@ -112,6 +112,11 @@ class WallModel:
         return out
 
 
+def _z_cmm(z: float) -> int:
+    v = float(np.float32(z) * np.float32(100.0))
+    return int(v + 0.5) if v >= 0 else -int(0.5 - v)
+
+
 def _signed_area(xy: np.ndarray) -> float:
     x, y = xy[:, 0], xy[:, 1]
     return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1)))
@@ -200,7 +205,7 @@ def extract_walls(moves: Iterable[Move], layer_height: float | None = None,
         if ok:
             eligible_moves.append(m)
             if abs(m.z1 - m.z0) < 1e-6:
-                zc = round(m.z1 * 100)
+                zc = _z_cmm(m.z1)
                 planar_count[zc] = planar_count.get(zc, 0) + 1
         elif m.x0 != m.x1 or m.y0 != m.y1 or (not geometric and not m.outer):
             eligible_moves.append(None)  # chain break
@@ -222,17 +227,22 @@ def extract_walls(moves: Iterable[Move], layer_height: float | None = None,
     h_cmm = max(1, round(h * 100))
 
     def bucket_of(m: Move) -> int:
-        if abs(m.z1 - m.z0) < 1e-6 and round(m.z1 * 100) in planar_set:
-            return round(m.z1 * 100)
-        # spiral: snap to the layer grid above the highest planar layer below
-        zmid = (m.z0 + m.z1) * 50
+        # the firmware's reading of a move's z: its end z in 0.01 mm, rounded
+        # in float32 (bulge_planner.cpp eligible())
+        zc = _z_cmm(m.z1)
+        if abs(m.z1 - m.z0) < 1e-6 and zc in planar_set:
+            return zc
+        # spiral: snap to the layer grid above the highest planar layer below,
+        # nearest grid z, the lower one on a tie (as MapStore::find_layer)
         base = 0
         for zp in zs_planar:
-            if zp <= zmid + 1e-6:
+            if zp <= zc:
                 base = zp
             else:
                 break
-        return base + round((zmid - base) / h_cmm) * h_cmm
+        d = zc - base
+        k = -((h_cmm - 2 * d) // (2 * h_cmm))
+        return base + k * h_cmm
 
     for m in eligible_moves:
         if m is None:

@@ -113,6 +113,7 @@ CASES = {
     "prusa_m83_zhop_weights": ("prusa_cyl_m83.gcode", False, "weighted", Settings(dwell_ms=180, extra_e=0.25), 2048),
     "cura": ("cura_cyl.gcode", False, "text", Settings(), 2048),
     "vase": ("prusa_vase.gcode", False, "text", Settings(dwell_ms=60), 2048),
+    "vase_streamed": ("prusa_vase.gcode", False, "dense", Settings(), 2048),
     "slic3r_geometric": ("slic3r_cyl.gcode", True, "text", Settings(mode=2), 2048),
     "prusa_streamed": ("prusa_cyl.gcode", False, "dense", Settings(tolerance=0.3), 2048),
     "prusa_streamed_small_arena": ("prusa_cyl_m83.gcode", False, "dense", Settings(), 900),
