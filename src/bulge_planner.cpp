@@ -456,7 +456,11 @@ bool BulgePlanner::plan(const Move &m, ActionList &out) {
   out.e_added = 0.0f;
   active_ = false;
   if (!eligible(m)) {
-    drop_carry();
+    // A move that moves nothing (Marlin hands "G1 F1200" to us too) keeps the
+    // extra owed from a stop at a wall's end for the next piece; any real
+    // travel, retraction or non-wall move ends it.
+    const bool null_move = m.x0 == m.x1 && m.y0 == m.y1 && m.z0 == m.z1 && m.e == 0.0f;
+    if (!null_move) drop_carry();
     whole(out, m);
     return false;
   }

@@ -169,7 +169,9 @@ class RefPlanner:
         if outer is None:
             outer = m.outer
         if not self._eligible(m, outer):
-            if self.carry != 0:
+            # as the firmware: a move that moves nothing keeps the owed extra
+            null = m.x0 == m.x1 and m.y0 == m.y1 and m.z0 == m.z1 and m.e == 0
+            if self.carry != 0 and not null:
                 self.stats.extra_dropped += float(self.carry)
                 self.carry = f32(0)
             return [Action("line", m.x1, m.y1, m.z1, m.e)]

@@ -155,9 +155,15 @@ def test_relative_xyz_pieces_stay_relative():
     assert lines[-4:] == ["G1 X4 E0.4", "G4 P100", "G1 X6 E0.7", "G1 X0 Y5 E0.5"]
 
 
-def test_feedrate_only_line_ends_a_carry_as_in_marlin():
-    # Marlin's G0_G1 hands every G1, "G1 F1800" included, to the planner, and a
-    # move without XY extrusion drops extra owed from a stop at a wall's end
+def test_feedrate_only_line_keeps_the_carry_as_in_the_firmware():
+    # Marlin's G0_G1 hands every G1, "G1 F1200" included, to the planner; a move
+    # that moves nothing keeps the extra owed from a stop at a wall's end
     text = HEAD.format(mode="M83") + "G1 X10 Y0 E1.0\nG1 F1200\nG1 X10 Y10 E1.0\n"
     lines = run(text, [(0.3, [(9.95, 0.0)])])
-    assert lines[-2:] == ["G1 F1200", "G1 X10 Y10 E1.0"]
+    assert lines[-2:] == ["G1 F1200", "G1 X10 Y10 E1.1"]
+
+
+def test_travel_after_a_wall_end_stop_drops_the_carry():
+    text = HEAD.format(mode="M83") + "G1 X10 Y0 E1.0\nG0 X20 Y20\nG1 X20 Y30 E1.0\n"
+    lines = run(text, [(0.3, [(9.95, 0.0)])])
+    assert lines[-1] == "G1 X20 Y30 E1.0"

@@ -229,6 +229,17 @@ static void test_point_near_start_stops_before_moving(void) {
   assert_line(1, 10, 0, 1.1f);
 }
 
+static void test_null_move_keeps_owed_extra(void) {
+  add_point(9.95f, 0);
+  load();
+  run(mv(0, 0, 10, 0, 1.0f));
+  assert_dwell(1, 100);
+  run(mv(10, 0, 10, 0, 0.0f));  // "G1 F1200": no motion, no E
+  run(mv(10, 0, 10, 10, 1.0f));
+  assert_line(0, 10, 10, 1.1f);  // the owed 0.1 mm goes into the next piece
+  TEST_ASSERT_FLOAT_WITHIN(1e-6f, 0.0f, P.stats().extra_dropped);
+}
+
 static void test_point_near_end_stops_at_end(void) {
   add_point(9.95f, 0);
   load();
@@ -739,6 +750,7 @@ int main(void) {
   RUN_TEST(test_vertex_point_stops_once);
   RUN_TEST(test_point_near_start_stops_before_moving);
   RUN_TEST(test_point_near_end_stops_at_end);
+  RUN_TEST(test_null_move_keeps_owed_extra);
   RUN_TEST(test_close_points_share_one_stop);
   RUN_TEST(test_once_per_layer);
   RUN_TEST(test_tolerance_edges);
