@@ -53,7 +53,7 @@ def walls(gcode, *, geometric: bool = False, layer_height: float | None = None,
 
 
 def build_map(model: wall.WallModel, strokes: Sequence[Stroke], *, spacing: float | None = None,
-              line_width: float = mapbuild.DEFAULT_LINE_WIDTH, quantum_um: int = 50
+              line_width: float = mapbuild.DEFAULT_LINE_WIDTH, quantum_um: int = mapbuild.MAP_QUANTUM_UM
               ) -> mapbuild.BuildResult:
     return mapbuild.build(strokes, model, spacing=spacing, line_width=line_width,
                           quantum_um=quantum_um)
@@ -93,7 +93,7 @@ def build(gcode, strokes: Sequence[Stroke], outdir, *, name: str | None = None,
           line_width: float = mapbuild.DEFAULT_LINE_WIDTH, layer_height: float | None = None,
           ref_angle_deg: float = -90.0, settings: Settings | None = None,
           stream: bool = True, arena: int = _annotate.ARENA_BYTES,
-          write_fallback: bool = False, quantum_um: int = 50) -> BuildOutput:
+          write_fallback: bool = False, quantum_um: int = mapbuild.MAP_QUANTUM_UM) -> BuildOutput:
     """Strokes + sliced G-code -> <name>.bkm, <name>.bulge.gcode, <name>.stats.txt
     (and <name>.stock.gcode with write_fallback) in outdir."""
     gcode = Path(gcode)
