@@ -143,7 +143,26 @@ EDITS = [
          "uint32_t Stepper::block_phase_isr() {",
          """\
 #if ENABLED(BULGE_MAP)
-  static uint16_t bk_dwell_ms_left; // Milliseconds the current dwell block still holds
+  /**
+   * Dwell block timing. The hold is measured from the last step before the bulge
+   * point to the first step after it: it starts in the ISR call that made the
+   * last step, runs in chunks of at most 1ms (a quick stop still ends it at once),
+   * and the block after it takes its first step BK_DWELL_LEAD after the hold
+   * instead of one full start interval (8.3ms at MINIMAL_STEP_RATE) later.
+   */
+  #define BK_DWELL_LEAD ((STEPPER_TIMER_RATE) / 2000UL)  // 500µs: more than loading the next block takes
+  #ifdef __AVR__
+    #define BK_TICK_EXTRA 1UL  // AVR CTC mode: a compare period is OCR + 1 ticks
+  #else
+    #define BK_TICK_EXTRA 0UL
+  #endif
+  static uint32_t bk_dwell_left;  // Timer ticks the current dwell block still holds
+  static bool bk_dwell_ended;     // The next block's first step closes a hold
+  static uint32_t bk_dwell_chunk() {
+    const uint32_t c = _MIN(bk_dwell_left, (STEPPER_TIMER_RATE) / 1000UL);
+    bk_dwell_left -= c;
+    return c > BK_TICK_EXTRA ? c - BK_TICK_EXTRA : 0;
+  }
 #endif
 
 """),
@@ -153,8 +172,8 @@ EDITS = [
          """\
 
   #if ENABLED(BULGE_MAP)
-    // Dwell block: each call is one held millisecond; at zero the block is discarded below
-    if (current_block && current_block->is_dwell() && bk_dwell_ms_left) { --bk_dwell_ms_left; return interval; }
+    // Dwell block: hold on; once the ticks are used up the block is discarded below
+    if (current_block && current_block->is_dwell() && bk_dwell_left) return bk_dwell_chunk();
   #endif
 """),
     Edit("Marlin/src/module/stepper.cpp", "dwell-start", "after",
@@ -167,9 +186,24 @@ EDITS = [
       #if ENABLED(BULGE_MAP)
         if (current_block->is_dwell()) {          // Start holding: no steps, no direction change
           step_event_count = step_events_completed = 0;
-          bk_dwell_ms_left = current_block->step_event_count - 1; // This call starts the first ms
-          return interval;
+          const uint32_t hold = current_block->step_event_count * ((STEPPER_TIMER_RATE) / 1000UL),
+                         lead = BK_DWELL_LEAD + BK_TICK_EXTRA;
+          bk_dwell_left = hold > lead ? hold - lead : 0;
+          bk_dwell_ended = true;
+          return bk_dwell_chunk();
         }
+      #endif
+"""),
+    Edit("Marlin/src/module/stepper.cpp", "dwell-lead", "after",
+         "      // Calculate the initial timer interval\n"
+         "      interval = calc_timer_interval(current_block->initial_rate << oversampling_factor, steps_per_isr);\n"
+         "      acceleration_time += interval;",
+         """\
+
+      #if ENABLED(BULGE_MAP)
+        // After a dwell the first step comes at once; the ramp goes on as if the
+        // full start interval had passed, so the rest of the block is unchanged
+        if (bk_dwell_ended) { bk_dwell_ended = false; NOMORE(interval, BK_DWELL_LEAD); }
       #endif
 """),
     Edit("Marlin/src/gcode/host/M115.cpp", "caps", "after",

@@ -44,14 +44,15 @@ void BulgeKit::print_reply(const char *text) {
    * A stop at a bulge point. Both junctions around it plan to rest: clearing the
    * previous nominal speed makes the next block's maximum entry speed zero (as
    * after homing), and the reverse pass then brings the block before the dwell
-   * down to zero as well. With ms > 0 a dwell block follows in the queue; the
-   * stepper ISR holds it for ms milliseconds with no steps (the steppers stay
+   * down to zero as well. A dwell block follows in the queue (also for ms = 0:
+   * it is what makes the stop last ms instead of Marlin's start interval); the
+   * stepper ISR holds it for ms milliseconds, counted from the last step before
+   * the point to the first step after it, with no steps (the steppers stay
    * enabled because the queue is not empty), then takes the next block.
    */
   void Planner::buffer_dwell(const uint16_t ms) {
     previous_nominal_speed = 0;
     previous_speed.reset();
-    if (!ms) return;
 
     uint8_t next_buffer_head;
     block_t * const block = get_next_free_block(next_buffer_head);

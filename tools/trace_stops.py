@@ -1,0 +1,416 @@
+#!/usr/bin/env python3
+"""Check a simulated Marlin print from its step-pin trace (docs/marlin-integration.md).
+
+    trace_stops.py cut GCODE --layers 2-4 --keep "External perimeter,Perimeter" -o OUT
+        A short print from a sliced file: the chosen layers, only the chosen slicer
+        features. Dropped lines leave the G-code's E frame intact: after each
+        dropped run a "G92 E<value>" puts E where the dropped moves had left it,
+        so no kept move extrudes the filament of a dropped one.
+
+    trace_stops.py stops TRACE [--ref TRACE] [--map MAP.bkm] [--gcode SENT.gcode]
+                        [--log UART.txt] [--dwell MS] [--extra MM] [--fallback]
+        Step counts and stops of one run (bksim --trace with the RAMPS pins
+        F0/F1 X, F6/F7 Y, L3/L1 Z, A4/A6 E0). A stop is a gap of at least --gap
+        ms between two consecutive X/Y steps; its duration is that gap, i.e. the
+        time the head stands at one step position. With --ref (the same G-code
+        with the feature off) the stops of the reference are matched by position
+        and the rest are the added stops; with --map each added stop is matched
+        to its bulge point; with --gcode the E total and final position the
+        G-code asks for are compared with the steps made and with M114 in --log.
+
+Reads only bksim's trace format ('<cycle> <port><bit> <level>' per edge) and
+G-code text; it builds nothing. Exit status 1 if a check fails.
+"""
+
+import argparse
+import math
+import re
+import sys
+
+F_CPU = 16e6
+STEPS = {"X": 80.0, "Y": 80.0, "Z": 400.0, "E": 500.0}      # RAMPS defaults
+PINS = {"X": ("F0", "F1"), "Y": ("F6", "F7"), "Z": ("L3", "L1"), "E": ("A4", "A6")}
+# Direction pin level for positive motion: Marlin writes INVERT_<A>_DIR for a
+# negative move; the sim configuration has INVERT_Y_DIR true, the others false.
+DIR_HIGH_POSITIVE = {"X": True, "Y": False, "Z": True, "E": True}
+
+
+# ---- G-code ------------------------------------------------------------------------
+
+_WORD = re.compile(r"([A-Za-z])\s*([-+]?(?:\d+\.?\d*|\.\d+))")
+
+
+def words(line):
+    code = line.split(";", 1)[0]
+    return {m.group(1).upper(): float(m.group(2)) for m in _WORD.finditer(code)}, code.strip()
+
+
+def cut(args):
+    lo, hi = (int(v) for v in args.layers.split("-"))
+    keep = {k.strip() for k in args.keep.split(",") if k.strip()}
+    out = ["; cut by tools/trace_stops.py from %s: layers %d-%d, features %s"
+           % (args.gcode, lo, hi, ", ".join(sorted(keep))), "G21", "G90", "M82"]
+    layer, feature, e, e_out = 0, None, 0.0, 0.0
+    absolute_e = True
+    dropped = False
+    with open(args.gcode, encoding="utf-8", errors="replace") as f:
+        for raw in f:
+            line = raw.rstrip("\n")
+            if line.startswith(";LAYER_CHANGE"):
+                layer += 1
+                feature = None
+            elif line.startswith(";TYPE:"):
+                feature = line[6:].strip()
+            w, code = words(line)
+            kept = lo <= layer <= hi and (feature is None or feature in keep) and not code.startswith(("M1", "G28", "M84"))
+            if code.startswith("M82"):
+                absolute_e = True
+            elif code.startswith("M83"):
+                absolute_e = False
+            if kept:
+                if dropped and absolute_e and abs(e - e_out) > 1e-9:
+                    out.append("G92 E%.5f ; E where the dropped lines left it" % e)
+                    e_out = e
+                dropped = False
+                out.append(line)
+            elif code:
+                dropped = True
+            # E as the firmware would have it after this line
+            if code.startswith(("G0", "G1")) and "E" in w and re.match(r"G0?[01]\b", code):
+                e = w["E"] if absolute_e else e + w["E"]
+                if kept:
+                    e_out = e
+            elif re.match(r"G92\b", code) and "E" in w:
+                e = w["E"]
+                if kept:
+                    e_out = e
+    with open(args.output, "w", encoding="utf-8") as f:
+        f.write("\n".join(out) + "\n")
+    print("%s: %d lines" % (args.output, len(out)))
+    return 0
+
+
+def gcode_end_state(path, start, segments=None):
+    """Final X Y Z E (host frame) and the filament the moves push (mm, net).
+    If segments is a list, every extruding X/Y move is appended as (z, x0, y0, x1, y1)."""
+    pos = dict(start)
+    absolute, absolute_e = True, True
+    e_total = 0.0
+    with open(path, encoding="utf-8", errors="replace") as f:
+        for line in f:
+            w, code = words(line)
+            if not code:
+                continue
+            g = re.match(r"([GM])0*(\d+)", code)
+            if not g:
+                continue
+            c = g.group(1) + g.group(2)
+            if c == "G90":
+                absolute = absolute_e = True
+            elif c == "G91":
+                absolute = absolute_e = False
+            elif c == "M82":
+                absolute_e = True
+            elif c == "M83":
+                absolute_e = False
+            elif c == "G92":
+                for a in "XYZE":
+                    if a in w:
+                        pos[a] = w[a]
+            elif c in ("G0", "G1"):
+                x0, y0 = pos["X"], pos["Y"]
+                for a in "XYZ":
+                    if a in w:
+                        pos[a] = w[a] if absolute else pos[a] + w[a]
+                if "E" in w:
+                    de = w["E"] - pos["E"] if absolute_e else w["E"]
+                    if segments is not None and de > 0 and (x0, y0) != (pos["X"], pos["Y"]):
+                        segments.append((pos["Z"], x0, y0, pos["X"], pos["Y"]))
+                    e_total += de
+                    pos["E"] += de
+    return pos, e_total
+
+
+# ---- traces ------------------------------------------------------------------------
+
+class Run:
+    """Step events of one trace: times (cycles) and positions after each step."""
+
+    def __init__(self, path, origin):
+        pin_axis = {}
+        for a, (step, direction) in PINS.items():
+            pin_axis[step] = (a, "step")
+            pin_axis[direction] = (a, "dir")
+        level = {a: 0 for a in PINS}  # dir pins start low
+        count = {a: 0 for a in PINS}
+        self.xy = []           # (cycle, x count, y count) after each X or Y step
+        self.e_steps = []      # (cycle, +1/-1)
+        self.z = []
+        self.last = 0
+        self.first = None
+        with open(path) as f:
+            for line in f:
+                parts = line.split()
+                if len(parts) != 3 or parts[1] not in pin_axis:
+                    continue
+                cyc, (a, kind), v = int(parts[0]), pin_axis[parts[1]], parts[2] == "1"
+                if kind == "dir":
+                    level[a] = v
+                    continue
+                if not v:
+                    continue
+                d = 1 if level[a] == DIR_HIGH_POSITIVE[a] else -1
+                count[a] += d
+                if self.first is None:
+                    self.first = cyc
+                self.last = cyc
+                if a in "XY":
+                    self.xy.append((cyc, count["X"], count["Y"]))
+                elif a == "E":
+                    self.e_steps.append((cyc, d))
+                else:
+                    self.z.append((cyc, count["Z"]))
+        self.count = count
+        self.origin = origin
+
+    def mm(self, a, steps):
+        return self.origin[a] + steps / STEPS[a]
+
+    def stops(self, gap_ms):
+        """(start cycle, end cycle, x count, y count) of every X/Y gap >= gap_ms."""
+        lim = gap_ms * 1e-3 * F_CPU
+        out = []
+        for (c0, x, y), (c1, _, _) in zip(self.xy, self.xy[1:]):
+            if c1 - c0 >= lim:
+                out.append((c0, c1, x, y))
+        return out
+
+    def e_at(self, cycle):
+        """Net E steps made up to and including this cycle."""
+        import bisect
+        if not hasattr(self, "_ec"):
+            self._ec, self._ecum, n = [], [], 0
+            for c, d in self.e_steps:
+                n += d
+                self._ec.append(c)
+                self._ecum.append(n)
+        i = bisect.bisect_right(self._ec, cycle)
+        return self._ecum[i - 1] if i else 0
+
+
+def read_map_points(path):
+    """(z mm, x mm, y mm, weight) of every point of a .bkm file (host package)."""
+    import os
+    sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "host"))
+    from bulgekit import mapformat
+    with open(path, "rb") as f:
+        m = mapformat.decode_map(f.read(), source=path)
+    pts = []
+    for layer in m.layers:
+        for i, (x, y) in enumerate(m.points_mm(layer)):
+            w = layer.weights[i] if layer.weights else 255
+            pts.append((layer.z_cmm / 100.0, x, y, w))
+    return pts
+
+
+def expected_stop(segments, z, px, py, tol, min_piece):
+    """Where the core's rule puts the stop for a point: on the first extruding
+    move (in G-code order) that passes within tol, at the point's foot on it;
+    a foot closer than min_piece to the move's start or end snaps there."""
+    for sz, x0, y0, x1, y1 in segments:
+        if abs(sz - z) > 1e-3:
+            continue
+        dx, dy = x1 - x0, y1 - y0
+        n = math.hypot(dx, dy)
+        t = max(0.0, min(1.0, ((px - x0) * dx + (py - y0) * dy) / (n * n)))
+        fx, fy = x0 + t * dx, y0 + t * dy
+        if math.hypot(px - fx, py - fy) > tol:
+            continue
+        if t * n < min_piece:
+            return x0, y0
+        if (1 - t) * n < min_piece:
+            return x1, y1
+        return fx, fy
+    return None
+
+
+def stops(args):
+    origin = dict(zip("XYZE", (float(v) for v in args.origin.split(","))))
+    run = Run(args.trace, origin)
+    ok = True
+    ms = lambda c: c / F_CPU * 1e3
+    print("%s: steps X %d Y %d Z %d E %d, first..last step %.3f s"
+          % (args.trace, run.count["X"], run.count["Y"], run.count["Z"], run.count["E"],
+             ms(run.last - run.first) / 1e3))
+    st = run.stops(args.gap)
+    added = st
+    if args.ref:
+        ref = Run(args.ref, origin)
+        rst = ref.stops(args.gap)
+        refpos = {}
+        for s in rst:
+            refpos.setdefault((s[2], s[3]), []).append(s)
+        added, matched = [], 0
+        for s in st:
+            lst = refpos.get((s[2], s[3]))
+            if lst:
+                lst.pop(0)
+                matched += 1
+                if not lst:
+                    del refpos[(s[2], s[3])]
+            else:
+                added.append(s)
+        missing = sum(len(v) for v in refpos.values())
+        print("stops (gap >= %.1f ms): %d here, %d in the reference; %d at reference positions, "
+              "%d added, %d reference stops missing"
+              % (args.gap, len(st), len(rst), matched, len(added), missing))
+        if missing:
+            ok = False
+        de = run.count["E"] - ref.count["E"]
+        print("time first..last step: %.3f s here, %.3f s reference, %+.3f s"
+              % (ms(run.last - run.first) / 1e3, ms(ref.last - ref.first) / 1e3,
+                 ms((run.last - run.first) - (ref.last - ref.first)) / 1e3))
+        if added:
+            print("added time per added stop: %.2f ms"
+                  % (ms((run.last - run.first) - (ref.last - ref.first)) / len(added)))
+        print("E steps: %d here, %d reference, difference %d" % (run.count["E"], ref.count["E"], de))
+        if args.extra is not None and not args.fallback:
+            want = round(len(added) * args.extra * STEPS["E"])
+            good = abs(de - want) <= 1
+            ok &= good
+            print("  expected %d stops x %.3f mm x %g steps/mm = %d: %s"
+                  % (len(added), args.extra, STEPS["E"], want, "ok" if good else "MISMATCH"))
+    if args.ref and added and len(run.xy) == len(ref.xy):
+        # Extra E per stop: both runs make the same number of X/Y steps, so the
+        # k-th X/Y step is the same place on the path. The E lead of this run
+        # over the reference grows by the extra of each stop in the piece after it.
+        index = {c: i for i, (c, _, _) in enumerate(run.xy)}
+        lead = []
+        for c0, _, _, _ in added:
+            i = index[c0]
+            lead.append(run.e_at(c0) - ref.e_at(ref.xy[i][0]))
+        lead.append(run.count["E"] - ref.count["E"])
+        per = [b - a for a, b in zip(lead, lead[1:])]
+        print("extra E steps per stop (E lead over the reference from one stop to the next): "
+              "min %d, max %d, mean %.2f; lead at the first stop %d" % (min(per), max(per), sum(per) / len(per), lead[0]))
+        if args.verbose:
+            print("  " + " ".join(str(v) for v in per))
+    elif args.ref and added:
+        print("X/Y step counts differ from the reference (%d vs %d): no per-stop E" % (len(run.xy), len(ref.xy)))
+    durs = [ms(c1 - c0) for c0, c1, _, _ in added]
+    if durs:
+        print("added stops: %d, duration min %.4f / mean %.4f / max %.4f ms"
+              % (len(durs), min(durs), sum(durs) / len(durs), max(durs)))
+        if args.dwell is not None:
+            bad = [d for d in durs if abs(d - args.dwell) > args.dwell_tol]
+            ok &= not bad
+            print("  requested %d ms +- %.2f: %s" % (args.dwell, args.dwell_tol,
+                                                    "all within" if not bad else "%d outside" % len(bad)))
+    # Extra E per stop: E steps from the stop to the next stop or section end,
+    # minus what the same stretch takes in the reference run.
+    segments = []
+    if args.gcode:
+        gcode_end_state(args.gcode, origin, segments)
+    if args.map:
+        pts = read_map_points(args.map)
+        used = set()
+        worst = worst_foot = 0.0
+        print(" #   stop at X,Y (mm)      z     nearest point (mm)   dist mm  expected at (mm)    off mm  w   duration ms")
+        for k, (c0, c1, x, y) in enumerate(added):
+            sx, sy = run.mm("X", x), run.mm("Y", y)
+            zc = [zc for cz, zc in run.z if cz <= c0]
+            sz = run.mm("Z", zc[-1] if zc else 0)
+            best = None
+            for j, (pz, px, py, w) in enumerate(pts):
+                if abs(pz - sz) > 0.01 + 1e-6:
+                    continue
+                d = math.hypot(px - sx, py - sy)
+                if best is None or d < best[0]:
+                    best = (d, j)
+            if best is None:
+                print("%2d  %8.3f,%8.3f  %5.2f  no point on this layer" % (k, sx, sy, sz))
+                ok = False
+                continue
+            d, j = best
+            worst = max(worst, d)
+            used.add(j)
+            pz, px, py, w = pts[j]
+            ft = expected_stop(segments, sz, px, py, args.tolerance, args.min_piece) if segments else None
+            off = math.hypot(ft[0] - sx, ft[1] - sy) if ft else float("nan")
+            if ft:
+                worst_foot = max(worst_foot, off)
+            if args.verbose:
+                print("%2d  %8.3f,%8.3f  %5.2f  %8.3f,%8.3f  %6.3f  %8.3f,%8.3f  %6.3f  %3d  %9.4f"
+                      % (k, sx, sy, sz, px, py, d, ft[0] if ft else 0, ft[1] if ft else 0, off, w, ms(c1 - c0)))
+        print("map points %d, matched by a stop %d, largest stop-to-point distance %.3f mm"
+              % (len(pts), len(used), worst))
+        ok &= len(used) == len(pts) == len(added) and worst <= args.tolerance
+        if segments:
+            # The step grid allows half a step on each axis.
+            lim = math.hypot(0.5 / STEPS["X"], 0.5 / STEPS["Y"]) + 1e-6
+            print("largest distance from a stop to where the planner's rule puts it: %.4f mm "
+                  "(half a step on X and Y: %.4f mm)" % (worst_foot, lim))
+            ok &= worst_foot <= lim
+    if args.gcode:
+        end, e_total = gcode_end_state(args.gcode, origin)
+        want_e = round(e_total * STEPS["E"])
+        print("G-code: net E %.5f mm = %d steps; final X%.3f Y%.3f Z%.3f E%.5f"
+              % (e_total, want_e, end["X"], end["Y"], end["Z"], end["E"]))
+        extra_steps = 0
+        if args.extra is not None and not args.fallback:
+            extra_steps = round(len(added) * args.extra * STEPS["E"])
+        good = abs(run.count["E"] - (want_e + extra_steps)) <= 1
+        ok &= good
+        print("  E steps %d = G-code %d + %d stops x %g mm (%d): %s"
+              % (run.count["E"], want_e, len(added), args.extra or 0, extra_steps, "ok" if good else "MISMATCH"))
+        for a in "XYZ":
+            got = run.mm(a, run.count[a])
+            if abs(got - end[a]) > 0.5 / STEPS[a] + 1e-9:
+                print("  final %s: steps give %.4f, G-code %.4f: MISMATCH" % (a, got, end[a]))
+                ok = False
+        if args.log:
+            with open(args.log, encoding="utf-8", errors="replace") as f:
+                reports = re.findall(r"X:(-?[\d.]+) Y:(-?[\d.]+) Z:(-?[\d.]+) E:(-?[\d.]+) Count", f.read())
+            if not reports:
+                print("  no M114 report in %s" % args.log)
+                ok = False
+            else:
+                r = dict(zip("XYZE", (float(v) for v in reports[-1])))
+                good = all(abs(r[a] - end[a]) <= 0.006 for a in "XYZE")
+                ok &= good
+                print("  last M114: X:%.2f Y:%.2f Z:%.2f E:%.2f vs G-code X%.2f Y%.2f Z%.2f E%.2f: %s"
+                      % (r["X"], r["Y"], r["Z"], r["E"], end["X"], end["Y"], end["Z"], end["E"],
+                         "ok" if good else "MISMATCH"))
+    print("RESULT:", "ok" if ok else "FAILED")
+    return 0 if ok else 1
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    sub = ap.add_subparsers(dest="cmd", required=True)
+    c = sub.add_parser("cut", help="short print from a sliced file")
+    c.add_argument("gcode")
+    c.add_argument("--layers", required=True, help="first-last layer, 1-based (;LAYER_CHANGE count)")
+    c.add_argument("--keep", required=True, help="comma-separated ;TYPE: names to keep")
+    c.add_argument("-o", "--output", required=True)
+    s = sub.add_parser("stops", help="stops, E and final position of a trace")
+    s.add_argument("trace")
+    s.add_argument("--origin", default="0,0,0,0", help="X,Y,Z,E (mm) where the trace starts")
+    s.add_argument("--gap", type=float, default=4.0, help="a stop is an X/Y gap of at least this, ms")
+    s.add_argument("--ref", help="trace of the same G-code with the feature off")
+    s.add_argument("--map", help="bulge map (.bkm) to match the added stops against")
+    s.add_argument("--tolerance", type=float, default=0.25, help="largest stop-to-point distance, mm")
+    s.add_argument("--min-piece", type=float, default=0.1, help="BK_MIN_PIECE_MM: feet closer to a move end snap to it")
+    s.add_argument("--gcode", help="the G-code that was sent (for E and final position)")
+    s.add_argument("--log", help="UART output with the final M114")
+    s.add_argument("--dwell", type=int, help="requested dwell, ms")
+    s.add_argument("--dwell-tol", type=float, default=1.0)
+    s.add_argument("--extra", type=float, help="extra filament per stop, mm")
+    s.add_argument("--fallback", action="store_true", help="the G-code carries the extra E itself (G4 rewrite)")
+    s.add_argument("-v", "--verbose", action="store_true", help="one line per added stop")
+    args = ap.parse_args(argv)
+    return cut(args) if args.cmd == "cut" else stops(args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
