@@ -197,6 +197,38 @@ def fallback(gcode, map_file, output, dwell, extra, tolerance, geometric):
                f"{st.dwell_ms_total / 1000:.1f} s dwell, {st.extra_applied:.2f} mm extra filament")
 
 
+@main.command(short_help="M720 settings + M721 upload of a map, for any host.")
+@click.argument("map_file", metavar="MAP", type=click.Path(exists=True, dir_okay=False))
+@click.option("-o", "--output", type=click.Path(dir_okay=False),
+              help="File to write (default: standard output).")
+@click.option("--numbered", is_flag=True,
+              help="Add N<n> line numbers and *checksums (for terminals that do not).")
+@_settings_options
+@_friendly
+def mcodes(map_file, output, numbered, dwell, extra, tolerance, geometric):
+    """The M-code stream that configures the printer and uploads MAP: M720 settings,
+    M721 begin/chunks/commit. Send it from Pronterface, OctoPrint or `bulgekit send`
+    before printing G-code that carries M722 markers (or none, with --geometric)."""
+    settings = _settings(dwell, extra, tolerance, geometric)
+    data = Path(map_file).read_bytes()
+    mapformat.decode_map(data, source=map_file)  # a corrupt file is named, not sent
+    if numbered:
+        # M110 N0 resets the printer's line counter; numbered lines follow from N1
+        body = f"N1 {settings.m720()}"
+        cs = 0
+        for ch in body.encode():
+            cs ^= ch
+        text = ["M110 N0", f"{body}*{cs}"] + mapformat.upload_lines(data, start_line=2)
+    else:
+        text = [settings.m720()] + mapformat.upload_lines(data)
+    out = "\n".join(text) + "\n"
+    if output:
+        Path(output).write_text(out)
+        click.echo(f"wrote {output}: {len(text)} lines ({len(data)} map bytes)")
+    else:
+        click.echo(out, nl=False)
+
+
 @main.command(short_help="Points, stops per layer and added print time.")
 @click.argument("map_file", metavar="MAP", type=click.Path(exists=True, dir_okay=False))
 @click.option("-g", "--gcode", type=click.Path(exists=True, dir_okay=False),

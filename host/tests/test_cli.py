@@ -89,3 +89,43 @@ def test_demo(tmp_path):
                  "demo.preview.png", "demo.preview3d.png"):
         assert (tmp_path / name).stat().st_size > 0, name
     assert (tmp_path / "demo.preview.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_mcodes_stream_uploads_the_map(tmp_path):
+    from click.testing import CliRunner
+    from bulgekit import mapformat
+    from bulgekit.cli import main
+    data = mapformat.encode_map([(0.3, [(10.0, 0.0), (0.0, 10.0)]), (0.6, [(10.0, 0.0)])])
+    m = tmp_path / "m.bkm"
+    m.write_bytes(data)
+    res = CliRunner().invoke(main, ["mcodes", str(m), "--dwell", "150"])
+    assert res.exit_code == 0, res.output
+    lines = res.output.splitlines()
+    assert lines[0] == "M720 S1 P150 E0.100 T0.250"
+    assert lines[1].startswith(f"M721 S{len(data)} C")
+    assert lines[-1] == "M721 E"
+    # the chunks carry exactly the map's bytes
+    import base64
+    chunks = [ln.split(" D", 1)[1] for ln in lines if " O" in ln]
+    raw = b"".join(base64.b32decode(c + "=" * (-len(c) % 8)) for c in chunks)
+    assert raw == data
+    numbered = CliRunner().invoke(main, ["mcodes", str(m), "--numbered"]).output.splitlines()
+    assert numbered[0] == "M110 N0" and numbered[1].startswith("N1 M720")
+    assert all(len(ln) <= 95 for ln in numbered)
+    for i, ln in enumerate(numbered[1:], start=1):
+        body, cs = ln.rsplit("*", 1)
+        assert body.startswith(f"N{i} ")
+        x = 0
+        for ch in body.encode():
+            x ^= ch
+        assert int(cs) == x
+
+
+def test_mcodes_refuses_a_corrupt_map(tmp_path):
+    from click.testing import CliRunner
+    from bulgekit.cli import main
+    bad = tmp_path / "bad.bkm"
+    bad.write_bytes(b"BKM\x01\x00\x32\x1e\x00")  # wrong header CRC
+    res = CliRunner().invoke(main, ["mcodes", str(bad)])
+    assert res.exit_code != 0
+    assert "bad.bkm" in res.output
