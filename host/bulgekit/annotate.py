@@ -24,7 +24,7 @@ import re
 from dataclasses import dataclass, field
 
 from . import mapformat
-from .fallback import MODE_GEOMETRIC, MODE_MARKED, Settings
+from .fallback import MODE_GEOMETRIC, Settings
 from .gcode import feature_of_comment, is_outer
 from .strokes import BulgekitError
 

@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import functools
-import importlib.util
 import sys
 import time
 from pathlib import Path
@@ -134,9 +133,7 @@ def build(gcode, stroke_files, text, text_size, at, offset, image_width, mirror,
 
 
 def _preview(out, path: Path):
-    """Unrolled-wall preview via the preview module, when it is installed."""
-    if importlib.util.find_spec("bulgekit.preview") is None:
-        return None
+    """Unrolled-wall preview PNG."""
     from . import preview
     pts = out.result.points
     model = out.result.model
@@ -150,8 +147,6 @@ def _preview(out, path: Path):
 
 
 def _preview_3d(out, path: Path):
-    if importlib.util.find_spec("bulgekit.preview") is None:
-        return None
     from . import preview
     walls = [(w.z, w.xy) for w in out.result.model.walls]
     bumps = [(p.x, p.y, p.z, p.weight) for p in out.result.points]
@@ -282,10 +277,10 @@ def _examples_dir() -> Path:
     raise BulgekitError("demo data not found: run from a bulgekit checkout (examples/cylinder40x20.gcode)")
 
 
-# The inputs helper's commands (preview, send, stroke conversion), when present.
-if importlib.util.find_spec("bulgekit.cli_io") is not None:
-    from . import cli_io
-    cli_io.register(main)
+# preview, send and strokes live in cli_io.py, beside the modules they drive.
+from . import cli_io  # noqa: E402  (needs `main` defined above)
+
+cli_io.register(main)
 
 
 if __name__ == "__main__":

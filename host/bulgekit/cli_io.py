@@ -5,7 +5,6 @@ cli.py calls register(main) to add them to the bulgekit command group.
 from __future__ import annotations
 
 import functools
-import os
 import sys
 from pathlib import Path
 

@@ -21,7 +21,6 @@ E back (M82), or relative pieces (M83) which need no G92.
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from typing import Iterable, Iterator
 
@@ -177,7 +176,6 @@ class RefPlanner:
             return [Action("line", m.x1, m.y1, m.z1, m.e)]
         x0, y0, z0 = f32(m.x0), f32(m.y0), f32(m.z0)
         x1, y1, z1 = f32(m.x1), f32(m.y1), f32(m.z1)
-        e = f32(m.e)
         fdx, fdy = x1 - x0, y1 - y0
         len2 = fdx * fdx + fdy * fdy
         pending = self.carry
