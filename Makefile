@@ -30,7 +30,7 @@ bench: bootstrap
 	$(ENV) pio test -e avr_sim -f 'test_bench_*' -v | grep -v '^bksim: marker'
 
 fuzz: bootstrap
-	bash tools/fuzz/run.sh $(SECONDS)
+	bash tools/fuzz/run.sh $(FUZZ_SECONDS)
 
 demo: bootstrap
 	$(ENV) bash tools/demo.sh
