@@ -1,30 +1,17 @@
 """bulgekit command line."""
 from __future__ import annotations
 
-import functools
 import sys
 import time
 from pathlib import Path
 
 import click
 
+from ._cliutil import friendly, pair
 from . import __version__, mapformat
 from .fallback import (DEFAULT_DWELL_MS, DEFAULT_EXTRA_E_MM, DEFAULT_TOLERANCE_MM,
                        MODE_GEOMETRIC, MODE_MARKED, Settings)
 from .strokes import BulgekitError
-
-
-def _friendly(fn):
-    """Turn expected failures into one-line messages (exit status 1)."""
-    @functools.wraps(fn)
-    def wrapper(*a, **kw):
-        try:
-            return fn(*a, **kw)
-        except (BulgekitError, mapformat.MapFormatError) as e:
-            raise click.ClickException(str(e)) from None
-        except OSError as e:
-            raise click.ClickException(f"{e.filename or ''}: {e.strerror or e}") from None
-    return wrapper
 
 
 def _settings_options(fn):
@@ -45,16 +32,6 @@ def _settings(dwell, extra, tolerance, geometric) -> Settings:
         return Settings(MODE_GEOMETRIC if geometric else MODE_MARKED, dwell, extra, tolerance)
     except ValueError as e:
         raise click.BadParameter(str(e)) from None
-
-
-def _pair(ctx, param, value):
-    if value is None:
-        return None
-    try:
-        a, b = (float(t) for t in value.split(","))
-    except ValueError:
-        raise click.BadParameter(f"expected U,V in mm, got {value!r}") from None
-    return (a, b)
 
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})
@@ -81,9 +58,9 @@ def main():
               help="Stroke file: .json stroke list, .svg drawing or an image (dots). Repeatable.")
 @click.option("--text", help="Write this text on the wall (single-stroke font).")
 @click.option("--text-size", type=float, default=6.0, show_default=True, help="Capital height of --text, mm.")
-@click.option("--at", callback=_pair, default="0,2", show_default=True, metavar="U,V",
+@click.option("--at", callback=pair, default="0,2", show_default=True, metavar="U,V",
               help="U,V (mm) where --text's baseline starts.")
-@click.option("--offset", callback=_pair, default="0,0", show_default=True, metavar="U,V",
+@click.option("--offset", callback=pair, default="0,0", show_default=True, metavar="U,V",
               help="U,V (mm) shift for stroke files (an image's lower-left corner).")
 @click.option("--image-width", type=float, help="Width (mm) on the wall of an image stroke file.")
 @click.option("--mirror", is_flag=True, help="Mirror --text (paint rollers).")
@@ -98,7 +75,7 @@ def main():
 @click.option("--fallback", "write_fallback", is_flag=True, help="Also write <name>.stock.gcode for stock firmware.")
 @click.option("--preview/--no-preview", default=True, show_default=True, help="Write <name>.preview.png.")
 @_settings_options
-@_friendly
+@friendly
 def build(gcode, stroke_files, text, text_size, at, offset, image_width, mirror, outdir, name, spacing,
           line_width, layer_height, ref_angle, no_stream, write_fallback, preview,
           dwell, extra, tolerance, geometric):
@@ -161,7 +138,7 @@ def _preview_3d(out, path: Path):
 @click.option("--no-stream", is_flag=True, help="Fail if the map is larger than the printer's arena.")
 @click.option("--arena", type=int, default=2048, show_default=True, help="Printer map arena, bytes.")
 @_settings_options
-@_friendly
+@friendly
 def annotate(gcode, map_file, output, no_stream, arena, dwell, extra, tolerance, geometric):
     """Add M720/M721/M722 for the bulgekit firmware to GCODE (moves untouched)."""
     from .annotate import annotate_file
@@ -180,7 +157,7 @@ def annotate(gcode, map_file, output, no_stream, arena, dwell, extra, tolerance,
 @click.argument("map_file", metavar="MAP", type=click.Path(exists=True, dir_okay=False))
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="G-code to write.")
 @_settings_options
-@_friendly
+@friendly
 def fallback(gcode, map_file, output, dwell, extra, tolerance, geometric):
     """Rewrite GCODE for stock firmware: split, G4 dwell, extra E, G92 E."""
     from .fallback import rewrite_file
@@ -199,7 +176,7 @@ def fallback(gcode, map_file, output, dwell, extra, tolerance, geometric):
 @click.option("--numbered", is_flag=True,
               help="Add N<n> line numbers and *checksums (for terminals that do not).")
 @_settings_options
-@_friendly
+@friendly
 def mcodes(map_file, output, numbered, dwell, extra, tolerance, geometric):
     """The M-code stream that configures the printer and uploads MAP: M720 settings,
     M721 begin/chunks/commit. Send it from Pronterface, OctoPrint or `bulgekit send`
@@ -232,7 +209,7 @@ def mcodes(map_file, output, numbered, dwell, extra, tolerance, geometric):
 @click.option("--accel", type=float, default=1000.0, show_default=True,
               help="Acceleration (mm/s^2) for the stop/start time estimate.")
 @_settings_options
-@_friendly
+@friendly
 def stats(map_file, gcode, arena, accel, dwell, extra, tolerance, geometric):
     """Per-layer points, stops and the time bulges add."""
     from . import stats as st
@@ -248,7 +225,7 @@ def stats(map_file, gcode, arena, accel, dwell, extra, tolerance, geometric):
 @main.command(short_help="Worked example: text on a sliced cylinder.")
 @click.argument("outdir", type=click.Path(file_okay=False), default="bulgekit-demo")
 @click.option("--text", default="BULGE", show_default=True)
-@_friendly
+@friendly
 def demo(outdir, text):
     """Worked example: text on a sliced 40 mm cylinder -> OUTDIR."""
     from . import api

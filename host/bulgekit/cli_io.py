@@ -4,39 +4,14 @@ cli.py calls register(main) to add them to the bulgekit command group.
 """
 from __future__ import annotations
 
-import functools
 import sys
 from pathlib import Path
 
 import click
 
-from .strokes import BulgekitError
+from ._cliutil import friendly, pair
 
 _IMAGE_EXT = {".png", ".jpg", ".jpeg", ".bmp", ".gif", ".tif", ".tiff", ".webp"}
-
-
-def _friendly(fn):
-    @functools.wraps(fn)
-    def wrapper(*a, **kw):
-        try:
-            return fn(*a, **kw)
-        except BulgekitError as e:
-            raise click.ClickException(str(e)) from None
-        except ValueError as e:  # mapformat.MapFormatError and friends
-            if type(e).__module__.startswith("bulgekit"):
-                raise click.ClickException(str(e)) from None
-            raise
-    return wrapper
-
-
-def _pair(ctx, param, value):
-    if value is None:
-        return None
-    try:
-        a, b = (float(t) for t in value.split(","))
-    except ValueError:
-        raise click.BadParameter(f"expected two numbers U,V (mm), got {value!r}") from None
-    return (a, b)
 
 
 def _stroke_options(fn):
@@ -47,7 +22,7 @@ def _stroke_options(fn):
         click.option("--font", default="futural", show_default=True, help="Hershey font of --text."),
         click.option("--letter-spacing", type=float, default=0.0, show_default=True,
                      help="Extra mm between letters of --text."),
-        click.option("--at", callback=_pair, default="0,0", show_default=True,
+        click.option("--at", callback=pair, default="0,0", show_default=True,
                      help="U,V mm: where input goes (text baseline start, SVG/image lower-left)."),
         click.option("--scale", type=float, default=1.0, show_default=True, help="Scale SVG/JSON input."),
         click.option("--mirror", is_flag=True, help="Mirror left-right (paint rollers)."),
@@ -112,7 +87,7 @@ def register(group: click.Group) -> None:
     @_stroke_options
     @click.option("-o", "--output", type=click.Path(dir_okay=False),
                   help="Strokes JSON to write (see docs/inputs.md). Without it only the summary is printed.")
-    @_friendly
+    @friendly
     def strokes_cmd(inputs, output, **kw):
         """Read INPUTS (.svg, .json, images) and/or --text, print a summary, write -o JSON.
 
@@ -139,7 +114,7 @@ def register(group: click.Group) -> None:
     @click.option("--height", type=float, help="Without GCODE: wall height, mm.")
     @click.option("--spacing", type=float, help="Point spacing along strokes, mm [pipeline default / 1.0].")
     @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="PNG to write.")
-    @_friendly
+    @friendly
     def preview_cmd(gcode, inputs, map_file, three_d, wall_length, height, spacing, output, **kw):
         """Draw where the bulges go.
 
@@ -205,7 +180,7 @@ def register(group: click.Group) -> None:
                   help="Seconds to wait for the board to start after opening the port (0: none).")
     @click.option("--continue-on-error", is_flag=True, help="Go on after a command the printer refuses.")
     @click.option("--progress/--no-progress", default=True, show_default=True)
-    @_friendly
+    @friendly
     def send_cmd(files, port, baud, commands, map_file, timeout, boot_wait, continue_on_error, progress):
         """Send -c commands, then --map, then FILES (- for stdin), line by line with
         line numbers and checksums. Printer messages are shown as they come."""
