@@ -14,6 +14,13 @@ from .fallback import (DEFAULT_DWELL_MS, DEFAULT_EXTRA_E_MM, DEFAULT_TOLERANCE_M
 from .strokes import BulgekitError
 
 
+def _read_map(path) -> bytes:
+    """A map file's bytes, checked here so that a corrupt file is named in the message."""
+    data = Path(path).read_bytes()
+    mapformat.decode_map(data, source=str(path))
+    return data
+
+
 def _settings_options(fn):
     fn = click.option("--geometric", is_flag=True,
                       help="Geometric mode (M720 S2): no outer-wall markers; every extruding move "
@@ -144,7 +151,7 @@ def annotate(gcode, map_file, output, no_stream, arena, dwell, extra, tolerance,
     from .annotate import annotate_file
     settings = _settings(dwell, extra, tolerance, geometric)
     t0 = time.perf_counter()
-    res = annotate_file(gcode, output, Path(map_file).read_bytes(), settings, arena, not no_stream)
+    res = annotate_file(gcode, output, _read_map(map_file), settings, arena, not no_stream)
     dt = time.perf_counter() - t0
     click.echo(f"wrote {output}: {res.lines_added} lines added, {res.markers} markers, "
                f"{res.initial_records} layers uploaded at the start"
@@ -162,8 +169,7 @@ def fallback(gcode, map_file, output, dwell, extra, tolerance, geometric):
     """Rewrite GCODE for stock firmware: split, G4 dwell, extra E, G92 E."""
     from .fallback import rewrite_file
     settings = _settings(dwell, extra, tolerance, geometric)
-    res = rewrite_file(gcode, output, mapformat.decode_map(Path(map_file).read_bytes(),
-                                                           source=map_file), settings)
+    res = rewrite_file(gcode, output, mapformat.decode_map(_read_map(map_file)), settings)
     st = res.stats
     click.echo(f"wrote {output}: {st.points_fired} stops on {res.moves_split} lines, "
                f"{st.dwell_ms_total / 1000:.1f} s dwell, {st.extra_applied:.2f} mm extra filament")
@@ -182,8 +188,7 @@ def mcodes(map_file, output, numbered, dwell, extra, tolerance, geometric):
     M721 begin/chunks/commit. Send it from Pronterface, OctoPrint or `bulgekit send`
     before printing G-code that carries M722 markers (or none, with --geometric)."""
     settings = _settings(dwell, extra, tolerance, geometric)
-    data = Path(map_file).read_bytes()
-    mapformat.decode_map(data, source=map_file)  # a corrupt file is named, not sent
+    data = _read_map(map_file)
     if numbered:
         # M110 N0 resets the printer's line counter; numbered lines follow from N1
         body = f"N1 {settings.m720()}"
@@ -214,7 +219,7 @@ def stats(map_file, gcode, arena, accel, dwell, extra, tolerance, geometric):
     """Per-layer points, stops and the time bulges add."""
     from . import stats as st
     settings = _settings(dwell, extra, tolerance, geometric)
-    data = Path(map_file).read_bytes()
+    data = _read_map(map_file)
     if gcode:
         s = st.print_stats(gcode, data, settings, arena, accel)
     else:
