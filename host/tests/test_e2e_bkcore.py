@@ -170,3 +170,30 @@ def test_firmware_path_matches_stock_fallback(bkcore, case):
     assert fw_sum["pos"] == st_sum["pos"] == orig_sum["pos"]
     assert float(fw_sum["host_e"]) == float(orig_sum["host_e"])
     assert float(orig_sum["e_out"]) == pytest.approx(float(fw_sum["e_gcode"]), abs=1e-6)
+
+
+def test_width_mode_and_bulges_together(bkcore):
+    """M723 sets the move's filament from W and its speed from the constant
+    extruder rate; the bulge planner then splits it, and both pieces keep that
+    speed (the extra filament goes out at the same head speed)."""
+    from bulgekit import mapformat
+    data = mapformat.encode_map([(0.3, [(5.0, 0.0)])], quantum_um=100, layer_height_mm=0.3)
+    lines = ["M83", "M720 S1 P100 E0.1 T0.25"] + mapformat.upload_lines(data) + [
+        "M723 S1 Q3.2 D1.75 H0.3", "G1 Z0.3 F600", "M722 S1", "G1 X10 Y0 W0.5 F2400", "M722 S0"]
+    actions, summary, errors = run_core(bkcore, "\n".join(lines) + "\n")
+    assert errors == []
+    area = 3.141592653589793 * 1.75 ** 2 / 4
+    de = 0.5 * 0.3 * 10 / area           # filament for W0.5 x H0.3 x 10 mm
+    r = 3.2 / area                        # extruder rate, mm/s
+    v = 10 * r / de * 60                  # head speed, mm/min: v = L r / dE
+    wall = [a for a in actions if a[0] == "line" and a[3] == pytest.approx(0.3)][1:]  # after the Z move
+    assert [a[0] for a in actions[-3:]] == ["line", "dwell", "line"]
+    first, dwell, second = actions[-3:]
+    assert (first[1], first[2]) == (pytest.approx(5.0, abs=1e-3), pytest.approx(0.0, abs=1e-3))
+    assert dwell == ("dwell", 100)
+    assert first[4] == pytest.approx(de / 2, rel=1e-4)           # eq. 1 on the width's filament
+    assert second[4] == pytest.approx(de / 2 + 0.1, rel=1e-4)    # + the extra after the stop
+    assert first[5] == pytest.approx(v, abs=1) and second[5] == pytest.approx(v, abs=1)
+    assert len(wall) == 2
+    # the host's E never counted the W filament nor the extra
+    assert float(summary["e_offset"]) == pytest.approx(de + 0.1, rel=1e-4)

@@ -6,11 +6,14 @@
 //   line X<x> Y<y> Z<z> E<de> F<f>   a linear piece; E is the filament of this
 //                                    piece (a delta, extra included), F mm/min
 //   dwell <ms>                       a stop (bulge point, or the host's own G4)
-//   echo:... / Error:...             replies of M720, M721, M722
+//   echo:... / Error:...             replies of M720, M721, M722, M723
 //   pass <line>                      a line the core does not handle
-// and at the end one "summary ..." line. M720/M721/M722, G0/G1, G92, G90/G91,
-// M82/M83 and G4 are handled; --map loads a compact map file instead of (or
-// before) M721 uploads in the input. Exit status 1 if any line gave an Error.
+// and at the end one "summary ..." line. M720-M723, G0/G1 (with W words in
+// width mode), G92, G90/G91, M82/M83 and G4 are handled, in the order the
+// Marlin adapter applies them: width mode sets the move's filament (W) and
+// speed, then the bulge planner splits it and every piece keeps that speed.
+// --map loads a compact map file instead of (or before) M721 uploads in the
+// input. Exit status 1 if any line gave an Error.
 //
 // Used by the host toolkit's end-to-end check and by the README demo.
 #include <stdio.h>
@@ -22,6 +25,7 @@
 #include "gcode_args.h"
 #include "map_upload.h"
 #include "move_state.h"
+#include "width_mode.h"
 
 namespace {
 
@@ -29,6 +33,7 @@ bk::MapStore store;
 bk::MapUpload upload(store);
 bk::BulgePlanner planner;
 bk::MoveState state;
+bk::WidthMode width;
 
 struct Totals {
   unsigned long moves = 0, lines = 0, dwells = 0, dwell_ms = 0, errors = 0, passed = 0;
@@ -40,9 +45,32 @@ void print_reply(const char *r) {
   if (!strncmp(r, "Error:", 6) || strstr(r, "\nError:")) tot.errors++;
 }
 
-void do_move(const bk::AxisWords &w) {
+void do_move(const bk::AxisWords &w, const bk::GcodeArgs &args) {
+  const bk::MoveState before = state;
   bk::Move m = state.line(w);
-  if (!(w.mask & (bk::AxisWords::X | bk::AxisWords::Y | bk::AxisWords::Z | bk::AxisWords::E))) return;  // "G1 F1800"
+  float wv;
+  const bk::ArgStatus ws = args.get_float('W', wv);
+  if (ws == bk::ARG_BAD || ws == bk::ARG_EMPTY) {
+    print_reply("Error:G1 bad value for W");
+    state = before;  // the move is not executed
+    return;
+  }
+  if (ws == bk::ARG_OK) {
+    // Width mode: the filament comes from the width; the host's E does not
+    // count it, so it goes into the internal E offset as the bulge extra does.
+    char err[bk::WidthMode::ERROR_REPLY_MIN];
+    float de;
+    if (!width.width_e_xy(wv, (w.mask & bk::AxisWords::E) != 0, m.x1 - m.x0, m.y1 - m.y0, de, err, sizeof err)) {
+      print_reply(err);
+      state = before;
+      return;
+    }
+    m.e = de;
+    state.add_e_offset(de);
+  }
+  if (!(w.mask & (bk::AxisWords::X | bk::AxisWords::Y | bk::AxisWords::Z | bk::AxisWords::E)) && ws == bk::ARG_ABSENT)
+    return;  // "G1 F1800"
+  m.f = width.feed_xy(m.x1 - m.x0, m.y1 - m.y0, m.e, m.f / 60.0f) * 60.0f;  // identity when the mode is off
   tot.moves++;
   tot.e_host += m.e;
   bk::ActionList out;
@@ -132,6 +160,10 @@ int main(int argc, char **argv) {
     if (L == 'M' && code == 720) {
       planner.m720(a, reply, sizeof reply);
       print_reply(reply);
+    } else if (L == 'M' && code == 723) {
+      char wreply[bk::WidthMode::REPLY_MIN];
+      width.command(a, wreply, sizeof wreply);
+      print_reply(wreply);
     } else if (L == 'M' && code == 722) {
       planner.m722(a, reply, sizeof reply);
       print_reply(reply);
@@ -154,7 +186,7 @@ int main(int argc, char **argv) {
       } else if (code == 92) {
         state.set_position(w);
       } else {
-        do_move(w);
+        do_move(w, a);
       }
     } else if (L == 'G' && code == 4) {
       int32_t ms = 0;
