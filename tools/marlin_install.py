@@ -62,12 +62,15 @@ class Edit:
     the block as 'bulgekit:was' comments; 'append': at the end of the file.
     """
 
-    def __init__(self, path, name, mode, anchor, text, comment="//", optional=False):
+    def __init__(self, path, name, mode, anchor, text, comment="//", optional=False, regex=None):
         self.path, self.name, self.mode = path, name, mode
         self.anchor = anchor.split("\n") if anchor else []
         self.text = text
         self.comment = comment
         self.optional = optional  # the whole file may be absent (ini/features.ini)
+        # regex: the anchor is one line matching this pattern (anchor holds an
+        # example line); text may use its groups as \\1, \\2 ...
+        self.regex = re.compile(regex) if regex else None
 
 
 # ---- hooks for Marlin 2.1.2.x ------------------------------------------------------
@@ -224,6 +227,101 @@ EDITS = [
     TERN_(WIDTH_BY_FEEDRATE, gcode.M723_report(forReplay));
 
 """),
+    # EEPROM: M720/M723 parameters (see BulgeKit::settings_save). Marlin changes
+    # EEPROM_VERSION whenever the layout changes; with bulgekit the letter
+    # becomes B ("V88" -> "B88"), which no stock version string can equal, so
+    # neither firmware reads the other's data (both fall back to defaults).
+    Edit("Marlin/src/module/settings.cpp", "eeprom-version", "replace",
+         '#define EEPROM_VERSION "V88"',
+         """\
+#define EEPROM_VERSION TERN(BULGE_MAP, "B\\1", TERN(WIDTH_BY_FEEDRATE, "B\\1", "V\\1")) // bulgekit adds settings
+""", regex=r'#define EEPROM_VERSION "V(\d+)"'),
+    Edit("Marlin/src/module/settings.cpp", "eeprom-include", "after",
+         '#include "../MarlinCore.h"',
+         '#include "../feature/bulgekit/bulgekit.h"\n'),
+    Edit("Marlin/src/module/settings.cpp", "eeprom-fields", "after",
+         "  #if ENABLED(MPCTEMP)\n"
+         "    MPC_t mpc_constants[HOTENDS];                       // M306\n"
+         "  #endif",
+         """\
+
+  //
+  // bulgekit: parameters as command lines (see bulgekit.h)
+  //
+  #if ENABLED(BULGE_MAP)
+    BulgeKit::settings_line_t bulgekit_m720;          // M720 P E T
+  #endif
+  #if ENABLED(WIDTH_BY_FEEDRATE)
+    BulgeKit::settings_line_t bulgekit_m723;          // M723 Q|R D H L U
+  #endif
+"""),
+    Edit("Marlin/src/module/settings.cpp", "eeprom-save", "after",
+         "    #if ENABLED(MPCTEMP)\n"
+         "      HOTEND_LOOP()\n"
+         "        EEPROM_WRITE(thermalManager.temp_hotend[e].mpc);\n"
+         "    #endif",
+         """\
+
+    //
+    // bulgekit
+    //
+    #if ENABLED(BULGE_MAP)
+    {
+      _FIELD_TEST(bulgekit_m720);
+      BulgeKit::settings_line_t line;
+      BulgeKit::settings_save(720, line);
+      EEPROM_WRITE(line);
+    }
+    #endif
+    #if ENABLED(WIDTH_BY_FEEDRATE)
+    {
+      _FIELD_TEST(bulgekit_m723);
+      BulgeKit::settings_line_t line;
+      BulgeKit::settings_save(723, line);
+      EEPROM_WRITE(line);
+    }
+    #endif
+"""),
+    Edit("Marlin/src/module/settings.cpp", "eeprom-load", "after",
+         "      #if ENABLED(MPCTEMP)\n"
+         "      {\n"
+         "        HOTEND_LOOP()\n"
+         "          EEPROM_READ(thermalManager.temp_hotend[e].mpc);\n"
+         "      }\n"
+         "      #endif",
+         """\
+
+      //
+      // bulgekit
+      //
+      #if ENABLED(BULGE_MAP)
+      {
+        _FIELD_TEST(bulgekit_m720);
+        BulgeKit::settings_line_t line;
+        EEPROM_READ(line);
+        if (!validating) BulgeKit::settings_load(720, line);
+      }
+      #endif
+      #if ENABLED(WIDTH_BY_FEEDRATE)
+      {
+        _FIELD_TEST(bulgekit_m723);
+        BulgeKit::settings_line_t line;
+        EEPROM_READ(line);
+        if (!validating) BulgeKit::settings_load(723, line);
+      }
+      #endif
+"""),
+    Edit("Marlin/src/module/settings.cpp", "eeprom-reset", "after",
+         "  TERN_(DWIN_LCD_PROUI, DWIN_SetDataDefaults());",
+         """\
+
+  //
+  // bulgekit: M720 / M723 defaults, modes off (the map stays)
+  //
+  #if HAS_BULGEKIT
+    BulgeKit::settings_reset();
+  #endif
+"""),
     Edit("ini/features.ini", "features", "after",
          "GCODE_MACROS                           = build_src_filter=+<src/gcode/feature/macro>",
          """\
@@ -327,7 +425,9 @@ def remove_blocks(lines, comment, path):
     return out, removed
 
 
-def find_anchor(lines, anchor):
+def find_anchor(lines, anchor, regex=None):
+    if regex:
+        return [i for i, l in enumerate(lines) if regex.fullmatch(l)]
     n = len(anchor)
     return [i for i in range(len(lines) - n + 1) if lines[i:i + n] == anchor]
 
@@ -349,21 +449,24 @@ def apply_edits(lines, edits, path):
         if ed.mode == "append":
             lines = lines + block_lines(ed, "", [])
             continue
-        hits = find_anchor(lines, ed.anchor)
+        hits = find_anchor(lines, ed.anchor, ed.regex)
         if len(hits) != 1:
-            shown = "\n    ".join(ed.anchor)
+            shown = ("a line matching %s, e.g.\n    " % ed.regex.pattern if ed.regex else "") + "\n    ".join(ed.anchor)
             what = "not found" if not hits else "found %d times (must be unique)" % len(hits)
             raise InstallError("%s: anchor '%s' %s; expected the line(s):\n    %s\n"
                                "This Marlin tree differs from 2.1.2.x; nothing was changed."
                                % (path, ed.name, what, shown))
         i, n = hits[0], len(ed.anchor)
-        indent = re.match(r"\s*", ed.anchor[0]).group(0)
+        found = lines[i:i + n]
+        indent = re.match(r"\s*", found[0]).group(0)
+        if ed.regex:
+            ed = Edit(ed.path, ed.name, ed.mode, None, ed.regex.fullmatch(found[0]).expand(ed.text), ed.comment)
         if ed.mode == "before":
             lines = lines[:i] + block_lines(ed, indent, []) + lines[i:]
         elif ed.mode == "after":
             lines = lines[:i + n] + block_lines(ed, indent, []) + lines[i + n:]
         elif ed.mode == "replace":
-            lines = lines[:i] + block_lines(ed, indent, ed.anchor) + lines[i + n:]
+            lines = lines[:i] + block_lines(ed, indent, found) + lines[i + n:]
         else:
             raise InstallError("unknown edit mode %r" % ed.mode)
     return lines

@@ -76,6 +76,8 @@ def test_install_puts_every_block_once_and_copies_files(tree):
         assert text.count("%s bulgekit:begin %s" % (ed.comment, ed.name)) == 1, (ed.path, ed.name)
         assert text.count("%s bulgekit:end %s" % (ed.comment, ed.name)) == 1, (ed.path, ed.name)
         first_body_line = [l for l in ed.text.split("\n") if l.strip()][0]
+        if ed.regex:  # groups of the matched line filled in
+            first_body_line = ed.regex.fullmatch(ed.anchor[0]).expand(first_body_line)
         assert first_body_line in text
     adv = read(tree, "Marlin/Configuration_adv.h")
     assert "// bulgekit:begin config" in adv and "#define BULGE_MAP" in adv
@@ -261,3 +263,63 @@ def test_main_exit_codes(tree, capsys):
     os.remove(os.path.join(tree, mi.VERSION_H))
     assert mi.main([tree]) == 1
     assert "not a Marlin checkout" in capsys.readouterr().err
+
+
+def settings_text(tree):
+    return read(tree, "Marlin/src/module/settings.cpp")
+
+
+@pytest.mark.parametrize("stock", ["V88", "V86", "V123"])
+def test_eeprom_version_takes_the_b_letter_and_keeps_the_number(tree, stock):
+    rel = "Marlin/src/module/settings.cpp"
+    text = settings_text(tree).replace('#define EEPROM_VERSION "V88"', '#define EEPROM_VERSION "%s"' % stock)
+    with open(os.path.join(tree, rel), "w", encoding="utf-8", newline="") as f:
+        f.write(text)
+    mi.install(tree, out=quiet)
+    lines = settings_text(tree).split("\n")
+    num = stock[1:]
+    wanted = ('#define EEPROM_VERSION TERN(BULGE_MAP, "B%s", TERN(WIDTH_BY_FEEDRATE, "B%s", "V%s"))'
+              " // bulgekit adds settings" % (num, num, num))
+    assert wanted in lines
+    # the stock define is only kept as a comment inside the block ...
+    assert '#define EEPROM_VERSION "%s"' % stock not in lines
+    assert '// bulgekit:was |#define EEPROM_VERSION "%s"' % stock in lines
+    # ... and comes back on uninstall
+    mi.uninstall(tree, out=quiet)
+    assert settings_text(tree) == text
+
+
+@pytest.mark.parametrize("damage", ["missing", "twice"])
+def test_eeprom_version_line_must_be_unique(tree, damage):
+    rel = "Marlin/src/module/settings.cpp"
+    text = settings_text(tree)
+    line = '#define EEPROM_VERSION "V88"'
+    text = text.replace(line, '#define EEPROM_VERSION_X 1') if damage == "missing" else text + line + "\n"
+    with open(os.path.join(tree, rel), "w", encoding="utf-8", newline="") as f:
+        f.write(text)
+    before = snapshot(tree)
+    with pytest.raises(mi.InstallError) as e:
+        mi.install(tree, out=quiet)
+    msg = str(e.value)
+    assert "'eeprom-version'" in msg and "a line matching" in msg
+    assert ("not found" in msg) if damage == "missing" else ("found 2 times" in msg)
+    assert snapshot(tree) == before
+
+
+def test_eeprom_hooks_save_and_load_the_same_fields_in_the_same_order(tree):
+    mi.install(tree, out=quiet)
+    text = settings_text(tree)
+    def block(name):
+        a = text.index("bulgekit:begin %s" % name)
+        return text[a:text.index("bulgekit:end %s" % name)]
+    fields = [l.split()[1].rstrip(";") for l in block("eeprom-fields").split("\n")
+              if "settings_line_t bulgekit_" in l]
+    assert fields == ["bulgekit_m720", "bulgekit_m723"]
+    for name, call in (("eeprom-save", "EEPROM_WRITE(line)"), ("eeprom-load", "EEPROM_READ(line)")):
+        b = block(name)
+        assert [f for f in fields if "_FIELD_TEST(%s)" % f in b] == fields
+        assert b.index("_FIELD_TEST(bulgekit_m720)") < b.index("_FIELD_TEST(bulgekit_m723)")
+        assert b.count(call) == 2
+    # a validation pass (validating == true) reads but applies nothing
+    assert block("eeprom-load").count("if (!validating) BulgeKit::settings_load(") == 2
+    assert "BulgeKit::settings_reset();" in block("eeprom-reset")

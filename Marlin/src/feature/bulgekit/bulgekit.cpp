@@ -38,6 +38,78 @@ void BulgeKit::print_reply(const char *text) {
   SERIAL_EOL();
 }
 
+// The report line of M720 / M723 (their first line), as a command without
+// "echo:", the leading blanks and the S word: what M500 stores.
+void BulgeKit::settings_save(const uint16_t code, settings_line_t &line) {
+  char reply[TERN(WIDTH_BY_FEEDRATE, bk::WidthMode::REPLY_MIN, BK_PLAN_REPLY_MAX)];
+  reply[0] = '\0';
+  bk::GcodeArgs args;
+  #if ENABLED(BULGE_MAP)
+    if (code == 720 && args.parse("M720")) bulge.m720(args, reply, sizeof(reply));
+  #endif
+  #if ENABLED(WIDTH_BY_FEEDRATE)
+    if (code == 723 && args.parse("M723")) width.command(args, reply, sizeof(reply));
+  #endif
+  const char *r = reply;
+  if (strncmp_P(r, PSTR("echo:"), 5) == 0) r += 5;
+  while (*r == ' ') ++r;
+  uint8_t n = 0;
+  bool ok = true;
+  while (*r && *r != '\n') {
+    if (r[0] == ' ' && r[1] == 'S') {  // skip " S<n>"
+      r += 2;
+      while (*r && *r != ' ' && *r != '\n') ++r;
+      continue;
+    }
+    if (n + 1u >= sizeof(line)) { ok = false; break; }
+    line[n++] = *r++;
+  }
+  if (!ok) {
+    // Cannot happen within the M720/M723 limits; never store half a line
+    SERIAL_ECHOLNPGM("Error:M", code, " settings do not fit the EEPROM line; not saved");
+    n = 0;
+  }
+  memset(line + n, 0, sizeof(line) - n);
+}
+
+void BulgeKit::settings_load(const uint16_t code, settings_line_t &line) {
+  line[sizeof(line) - 1] = '\0';
+  if (!line[0]) return;  // nothing stored (or a line that did not fit)
+  bk::GcodeArgs args;
+  char reply[TERN(WIDTH_BY_FEEDRATE, bk::WidthMode::REPLY_MIN, BK_PLAN_REPLY_MAX)];
+  reply[0] = '\0';
+  bool ok = args.parse(line) && args.code_letter() == 'M' && args.code() == (int16_t)code;
+  if (ok) {
+    #if ENABLED(BULGE_MAP)
+      if (code == 720) ok = bulge.m720(args, reply, sizeof(reply));
+    #endif
+    #if ENABLED(WIDTH_BY_FEEDRATE)
+      if (code == 723) ok = width.command(args, reply, sizeof(reply));
+    #endif
+  }
+  if (!ok) {
+    print_reply(reply);
+    SERIAL_ECHOLNPGM("Error:stored M", code, " settings refused; defaults kept");
+  }
+}
+
+void BulgeKit::settings_reset() {
+  #if ENABLED(BULGE_MAP)
+    const bool marker = bulge.in_outer_wall();
+    bulge.reset();        // mode, P, E, T to the defaults (and the stop statistics)
+    bulge.attach(&store);  // reset() detaches; the map itself stays in force
+    if (marker) {
+      bk::GcodeArgs args;
+      char reply[BK_PLAN_REPLY_MAX];
+      if (args.parse("M722 S1")) bulge.m722(args, reply, sizeof(reply));  // still inside an outer wall
+    }
+  #endif
+  #if ENABLED(WIDTH_BY_FEEDRATE)
+    width.reset();
+    width.set_feed_percent(feedrate_percentage);
+  #endif
+}
+
 #if ENABLED(BULGE_MAP)
 
   /**
@@ -86,9 +158,7 @@ bool BulgeKit::line_to_destination() {
   bool retimed = false;
 
   #if ENABLED(WIDTH_BY_FEEDRATE)
-    static int16_t last_percent = 100;
-    if (feedrate_percentage != last_percent && width.set_feed_percent(feedrate_percentage))
-      last_percent = feedrate_percentage;
+    if (feedrate_percentage != width.feed_percent()) width.set_feed_percent(feedrate_percentage);
 
     if (parser.seen('W')) {
       const float w = parser.value_float();

@@ -20,6 +20,9 @@
 
 #define HAS_BULGEKIT ANY(BULGE_MAP, WIDTH_BY_FEEDRATE)
 
+// Bytes of one stored settings line (EEPROM, see BulgeKit::settings_save)
+#define BK_SETTINGS_LINE 64
+
 #if HAS_BULGEKIT
 
 #include "core/gcode_args.h"
@@ -47,6 +50,21 @@ class BulgeKit {
   static void print_reply(const char *text);
 
   BulgeKit();  // attaches the planner to the store (static members, same translation unit)
+
+  /**
+   * Settings in EEPROM (hooks in settings.cpp). M720 and M723 keep their
+   * parameters as the command line M503 prints, without the S switch:
+   * "M720 P100 E0.100 T0.250", "M723 Q3.200 D1.750 H0.200 L5.00 U60.00".
+   * Loading runs that line through the same parser and checks as a typed
+   * command, so a stored value can never bypass a limit (a refused line
+   * prints its Error: and the values stay as they were). The S switches are
+   * not stored: the G-code that needs a mode turns it on (the host's annotate
+   * writes M720 S1), so a normal print after power-on is never retimed or split.
+   */
+  typedef char settings_line_t[BK_SETTINGS_LINE];
+  static void settings_save(const uint16_t code, settings_line_t &line);
+  static void settings_load(const uint16_t code, settings_line_t &line);
+  static void settings_reset();  // M502 / no valid EEPROM: defaults, switches off; the map stays
 
   #if ENABLED(BULGE_MAP)
     static bk::MapStore store;
