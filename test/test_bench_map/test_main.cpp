@@ -125,8 +125,9 @@ static void test_crc_2k(void) {
   TEST_ASSERT_EQUAL_HEX32(crc32_update(crc32_update(0, p, 7), p + 7, BK_MAP_ARENA_BYTES - 7), c32);
   ROW("crc8 over 2048 bytes", t8, t8 / BK_MAP_ARENA_BYTES, "/byte");
   ROW("crc32 over 2048 bytes", t32, t32 / BK_MAP_ARENA_BYTES, "/byte");
-  budget(t8, 2048UL * 16);
-  budget(t32, 2048UL * 40);
+  // Nibble tables (80 bytes of flash, not 1.25 KiB): ~70 and ~130 cycles a byte
+  budget(t8, 2048UL * 80);
+  budget(t32, 2048UL * 140);
 }
 
 static void test_load_and_release(void) {
@@ -148,7 +149,7 @@ static void test_load_and_release(void) {
   ROW("release_below: drop 1 layer, move the rest", tr, tr / (store.bytes_used() ? store.bytes_used() : 1),
       "/byte moved");
   TEST_ASSERT_TRUE(store.bytes_used() < used);
-  budget(tl, 1562UL * 160);  // one-time: a full 2 KiB arena validates in ~20 ms
+  budget(tl, 1562UL * 200);  // one-time: a full 2 KiB arena validates in ~25 ms
   budget(tr, 16000);
 }
 
@@ -191,7 +192,7 @@ static void test_m721_chunk_and_commit(void) {
   ROW("M721 chunk line: parse + base32 40 bytes (max)", chunk_max, chunk_max / 40, "/byte");
   ROW("M721 E: CRC-32 + validate text_cylinder_head (785 bytes)", commit, commit / 785, "/byte");
   budget(chunk_max, 16000);
-  budget(commit, 785UL * 240);
+  budget(commit, 785UL * 360);  // one-time: CRC-32 + validation, ~16 ms here
 }
 
 static void test_bytes_per_point(void) {
