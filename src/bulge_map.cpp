@@ -3,20 +3,7 @@
 
 #include <string.h>
 
-#ifdef __AVR__
-#include <avr/pgmspace.h>
-#define BKM_FLASH PROGMEM
-#define BKM_RD8(p) pgm_read_byte(p)
-#define BKM_RD32(p) pgm_read_dword(p)
-#define BKM_RDPTR(p) ((const char *)pgm_read_word(p))
-#define BKM_STR(s) PSTR(s)
-#else
-#define BKM_FLASH
-#define BKM_RD8(p) (*(p))
-#define BKM_RD32(p) (*(p))
-#define BKM_RDPTR(p) (*(p))
-#define BKM_STR(s) (s)
-#endif
+#include "flash_text.h"
 
 namespace bk {
 
@@ -25,13 +12,13 @@ namespace bk {
 // (M721 chunks and commit), never per move, so the flash matters more here.
 // CRC-8 poly 0x07: crc8_nib[i] is the CRC register after shifting the nibble i
 // (in the high half) out.
-static const uint8_t crc8_nib[16] BKM_FLASH = {
+static const uint8_t crc8_nib[16] BK_FLASH = {
     0x00, 0x07, 0x0E, 0x09, 0x1C, 0x1B, 0x12, 0x15, 0x38, 0x3F, 0x36, 0x31, 0x24, 0x23, 0x2A, 0x2D,
 };
 
 // CRC-32 IEEE, reflected poly 0xEDB88320: crc32_nib[i] is the register after
 // shifting the nibble i (in the low half) out.
-static const uint32_t crc32_nib[16] BKM_FLASH = {
+static const uint32_t crc32_nib[16] BK_FLASH = {
     0x00000000UL, 0x1DB71064UL, 0x3B6E20C8UL, 0x26D930ACUL,
     0x76DC4190UL, 0x6B6B51F4UL, 0x4DB26158UL, 0x5005713CUL,
     0xEDB88320UL, 0xF00F9344UL, 0xD6D6A3E8UL, 0xCB61B38CUL,
@@ -41,8 +28,8 @@ static const uint32_t crc32_nib[16] BKM_FLASH = {
 uint8_t crc8(const uint8_t *p, uint16_t n, uint8_t crc) {
   while (n--) {
     crc ^= *p++;
-    crc = (uint8_t)(crc << 4) ^ BKM_RD8(&crc8_nib[crc >> 4]);
-    crc = (uint8_t)(crc << 4) ^ BKM_RD8(&crc8_nib[crc >> 4]);
+    crc = (uint8_t)(crc << 4) ^ BK_RD8(&crc8_nib[crc >> 4]);
+    crc = (uint8_t)(crc << 4) ^ BK_RD8(&crc8_nib[crc >> 4]);
   }
   return crc;
 }
@@ -51,31 +38,31 @@ uint32_t crc32_update(uint32_t crc, const uint8_t *p, uint16_t n) {
   crc = ~crc;
   while (n--) {
     crc ^= *p++;
-    crc = (crc >> 4) ^ BKM_RD32(&crc32_nib[crc & 15]);
-    crc = (crc >> 4) ^ BKM_RD32(&crc32_nib[crc & 15]);
+    crc = (crc >> 4) ^ BK_RD32(&crc32_nib[crc & 15]);
+    crc = (crc >> 4) ^ BK_RD32(&crc32_nib[crc & 15]);
   }
   return ~crc;
 }
 
 // ---- error texts (flash on AVR) -------------------------------------------------
-static const char et_ok[] BKM_FLASH = "ok";
-static const char et_truncated[] BKM_FLASH = "truncated";
-static const char et_magic[] BKM_FLASH = "bad magic (not a BKM map)";
-static const char et_version[] BKM_FLASH = "unsupported version";
-static const char et_flags[] BKM_FLASH = "unknown flag bits";
-static const char et_hvalue[] BKM_FLASH = "quantum or layer height is 0";
-static const char et_hcrc[] BKM_FLASH = "header CRC mismatch";
-static const char et_rcrc[] BKM_FLASH = "record CRC mismatch";
-static const char et_varint[] BKM_FLASH = "over-long varint";
-static const char et_nzero[] BKM_FLASH = "layer with 0 points";
-static const char et_nmax[] BKM_FLASH = "too many points in a layer";
-static const char et_length[] BKM_FLASH = "record length mismatch";
-static const char et_coord[] BKM_FLASH = "coordinate out of int16 range";
-static const char et_zorder[] BKM_FLASH = "z not increasing";
-static const char et_large[] BKM_FLASH = "map too large";
-static const char et_noheader[] BKM_FLASH = "no map loaded to append to";
-static const char et_unknown[] BKM_FLASH = "unknown error";
-static const char *const error_texts[] BKM_FLASH = {
+static const char et_ok[] BK_FLASH = "ok";
+static const char et_truncated[] BK_FLASH = "truncated";
+static const char et_magic[] BK_FLASH = "bad magic (not a BKM map)";
+static const char et_version[] BK_FLASH = "unsupported version";
+static const char et_flags[] BK_FLASH = "unknown flag bits";
+static const char et_hvalue[] BK_FLASH = "quantum or layer height is 0";
+static const char et_hcrc[] BK_FLASH = "header CRC mismatch";
+static const char et_rcrc[] BK_FLASH = "record CRC mismatch";
+static const char et_varint[] BK_FLASH = "over-long varint";
+static const char et_nzero[] BK_FLASH = "layer with 0 points";
+static const char et_nmax[] BK_FLASH = "too many points in a layer";
+static const char et_length[] BK_FLASH = "record length mismatch";
+static const char et_coord[] BK_FLASH = "coordinate out of int16 range";
+static const char et_zorder[] BK_FLASH = "z not increasing";
+static const char et_large[] BK_FLASH = "map too large";
+static const char et_noheader[] BK_FLASH = "no map loaded to append to";
+static const char et_unknown[] BK_FLASH = "unknown error";
+static const char *const error_texts[] BK_FLASH = {
     et_ok,    et_truncated, et_magic, et_version, et_flags, et_hvalue, et_hcrc, et_rcrc,
     et_varint, et_nzero,    et_nmax,  et_length,  et_coord, et_zorder, et_large, et_noheader,
 };
@@ -83,7 +70,7 @@ static const char *const error_texts[] BKM_FLASH = {
 const char *map_error_text(MapError e) {
   int8_t i = (int8_t)-e;
   if (i < 0 || i >= (int8_t)(sizeof(error_texts) / sizeof(error_texts[0]))) return et_unknown;
-  return BKM_RDPTR(&error_texts[i]);
+  return BK_RDPTR(&error_texts[i]);
 }
 
 uint8_t map_error_copy(MapError e, char *buf, uint8_t size) {
@@ -91,7 +78,7 @@ uint8_t map_error_copy(MapError e, char *buf, uint8_t size) {
   const char *s = map_error_text(e);
   uint8_t n = 0;
   char c;
-  while (n + 1 < size && (c = (char)BKM_RD8((const uint8_t *)s + n)) != 0) buf[n++] = c;
+  while (n + 1 < size && (c = (char)BK_RD8((const uint8_t *)s + n)) != 0) buf[n++] = c;
   buf[n] = 0;
   return n;
 }

@@ -5,14 +5,7 @@
 
 #include "gcode_args.h"
 
-#ifdef __AVR__
-#include <avr/pgmspace.h>
-#define BK_P(s) PSTR(s)
-#define BK_RD(p) pgm_read_byte(p)
-#else
-#define BK_P(s) (s)
-#define BK_RD(p) (*(p))
-#endif
+#include "reply_text.h"
 
 namespace bk {
 
@@ -20,50 +13,16 @@ namespace bk {
 
 namespace {
 
-struct Reply {
-  char *p;
-  uint8_t left;  // room for characters, the NUL excluded
-  Reply(char *buf, uint8_t size) : p(buf), left(size ? (uint8_t)(size - 1) : 0) {
-    if (size) *p = 0;
-  }
-  void ch(char c) {
-    if (!left) return;
-    *p++ = c;
-    *p = 0;
-    left--;
-  }
-  void text_P(const char *s) {
-    for (char c; (c = (char)BK_RD(s)) != 0; s++) ch(c);
-  }
-  void raw(const char *s, uint8_t n) {
-    while (n--) ch(*s++);
-  }
-  void num(uint32_t v) {
-    char d[10];
-    uint8_t n = 0;
-    do d[n++] = (char)('0' + v % 10); while ((v /= 10) && n < 10);
-    while (n) ch(d[--n]);
-  }
-  void fix3(float v) {  // non-negative settings only
-    uint32_t m = (uint32_t)(v * 1000.0f + 0.5f);
-    num(m / 1000);
-    ch('.');
-    uint16_t f = (uint16_t)(m % 1000);
-    ch((char)('0' + f / 100));
-    ch((char)('0' + f / 10 % 10));
-    ch((char)('0' + f % 10));
-  }
-  // "Error:M720 P" + the word exactly as the host wrote it
-  void word(const GcodeArgs &a, const char *code_P, char letter) {
-    text_P(BK_P("Error:"));
-    text_P(code_P);
-    ch(' ');
-    ch(letter);
-    const char *t;
-    uint8_t n;
-    if (a.raw(letter, t, n)) raw(t, n);
-  }
-};
+// "Error:M720 P" + the word exactly as the host wrote it
+void error_word(ReplyText &r, const GcodeArgs &a, const char *code_P, char letter) {
+  r.p(BK_F("Error:"));
+  r.p(code_P);
+  r.c(' ');
+  r.c(letter);
+  const char *t;
+  uint8_t n;
+  if (a.raw(letter, t, n)) r.raw(t, n);
+}
 
 }  // namespace
 
@@ -496,23 +455,23 @@ bool BulgePlanner::plan_more(ActionList &out) {
 // ---- M720 / M722 --------------------------------------------------------------------
 
 bool BulgePlanner::m720(const GcodeArgs &a, char *reply, uint8_t size) {
-  Reply r(reply, size);
+  ReplyText r(reply, size);
   if (a.none()) {
-    r.text_P(BK_P("echo:  M720 S"));
-    r.num(mode_);
-    r.text_P(BK_P(" P"));
-    r.num(dwell_ms_);
-    r.text_P(BK_P(" E"));
-    r.fix3(extra_e_);
-    r.text_P(BK_P(" T"));
-    r.fix3(tol_mm_);
+    r.p(BK_F("echo:  M720 S"));
+    r.u(mode_);
+    r.p(BK_F(" P"));
+    r.u(dwell_ms_);
+    r.p(BK_F(" E"));
+    r.fixed(extra_e_, 3);
+    r.p(BK_F(" T"));
+    r.fixed(tol_mm_, 3);
     return true;
   }
-  const char *code = BK_P("M720");
+  const char *code = BK_F("M720");
   const char bad = a.unknown("SPET");
   if (bad) {
-    r.text_P(BK_P("Error:M720 unknown parameter "));
-    r.ch(bad);
+    r.p(BK_F("Error:M720 unknown parameter "));
+    r.c(bad);
     return false;
   }
   // Check everything first, then apply: all or nothing.
@@ -520,45 +479,45 @@ bool BulgePlanner::m720(const GcodeArgs &a, char *reply, uint8_t size) {
   float e = extra_e_, t = tol_mm_;
   ArgStatus st = a.get_long('S', s);
   if (st != ARG_ABSENT && (st != ARG_OK || s < 0 || s > 2)) {
-    r.word(a, code, 'S');
-    r.text_P(BK_P(": mode must be 0 (off), 1 (marked) or 2 (geometric)"));
+    error_word(r, a, code, 'S');
+    r.p(BK_F(": mode must be 0 (off), 1 (marked) or 2 (geometric)"));
     return false;
   }
   st = a.get_long('P', p);
   if (st != ARG_ABSENT && (st != ARG_OK || p < 0)) {
-    r.word(a, code, 'P');
-    r.text_P(BK_P(": dwell must be a whole number of ms, 0.."));
-    r.num(BK_MAX_DWELL_MS);
+    error_word(r, a, code, 'P');
+    r.p(BK_F(": dwell must be a whole number of ms, 0.."));
+    r.u(BK_MAX_DWELL_MS);
     return false;
   }
   if (p > BK_MAX_DWELL_MS) {
-    r.word(a, code, 'P');
-    r.text_P(BK_P(" exceeds max dwell "));
-    r.num(BK_MAX_DWELL_MS);
-    r.text_P(BK_P(" ms"));
+    error_word(r, a, code, 'P');
+    r.p(BK_F(" exceeds max dwell "));
+    r.u(BK_MAX_DWELL_MS);
+    r.p(BK_F(" ms"));
     return false;
   }
   st = a.get_float('E', e);
   if (st != ARG_ABSENT && (st != ARG_OK || e < 0.0f)) {
-    r.word(a, code, 'E');
-    r.text_P(BK_P(": extra must be 0.."));
-    r.fix3(BK_MAX_EXTRA_E_MM);
-    r.text_P(BK_P(" mm"));
+    error_word(r, a, code, 'E');
+    r.p(BK_F(": extra must be 0.."));
+    r.fixed(BK_MAX_EXTRA_E_MM, 3);
+    r.p(BK_F(" mm"));
     return false;
   }
   if (e > BK_MAX_EXTRA_E_MM) {
-    r.word(a, code, 'E');
-    r.text_P(BK_P(" exceeds max extra "));
-    r.fix3(BK_MAX_EXTRA_E_MM);
-    r.text_P(BK_P(" mm"));
+    error_word(r, a, code, 'E');
+    r.p(BK_F(" exceeds max extra "));
+    r.fixed(BK_MAX_EXTRA_E_MM, 3);
+    r.p(BK_F(" mm"));
     return false;
   }
   st = a.get_float('T', t);
   if (st != ARG_ABSENT && (st != ARG_OK || t < 0.01f - 1e-6f || t > BK_MAX_TOLERANCE_MM)) {
-    r.word(a, code, 'T');
-    r.text_P(BK_P(": tolerance must be 0.010.."));
-    r.fix3(BK_MAX_TOLERANCE_MM);
-    r.text_P(BK_P(" mm"));
+    error_word(r, a, code, 'T');
+    r.p(BK_F(": tolerance must be 0.010.."));
+    r.fixed(BK_MAX_TOLERANCE_MM, 3);
+    r.p(BK_F(" mm"));
     return false;
   }
   mode_ = (uint8_t)s;
@@ -572,17 +531,17 @@ bool BulgePlanner::m720(const GcodeArgs &a, char *reply, uint8_t size) {
 }
 
 bool BulgePlanner::m722(const GcodeArgs &a, char *reply, uint8_t size) {
-  Reply r(reply, size);
+  ReplyText r(reply, size);
   const char bad = a.unknown("S");
   if (bad) {
-    r.text_P(BK_P("Error:M722 unknown parameter "));
-    r.ch(bad);
+    r.p(BK_F("Error:M722 unknown parameter "));
+    r.c(bad);
     return false;
   }
   int32_t s = -1;
   ArgStatus st = a.get_long('S', s);
   if (st != ARG_OK || (s != 0 && s != 1)) {
-    r.text_P(BK_P("Error:M722 needs S1 (enter outer wall) or S0 (leave)"));
+    r.p(BK_F("Error:M722 needs S1 (enter outer wall) or S0 (leave)"));
     return false;
   }
   marker_ = s == 1;

@@ -1,63 +1,9 @@
 // M721 map upload. See map_upload.h and docs/mcodes.md.
 #include "map_upload.h"
 
-#ifdef __AVR__
-#include <avr/pgmspace.h>
-#define BKU_STR(s) PSTR(s)
-#define BKU_RD8(p) pgm_read_byte(p)
-#else
-#define BKU_STR(s) (s)
-#define BKU_RD8(p) (*(p))
-#endif
+#include "reply_text.h"
 
 namespace bk {
-
-// Bounded reply writer. Text that does not fit ends in "..." so a short buffer
-// shows, rather than hides, that something was cut.
-class ReplyText {
- public:
-  ReplyText(char *buf, uint16_t size) : b_(buf), size_(size), n_(0), cut_(false) {
-    if (size_) b_[0] = 0;
-  }
-  void c(char ch) {
-    if (!size_) return;
-    if (n_ + 1 < size_) {
-      b_[n_++] = ch;
-      b_[n_] = 0;
-    } else if (!cut_) {
-      cut_ = true;
-      for (uint16_t i = 0; i < 3 && i < n_; i++) b_[n_ - 1 - i] = '.';
-    }
-  }
-  void p(const char *flash) {  // a BKU_STR literal
-    char ch;
-    while ((ch = (char)BKU_RD8((const uint8_t *)flash++)) != 0) c(ch);
-  }
-  void u(uint32_t v) {
-    char t[10];
-    uint8_t k = 0;
-    do {
-      t[k++] = (char)('0' + v % 10);
-      v /= 10;
-    } while (v);
-    while (k) c(t[--k]);
-  }
-  void mm(uint16_t cmm) {  // 0.01 mm units as "12.34", no float
-    u(cmm / 100);
-    c('.');
-    c((char)('0' + cmm / 10 % 10));
-    c((char)('0' + cmm % 10));
-  }
-  void err(MapError e) {
-    const char *s = map_error_text(e);
-    p(s);
-  }
-
- private:
-  char *b_;
-  uint16_t size_, n_;
-  bool cut_;
-};
 
 // ---- base32 ------------------------------------------------------------------------
 static int8_t b32_value(char ch) {
@@ -113,18 +59,18 @@ UploadStatus MapUpload::handle(const GcodeArgs &a, char *reply, uint16_t reply_s
   if (open_ && !open()) open_ = false;  // the store was cleared or reloaded underneath
   char bad = a.unknown("SCAODEX");
   if (a.code_letter() != 'M' || a.code() != 721) {
-    r.p(BKU_STR("Error:M721 handler got another command"));
+    r.p(BK_F("Error:M721 handler got another command"));
     return UPLOAD_ERROR;
   }
   if (bad) {
-    r.p(BKU_STR("Error:M721 unknown parameter "));
+    r.p(BK_F("Error:M721 unknown parameter "));
     r.c(bad == '?' ? '?' : bad);
     return UPLOAD_ERROR;
   }
   const uint8_t groups = (uint8_t)((a.has('S') || a.has('C') || a.has('A')) + (a.has('O') || a.has('D')) +
                                    a.has('E') + a.has('X'));
   if (groups > 1) {
-    r.p(BKU_STR("Error:M721 mixes actions: send S/C/A, O/D, E or X alone"));
+    r.p(BK_F("Error:M721 mixes actions: send S/C/A, O/D, E or X alone"));
     return UPLOAD_ERROR;
   }
   if (a.has('S') || a.has('C') || a.has('A')) return begin(a, r);
@@ -133,7 +79,7 @@ UploadStatus MapUpload::handle(const GcodeArgs &a, char *reply, uint16_t reply_s
   if (a.has('X')) {
     abort();
     store_.clear();
-    r.p(BKU_STR("echo:BulgeMap cleared"));
+    r.p(BK_F("echo:BulgeMap cleared"));
     return UPLOAD_CLEARED;
   }
   status(r);
@@ -143,17 +89,17 @@ UploadStatus MapUpload::handle(const GcodeArgs &a, char *reply, uint16_t reply_s
 UploadStatus MapUpload::begin(const GcodeArgs &a, ReplyText &r) {
   uint32_t size = 0, crc = 0, app = 0;
   if (a.get_ulong('S', size) != ARG_OK || size < 1 || size > 65535) {
-    r.p(BKU_STR("Error:M721 S<size> missing or not 1..65535"));
+    r.p(BK_F("Error:M721 S<size> missing or not 1..65535"));
     return UPLOAD_ERROR;
   }
   if (a.get_ulong('C', crc) != ARG_OK) {
-    r.p(BKU_STR("Error:M721 C<crc32> missing or bad (decimal 0..4294967295)"));
+    r.p(BK_F("Error:M721 C<crc32> missing or bad (decimal 0..4294967295)"));
     return UPLOAD_ERROR;
   }
   ArgStatus as = a.get_ulong('A', app);
   if (as == ARG_EMPTY) app = 1;  // a bare "A" reads as A1
   else if (as == ARG_BAD || app > 1) {
-    r.p(BKU_STR("Error:M721 A must be 0 or 1"));
+    r.p(BK_F("Error:M721 A must be 0 or 1"));
     return UPLOAD_ERROR;
   }
   // While an upload is open its bytes sit in the free space: measure the room
@@ -161,50 +107,50 @@ UploadStatus MapUpload::begin(const GcodeArgs &a, ReplyText &r) {
   const uint16_t room = store_.free_bytes();
   if (app) {
     if (!store_.loaded()) {
-      r.p(BKU_STR("Error:M721 A1 needs a map loaded first (upload one without A1)"));
+      r.p(BK_F("Error:M721 A1 needs a map loaded first (upload one without A1)"));
       return UPLOAD_ERROR;
     }
     if (size > room) {
-      r.p(BKU_STR("Error:M721 append too large: "));
+      r.p(BK_F("Error:M721 append too large: "));
       r.u(size);
-      r.p(BKU_STR(" bytes, "));
+      r.p(BK_F(" bytes, "));
       r.u(room);
-      r.p(BKU_STR(" free of "));
+      r.p(BK_F(" free of "));
       r.u(store_.capacity());
-      r.p(BKU_STR(" (release printed layers first)"));
+      r.p(BK_F(" (release printed layers first)"));
       return UPLOAD_ERROR;
     }
   } else {
     if (size < MAP_HEADER_BYTES) {
-      r.p(BKU_STR("Error:M721 S"));
+      r.p(BK_F("Error:M721 S"));
       r.u(size);
-      r.p(BKU_STR(" is shorter than the 8-byte map header"));
+      r.p(BK_F(" is shorter than the 8-byte map header"));
       return UPLOAD_ERROR;
     }
     const uint32_t records = size - MAP_HEADER_BYTES;
     if (records > store_.capacity()) {
-      r.p(BKU_STR("Error:M721 map too large: "));
+      r.p(BK_F("Error:M721 map too large: "));
       r.u(size);
-      r.p(BKU_STR(" bytes, at most "));
+      r.p(BK_F(" bytes, at most "));
       r.u((uint32_t)store_.capacity() + MAP_HEADER_BYTES);
-      r.p(BKU_STR(" (arena "));
+      r.p(BK_F(" (arena "));
       r.u(store_.capacity());
-      r.p(BKU_STR(" + header 8)"));
+      r.p(BK_F(" + header 8)"));
       return UPLOAD_ERROR;
     }
     if (records > room) {
-      r.p(BKU_STR("Error:M721 map too large to stage: "));
+      r.p(BK_F("Error:M721 map too large to stage: "));
       r.u(records);
-      r.p(BKU_STR(" record bytes, "));
+      r.p(BK_F(" record bytes, "));
       r.u(room);
-      r.p(BKU_STR(" free of "));
+      r.p(BK_F(" free of "));
       r.u(store_.capacity());
-      r.p(BKU_STR("; M721 X first"));
+      r.p(BK_F("; M721 X first"));
       return UPLOAD_ERROR;
     }
   }
   if (open()) {
-    r.p(BKU_STR("echo:M721 previous upload dropped at "));
+    r.p(BK_F("echo:M721 previous upload dropped at "));
     r.u(received_);
     r.c('/');
     r.u(size_);
@@ -216,56 +162,56 @@ UploadStatus MapUpload::begin(const GcodeArgs &a, ReplyText &r) {
   append_ = app != 0;
   store_.stage_open(stage_bytes());  // fits: checked above
   open_ = true;
-  r.p(BKU_STR("echo:M721 receiving "));
+  r.p(BK_F("echo:M721 receiving "));
   r.u(size);
-  r.p(app ? BKU_STR(" bytes (append)") : BKU_STR(" bytes"));
+  r.p(app ? BK_F(" bytes (append)") : BK_F(" bytes"));
   return UPLOAD_OK;
 }
 
 UploadStatus MapUpload::chunk(const GcodeArgs &a, ReplyText &r) {
   if (!open()) {
-    r.p(BKU_STR("Error:M721 no upload open (send M721 S<size> C<crc32> first)"));
+    r.p(BK_F("Error:M721 no upload open (send M721 S<size> C<crc32> first)"));
     return UPLOAD_ERROR;
   }
   uint32_t off = 0;
   if (a.get_ulong('O', off) != ARG_OK) {
-    r.p(BKU_STR("Error:M721 O<offset> missing or bad"));
+    r.p(BK_F("Error:M721 O<offset> missing or bad"));
     return UPLOAD_ERROR;
   }
   const char *text;
   uint8_t len;
   if (!a.raw('D', text, len) || len == 0) {
-    r.p(BKU_STR("Error:M721 D<base32> missing"));
+    r.p(BK_F("Error:M721 D<base32> missing"));
     return UPLOAD_ERROR;
   }
   if (len > BK_M721_CHUNK_CHARS_MAX) {
-    r.p(BKU_STR("Error:M721 D has "));
+    r.p(BK_F("Error:M721 D has "));
     r.u(len);
-    r.p(BKU_STR(" chars, max "));
+    r.p(BK_F(" chars, max "));
     r.u(BK_M721_CHUNK_CHARS_MAX);
     return UPLOAD_ERROR;
   }
   uint8_t pos = 0;
   int16_t n = base32_check(text, len, pos);
   if (n < 0) {
-    r.p(n == B32_BAD_LENGTH ? BKU_STR("Error:M721 bad base32 length ") : BKU_STR("Error:M721 bad base32 at char "));
+    r.p(n == B32_BAD_LENGTH ? BK_F("Error:M721 bad base32 length ") : BK_F("Error:M721 bad base32 at char "));
     r.u(n == B32_BAD_LENGTH ? len : pos);
     return UPLOAD_ERROR;
   }
   if (off > received_) {
-    r.p(BKU_STR("Error:M721 gap: O"));
+    r.p(BK_F("Error:M721 gap: O"));
     r.u(off);
-    r.p(BKU_STR(" but "));
+    r.p(BK_F(" but "));
     r.u(received_);
-    r.p(BKU_STR(" bytes received"));
+    r.p(BK_F(" bytes received"));
     return UPLOAD_ERROR;
   }
   if (off + (uint32_t)n > size_) {
-    r.p(BKU_STR("Error:M721 O"));
+    r.p(BK_F("Error:M721 O"));
     r.u(off);
-    r.p(BKU_STR(" +"));
+    r.p(BK_F(" +"));
     r.u((uint32_t)n);
-    r.p(BKU_STR(" bytes exceeds size "));
+    r.p(BK_F(" bytes exceeds size "));
     r.u(size_);
     return UPLOAD_ERROR;
   }
@@ -286,37 +232,37 @@ UploadStatus MapUpload::chunk(const GcodeArgs &a, ReplyText &r) {
 
 UploadStatus MapUpload::commit(ReplyText &r) {
   if (!open()) {
-    r.p(BKU_STR("Error:M721 no upload open to commit"));
+    r.p(BK_F("Error:M721 no upload open to commit"));
     return UPLOAD_ERROR;
   }
   if (received_ != size_) {  // stays open: the host may send the missing lines
-    r.p(BKU_STR("Error:M721 size mismatch: "));
+    r.p(BK_F("Error:M721 size mismatch: "));
     r.u(received_);
-    r.p(BKU_STR(" of "));
+    r.p(BK_F(" of "));
     r.u(size_);
-    r.p(BKU_STR(" bytes received"));
+    r.p(BK_F(" bytes received"));
     return UPLOAD_ERROR;
   }
   const uint32_t crc = append_ ? crc32_update(0, store_.stage_data(), size_)
                                : crc32_update(crc32_update(0, head_, MAP_HEADER_BYTES), store_.stage_data(),
                                               stage_bytes());
   if (crc != crc_) {
-    r.p(BKU_STR("Error:M721 CRC mismatch: data "));
+    r.p(BK_F("Error:M721 CRC mismatch: data "));
     r.u(crc);
-    r.p(BKU_STR(", C"));
+    r.p(BK_F(", C"));
     r.u(crc_);
-    r.p(BKU_STR("; previous map kept"));
+    r.p(BK_F("; previous map kept"));
     abort();
     return UPLOAD_ERROR;
   }
   MapError e = append_ ? store_.append(store_.stage_data(), size_)
                         : store_.load_parts(head_, store_.stage_data(), stage_bytes());
   if (e != MAP_OK) {
-    r.p(append_ ? BKU_STR("Error:M721 records rejected: ") : BKU_STR("Error:M721 map rejected: "));
-    r.err(e);
-    r.p(BKU_STR(" at byte "));
+    r.p(append_ ? BK_F("Error:M721 records rejected: ") : BK_F("Error:M721 map rejected: "));
+    r.p(map_error_text(e));
+    r.p(BK_F(" at byte "));
     r.u(store_.error_offset());
-    r.p(BKU_STR("; previous map kept"));
+    r.p(BK_F("; previous map kept"));
     abort();
     return UPLOAD_ERROR;
   }
@@ -327,28 +273,28 @@ UploadStatus MapUpload::commit(ReplyText &r) {
 }
 
 void MapUpload::status(ReplyText &r) const {
-  r.p(BKU_STR("echo:BulgeMap layers:"));
+  r.p(BK_F("echo:BulgeMap layers:"));
   r.u(store_.layer_count());
-  r.p(BKU_STR(" bytes:"));
+  r.p(BK_F(" bytes:"));
   r.u(store_.bytes_used());
   r.c('/');
   r.u(store_.capacity());
-  r.p(BKU_STR(" points:"));
+  r.p(BK_F(" points:"));
   r.u(store_.point_count());
-  r.p(BKU_STR(" z:"));
+  r.p(BK_F(" z:"));
   if (store_.empty()) {
     r.c('-');
   } else {
-    r.mm(store_.first_z());
-    r.p(BKU_STR(".."));
-    r.mm(store_.last_z());
+    r.decimal(store_.first_z(), 2);
+    r.p(BK_F(".."));
+    r.decimal(store_.last_z(), 2);
   }
   if (open()) {
-    r.p(BKU_STR(" upload:"));
+    r.p(BK_F(" upload:"));
     r.u(received_);
     r.c('/');
     r.u(size_);
-    if (append_) r.p(BKU_STR(" append"));
+    if (append_) r.p(BK_F(" append"));
   }
 }
 

@@ -42,7 +42,7 @@ int16_t base32_check(const char *s, uint8_t len, uint8_t &bad_pos);
 // Decodes text that base32_check accepted into out (base32_check bytes).
 void base32_decode(const char *s, uint8_t len, uint8_t *out);
 
-class ReplyText;  // bounded text writer, map_upload.cpp
+class ReplyText;  // bounded text writer, reply_text.h
 
 class MapUpload {
  public:

@@ -1,0 +1,21 @@
+// Constant text and tables in flash on AVR (RAM is 8 KiB there), plain memory
+// elsewhere. One set of macros for the whole core.
+#ifndef BK_FLASH_TEXT_H
+#define BK_FLASH_TEXT_H
+
+#ifdef __AVR__
+#include <avr/pgmspace.h>
+#define BK_F(s) PSTR(s)                                // a string literal kept in flash
+#define BK_FLASH PROGMEM                               // a table kept in flash
+#define BK_RD8(p) pgm_read_byte(p)                     // read one byte of it
+#define BK_RD32(p) pgm_read_dword(p)
+#define BK_RDPTR(p) ((const char *)pgm_read_word(p))  // a flash pointer stored in flash
+#else
+#define BK_F(s) (s)
+#define BK_FLASH
+#define BK_RD8(p) (*(p))
+#define BK_RD32(p) (*(p))
+#define BK_RDPTR(p) (*(p))
+#endif
+
+#endif  // BK_FLASH_TEXT_H
