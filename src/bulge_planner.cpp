@@ -468,12 +468,7 @@ bool BulgePlanner::m720(const GcodeArgs &a, char *reply, uint8_t size) {
     return true;
   }
   const char *code = BK_F("M720");
-  const char bad = a.unknown("SPET");
-  if (bad) {
-    r.p(BK_F("Error:M720 unknown parameter "));
-    r.c(bad);
-    return false;
-  }
+  if (!check_words(a, "SPET", code, r)) return false;
   // Check everything first, then apply: all or nothing.
   int32_t s = mode_, p = dwell_ms_;
   float e = extra_e_, t = tol_mm_;
@@ -532,12 +527,7 @@ bool BulgePlanner::m720(const GcodeArgs &a, char *reply, uint8_t size) {
 
 bool BulgePlanner::m722(const GcodeArgs &a, char *reply, uint8_t size) {
   ReplyText r(reply, size);
-  const char bad = a.unknown("S");
-  if (bad) {
-    r.p(BK_F("Error:M722 unknown parameter "));
-    r.c(bad);
-    return false;
-  }
+  if (!check_words(a, "S", BK_F("M722"), r)) return false;
   int32_t s = -1;
   ArgStatus st = a.get_long('S', s);
   if (st != ARG_OK || (s != 0 && s != 1)) {

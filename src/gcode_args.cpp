@@ -1,5 +1,7 @@
 #include "gcode_args.h"
 
+#include "reply_text.h"
+
 namespace bk {
 
 static char upper(char c) { return (c >= 'a' && c <= 'z') ? (char)(c - 'a' + 'A') : c; }
@@ -71,6 +73,24 @@ char GcodeArgs::unknown(const char *allowed) const {
     if (!ok) return l;
   }
   return 0;
+}
+
+char GcodeArgs::duplicate() const {
+  for (uint8_t i = 1; i < count_; i++)
+    for (uint8_t j = 0; j < i; j++)
+      if (words_[i].letter == words_[j].letter) return words_[i].letter;
+  return 0;
+}
+
+bool check_words(const GcodeArgs &a, const char *allowed, const char *code_flash, ReplyText &r) {
+  char bad = a.unknown(allowed);
+  const bool twice = !bad && (bad = a.duplicate()) != 0;
+  if (!bad) return true;
+  r.p(BK_F("Error:"));
+  r.p(code_flash);
+  r.p(twice ? BK_F(" duplicate parameter ") : BK_F(" unknown parameter "));
+  r.c(bad);
+  return false;
 }
 
 bool GcodeArgs::raw(char letter, const char *&text, uint8_t &len) const {
@@ -147,8 +167,9 @@ ArgStatus GcodeArgs::get_long(char letter, int32_t &out) const {
   uint32_t v = 0;
   for (; s < e; s++) {
     if (!is_digit(*s)) return ARG_BAD;
-    v = v * 10 + (uint32_t)(*s - '0');
-    if (v > 0x7FFFFFFFu) return ARG_BAD;
+    const uint32_t d = (uint32_t)(*s - '0');
+    if (v > (0x7FFFFFFFu - d) / 10) return ARG_BAD;  // checked before it can wrap
+    v = v * 10 + d;
   }
   out = neg ? -(int32_t)v : (int32_t)v;
   return ARG_OK;

@@ -37,6 +37,8 @@ class GcodeArgs {
   bool raw(char letter, const char *&text, uint8_t &len) const;
   // The first letter present that is not in allowed ("SPET"), or 0.
   char unknown(const char *allowed) const;
+  // The first letter that appears twice ("M720 P100 P3000"), or 0.
+  char duplicate() const;
 
   static const uint8_t MAX_WORDS = 12;
 
@@ -52,6 +54,13 @@ class GcodeArgs {
   char code_letter_ = 0;
   int16_t code_ = -1;
 };
+
+class ReplyText;
+
+// The check every M-code handler starts with: each word's letter is in allowed
+// and appears once. Otherwise writes "Error:<code> unknown parameter X" (or
+// "duplicate parameter X") and returns false. code_flash: e.g. BK_F("M720").
+bool check_words(const GcodeArgs &a, const char *allowed, const char *code_flash, ReplyText &r);
 
 }  // namespace bk
 

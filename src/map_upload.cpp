@@ -57,16 +57,11 @@ void MapUpload::abort() {
 UploadStatus MapUpload::handle(const GcodeArgs &a, char *reply, uint16_t reply_size) {
   ReplyText r(reply, reply_size);
   if (open_ && !open()) open_ = false;  // the store was cleared or reloaded underneath
-  char bad = a.unknown("SCAODEX");
   if (a.code_letter() != 'M' || a.code() != 721) {
     r.p(BK_F("Error:M721 handler got another command"));
     return UPLOAD_ERROR;
   }
-  if (bad) {
-    r.p(BK_F("Error:M721 unknown parameter "));
-    r.c(bad == '?' ? '?' : bad);
-    return UPLOAD_ERROR;
-  }
+  if (!check_words(a, "SCAODEX", BK_F("M721"), r)) return UPLOAD_ERROR;
   const uint8_t groups = (uint8_t)((a.has('S') || a.has('C') || a.has('A')) + (a.has('O') || a.has('D')) +
                                    a.has('E') + a.has('X'));
   if (groups > 1) {

@@ -73,12 +73,7 @@ bool WidthMode::command(const GcodeArgs &a, char *reply, uint8_t reply_size) {
     report(reply, reply_size);
     return true;
   }
-  char bad = a.unknown("SQRDHLU");
-  if (bad) {
-    o.p(BK_F("Error:M723 unknown parameter "));
-    o.c(bad);
-    return false;
-  }
+  if (!check_words(a, "SQRDHLU", BK_F("M723"), o)) return false;
 
   // Work on a copy and commit only when every word passed: all-or-nothing.
   WidthMode n = *this;

@@ -1,6 +1,7 @@
 // M-code argument parsing: values, malformed words, line numbers, checksums.
 #include "bktest.h"
 #include "gcode_args.h"
+#include "reply_text.h"
 
 using bk::GcodeArgs;
 
@@ -49,6 +50,36 @@ static void test_ulong_range_and_comment(void) {
   TEST_ASSERT_EQUAL_INT(bk::ARG_BAD, a.get_ulong('C', u));
 }
 
+static void test_long_overflow_is_rejected_not_wrapped(void) {
+  GcodeArgs a;
+  int32_t l = 7;
+  // 4294967296 would wrap to 0 and 4294967298 to 2 if checked after the multiply
+  TEST_ASSERT_TRUE(a.parse("M720 P4294967296 S4294967298 T2147483647 E2147483648"));
+  TEST_ASSERT_EQUAL_INT(bk::ARG_BAD, a.get_long('P', l));
+  TEST_ASSERT_EQUAL_INT(bk::ARG_BAD, a.get_long('S', l));
+  TEST_ASSERT_EQUAL_INT(bk::ARG_OK, a.get_long('T', l));
+  TEST_ASSERT_EQUAL_INT32(2147483647L, l);
+  TEST_ASSERT_EQUAL_INT(bk::ARG_BAD, a.get_long('E', l));
+}
+
+static void test_duplicate_and_unknown_words(void) {
+  GcodeArgs a;
+  char reply[48];
+  bk::ReplyText r(reply, sizeof reply);
+  TEST_ASSERT_TRUE(a.parse("M720 P100 S1 P3000"));
+  TEST_ASSERT_EQUAL_INT('P', a.duplicate());
+  TEST_ASSERT_FALSE(bk::check_words(a, "SPET", BKT_S("M720"), r));
+  TEST_ASSERT_EQUAL_STRING("Error:M720 duplicate parameter P", reply);
+  bk::ReplyText r2(reply, sizeof reply);
+  TEST_ASSERT_TRUE(a.parse("M720 S1 Q5"));
+  TEST_ASSERT_FALSE(bk::check_words(a, "SPET", BKT_S("M720"), r2));
+  TEST_ASSERT_EQUAL_STRING("Error:M720 unknown parameter Q", reply);
+  bk::ReplyText r3(reply, sizeof reply);
+  TEST_ASSERT_TRUE(a.parse("M720 S1 P100"));
+  TEST_ASSERT_TRUE(bk::check_words(a, "SPET", BKT_S("M720"), r3));
+  TEST_ASSERT_EQUAL_STRING("", reply);
+}
+
 static void test_raw_word(void) {
   GcodeArgs a;
   TEST_ASSERT_TRUE(a.parse("N7 M721 O40 DMFRGGZDFMZTWQ2LK*99"));
@@ -66,5 +97,7 @@ int main(void) {
   RUN_TEST(test_malformed_values);
   RUN_TEST(test_ulong_range_and_comment);
   RUN_TEST(test_raw_word);
+  RUN_TEST(test_long_overflow_is_rejected_not_wrapped);
+  RUN_TEST(test_duplicate_and_unknown_words);
   return UNITY_END();
 }

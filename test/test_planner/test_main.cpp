@@ -711,6 +711,9 @@ static void test_m720_errors_leave_settings(void) {
   expect_m720_error("M720 P", "Error:M720 P: dwell must be a whole number of ms, 0..2000");
   expect_m720_error("M720 S0 Q1", "Error:M720 unknown parameter Q");
   expect_m720_error("M720 E0.2x", "Error:M720 E0.2x: extra must be 0..1.000 mm");
+  expect_m720_error("M720 P100 P3000", "Error:M720 duplicate parameter P");
+  // a number that would wrap to 0 past 2^32 is refused, not taken as P0
+  expect_m720_error("M720 P4294967296", "Error:M720 P4294967296: dwell must be a whole number of ms, 0..2000");
 }
 
 static void test_m722_errors(void) {
