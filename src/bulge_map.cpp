@@ -403,6 +403,24 @@ bool MapStore::find_layer(int32_t z_cmm, MapLayer &out) const {
   return true;
 }
 
+void MapStore::neighbors(int32_t z_cmm, int32_t &below, int32_t &above) const {
+  below = -1;
+  above = INT32_MAX;
+  uint16_t off = 0;
+  FastHead fh;
+  while (off < used_) {
+    fast_head(arena_ + off, fh);
+    if (fh.size > used_ - off) return;  // cannot happen with validated records
+    if ((int32_t)fh.z < z_cmm) {
+      below = fh.z;
+    } else if ((int32_t)fh.z > z_cmm) {
+      above = fh.z;
+      return;
+    }
+    off = (uint16_t)(off + fh.size);
+  }
+}
+
 void MapStore::release_below(int32_t z_cmm) {
   uint16_t off = 0, layers = 0, points = 0;
   while (off < used_) {

@@ -149,6 +149,10 @@ class MapStore {
   // The layer whose z is within half a layer height of z_cmm (|dz|*2 <= h;
   // the nearer one if two, the lower one on a tie), decoded into out.
   bool find_layer(int32_t z_cmm, MapLayer &out) const;
+  // z (cmm) of the records next to z_cmm: the highest below it (-1 if none)
+  // and the lowest above it (INT32_MAX if none). The layer window uses them to
+  // hand over to a nearer layer when layers are closer than a layer height.
+  void neighbors(int32_t z_cmm, int32_t &below, int32_t &above) const;
   // Release every layer with z < z_cmm (consumed while printing): the rest,
   // and any staged upload bytes, move down so appends fit.
   void release_below(int32_t z_cmm);

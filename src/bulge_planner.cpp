@@ -39,6 +39,9 @@ void BulgePlanner::reset() {
   q_um_ = 50;
   lh_cmm_ = 30;
   miss_z_ = 0;
+  below_z_ = -1;
+  above_z_ = INT32_MAX;
+  seen_last_z_ = 0;
   cache_z_ = 0.0f;  // z 0 is 0 cmm: a consistent starting pair
   cache_z_cmm_ = 0;
   cache_x_ = cache_y_ = 0.0f;
@@ -47,6 +50,7 @@ void BulgePlanner::reset() {
   layer_.count = 0;
   layer_.z_cmm = 0;
   carry_ = pending_ = 0.0f;
+  stop_ms_ = 0;
   nhit_ = 0;
   memset(fired_, 0, sizeof(fired_));
   clear_stats();
@@ -108,22 +112,31 @@ void BulgePlanner::load_layer(const MapLayer &layer, uint8_t quantum_um, uint8_t
   }
   has_layer_ = true;
   has_miss_ = false;
+  below_z_ = -1;  // a layer given directly: no neighbours known
+  above_z_ = INT32_MAX;
+  seen_last_z_ = store_ ? store_->last_z() : 0;
   stats_.layers_loaded++;
 }
 
 // ---- layer window --------------------------------------------------------------
 
 // True when a layer within half a layer height of z_cmm is loaded, asking the
-// store when z has left the current one. Continuously rising z (spiral vase)
-// walks from layer to layer the same way.
+// store when z has left the current one or a neighbouring layer is nearer
+// (layers closer than a layer height, e.g. adaptive layer heights): the same
+// layer find_layer would choose, the lower one on a tie. Continuously rising z
+// (spiral vase) walks from layer to layer the same way.
 bool BulgePlanner::window(int32_t z_cmm) {
-  if (has_layer_) {
-    int32_t d = z_cmm - (int32_t)layer_.z_cmm;
-    if (d < 0) d = -d;
-    if (2 * d <= (int32_t)lh_cmm_) return true;
+  if (has_layer_ && z_cmm == (int32_t)layer_.z_cmm) return true;  // see eligible()
+  const bool appended = store_ && store_->last_z() != seen_last_z_;
+  if (has_layer_ && !appended) {
+    const int32_t d = z_cmm - (int32_t)layer_.z_cmm;
+    if (d > 0 ? (2 * d <= (int32_t)lh_cmm_ && (above_z_ == INT32_MAX || d <= above_z_ - z_cmm))
+              : (-2 * d <= (int32_t)lh_cmm_ && (below_z_ < 0 || -d < z_cmm - below_z_)))
+      return true;
   }
-  if (!store_ || (has_miss_ && z_cmm == miss_z_)) return false;
+  if (!store_ || (has_miss_ && z_cmm == miss_z_ && !appended)) return false;
   if (!store_->loaded() || store_->empty()) return false;
+  seen_last_z_ = store_->last_z();
   const uint16_t old_z = layer_.z_cmm;
   const bool had = has_layer_;
   if (!store_->find_layer(z_cmm, layer_)) {
@@ -134,6 +147,10 @@ bool BulgePlanner::window(int32_t z_cmm) {
   has_miss_ = false;
   has_layer_ = true;
   sort_points(layer_);
+  store_->neighbors(layer_.z_cmm, below_z_, above_z_);
+  // Only a different layer starts with no point fired: the same one read again
+  // (after an append) keeps its marks, so no point dwells twice.
+  if (had && layer_.z_cmm == old_z) return true;
   stats_.layers_loaded++;
   memset(fired_, 0, sizeof(fired_));
   // Printing moved up: the layers below are done, give their bytes back (room
@@ -183,6 +200,9 @@ bool BulgePlanner::eligible(const Move &m) {
     cache_z_ = m.z1;
     cache_z_cmm_ = zc;
   }
+  // The common case inline: a whole layer printed at the layer's own z (no
+  // other layer can be nearer, appended or not). window() handles the rest.
+  if (has_layer_ && zc == (int32_t)layer_.z_cmm) return layer_.count != 0;
   return window(zc) && layer_.count;
 }
 
@@ -338,6 +358,7 @@ void BulgePlanner::line_to(ActionList &out, float t, float e) {
     a.z = fbits(m_.z0) == fbits(m_.z1) ? m_.z1 : m_.z0 + t * (m_.z1 - m_.z0);
   }
   a.e = e;
+  stop_ms_ = 0;  // the head moves again: the next stop starts afresh
   if (fbits(pending_)) {
     a.e += pending_;
     out.e_added += pending_;
@@ -365,19 +386,28 @@ bool BulgePlanner::emit(ActionList &out) {
       t_done_ = t;
     }
     const uint8_t w = layer_.pts[i].w;
-    const uint16_t ms = w == MAP_WEIGHT_FULL ? dwell_ms_ : (uint16_t)(((uint32_t)dwell_ms_ * w + 127) / 255);
+    uint16_t ms = w == MAP_WEIGHT_FULL ? dwell_ms_ : (uint16_t)(((uint32_t)dwell_ms_ * w + 127) / 255);
+    // Points closer than the minimum piece share one stop (also across moves,
+    // at a shared vertex). Their dwell and extra add up, but one stop never
+    // exceeds the hard limits M720 enforces for a single point.
+    if (ms > BK_MAX_DWELL_MS - stop_ms_) ms = (uint16_t)(BK_MAX_DWELL_MS - stop_ms_);
+    stop_ms_ = (uint16_t)(stop_ms_ + ms);
     Action *last = out.count ? &out.a[out.count - 1] : nullptr;
     if (last && last->kind == Action::DWELL) {
-      // Points closer than the minimum piece share one stop.
-      uint32_t sum = (uint32_t)last->ms + ms;
-      last->ms = sum > 0xFFFF ? 0xFFFF : (uint16_t)sum;
+      last->ms = (uint16_t)(last->ms + ms);
     } else {
       Action &a = out.a[out.count++];
       a.kind = Action::DWELL;
       a.ms = ms;
       a.x = a.y = a.z = a.e = 0.0f;
     }
-    pending_ += extra_e_;
+    float extra = extra_e_;
+    const float room = BK_MAX_EXTRA_E_MM - pending_;
+    if (extra > room) {
+      extra = room > 0.0f ? room : 0.0f;
+      stats_.extra_dropped += extra_e_ - extra;
+    }
+    pending_ += extra;
   }
   if (overflow_) return true;
   if (!fbits(t_done_)) {
@@ -419,7 +449,10 @@ bool BulgePlanner::plan(const Move &m, ActionList &out) {
     // extra owed from a stop at a wall's end for the next piece; any real
     // travel, retraction or non-wall move ends it.
     const bool null_move = m.x0 == m.x1 && m.y0 == m.y1 && m.z0 == m.z1 && m.e == 0.0f;
-    if (!null_move) drop_carry();
+    if (!null_move) {
+      drop_carry();
+      stop_ms_ = 0;
+    }
     whole(out, m);
     return false;
   }
@@ -427,6 +460,7 @@ bool BulgePlanner::plan(const Move &m, ActionList &out) {
   if (!nhit_ && !overflow_) {
     // Nothing on this move: the common case, kept free of float work.
     whole(out, m);
+    stop_ms_ = 0;
     if (fbits(carry_)) {
       out.a[0].e += carry_;
       out.e_added = carry_;

@@ -135,6 +135,11 @@ class BulgePlanner {
   bool has_layer_, has_miss_, cache_ok_, overflow_;
   uint8_t q_um_, lh_cmm_;
   int32_t miss_z_;        // z (cmm) known to have no layer
+  // The records next to the loaded layer (MapStore::neighbors) and the map's
+  // last z when they (or the miss) were read: an append changes it, and then
+  // both are read again, so a layer that arrives late is still found.
+  int32_t below_z_, above_z_;
+  uint16_t seen_last_z_;
   int16_t tol_q_;         // tolerance in quanta, rounded up, plus rounding margin
   float q_mm_, inv_q_, tol2_;
   uint8_t fired_[(BK_LAYER_POINTS_MAX + 7) / 8];
@@ -152,6 +157,7 @@ class BulgePlanner {
   float t_done_;       // parameter where the next piece starts
   float pending_;      // extra for the next piece of this move
   float carry_;        // extra owed to the next move (stop at the last vertex)
+  uint16_t stop_ms_;   // dwell given at the current stop so far (merged points)
   bool active_;
   uint8_t nhit_;
   float hit_t_[BK_PLAN_HITS_MAX];

@@ -590,6 +590,77 @@ static void test_store_layer_change_resets_fired(void) {
   assert_identity(m);
 }
 
+static void test_close_layers_hand_over_to_the_nearer(void) {
+  // Adaptive layer heights: records 0.07 mm apart with a 0.30 mm header
+  // height. At z 0.37 the layer at 0.30 is still within its window, but 0.37
+  // is nearer and must be used (its point would otherwise never fire, and be
+  // released when printing reaches 0.44).
+  put_header();
+  const int16_t a[2] = {100, 0}, b[2] = {100, 0}, c[2] = {100, 0};
+  put_record(30, a, 1);
+  put_record(37, b, 1);
+  put_record(44, c, 1);
+  TEST_ASSERT_EQUAL_INT(bk::MAP_OK, store.load(img, img_n));
+  P.attach(&store);
+  run(mv(0, 0, 10, 0, 1.0f, 0.30f));
+  TEST_ASSERT_EQUAL_INT(1, count_kind(Action::DWELL));
+  run(mv(0, 0, 10, 0, 1.0f, 0.37f));
+  TEST_ASSERT_EQUAL_INT(1, count_kind(Action::DWELL));
+  run(mv(0, 0, 10, 0, 1.0f, 0.44f));
+  TEST_ASSERT_EQUAL_INT(1, count_kind(Action::DWELL));
+  TEST_ASSERT_EQUAL_UINT(3, P.stats().layers_loaded);
+  store.clear();
+  P.map_changed();
+}
+
+static void test_layer_appended_after_a_miss_is_found(void) {
+  // A move at z 0.60 before the layer 0.60 arrives (a slow sender) caches
+  // "no layer here"; the append must end that, or the layer never fires.
+  put_header();
+  const int16_t pt[2] = {100, 0};
+  put_record(30, pt, 1);
+  TEST_ASSERT_EQUAL_INT(bk::MAP_OK, store.load(img, img_n));
+  P.attach(&store);
+  run(mv(0, 0, 10, 0, 1.0f, 0.6f));
+  TEST_ASSERT_EQUAL_INT(0, count_kind(Action::DWELL));
+  const uint16_t from = img_n;
+  put_record(60, pt, 1);
+  TEST_ASSERT_EQUAL_INT(bk::MAP_OK, store.append(img + from, (uint16_t)(img_n - from)));
+  run(mv(10, 0, 0, 0, 1.0f, 0.6f));
+  TEST_ASSERT_EQUAL_INT(1, count_kind(Action::DWELL));
+  // And an append while a layer is loaded keeps that layer's fired marks.
+  run(mv(0, 0, 10, 0, 1.0f, 0.6f));
+  TEST_ASSERT_EQUAL_INT(0, count_kind(Action::DWELL));
+  const uint16_t from2 = img_n;
+  put_record(90, pt, 1);
+  TEST_ASSERT_EQUAL_INT(bk::MAP_OK, store.append(img + from2, (uint16_t)(img_n - from2)));
+  run(mv(10, 0, 0, 0, 1.0f, 0.6f));
+  TEST_ASSERT_EQUAL_INT(0, count_kind(Action::DWELL));
+  store.clear();
+  P.map_changed();
+}
+
+static void test_merged_stop_respects_the_limits(void) {
+  // Ten points within the minimum piece share one stop: with P2000 E1.0 per
+  // point, that stop still dwells at most 2000 ms and adds at most 1.0 mm.
+  bk::GcodeArgs g;
+  g.parse("M720 S2 P2000 E1.0");
+  TEST_ASSERT_TRUE(P.m720(g, reply, sizeof reply));
+  for (uint8_t i = 0; i < 10; i++) add_point(5.0f + 0.005f * i, 0);
+  load();
+  run(mv(0, 0, 10, 0, 1.0f));
+  uint32_t ms = 0;
+  float e = 0;
+  for (uint8_t i = 0; i < T.n; i++) {
+    if (T.a[i].kind == Action::DWELL) ms += T.a[i].ms;
+    else e += T.a[i].e;
+  }
+  TEST_ASSERT_EQUAL_UINT32(2000, ms);
+  TEST_ASSERT_FLOAT_WITHIN(1e-5f, 1.0f + 1.0f, e);  // the host's 1.0 + one stop's 1.0
+  TEST_ASSERT_FLOAT_WITHIN(1e-4f, 9.0f, P.stats().extra_dropped);
+  TEST_ASSERT_EQUAL_UINT(10, P.stats().points_fired);
+}
+
 // ---- matching against a brute-force reference ---------------------------------
 
 static uint32_t rng = 12345;
@@ -755,6 +826,9 @@ int main(void) {
   RUN_TEST(test_point_near_start_stops_before_moving);
   RUN_TEST(test_point_near_end_stops_at_end);
   RUN_TEST(test_null_move_keeps_owed_extra);
+  RUN_TEST(test_close_layers_hand_over_to_the_nearer);
+  RUN_TEST(test_layer_appended_after_a_miss_is_found);
+  RUN_TEST(test_merged_stop_respects_the_limits);
   RUN_TEST(test_close_points_share_one_stop);
   RUN_TEST(test_once_per_layer);
   RUN_TEST(test_tolerance_edges);
