@@ -98,6 +98,7 @@ def sample_strokes(strokes: Sequence[Stroke], model: WallModel, spacing: float
     min_h = min(w.height for w in model.walls) or model.layer_height
     step = max(min(spacing, min_h) / 4, 0.005)
     lo, hi = model.v_range
+    runs: dict[int, list[tuple[float, float, str]]] = {}   # per layer: (umin, umax, stroke)
     for k, st in enumerate(strokes):
         name = st.source or f"stroke {k + 1}"
         if not st.points:
@@ -123,6 +124,19 @@ def sample_strokes(strokes: Sequence[Stroke], model: WallModel, spacing: float
             li = int(layer[run_idx[0]])
             us = smp[run_idx, 0]
             umin, umax = float(us.min()), float(us.max())
+            wall = model.walls[li]
+            shift = wall.place_run(umin, umax)
+            if shift is None:
+                a, b = wall.u_covered()
+                raise BuildError(
+                    f"{name}: u {umin:.2f}..{umax:.2f} mm on layer z {wall.z:.2f} mm, where the "
+                    f"outer wall is an open chain ({wall.length:.1f} mm, e.g. the last turn of a "
+                    f"spiral) covering only u {a:.2f}..{b:.2f} mm"
+                    + (f" (+/- {wall.turn:.1f} mm turns)" if wall.turn else "")
+                    + "; nothing is printed there to bulge. Keep the strokes on it or below it.")
+            us = us - shift
+            umin, umax = umin - shift, umax - shift
+            runs.setdefault(li, []).append((umin, umax, name))
             span = umax - umin
             if span < spacing:
                 us_out = [(umin + umax) / 2]
@@ -131,12 +145,44 @@ def sample_strokes(strokes: Sequence[Stroke], model: WallModel, spacing: float
                 us_out = list(np.linspace(umin, umax, n))
             for u in us_out:
                 out.setdefault(li, []).append((float(u), st.weight, name))
+    _check_extent(runs, model)
     return out
 
 
-def _merge(samples: list[tuple[float, int, str]], length: float, min_gap: float):
-    """Merge points closer than min_gap along a closed wall of this length."""
-    pts = sorted(((u % length, w, {src}) for u, w, src in samples), key=lambda p: p[0])
+def _check_extent(runs: dict[int, list[tuple[float, float, str]]], model: WallModel) -> None:
+    """u is taken around the wall, so strokes longer than the wall would wrap
+    and land on their own start; refuse instead of merging them silently."""
+    bad = []
+    for li in sorted(runs):
+        w = model.walls[li]
+        if not w.closed:
+            continue  # checked in sample_strokes
+        L = w.length
+        lo = min(r[0] for r in runs[li])
+        hi = max(r[1] for r in runs[li])
+        if hi - lo > L + 1e-6:
+            bad.append((li, lo, hi, L))
+    if not bad:
+        return
+    li, lo, hi, L = max(bad, key=lambda b: b[2] - b[1] - b[3])
+    start = min(runs[li], key=lambda r: r[0])[2]
+    # the first stroke (along u) that runs past one full turn
+    past = min((r for r in runs[li] if r[1] > lo + L + 1e-6), key=lambda r: r[0])
+    zs = ", ".join(f"{model.walls[b[0]].z:.2f}" for b in bad[:6]) + (" ..." if len(bad) > 6 else "")
+    raise BuildError(
+        f"{past[2]}: runs to u {past[1]:.2f} mm, past the end of the outer wall: on layer "
+        f"z {model.walls[li].z:.2f} mm the strokes span {hi - lo:.1f} mm (u {lo:.2f}..{hi:.2f}, "
+        f"from {start}) but the wall is only {L:.1f} mm around, so the end would be written "
+        f"over the start. {len(bad)} layer(s) too long (z {zs} mm); make the text/strokes "
+        "smaller or shorter.")
+
+
+def _merge(samples: list[tuple[float, int, str]], length: float, min_gap: float,
+           closed: bool = True):
+    """Merge points closer than min_gap along a wall of this length (around
+    the loop when closed; an open chain's u is already checked to lie on it)."""
+    pts = sorted(((u % length if closed else u, w, {src}) for u, w, src in samples),
+                 key=lambda p: p[0])
     merged: list[list] = []
     for u, w, src in pts:
         if merged and u - merged[-1][0] < min_gap:
@@ -144,7 +190,7 @@ def _merge(samples: list[tuple[float, int, str]], length: float, min_gap: float)
             merged[-1][2] |= src
         else:
             merged.append([u, w, src])
-    if len(merged) > 1 and merged[0][0] + length - merged[-1][0] < min_gap:
+    if closed and len(merged) > 1 and merged[0][0] + length - merged[-1][0] < min_gap:
         last = merged.pop()
         merged[0][1] = max(merged[0][1], last[1])
         merged[0][2] |= last[2]
@@ -171,7 +217,7 @@ def build(strokes: Sequence[Stroke], model: WallModel, spacing: float | None = N
     too_many = []
     for li in sorted(per_layer):
         wall = model.walls[li]
-        merged = _merge(per_layer[li], wall.length, spacing / 2)
+        merged = _merge(per_layer[li], wall.length, spacing / 2, wall.closed)
         if len(merged) > max_points:
             too_many.append((wall.z, len(merged)))
             continue

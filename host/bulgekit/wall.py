@@ -40,6 +40,8 @@ class Wall:
     ccw: bool = True         # printed counter-clockwise seen from above
     s_ref: float = 0.0       # arc length (print order) where u == 0
     centroid: tuple[float, float] = (0.0, 0.0)
+    closed: bool = True      # a loop; an open chain (top of a vase) has ends
+    turn: float = 0.0        # open chain: length of the nearest loop (u's period), 0 if none
 
     @property
     def length(self) -> float:
@@ -50,7 +52,31 @@ class Wall:
         L = self.length
         u = np.asarray(u, dtype=float)
         s = self.s_ref + u if self.ccw else self.s_ref - u
-        return np.mod(s, L)
+        # an open chain does not go round: u beyond its ends has no place
+        # (check with u_covered() first)
+        return np.mod(s, L) if self.closed else s
+
+    def u_covered(self) -> tuple[float, float]:
+        """u range the wall covers: one turn for a loop, the chain's ends else."""
+        if self.closed:
+            return (-math.inf, math.inf)
+        a, b = -self.s_ref, self.length - self.s_ref
+        return (a, b) if self.ccw else (-b, -a)
+
+    def place_run(self, umin: float, umax: float) -> float | None:
+        """Shift (a whole number of turns) that puts u umin..umax on the wall,
+        or None when the run leaves an open chain."""
+        if self.closed:
+            return 0.0
+        a, b = self.u_covered()
+        shifts = [0.0]
+        if self.turn > 0:
+            k = math.floor((umin - a) / self.turn)
+            shifts += [k * self.turn, (k + 1) * self.turn]
+        for d in shifts:
+            if umin - d >= a - 1e-6 and umax - d <= b + 1e-6:
+                return d
+        return None
 
     def u_of_s(self, s):
         L = self.length
@@ -296,9 +322,13 @@ def extract_walls(moves: Iterable[Move], layer_height: float | None = None,
             height = h  # a layer without wall in between
         prev_z = z
         w = Wall(z=z, xy=xy, s=s, move_index=np.array(best.idx), height=height,
-                 ccw=area >= 0, centroid=cen)
+                 ccw=area >= 0, centroid=cen, closed=_closed(best, gap))
         w.s_ref = _ray_hit(xy, s, cen, direction)
         walls.append(w)
+    loops = [w for w in walls if w.closed]
+    for w in walls:
+        if not w.closed and loops:
+            w.turn = min(loops, key=lambda c: abs(c.z - w.z)).length
     if not walls:
         what = "extruding closed loops" if geometric else "outer-wall extrusions"
         raise WallError(f"{source}: no {what} found")

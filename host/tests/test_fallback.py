@@ -129,7 +129,7 @@ def test_every_placed_point_stops_the_head_once(data_dir, name, geometric):
     from bulgekit.strokes import Stroke, text_strokes
     from bulgekit.wall import walls_from_gcode
     g = data_dir / name
-    r = build(text_strokes("AB8", 6, u0=2, v0=1.5) + [Stroke(((60.0, 0.5), (60.0, 9.8)))],
+    r = build(text_strokes("AB8", 6, u0=2, v0=1.5) + [Stroke(((70.0, 0.5), (70.0, 9.8)))],
               walls_from_gcode(g, geometric=geometric))
     st = print_stats(g, r.map_bytes, Settings(mode=2 if geometric else 1))
     assert st.missed == []

@@ -97,3 +97,39 @@ def test_overflow_lists_layers_beyond_the_arena(model):
     assert over and over[-1][0] == pytest.approx(9.9)
     fits = sum(r.record_sizes[: len(r.record_sizes) - len(over)])
     assert fits <= 2048 < fits + r.record_sizes[len(r.record_sizes) - len(over)]
+
+
+def test_strokes_longer_than_the_wall_are_refused_not_wrapped(model):
+    L = model.walls[int(model.layer_of_v(3.0)[0])].length
+    # a horizontal stroke 10 mm longer than the wall: its end would land on its start
+    with pytest.raises(BuildError) as ei:
+        build([Stroke(((0.0, 3.0), (L + 10.0, 3.0)), source="long line")], model)
+    msg = str(ei.value)
+    assert "long line" in msg and f"{L:.1f} mm around" in msg and "span" in msg
+    # two strokes, each shorter than the wall, that together pass a full turn
+    with pytest.raises(BuildError, match="second"):
+        build([Stroke(((-5.0, 3.0), (5.0, 3.0)), source="first"),
+               Stroke(((L - 10.0, 3.0), (L + 2.0, 3.0)), source="second")], model)
+    # exactly one turn is fine (the ends coincide and merge into one point)
+    r = build([Stroke(((0.0, 3.0), (L, 3.0)))], model, spacing=2.0)
+    us = sorted(p.u for p in r.points)
+    assert len(us) == int(L / 2) and us[0] == pytest.approx(0.0, abs=1e-6)
+    assert np.diff(us).min() > 1.0
+
+
+def test_open_top_turn_of_a_vase_takes_only_the_u_it_covers():
+    from pathlib import Path
+    m = walls_from_gcode(Path(__file__).parent / "data" / "prusa_vase.gcode")
+    top = m.walls[-1]
+    assert not top.closed and top.turn > top.length
+    a, b = top.u_covered()
+    # a point on the part of the top turn that was printed: same place as
+    # the same u one turn later
+    r = build([Stroke(((a + 10.0, 9.8),))], m)
+    r2 = build([Stroke(((a + 10.0 + top.turn, 9.8),))], m)
+    assert (r.points[0].x, r.points[0].y) == pytest.approx((r2.points[0].x, r2.points[0].y))
+    assert top.project(r.points[0].x, r.points[0].y)[1] < 1e-6
+    # the half turn that is not printed is an error naming the layer, not a
+    # point wrapped onto some other place of the chain
+    with pytest.raises(BuildError, match=r"dot.*z 9\.90 mm.*open chain"):
+        build([Stroke(((b + 10.0, 9.8),), source="dot")], m)
