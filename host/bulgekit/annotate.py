@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 
 from . import mapformat
 from .fallback import MODE_GEOMETRIC, Settings
-from .gcode import feature_of_comment, is_outer
+from .gcode import check_complete, feature_of_comment, is_outer
 from .strokes import BulgekitError
 
 ARENA_BYTES = 2048
@@ -242,6 +242,7 @@ def annotate_file(src, dst, map_bytes: bytes, settings: Settings, arena: int = A
                   stream: bool = True) -> AnnotateResult:
     with open(src, "rb") as f:
         data = f.read()
+    check_complete(data, str(src))
     res = AnnotateResult()
     out = annotate_bytes(data, map_bytes, settings, arena, stream, str(src), res)
     with open(dst, "wb") as f:

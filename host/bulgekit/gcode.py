@@ -285,10 +285,37 @@ def _arc(st: GcodeState, w: dict, no: int, cw: bool, where: str) -> list[Move]:
     return out
 
 
+def check_complete(text, source: str = "<gcode>") -> None:
+    """Refuse a file whose last line has a command but no line end: that is
+    how a cut-off download or copy looks ("G1 X119.5 E9" for "E9.8731"), and
+    its last move would be taken as written."""
+    if isinstance(text, (bytes, bytearray)):
+        if not text or text.endswith(b"\n"):
+            return
+        i = text.rfind(b"\n") + 1
+        last = bytes(text[i:]).decode("utf-8", "replace")
+        nlines = text.count(b"\n") + 1
+    else:
+        if not text or text.endswith("\n"):
+            return
+        i = text.rfind("\n") + 1
+        last = text[i:]
+        nlines = text.count("\n") + 1
+    code, _ = split_code(last.rstrip("\r"))
+    if not code:
+        return  # a comment or blank: nothing would be misread
+    raise GcodeError(
+        f"{source}:{nlines}: the file does not end with a line end, so its last line "
+        f"{last.strip()!r} may be cut off (truncated download or copy?). Check the file; "
+        "if it is complete, add a newline at its end.")
+
+
 def read_text(path) -> list[str]:
-    """Lines of a G-code file (keeps line ends)."""
+    """Lines of a G-code file (keeps line ends); a cut-off last line is an error."""
     with open(path, "r", encoding="utf-8", errors="replace", newline="") as f:
-        return f.read().splitlines(keepends=True)
+        text = f.read()
+    check_complete(text, str(path))
+    return text.splitlines(keepends=True)
 
 
 def iter_moves(lines: Iterable[str], source: str = "<gcode>") -> Iterator[Move]:

@@ -137,6 +137,8 @@ def read_gcode(path) -> list[Line]:
     except UnicodeDecodeError as e:
         line = text_line_of_byte(path, e.start)
         raise InputError(f"{path}:{line}: not UTF-8/ASCII text") from None
+    from .gcode import check_complete
+    check_complete(text, path)
     return prepare((Line(t, f"{path}:{i}") for i, t in enumerate(text.splitlines(), 1)), path)
 
 

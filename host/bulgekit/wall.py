@@ -21,7 +21,7 @@ from typing import Iterable
 
 import numpy as np
 
-from .gcode import Move, header_layer_height, parse_lines
+from .gcode import Move, check_complete, header_layer_height, parse_lines
 from .strokes import BulgekitError
 
 
@@ -339,6 +339,7 @@ def walls_from_gcode(path, layer_height: float | None = None, geometric: bool = 
                      ref_angle_deg: float = -90.0) -> WallModel:
     with open(path, "r", encoding="utf-8", errors="replace", newline="") as f:
         text = f.read()
+    check_complete(text, str(path))
     lines = text.splitlines(keepends=True)
     moves = (m for ln in parse_lines(lines, str(path)) for m in ln.moves)
     return extract_walls(moves, layer_height, geometric, ref_angle_deg, str(path),

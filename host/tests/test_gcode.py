@@ -100,3 +100,34 @@ def test_real_slices_parse(data_dir):
         n = sum(len(l.moves) for l in parse_lines(lines, name, st))
         assert n > 3000
         assert st.outer_seen == (0 if name.startswith("slic3r") else 33)
+
+
+def test_a_cut_off_last_line_is_refused_by_every_reader(tmp_path, data_dir):
+    import pytest
+    from bulgekit import mapformat
+    from bulgekit.annotate import annotate_file
+    from bulgekit.fallback import Settings, rewrite_file
+    from bulgekit.gcode import GcodeError, check_complete
+    from bulgekit.sender import read_gcode
+    from bulgekit.stats import print_stats
+    from bulgekit.wall import walls_from_gcode
+    full = (data_dir / "prusa_cyl.gcode").read_text()
+    cut = full[:full.rfind("\n", 0, len(full) // 2) + 9]   # ends in "G1 X1..." mid-line
+    p = tmp_path / "cut.gcode"
+    p.write_text(cut)
+    nline = cut.count("\n") + 1
+    bm = mapformat.encode_map([(1.2, [(100.0, 100.0)])], quantum_um=100, layer_height_mm=0.3)
+    calls = [lambda: walls_from_gcode(p),
+             lambda: annotate_file(p, tmp_path / "a.gcode", bm, Settings()),
+             lambda: rewrite_file(p, tmp_path / "f.gcode", mapformat.decode_map(bm), Settings()),
+             lambda: print_stats(p, bm, Settings()),
+             lambda: read_gcode(p)]
+    for call in calls:
+        with pytest.raises(GcodeError, match=rf"cut\.gcode:{nline}: .*does not end with a line end"):
+            call()
+    assert not (tmp_path / "a.gcode").exists() and not (tmp_path / "f.gcode").exists()
+    # a last line that is only a comment, or a complete file, is fine
+    check_complete("G1 X1\n; end", "x")
+    check_complete(b"G1 X1\r\n", "x")
+    with pytest.raises(GcodeError, match="'G1 X1'"):
+        check_complete(b"G28\nG1 X1", "x")
