@@ -16,7 +16,9 @@ record sent whose z is at or above the record of the layer printed last,
 and sends only what fits in the rest of the arena (BK_MAP_ARENA_BYTES).
 
 The scan is a few regular-expression passes over the whole file (no per-line
-Python work), so 100 MB annotate in a few seconds.
+Python work), so 100 MB annotate in a few seconds.  The check that every map
+point is reached (check_reach, on by default) runs the reference planner over
+every move and costs about 0.5 s per MB.
 """
 from __future__ import annotations
 
@@ -238,13 +240,36 @@ def annotate_bytes(data: bytes, map_bytes: bytes, settings: Settings,
     return b"".join(parts)
 
 
+def check_reach(data: bytes, map_bytes: bytes, settings: Settings, source: str) -> str | None:
+    """Run the G-code through the reference planner: a message naming the
+    map points no move reaches (the map is for another file?), or None."""
+    from .fallback import RefPlanner, unreached_message
+    from .gcode import parse_lines
+    planner = RefPlanner(mapformat.decode_map(map_bytes, source="map"), settings)
+    lines = data.decode("utf-8", "replace").splitlines(keepends=True)
+    for ln in parse_lines(lines, source):
+        for m in ln.moves:
+            planner.plan(m)
+    return unreached_message(planner, source)
+
+
 def annotate_file(src, dst, map_bytes: bytes, settings: Settings, arena: int = ARENA_BYTES,
-                  stream: bool = True) -> AnnotateResult:
+                  stream: bool = True, check: bool = True,
+                  allow_unreached: bool = False) -> AnnotateResult:
+    """Annotate src into dst.  With check (default) the file is also run
+    through the reference planner, and map points no move reaches are an
+    error unless allow_unreached (then the message is in result.notes)."""
     with open(src, "rb") as f:
         data = f.read()
     check_complete(data, str(src))
     res = AnnotateResult()
     out = annotate_bytes(data, map_bytes, settings, arena, stream, str(src), res)
+    if check:
+        msg = check_reach(data, map_bytes, settings, str(src))
+        if msg and not allow_unreached:
+            raise AnnotateError(msg)
+        if msg:
+            res.notes.append(msg)
     with open(dst, "wb") as f:
         f.write(out)
     return res

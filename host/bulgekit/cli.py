@@ -34,6 +34,12 @@ def _settings_options(fn):
     return fn
 
 
+def _allow_unreached_option(fn):
+    return click.option("--allow-unreached", is_flag=True,
+                        help="Write the file even if map points are not reached by any move "
+                             "(they will not bulge); default: error.")(fn)
+
+
 def _settings(dwell, extra, tolerance, geometric) -> Settings:
     try:
         return Settings(MODE_GEOMETRIC if geometric else MODE_MARKED, dwell, extra, tolerance)
@@ -144,14 +150,22 @@ def _preview_3d(out, path: Path):
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="Annotated G-code to write.")
 @click.option("--no-stream", is_flag=True, help="Fail if the map is larger than the printer's arena.")
 @click.option("--arena", type=int, default=2048, show_default=True, help="Printer map arena, bytes.")
+@_allow_unreached_option
 @_settings_options
 @friendly
-def annotate(gcode, map_file, output, no_stream, arena, dwell, extra, tolerance, geometric):
-    """Add M720/M721/M722 for the bulgekit firmware to GCODE (moves untouched)."""
+def annotate(gcode, map_file, output, no_stream, arena, allow_unreached, dwell, extra, tolerance,
+             geometric):
+    """Add M720/M721/M722 for the bulgekit firmware to GCODE (moves untouched).
+
+    GCODE is also run through the reference planner: map points that no move
+    reaches (a map made for another file) are an error unless --allow-unreached."""
     from .annotate import annotate_file
     settings = _settings(dwell, extra, tolerance, geometric)
     t0 = time.perf_counter()
-    res = annotate_file(gcode, output, _read_map(map_file), settings, arena, not no_stream)
+    res = annotate_file(gcode, output, _read_map(map_file), settings, arena, not no_stream,
+                        allow_unreached=allow_unreached)
+    for note in res.notes:
+        click.echo(f"WARNING: {note}", err=True)
     dt = time.perf_counter() - t0
     click.echo(f"wrote {output}: {res.lines_added} lines added, {res.markers} markers, "
                f"{res.initial_records} layers uploaded at the start"
@@ -163,13 +177,20 @@ def annotate(gcode, map_file, output, no_stream, arena, dwell, extra, tolerance,
 @click.argument("gcode", type=click.Path(exists=True, dir_okay=False))
 @click.argument("map_file", metavar="MAP", type=click.Path(exists=True, dir_okay=False))
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="G-code to write.")
+@_allow_unreached_option
 @_settings_options
 @friendly
-def fallback(gcode, map_file, output, dwell, extra, tolerance, geometric):
-    """Rewrite GCODE for stock firmware: split, G4 dwell, extra E, G92 E."""
+def fallback(gcode, map_file, output, allow_unreached, dwell, extra, tolerance, geometric):
+    """Rewrite GCODE for stock firmware: split, G4 dwell, extra E, G92 E.
+
+    Map points that no move reaches (a map made for another file) are an
+    error unless --allow-unreached."""
     from .fallback import rewrite_file
     settings = _settings(dwell, extra, tolerance, geometric)
-    res = rewrite_file(gcode, output, mapformat.decode_map(_read_map(map_file)), settings)
+    res = rewrite_file(gcode, output, mapformat.decode_map(_read_map(map_file)), settings,
+                       allow_unreached)
+    if res.unreached:
+        click.echo(f"WARNING: {res.unreached}", err=True)
     st = res.stats
     click.echo(f"wrote {output}: {st.points_fired} stops on {res.moves_split} lines, "
                f"{st.dwell_ms_total / 1000:.1f} s dwell, {st.extra_applied:.2f} mm extra filament")

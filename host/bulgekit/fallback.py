@@ -28,6 +28,12 @@ import numpy as np
 
 from . import mapformat
 from .gcode import GcodeState, Line, Move, parse_lines
+from .strokes import BulgekitError
+
+
+class UnreachedError(BulgekitError):
+    """Map points that no move of the G-code reaches: the map was probably
+    made for another file."""
 
 f32 = np.float32
 
@@ -114,6 +120,7 @@ class RefPlanner:
         self.carry = f32(0)
         self.stats = PlanStats()
         self.stops: list[StopRecord] = []
+        self.top_z: float | None = None   # highest z of an extruding XY move
         self._zs = [l.z_cmm for l in bmap.layers] if bmap else []
 
     # -- layer window (MapStore::find_layer + BulgePlanner::window)
@@ -167,6 +174,8 @@ class RefPlanner:
         """Actions for one G0/G1 move (or one arc chord)."""
         if outer is None:
             outer = m.outer
+        if m.e > 0 and (m.x0 != m.x1 or m.y0 != m.y1) and (self.top_z is None or m.z1 > self.top_z):
+            self.top_z = m.z1
         if not self._eligible(m, outer):
             # as the firmware: a move that moves nothing keeps the owed extra
             null = m.x0 == m.x1 and m.y0 == m.y1 and m.z0 == m.z1 and m.e == 0
@@ -260,6 +269,49 @@ class RefPlanner:
         return actions
 
 
+def unreached(planner: RefPlanner) -> list[tuple[int, int, int]]:
+    """Map points (layer z in 0.01 mm, x, y in quanta) the planner never stopped at."""
+    if planner.map is None:
+        return []
+    fired: dict[int, set] = {}
+    for s in planner.stops:
+        fired.setdefault(s.layer_z_cmm, set()).add(s.point)
+    return [(l.z_cmm, x, y) for l in planner.map.layers for (x, y) in l.points
+            if (x, y) not in fired.get(l.z_cmm, ())]
+
+
+def unreached_message(planner: RefPlanner, source: str) -> str | None:
+    """What is wrong when map points are never reached, or None."""
+    miss = unreached(planner)
+    if not miss:
+        return None
+    bm = planner.map
+    per_layer: dict[int, int] = {}
+    for z, _, _ in miss:
+        per_layer[z] = per_layer.get(z, 0) + 1
+    whole = [z for l in bm.layers for z in [l.z_cmm] if per_layer.get(z) == len(l.points)]
+    part = [(z, n) for z, n in per_layer.items() if z not in whole]
+
+    def zl(zs):
+        zs = sorted(zs)
+        return ", ".join(f"{z / 100:.2f}" for z in zs[:6]) + (" ..." if len(zs) > 6 else "")
+    where = "outer-wall" if planner.s.mode == MODE_MARKED else "extruding"
+    out = [f"{source}: {len(miss)} of {bm.point_count} map points are not within "
+           f"{planner.s.tolerance:.2f} mm of any {where} move"]
+    if whole:
+        out.append(f"{len(whole)} layer(s) get no stop at all (z {zl(whole)} mm)")
+        top = planner.top_z
+        above = [z for z in whole if top is None or 2 * (z - round(top * 100)) > bm.layer_height_cmm]
+        if above:
+            out.append(f"{len(above)} of them above the print's last extrusion at "
+                       + (f"z {top:.2f} mm" if top is not None else "(none)"))
+    if part:
+        out.append(f"{sum(n for _, n in part)} point(s) missed on {len(part)} other layer(s) "
+                   f"(z {zl(z for z, _ in part)} mm)")
+    return ("; ".join(out) + ". Is the map made for this G-code (same slice, same "
+            "--geometric/tolerance)? Use --allow-unreached to write the file anyway.")
+
+
 def _fmt(v: float, nd: int = 5) -> str:
     s = f"{v:.{nd}f}".rstrip("0").rstrip(".")
     if s in ("-0", ""):
@@ -273,6 +325,7 @@ class RewriteResult:
     moves_split: int = 0
     stops: list = field(default_factory=list)
     stats: PlanStats | None = None
+    unreached: str | None = None     # message when map points get no stop
 
 
 def rewrite(lines: Iterable[str], bmap: mapformat.BulgeMap, settings: Settings,
@@ -299,6 +352,7 @@ def rewrite(lines: Iterable[str], bmap: mapformat.BulgeMap, settings: Settings,
         yield from _emit(ln, per_move, st)
     res.stops = planner.stops
     res.stats = planner.stats
+    res.unreached = unreached_message(planner, source)
 
 
 def _emit(ln: Line, per_move, st: GcodeState) -> Iterator[str]:
@@ -362,16 +416,29 @@ def _emit(ln: Line, per_move, st: GcodeState) -> Iterator[str]:
         yield comment + "\n"
 
 
-def rewrite_file(src, dst, bmap: mapformat.BulgeMap, settings: Settings) -> RewriteResult:
+def rewrite_file(src, dst, bmap: mapformat.BulgeMap, settings: Settings,
+                 allow_unreached: bool = False) -> RewriteResult:
+    """Rewrite src into dst.  Map points no move reaches are an error (the
+    map is likely for another file) unless allow_unreached; then the message
+    is in result.unreached.  dst is only written when the rewrite succeeds."""
+    import os
     from .gcode import read_text
     res = RewriteResult()
     lines = read_text(src)
-    with open(dst, "w", encoding="utf-8", newline="") as f:
-        buf = []
-        for out in rewrite(lines, bmap, settings, str(src), res):
-            buf.append(out)
-            if len(buf) >= 4096:
-                f.write("".join(buf))
-                buf.clear()
-        f.write("".join(buf))
+    tmp = f"{os.fspath(dst)}.part"
+    try:
+        with open(tmp, "w", encoding="utf-8", newline="") as f:
+            buf = []
+            for out in rewrite(lines, bmap, settings, str(src), res):
+                buf.append(out)
+                if len(buf) >= 4096:
+                    f.write("".join(buf))
+                    buf.clear()
+            f.write("".join(buf))
+        if res.unreached and not allow_unreached:
+            raise UnreachedError(res.unreached)
+        os.replace(tmp, dst)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
     return res

@@ -167,3 +167,40 @@ def test_travel_after_a_wall_end_stop_drops_the_carry():
     text = HEAD.format(mode="M83") + "G1 X10 Y0 E1.0\nG0 X20 Y20\nG1 X20 Y30 E1.0\n"
     lines = run(text, [(0.3, [(9.95, 0.0)])])
     assert lines[-1] == "G1 X20 Y30 E1.0"
+
+
+def test_a_map_for_another_file_is_refused_by_annotate_and_fallback(tmp_path, data_dir):
+    """Map layers above the print's top and points off the wall reach no move:
+    an error naming how many and where, unless allow_unreached."""
+    from bulgekit.annotate import AnnotateError, annotate_file
+    from bulgekit.fallback import UnreachedError, rewrite_file
+    from bulgekit.mapbuild import build
+    from bulgekit.strokes import Stroke
+    from bulgekit.wall import walls_from_gcode
+    g = data_dir / "prusa_cyl.gcode"
+    good = build([Stroke(((10.0, 1.0), (10.0, 4.0)))], walls_from_gcode(g))
+    layers = [(z, pts) for z, pts in good.layers]
+    top = walls_from_gcode(g).walls[-1].z
+    x, y = layers[0][1][0]
+    layers.append((top + 0.9, [(x, y)]))            # above the print
+    layers.append((top + 1.2, [(x, y), (x + 1, y)]))
+    layers[2] = (layers[2][0], layers[2][1] + [(x + 30.0, y + 30.0)])   # inside the part
+    bm = mapformat.encode_map(layers, quantum_um=100, layer_height_mm=0.3)
+    for err, call in ((AnnotateError, lambda o, **k: annotate_file(g, o, bm, Settings(), **k)),
+                      (UnreachedError, lambda o, **k: rewrite_file(g, o, mapformat.decode_map(bm),
+                                                                   Settings(), **k))):
+        out = tmp_path / "out.gcode"
+        with pytest.raises(err) as ei:
+            call(out)
+        msg = str(ei.value)
+        assert "prusa_cyl.gcode: 4 of" in msg
+        assert f"2 layer(s) get no stop at all (z {top + 0.9:.2f}, {top + 1.2:.2f} mm)" in msg
+        assert f"above the print's last extrusion at z {top:.2f} mm" in msg
+        assert f"1 point(s) missed on 1 other layer(s) (z {layers[2][0]:.2f} mm)" in msg
+        assert not out.exists() and list(tmp_path.iterdir()) == []
+        res = call(out, allow_unreached=True)
+        assert out.exists()
+        out.unlink()
+    # the map made for the file passes
+    rewrite_file(g, out, mapformat.decode_map(good.map_bytes), Settings())
+    annotate_file(g, out, good.map_bytes, Settings())
