@@ -112,6 +112,18 @@ EDITS = [
       if (!bulgekit.line_to_destination())  // bulge splits and width mode queue the move themselves
     #endif
 """),
+    # Arcs bypass G0_G1(): plan_arc() feeds its segments to the planner directly.
+    # Not split or retimed; the hook reports that once per print (BulgeKit::arc_notice).
+    Edit("Marlin/src/gcode/motion/G2_G3.cpp", "arc-include", "after",
+         '#include "../../module/temperature.h"',
+         '#include "../../feature/bulgekit/bulgekit.h"\n'),
+    Edit("Marlin/src/gcode/motion/G2_G3.cpp", "arc-notice", "before",
+         "    plan_arc(destination, arc_offset, clockwise, circles_to_do);",
+         """\
+    #if HAS_BULGEKIT
+      bulgekit.arc_notice();  // the arc is neither split nor retimed: say so once per print
+    #endif
+"""),
     Edit("Marlin/src/module/planner.h", "flag-bit", "after",
          "  OPTARG(LASER_POWER_SYNC, BLOCK_BIT_LASER_PWR)",
          """\

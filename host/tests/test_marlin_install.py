@@ -323,3 +323,34 @@ def test_eeprom_hooks_save_and_load_the_same_fields_in_the_same_order(tree):
     # a validation pass (validating == true) reads but applies nothing
     assert block("eeprom-load").count("if (!validating) BulgeKit::settings_load(") == 2
     assert "BulgeKit::settings_reset();" in block("eeprom-reset")
+
+
+def test_arc_hook_sits_right_before_plan_arc_and_includes_the_adapter(tree):
+    mi.install(tree, out=quiet)
+    rel = "Marlin/src/gcode/motion/G2_G3.cpp"
+    lines = read(tree, rel).split("\n")
+    call = "    plan_arc(destination, arc_offset, clockwise, circles_to_do);"
+    i = lines.index(call)
+    assert lines[i - 1] == "    // bulgekit:end arc-notice"
+    block = lines[lines.index("    // bulgekit:begin arc-notice"):i]
+    assert "      bulgekit.arc_notice();  // the arc is neither split nor retimed: say so once per print" in block
+    assert block[1] == "    #if HAS_BULGEKIT" and block[-2] == "    #endif"
+    inc = lines.index('#include "../../feature/bulgekit/bulgekit.h"')
+    assert lines[inc - 1] == "// bulgekit:begin arc-include"
+    assert lines[inc - 2] == '#include "../../module/temperature.h"'
+    assert inc < i  # declared before use
+    mi.uninstall(tree, out=quiet)
+    assert "bulgekit" not in read(tree, rel)
+
+
+def test_missing_arc_anchor_refuses_and_names_it(tree):
+    rel = "Marlin/src/gcode/motion/G2_G3.cpp"
+    text = read(tree, rel).replace("plan_arc(destination, arc_offset, clockwise, circles_to_do);",
+                                   "plan_arc(destination, arc_offset, clockwise);")
+    with open(os.path.join(tree, rel), "w", encoding="utf-8", newline="") as f:
+        f.write(text)
+    before = snapshot(tree)
+    with pytest.raises(mi.InstallError) as e:
+        mi.install(tree, out=quiet)
+    assert rel in str(e.value) and "'arc-notice'" in str(e.value) and "not found" in str(e.value)
+    assert snapshot(tree) == before

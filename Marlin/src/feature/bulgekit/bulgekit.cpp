@@ -24,6 +24,8 @@
   bk::WidthMode BulgeKit::width;
 #endif
 
+uint8_t BulgeKit::arc_told;
+
 BulgeKit bulgekit;
 
 BulgeKit::BulgeKit() {
@@ -36,6 +38,25 @@ void BulgeKit::print_reply(const char *text) {
     if (*text == '\n') SERIAL_EOL(); else SERIAL_CHAR(*text);
   }
   SERIAL_EOL();
+}
+
+void BulgeKit::arc_notice() {
+  // A travel or retraction arc is not something either mode would change
+  if (!(destination.e > current_position.e)) return;
+  #if ENABLED(BULGE_MAP)
+    const bk::BulgeMode m = bulge.mode();
+    if (!(arc_told & ARC_BULGE)
+        && (m == bk::BULGE_GEOMETRIC || (m == bk::BULGE_MARKED && bulge.in_outer_wall()))) {
+      arc_told |= ARC_BULGE;
+      SERIAL_ECHO_MSG("bulgekit: G2/G3 arcs are not split at bulge points; turn off arc fitting for outer walls");
+    }
+  #endif
+  #if ENABLED(WIDTH_BY_FEEDRATE)
+    if (!(arc_told & ARC_WIDTH) && width.active()) {
+      arc_told |= ARC_WIDTH;
+      SERIAL_ECHO_MSG("bulgekit: G2/G3 arcs are not retimed by width mode (M723); turn off arc fitting");
+    }
+  #endif
 }
 
 // The report line of M720 / M723 (their first line), as a command without
@@ -94,6 +115,7 @@ void BulgeKit::settings_load(const uint16_t code, settings_line_t &line) {
 }
 
 void BulgeKit::settings_reset() {
+  arc_rearm(ARC_BULGE | ARC_WIDTH);
   #if ENABLED(BULGE_MAP)
     const bool marker = bulge.in_outer_wall();
     bulge.reset();        // mode, P, E, T to the defaults (and the stop statistics)

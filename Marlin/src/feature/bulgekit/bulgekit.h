@@ -49,6 +49,22 @@ class BulgeKit {
   // Prints a core reply: zero or more lines separated by '\n'.
   static void print_reply(const char *text);
 
+  /**
+   * G2/G3 hook (G2_G3.cpp, before plan_arc()). Marlin cuts an arc into segments
+   * that go straight to the planner and never reach line_to_destination(), so an
+   * arc is neither split at bulge points nor retimed by width mode. When a mode
+   * would have acted on an extruding arc (M720 S2; M720 S1 inside M722 S1; M723
+   * S1), one echo: line says so, once per mode until re-armed by arc_rearm().
+   */
+  static void arc_notice();
+  /**
+   * Re-arm the arc notice for the next print: M720 or M723 with parameters
+   * (accepted), a committed full map or M721 X, M502. Appends (streamed layers
+   * during a print) and M722 markers do not re-arm.
+   */
+  enum : uint8_t { ARC_BULGE = 1, ARC_WIDTH = 2 };
+  static void arc_rearm(const uint8_t which) { arc_told &= ~which; }
+
   BulgeKit();  // attaches the planner to the store (static members, same translation unit)
 
   /**
@@ -79,6 +95,7 @@ class BulgeKit {
   #endif
 
  private:
+  static uint8_t arc_told;  // ARC_BULGE / ARC_WIDTH: that notice was printed since the last re-arm
   #if ENABLED(BULGE_MAP)
     static bk::ActionList actions;  // static: keeps ~140 bytes off the G1 call stack
   #endif

@@ -41,7 +41,8 @@ static void bk_report_line(const bool forReplay, const char *line) {
     bk::GcodeArgs args;
     if (!bk_parse(args)) return;
     char reply[BK_PLAN_REPLY_MAX];
-    BulgeKit::bulge.m720(args, reply, sizeof(reply));
+    if (BulgeKit::bulge.m720(args, reply, sizeof(reply)) && !args.none())
+      BulgeKit::arc_rearm(BulgeKit::ARC_BULGE);  // new settings: a new print may start
     BulgeKit::print_reply(reply);
   }
 
@@ -64,8 +65,10 @@ static void bk_report_line(const bool forReplay, const char *line) {
     if (!bk_parse(args)) return;
     char reply[BK_M721_REPLY_BYTES];
     const bk::UploadStatus st = BulgeKit::upload.handle(args, reply, sizeof(reply));
-    if (st == bk::UPLOAD_CLEARED || (st == bk::UPLOAD_COMMITTED && !BulgeKit::upload.appending()))
+    if (st == bk::UPLOAD_CLEARED || (st == bk::UPLOAD_COMMITTED && !BulgeKit::upload.appending())) {
       BulgeKit::map_replaced();
+      BulgeKit::arc_rearm(BulgeKit::ARC_BULGE);  // a new map: a new print
+    }
     BulgeKit::print_reply(reply);
   }
 
@@ -93,7 +96,8 @@ static void bk_report_line(const bool forReplay, const char *line) {
     bk::GcodeArgs args;
     if (!bk_parse(args)) return;
     char reply[bk::WidthMode::REPLY_MIN];
-    BulgeKit::width.command(args, reply, sizeof(reply));
+    if (BulgeKit::width.command(args, reply, sizeof(reply)) && !args.none())
+      BulgeKit::arc_rearm(BulgeKit::ARC_WIDTH);
     BulgeKit::print_reply(reply);
   }
 
