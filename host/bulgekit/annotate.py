@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 
 from . import mapformat
 from .fallback import MODE_GEOMETRIC, Settings
-from .gcode import check_complete, feature_of_comment, is_outer
+from .gcode import check_complete, check_not_processed, feature_of_comment, is_outer
 from .strokes import BulgekitError
 
 ARENA_BYTES = 2048
@@ -262,6 +262,7 @@ def annotate_file(src, dst, map_bytes: bytes, settings: Settings, arena: int = A
     with open(src, "rb") as f:
         data = f.read()
     check_complete(data, str(src))
+    check_not_processed(data, str(src))
     res = AnnotateResult()
     out = annotate_bytes(data, map_bytes, settings, arena, stream, str(src), res)
     if check:

@@ -102,6 +102,8 @@ def build(gcode, strokes: Sequence[Stroke], outdir, *, name: str | None = None,
     """Strokes + sliced G-code -> <name>.bkm, <name>.bulge.gcode, <name>.stats.txt
     (and <name>.stock.gcode with write_fallback) in outdir."""
     gcode = Path(gcode)
+    from .gcode import check_not_processed
+    check_not_processed(gcode.read_bytes(), str(gcode))
     outdir = Path(outdir)
     outdir.mkdir(parents=True, exist_ok=True)
     name = name or gcode.stem

@@ -310,6 +310,31 @@ def check_complete(text, source: str = "<gcode>") -> None:
         "if it is complete, add a newline at its end.")
 
 
+_OURS_RX = re.compile(rb"^(?:; bulgekit(?: fallback)?:|[ \t]*(?:[Nn]\d+[ \t]+)?[Mm]0*72[0-2](?![0-9.]))",
+                      re.M)
+
+
+def check_not_processed(data, source: str = "<gcode>") -> None:
+    """Refuse G-code that bulgekit already annotated or rewrote: a second pass
+    would bulge twice (a fallback's G4/extra E stay in the file, and annotated
+    M720-M722 would switch the firmware's bulges on as well)."""
+    if isinstance(data, str):
+        data = data.encode("utf-8", "replace")
+    mt = _OURS_RX.search(data)
+    if mt is None:
+        return
+    line = data.count(b"\n", 0, mt.start()) + 1
+    end = data.find(b"\n", mt.start())
+    text = data[mt.start():end if end >= 0 else len(data)].decode("utf-8", "replace").strip()
+    what = ("was already rewritten for stock firmware by `bulgekit fallback`"
+            if text.startswith("; bulgekit fallback") else
+            "already carries bulgekit M-codes (annotated, or M720-M722 from the slicer's "
+            "custom G-code)")
+    raise GcodeError(
+        f"{source}:{line}: {text!r}: this file {what}; processing it again would bulge twice. "
+        "Start from the slicer's original G-code (or remove the M720/M721/M722 lines).")
+
+
 def read_text(path) -> list[str]:
     """Lines of a G-code file (keeps line ends); a cut-off last line is an error."""
     with open(path, "r", encoding="utf-8", errors="replace", newline="") as f:

@@ -204,3 +204,37 @@ def test_a_map_for_another_file_is_refused_by_annotate_and_fallback(tmp_path, da
     # the map made for the file passes
     rewrite_file(g, out, mapformat.decode_map(good.map_bytes), Settings())
     annotate_file(g, out, good.map_bytes, Settings())
+
+
+def test_processed_files_are_refused_so_bulges_are_not_doubled(tmp_path, data_dir):
+    from bulgekit import api
+    from bulgekit.annotate import annotate_file
+    from bulgekit.fallback import rewrite_file
+    from bulgekit.gcode import GcodeError
+    from bulgekit.mapbuild import build
+    from bulgekit.strokes import Stroke
+    from bulgekit.wall import walls_from_gcode
+    g = data_dir / "prusa_cyl.gcode"
+    bm = build([Stroke(((10.0, 1.0), (10.0, 4.0)))], walls_from_gcode(g)).map_bytes
+    ann, fb = tmp_path / "a.gcode", tmp_path / "f.gcode"
+    annotate_file(g, ann, bm, Settings())
+    rewrite_file(g, fb, mapformat.decode_map(bm), Settings())
+    # a slicer's custom G-code with an M722 in the middle of the file
+    text = g.read_text().splitlines(keepends=True)
+    custom = tmp_path / "custom.gcode"
+    custom.write_text("".join(text[:50] + ["  m0722 S1 ; by hand\n"] + text[50:]))
+    cases = [(fb, r"f\.gcode:1: '; bulgekit fallback:.*already rewritten for stock firmware"),
+             (ann, r"a\.gcode:1: '; bulgekit: .*already carries bulgekit M-codes"),
+             (custom, r"custom\.gcode:51: 'm0722 S1 ; by hand'.*bulge twice")]
+    for src, rx in cases:
+        with pytest.raises(GcodeError, match=rx):
+            annotate_file(src, tmp_path / "o1.gcode", bm, Settings())
+        with pytest.raises(GcodeError, match=rx):
+            rewrite_file(src, tmp_path / "o2.gcode", mapformat.decode_map(bm), Settings())
+        with pytest.raises(GcodeError, match=rx):
+            api.build(src, [Stroke(((10.0, 1.0), (10.0, 4.0)))], tmp_path / "b")
+    assert not any((tmp_path / n).exists() for n in ("o1.gcode", "o2.gcode", "b"))
+    # M7220 or a comment mentioning M720 is not ours
+    ok = tmp_path / "ok.gcode"
+    ok.write_text("".join(text[:50] + ["M7220\n", "; M720 S1 in a comment\n"] + text[50:]))
+    annotate_file(ok, tmp_path / "o3.gcode", bm, Settings())
