@@ -30,7 +30,7 @@ from .fallback import MODE_GEOMETRIC, Settings
 from .gcode import check_complete, check_not_processed, feature_of_comment, is_outer
 from .strokes import BulgekitError
 
-ARENA_BYTES = 2048
+ARENA_BYTES = mapformat.ARENA_BYTES
 
 
 class AnnotateError(BulgekitError):

@@ -34,6 +34,12 @@ def _settings_options(fn):
     return fn
 
 
+def _arena_option(fn):
+    return click.option("--arena", type=click.IntRange(min=1), default=mapformat.ARENA_BYTES,
+                        show_default=True,
+                        help="Printer's map arena (BK_MAP_ARENA_BYTES), bytes.")(fn)
+
+
 def _allow_unreached_option(fn):
     return click.option("--allow-unreached", is_flag=True,
                         help="Write the file even if map points are not reached by any move "
@@ -149,7 +155,7 @@ def _preview_3d(out, path: Path):
 @click.argument("map_file", metavar="MAP", type=click.Path(exists=True, dir_okay=False))
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="Annotated G-code to write.")
 @click.option("--no-stream", is_flag=True, help="Fail if the map is larger than the printer's arena.")
-@click.option("--arena", type=int, default=2048, show_default=True, help="Printer map arena, bytes.")
+@_arena_option
 @_allow_unreached_option
 @_settings_options
 @friendly
@@ -202,14 +208,16 @@ def fallback(gcode, map_file, output, allow_unreached, dwell, extra, tolerance, 
               help="File to write (default: standard output).")
 @click.option("--numbered", is_flag=True,
               help="Add N<n> line numbers and *checksums (for terminals that do not).")
+@_arena_option
 @_settings_options
 @friendly
-def mcodes(map_file, output, numbered, dwell, extra, tolerance, geometric):
+def mcodes(map_file, output, numbered, arena, dwell, extra, tolerance, geometric):
     """The M-code stream that configures the printer and uploads MAP: M720 settings,
     M721 begin/chunks/commit. Send it from Pronterface, OctoPrint or `bulgekit send`
     before printing G-code that carries M722 markers (or none, with --geometric)."""
     settings = _settings(dwell, extra, tolerance, geometric)
     data = _read_map(map_file)
+    mapformat.check_upload_fits(data, arena, map_file)
     if numbered:
         # M110 N0 resets the printer's line counter; numbered lines follow from N1
         body = f"N1 {settings.m720()}"
@@ -231,7 +239,7 @@ def mcodes(map_file, output, numbered, dwell, extra, tolerance, geometric):
 @click.argument("map_file", metavar="MAP", type=click.Path(exists=True, dir_okay=False))
 @click.option("-g", "--gcode", type=click.Path(exists=True, dir_okay=False),
               help="Also run this (unannotated) G-code to count the stops that really happen.")
-@click.option("--arena", type=int, default=2048, show_default=True)
+@_arena_option
 @click.option("--accel", type=float, default=1000.0, show_default=True,
               help="Acceleration (mm/s^2) for the stop/start time estimate.")
 @_settings_options

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import click
 
+from . import mapformat as _mapformat
 from ._cliutil import friendly, pair
 
 _IMAGE_EXT = {".png", ".jpg", ".jpeg", ".bmp", ".gif", ".tif", ".tiff", ".webp"}
@@ -174,6 +175,8 @@ def register(group: click.Group) -> None:
     @click.option("-c", "--command", "commands", multiple=True, help="Send this line first. Repeatable.")
     @click.option("--map", "map_file", type=click.Path(exists=True, dir_okay=False),
                   help="Upload this bulge map (.bkm) with M721 before the files.")
+    @click.option("--arena", type=click.IntRange(min=1), default=_mapformat.ARENA_BYTES, show_default=True,
+                  help="Printer's map arena (BK_MAP_ARENA_BYTES): a --map larger than it is refused.")
     @click.option("--timeout", type=float, default=30.0, show_default=True,
                   help="Seconds to wait for a reply (busy: messages restart it).")
     @click.option("--boot-wait", type=float, default=2.0, show_default=True,
@@ -181,7 +184,7 @@ def register(group: click.Group) -> None:
     @click.option("--continue-on-error", is_flag=True, help="Go on after a command the printer refuses.")
     @click.option("--progress/--no-progress", default=True, show_default=True)
     @friendly
-    def send_cmd(files, port, baud, commands, map_file, timeout, boot_wait, continue_on_error, progress):
+    def send_cmd(files, port, baud, commands, map_file, arena, timeout, boot_wait, continue_on_error, progress):
         """Send -c commands, then --map, then FILES (- for stdin), line by line with
         line numbers and checksums. Printer messages are shown as they come."""
         from .sender import Line, Sender, prepare, read_gcode
@@ -191,6 +194,8 @@ def register(group: click.Group) -> None:
         if map_file:
             from . import mapformat
             data = Path(map_file).read_bytes()
+            mapformat.decode_map(data, source=map_file)
+            mapformat.check_upload_fits(data, arena, map_file)
             cmds = mapformat.upload_lines(data)
             batches.append((Path(map_file).name,
                             [Line(c, f"{map_file} upload line {i}") for i, c in enumerate(cmds, 1)]))

@@ -23,7 +23,7 @@ from . import mapformat
 from .strokes import BulgekitError, Stroke
 from .wall import WallModel
 
-ARENA_BYTES = 2048          # BK_MAP_ARENA_BYTES
+ARENA_BYTES = mapformat.ARENA_BYTES   # BK_MAP_ARENA_BYTES
 LAYER_POINTS_MAX = mapformat.LAYER_POINTS_MAX
 DEFAULT_LINE_WIDTH = 0.45
 

@@ -28,6 +28,8 @@ MAGIC = b"BKM"
 VERSION = 1
 FLAG_WEIGHTS = 0x01
 HEADER_BYTES = 8
+# the firmware's BK_MAP_ARENA_BYTES: layer records it holds at once (header kept beside)
+ARENA_BYTES = 2048
 LAYER_POINTS_MAX = 64  # the firmware's BK_LAYER_POINTS_MAX; the host refuses more
 VARINT_MAX_BYTES = 3
 VARINT_LIMIT = 1 << 21
@@ -454,6 +456,18 @@ def line_checksum(text: str) -> int:
 
 def b32(data: bytes) -> str:
     return base64.b32encode(data).decode("ascii").rstrip("=")
+
+
+def check_upload_fits(data: bytes, arena: int = ARENA_BYTES, source: str = "map") -> None:
+    """A whole-map upload (M721 S.. then E) must fit the printer's arena, or
+    the firmware refuses it at commit; only `annotate` can stream the rest."""
+    need = len(data) - HEADER_BYTES
+    if need > arena:
+        raise MapFormatError(
+            f"{source}: the map's layer records need {need} bytes but the printer's arena holds "
+            f"{arena}: uploaded at once the printer would refuse it (M721 E). Use `bulgekit "
+            "annotate GCODE MAP`, which uploads what fits and streams the other layers as "
+            "appends while printing.")
 
 
 def upload_lines(

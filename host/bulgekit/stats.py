@@ -14,7 +14,7 @@ from . import mapformat
 from .fallback import RefPlanner, Settings
 from .gcode import parse_lines, read_text
 
-ARENA_BYTES = 2048
+ARENA_BYTES = mapformat.ARENA_BYTES
 
 
 @dataclass

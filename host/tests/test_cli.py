@@ -129,3 +129,24 @@ def test_mcodes_refuses_a_corrupt_map(tmp_path):
     res = CliRunner().invoke(main, ["mcodes", str(bad)])
     assert res.exit_code != 0
     assert "bad.bkm" in res.output
+
+
+def test_mcodes_and_send_refuse_a_map_larger_than_the_arena(tmp_path):
+    # 60 layers of 20 points: about 2.7 KB of records, more than 2048
+    layers = [(0.3 * (k + 1), [(float(i * 3), float(k % 7)) for i in range(20)]) for k in range(60)]
+    data = mapformat.encode_map(layers, quantum_um=100, layer_height_mm=0.3)
+    need = len(data) - mapformat.HEADER_BYTES
+    assert need > mapformat.ARENA_BYTES
+    m = tmp_path / "big.bkm"
+    m.write_bytes(data)
+    out = tmp_path / "up.txt"
+    for args in (["mcodes", m, "-o", out], ["send", "-p", tmp_path / "no-such-port", "--map", m]):
+        r = run(*args)
+        assert r.exit_code == 1, r.output
+        assert f"big.bkm: the map's layer records need {need} bytes" in r.output
+        assert "arena holds 2048" in r.output and "bulgekit annotate" in r.output
+    assert not out.exists()
+    # a larger arena (a firmware built with more) takes it; 0 is refused
+    assert run("mcodes", m, "--arena", need, "-o", out).exit_code == 0
+    r = run("mcodes", m, "--arena", 0)
+    assert r.exit_code == 2 and "--arena" in r.output
