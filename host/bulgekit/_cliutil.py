@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import functools
+import math
 
 import click
 
@@ -27,6 +28,34 @@ def friendly(fn):
     return wrapper
 
 
+class Num(click.ParamType):
+    """A finite float, optionally within lo..hi (lo excluded with lo_open);
+    click's FloatRange lets nan through."""
+    name = "number"
+
+    def __init__(self, lo: float | None = None, hi: float | None = None, lo_open: bool = False):
+        self.lo, self.hi, self.lo_open = lo, hi, lo_open
+
+    def convert(self, value, param, ctx):
+        try:
+            v = float(value)
+        except (TypeError, ValueError):
+            self.fail(f"{value!r} is not a number", param, ctx)
+        if not math.isfinite(v):
+            self.fail(f"{value!r} is not a finite number", param, ctx)
+        lo_bad = self.lo is not None and (v <= self.lo if self.lo_open else v < self.lo)
+        if lo_bad or (self.hi is not None and v > self.hi):
+            lo = "" if self.lo is None else (f"> {self.lo:g}" if self.lo_open else f">= {self.lo:g}")
+            hi = "" if self.hi is None else f"<= {self.hi:g}"
+            self.fail(f"{value} must be {' and '.join(t for t in (lo, hi) if t)}", param, ctx)
+        return v
+
+
+FINITE = Num()
+POSITIVE = Num(0.0, lo_open=True)
+NONNEG = Num(0.0)
+
+
 def pair(ctx, param, value):
     """click callback for a "U,V" option in mm."""
     if value is None:
@@ -35,4 +64,6 @@ def pair(ctx, param, value):
         a, b = (float(t) for t in value.split(","))
     except ValueError:
         raise click.BadParameter(f"expected two numbers U,V (mm), got {value!r}") from None
+    if not (math.isfinite(a) and math.isfinite(b)):
+        raise click.BadParameter(f"U,V must be finite numbers, got {value!r}")
     return (a, b)

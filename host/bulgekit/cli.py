@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-from ._cliutil import friendly, pair
+from ._cliutil import FINITE, POSITIVE, Num, friendly, pair
 from . import __version__, mapformat
 from .fallback import (DEFAULT_DWELL_MS, DEFAULT_EXTRA_E_MM, DEFAULT_TOLERANCE_MM,
                        MODE_GEOMETRIC, MODE_MARKED, Settings)
@@ -25,9 +25,9 @@ def _settings_options(fn):
     fn = click.option("--geometric", is_flag=True,
                       help="Geometric mode (M720 S2): no outer-wall markers; every extruding move "
                            "near a point bulges. For G-code without feature comments.")(fn)
-    fn = click.option("--tolerance", type=float, default=DEFAULT_TOLERANCE_MM, show_default=True,
+    fn = click.option("--tolerance", type=FINITE, default=DEFAULT_TOLERANCE_MM, show_default=True,
                       help="M720 T: how far (mm) a point may be from a move to stop it.")(fn)
-    fn = click.option("--extra", type=float, default=DEFAULT_EXTRA_E_MM, show_default=True,
+    fn = click.option("--extra", type=FINITE, default=DEFAULT_EXTRA_E_MM, show_default=True,
                       help="M720 E: extra filament (mm) after each stop.")(fn)
     fn = click.option("--dwell", type=int, default=DEFAULT_DWELL_MS, show_default=True,
                       help="M720 P: dwell (ms) at each point, scaled by its weight/255.")(fn)
@@ -76,19 +76,20 @@ def main():
 @click.option("-s", "--strokes", "stroke_files", multiple=True, type=click.Path(exists=True, dir_okay=False),
               help="Stroke file: .json stroke list, .svg drawing or an image (dots). Repeatable.")
 @click.option("--text", help="Write this text on the wall (single-stroke font).")
-@click.option("--text-size", type=float, default=6.0, show_default=True, help="Capital height of --text, mm.")
+@click.option("--text-size", type=POSITIVE, default=6.0, show_default=True, help="Capital height of --text, mm.")
 @click.option("--at", callback=pair, default="0,2", show_default=True, metavar="U,V",
               help="U,V (mm) where --text's baseline starts.")
 @click.option("--offset", callback=pair, default="0,0", show_default=True, metavar="U,V",
               help="U,V (mm) shift for stroke files (an image's lower-left corner).")
-@click.option("--image-width", type=float, help="Width (mm) on the wall of an image stroke file.")
+@click.option("--image-width", type=POSITIVE, help="Width (mm) on the wall of an image stroke file.")
 @click.option("--mirror", is_flag=True, help="Mirror --text (paint rollers).")
 @click.option("-o", "--outdir", type=click.Path(file_okay=False), default="bulgekit-out", show_default=True)
 @click.option("--name", help="Output base name (default: the G-code's name).")
-@click.option("--spacing", type=float, help="Distance (mm) between points along a layer [2 x line width].")
-@click.option("--line-width", type=float, default=0.45, show_default=True, help="Outer-wall line width, mm.")
-@click.option("--layer-height", type=float, help="Layer height (mm) if the G-code does not say.")
-@click.option("--ref-angle", type=float, default=-90.0, show_default=True,
+@click.option("--spacing", type=POSITIVE, help="Distance (mm) between points along a layer [2 x line width].")
+@click.option("--line-width", type=POSITIVE, default=0.45, show_default=True, help="Outer-wall line width, mm.")
+@click.option("--layer-height", type=Num(0.0, 2.0, lo_open=True),
+              help="Layer height (mm) if the G-code does not say (its ;layer_height wins).")
+@click.option("--ref-angle", type=FINITE, default=-90.0, show_default=True,
               help="Direction (deg, from +X) from the layer centre where u = 0.")
 @click.option("--no-stream", is_flag=True, help="Fail instead of streaming a map larger than the printer's arena.")
 @click.option("--fallback", "write_fallback", is_flag=True, help="Also write <name>.stock.gcode for stock firmware.")
@@ -240,7 +241,7 @@ def mcodes(map_file, output, numbered, arena, dwell, extra, tolerance, geometric
 @click.option("-g", "--gcode", type=click.Path(exists=True, dir_okay=False),
               help="Also run this (unannotated) G-code to count the stops that really happen.")
 @_arena_option
-@click.option("--accel", type=float, default=1000.0, show_default=True,
+@click.option("--accel", type=POSITIVE, default=1000.0, show_default=True,
               help="Acceleration (mm/s^2) for the stop/start time estimate.")
 @_settings_options
 @friendly

@@ -10,7 +10,7 @@ from pathlib import Path
 import click
 
 from . import mapformat as _mapformat
-from ._cliutil import friendly, pair
+from ._cliutil import FINITE, NONNEG, POSITIVE, Num, friendly, pair
 
 _IMAGE_EXT = {".png", ".jpg", ".jpeg", ".bmp", ".gif", ".tif", ".tiff", ".webp"}
 
@@ -18,23 +18,23 @@ _IMAGE_EXT = {".png", ".jpg", ".jpeg", ".bmp", ".gif", ".tif", ".tiff", ".webp"}
 def _stroke_options(fn):
     opts = [
         click.option("--text", help="Lettering in a single-stroke Hershey font."),
-        click.option("--size", "text_size", type=float, default=6.0, show_default=True,
+        click.option("--size", "text_size", type=POSITIVE, default=6.0, show_default=True,
                      help="Capital height of --text, mm."),
         click.option("--font", default="futural", show_default=True, help="Hershey font of --text."),
-        click.option("--letter-spacing", type=float, default=0.0, show_default=True,
+        click.option("--letter-spacing", type=FINITE, default=0.0, show_default=True,
                      help="Extra mm between letters of --text."),
         click.option("--at", callback=pair, default="0,0", show_default=True,
                      help="U,V mm: where input goes (text baseline start, SVG/image lower-left)."),
-        click.option("--scale", type=float, default=1.0, show_default=True, help="Scale SVG/JSON input."),
+        click.option("--scale", type=POSITIVE, default=1.0, show_default=True, help="Scale SVG/JSON input."),
         click.option("--mirror", is_flag=True, help="Mirror left-right (paint rollers)."),
-        click.option("--tolerance", type=float, default=0.05, show_default=True,
+        click.option("--tolerance", type=POSITIVE, default=0.05, show_default=True,
                      help="SVG curve flattening tolerance, mm."),
-        click.option("--dot-radius", type=float, default=1.0, show_default=True,
+        click.option("--dot-radius", type=NONNEG, default=1.0, show_default=True,
                      help="SVG circles up to this radius (mm) become single dots."),
         click.option("--skip-unsupported", is_flag=True, help="Warn about and skip SVG <text>/<image>."),
-        click.option("--image-width", type=float, help="Width on the wall (mm) of image input."),
-        click.option("--pitch", type=float, default=1.5, show_default=True, help="Image dot grid pitch, mm."),
-        click.option("--threshold", type=float, default=0.1, show_default=True,
+        click.option("--image-width", type=POSITIVE, help="Width on the wall (mm) of image input."),
+        click.option("--pitch", type=POSITIVE, default=1.5, show_default=True, help="Image dot grid pitch, mm."),
+        click.option("--threshold", type=Num(0.0, 1.0), default=0.1, show_default=True,
                      help="Image cells lighter than this darkness (0..1) get no dot."),
         click.option("--invert", is_flag=True, help="Image: light areas get the dots."),
     ]
@@ -111,9 +111,9 @@ def register(group: click.Group) -> None:
                   help="Show this bulge map (.bkm) instead of strokes (needs GCODE).")
     @_stroke_options
     @click.option("--3d", "three_d", is_flag=True, help="3D view of the walls (needs GCODE).")
-    @click.option("--wall-length", type=float, help="Without GCODE: unrolled wall length, mm.")
-    @click.option("--height", type=float, help="Without GCODE: wall height, mm.")
-    @click.option("--spacing", type=float, help="Point spacing along strokes, mm [pipeline default / 1.0].")
+    @click.option("--wall-length", type=POSITIVE, help="Without GCODE: unrolled wall length, mm.")
+    @click.option("--height", type=POSITIVE, help="Without GCODE: wall height, mm.")
+    @click.option("--spacing", type=POSITIVE, help="Point spacing along strokes, mm [pipeline default / 1.0].")
     @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="PNG to write.")
     @friendly
     def preview_cmd(gcode, inputs, map_file, three_d, wall_length, height, spacing, output, **kw):
@@ -177,9 +177,9 @@ def register(group: click.Group) -> None:
                   help="Upload this bulge map (.bkm) with M721 before the files.")
     @click.option("--arena", type=click.IntRange(min=1), default=_mapformat.ARENA_BYTES, show_default=True,
                   help="Printer's map arena (BK_MAP_ARENA_BYTES): a --map larger than it is refused.")
-    @click.option("--timeout", type=float, default=30.0, show_default=True,
+    @click.option("--timeout", type=POSITIVE, default=30.0, show_default=True,
                   help="Seconds to wait for a reply (busy: messages restart it).")
-    @click.option("--boot-wait", type=float, default=2.0, show_default=True,
+    @click.option("--boot-wait", type=NONNEG, default=2.0, show_default=True,
                   help="Seconds to wait for the board to start after opening the port (0: none).")
     @click.option("--continue-on-error", is_flag=True, help="Go on after a command the printer refuses.")
     @click.option("--progress/--no-progress", default=True, show_default=True)

@@ -92,8 +92,8 @@ def _stroke_samples(st: Stroke, step: float) -> np.ndarray:
 def sample_strokes(strokes: Sequence[Stroke], model: WallModel, spacing: float
                    ) -> dict[int, list[tuple[float, int, str]]]:
     """Per layer index: (u, weight, source) before merging."""
-    if spacing <= 0:
-        raise BuildError(f"point spacing {spacing} mm must be positive")
+    if not (math.isfinite(spacing) and spacing > 0):
+        raise BuildError(f"point spacing {spacing} mm must be a positive number")
     out: dict[int, list[tuple[float, int, str]]] = {}
     min_h = min(w.height for w in model.walls) or model.layer_height
     step = max(min(spacing, min_h) / 4, 0.005)
@@ -209,7 +209,11 @@ def build(strokes: Sequence[Stroke], model: WallModel, spacing: float | None = N
     """Place strokes on the walls and encode the map."""
     if not strokes:
         raise BuildError("no strokes to place")
-    spacing = spacing if spacing is not None else 2 * line_width
+    if spacing is None:
+        if not (math.isfinite(line_width) and line_width > 0):
+            raise BuildError(f"line width {line_width} mm must be a positive number "
+                             "(the point spacing defaults to twice it)")
+        spacing = 2 * line_width
     per_layer = sample_strokes(strokes, model, spacing)
     points: list[BulgePoint] = []
     layers = []

@@ -245,7 +245,13 @@ def extract_walls(moves: Iterable[Move], layer_height: float | None = None,
     # consecutive moves at the same rounded z.
     zs_planar = sorted(z for z, n in planar_count.items() if n >= 4)
     planar_set = set(zs_planar)
-    h = layer_height or header_height
+    if layer_height is not None and not (math.isfinite(layer_height) and 0 < layer_height <= 2.0):
+        raise WallError(f"{source}: layer height {layer_height} mm must be > 0 and <= 2 mm")
+    notes: list[str] = []
+    if header_height and layer_height is not None and abs(header_height - layer_height) > 1e-6:
+        notes.append(f"layer height {layer_height:g} mm given, but the G-code says "
+                     f"{header_height:g} mm: using the G-code's")
+    h = header_height or layer_height
     if not h:
         diffs = np.diff(np.array(zs_planar)) if len(zs_planar) > 1 else np.array([])
         diffs = diffs[diffs >= 5]
@@ -286,8 +292,9 @@ def extract_walls(moves: Iterable[Move], layer_height: float | None = None,
     for c in chains:
         if len(c.pts) >= 3:
             by_bucket.setdefault(c.bucket, []).append(c)
+    if not math.isfinite(ref_angle_deg):
+        raise WallError(f"{source}: reference angle {ref_angle_deg} is not a finite number")
     direction = (math.cos(math.radians(ref_angle_deg)), math.sin(math.radians(ref_angle_deg)))
-    notes: list[str] = []
     gap = max(2.0, 3 * h)
     chosen: dict[int, _Chain] = {}
     upper: np.ndarray | None = None

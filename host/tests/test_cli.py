@@ -150,3 +150,37 @@ def test_mcodes_and_send_refuse_a_map_larger_than_the_arena(tmp_path):
     assert run("mcodes", m, "--arena", need, "-o", out).exit_code == 0
     r = run("mcodes", m, "--arena", 0)
     assert r.exit_code == 2 and "--arena" in r.output
+
+
+@pytest.mark.parametrize("args,option", [
+    (["--ref-angle", "nan"], "--ref-angle"), (["--ref-angle", "inf"], "--ref-angle"),
+    (["--spacing", "0"], "--spacing"), (["--spacing", "nan"], "--spacing"),
+    (["--line-width", "0"], "--line-width"), (["--line-width", "-1"], "--line-width"),
+    (["--layer-height", "0"], "--layer-height"), (["--layer-height", "2.5"], "--layer-height"),
+    (["--text-size", "nan"], "--text-size"), (["--at", "nan,2"], "--at"),
+    (["--tolerance", "nan"], "--tolerance"), (["--arena", "-5"], "--arena"),
+])
+def test_build_refuses_bad_numbers_naming_the_option(tmp_path, data_dir, args, option):
+    r = run("build", data_dir / "prusa_cyl.gcode", "--text", "A", "-o", tmp_path / "o", *args)
+    assert r.exit_code == 2, r.output
+    assert option in r.output
+    assert not (tmp_path / "o").exists()
+
+
+def test_layer_height_option_only_when_the_gcode_does_not_say(tmp_path, data_dir):
+    from bulgekit.mapbuild import build as build_map
+    from bulgekit.strokes import Stroke
+    from bulgekit.wall import WallError, walls_from_gcode
+    g = data_dir / "prusa_cyl.gcode"          # says ; layer_height = 0.3
+    m = walls_from_gcode(g, layer_height=0.2)
+    assert m.layer_height == 0.3
+    assert any("0.2 mm given, but the G-code says 0.3 mm" in n for n in m.notes)
+    assert mapformat.decode_map(build_map([Stroke(((5.0, 2.0),))], m).map_bytes).layer_height_cmm == 30
+    for bad in (0.0, -0.1, 2.01, float("nan")):
+        with pytest.raises(WallError, match="layer height"):
+            walls_from_gcode(g, layer_height=bad)
+    # a file without the setting takes the option
+    text = "".join(l for l in g.read_text().splitlines(keepends=True) if "layer_height" not in l)
+    g2 = tmp_path / "nohdr.gcode"
+    g2.write_text(text)
+    assert walls_from_gcode(g2, layer_height=0.25).layer_height == 0.25

@@ -133,3 +133,11 @@ def test_open_top_turn_of_a_vase_takes_only_the_u_it_covers():
     # point wrapped onto some other place of the chain
     with pytest.raises(BuildError, match=r"dot.*z 9\.90 mm.*open chain"):
         build([Stroke(((b + 10.0, 9.8),), source="dot")], m)
+
+
+def test_bad_line_width_or_spacing_is_named(model):
+    st = [Stroke(((5.0, 2.0),))]
+    with pytest.raises(BuildError, match="line width 0 mm"):
+        build(st, model, line_width=0)
+    with pytest.raises(BuildError, match="point spacing nan mm"):
+        build(st, model, spacing=float("nan"))
