@@ -26,7 +26,8 @@ _IMAGE_EXT = {".png", ".jpg", ".jpeg", ".bmp", ".gif", ".tif", ".tiff", ".webp"}
 
 
 def load_strokes(path, *, image_width_mm: float | None = None, offset=(0.0, 0.0),
-                 scale: float = 1.0, pitch_mm: float = 1.5) -> list[Stroke]:
+                 scale: float = 1.0, pitch_mm: float = 1.5,
+                 curve_tolerance_mm: float = 0.05) -> list[Stroke]:
     """Strokes from a .json stroke list, an .svg drawing or a grayscale image
     (dots; needs image_width_mm)."""
     from . import strokes as st
@@ -38,7 +39,7 @@ def load_strokes(path, *, image_width_mm: float | None = None, offset=(0.0, 0.0)
             out = st.transform(out, offset=offset, scale=scale)
         return out
     if ext == ".svg":
-        return st.load_svg(p, offset=offset, scale=scale)
+        return st.load_svg(p, offset=offset, scale=scale, tolerance_mm=curve_tolerance_mm)
     if ext in _IMAGE_EXT:
         if not image_width_mm:
             raise InputError(f"{p}: an image needs a width on the wall (--image-width MM)")

@@ -76,12 +76,14 @@ def main():
 @click.option("-s", "--strokes", "stroke_files", multiple=True, type=click.Path(exists=True, dir_okay=False),
               help="Stroke file: .json stroke list, .svg drawing or an image (dots). Repeatable.")
 @click.option("--text", help="Write this text on the wall (single-stroke font).")
-@click.option("--text-size", type=POSITIVE, default=6.0, show_default=True, help="Capital height of --text, mm.")
-@click.option("--at", callback=pair, default="0,2", show_default=True, metavar="U,V",
-              help="U,V (mm) where --text's baseline starts.")
-@click.option("--offset", callback=pair, default="0,0", show_default=True, metavar="U,V",
-              help="U,V (mm) shift for stroke files (an image's lower-left corner).")
+@click.option("--text-size", "--size", "text_size", type=POSITIVE, default=6.0, show_default=True,
+              help="Capital height of --text, mm.")
+@click.option("--at", callback=pair, default="0,0", show_default=True, metavar="U,V",
+              help="U,V mm: where input goes (--text baseline start; stroke files shifted by it, "
+                   "an SVG page's / image's lower-left corner), as in `strokes` and `preview`.")
 @click.option("--image-width", type=POSITIVE, help="Width (mm) on the wall of an image stroke file.")
+@click.option("--curve-tolerance", type=POSITIVE, default=0.05, show_default=True,
+              help="SVG curve flattening tolerance, mm (--tolerance is M720 T).")
 @click.option("--mirror", is_flag=True, help="Mirror --text (paint rollers).")
 @click.option("-o", "--outdir", type=click.Path(file_okay=False), default="bulgekit-out", show_default=True)
 @click.option("--name", help="Output base name (default: the G-code's name).")
@@ -96,7 +98,7 @@ def main():
 @click.option("--preview/--no-preview", default=True, show_default=True, help="Write <name>.preview.png.")
 @_settings_options
 @friendly
-def build(gcode, stroke_files, text, text_size, at, offset, image_width, mirror, outdir, name, spacing,
+def build(gcode, stroke_files, text, text_size, at, image_width, curve_tolerance, mirror, outdir, name, spacing,
           line_width, layer_height, ref_angle, no_stream, write_fallback, preview,
           dwell, extra, tolerance, geometric):
     """Place strokes on GCODE's outer wall: map + annotated G-code + stats."""
@@ -104,7 +106,8 @@ def build(gcode, stroke_files, text, text_size, at, offset, image_width, mirror,
     from .strokes import text_strokes
     strokes = []
     for f in stroke_files:
-        strokes += api.load_strokes(f, image_width_mm=image_width, offset=offset)
+        strokes += api.load_strokes(f, image_width_mm=image_width, offset=at,
+                                    curve_tolerance_mm=curve_tolerance)
     if text:
         strokes += text_strokes(text, text_size, u0=at[0], v0=at[1], mirror=mirror)
     if not strokes:

@@ -18,7 +18,7 @@ _IMAGE_EXT = {".png", ".jpg", ".jpeg", ".bmp", ".gif", ".tif", ".tiff", ".webp"}
 def _stroke_options(fn):
     opts = [
         click.option("--text", help="Lettering in a single-stroke Hershey font."),
-        click.option("--size", "text_size", type=POSITIVE, default=6.0, show_default=True,
+        click.option("--size", "--text-size", "text_size", type=POSITIVE, default=6.0, show_default=True,
                      help="Capital height of --text, mm."),
         click.option("--font", default="futural", show_default=True, help="Hershey font of --text."),
         click.option("--letter-spacing", type=FINITE, default=0.0, show_default=True,
@@ -27,8 +27,8 @@ def _stroke_options(fn):
                      help="U,V mm: where input goes (text baseline start, SVG/image lower-left)."),
         click.option("--scale", type=POSITIVE, default=1.0, show_default=True, help="Scale SVG/JSON input."),
         click.option("--mirror", is_flag=True, help="Mirror left-right (paint rollers)."),
-        click.option("--tolerance", type=POSITIVE, default=0.05, show_default=True,
-                     help="SVG curve flattening tolerance, mm."),
+        click.option("--curve-tolerance", "curve_tolerance", type=POSITIVE, default=0.05,
+                     show_default=True, help="SVG curve flattening tolerance, mm."),
         click.option("--dot-radius", type=NONNEG, default=1.0, show_default=True,
                      help="SVG circles up to this radius (mm) become single dots."),
         click.option("--skip-unsupported", is_flag=True, help="Warn about and skip SVG <text>/<image>."),
@@ -43,7 +43,7 @@ def _stroke_options(fn):
     return fn
 
 
-def collect_strokes(inputs, text, text_size, font, letter_spacing, at, scale, mirror, tolerance, dot_radius,
+def collect_strokes(inputs, text, text_size, font, letter_spacing, at, scale, mirror, curve_tolerance, dot_radius,
                     skip_unsupported, image_width, pitch, threshold, invert):
     """Strokes from files (by extension) and --text, placed at `at`."""
     from . import strokes as st
@@ -51,7 +51,7 @@ def collect_strokes(inputs, text, text_size, font, letter_spacing, at, scale, mi
     for f in inputs:
         ext = Path(f).suffix.lower()
         if ext == ".svg":
-            out += st.load_svg(f, offset=at, scale=scale, tolerance_mm=tolerance, dot_radius_mm=dot_radius,
+            out += st.load_svg(f, offset=at, scale=scale, tolerance_mm=curve_tolerance, dot_radius_mm=dot_radius,
                                mirror=mirror, skip_unsupported=skip_unsupported)
         elif ext == ".json":
             out += st.transform(st.load_json(f), offset=at, scale=scale, mirror_u=mirror)

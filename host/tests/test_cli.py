@@ -184,3 +184,32 @@ def test_layer_height_option_only_when_the_gcode_does_not_say(tmp_path, data_dir
     g2 = tmp_path / "nohdr.gcode"
     g2.write_text(text)
     assert walls_from_gcode(g2, layer_height=0.25).layer_height == 0.25
+
+
+def test_build_strokes_and_preview_agree_on_at_and_tolerances(tmp_path, data_dir):
+    g = data_dir / "prusa_cyl.gcode"
+    s = tmp_path / "s.json"
+    s.write_text(json.dumps({"strokes": [{"points": [[3, 1], [3, 5]]}]}))
+    maps = []
+    for at in ("0,0", "20,1"):
+        r = run("build", g, "-s", s, "--at", at, "-o", tmp_path / at, "--no-preview")
+        assert r.exit_code == 0, r.output
+        maps.append(mapformat.decode_map((tmp_path / at / "prusa_cyl.bkm").read_bytes()))
+    # --at moves a stroke file in build as in strokes/preview (it was ignored)
+    assert maps[0].layers[0].z_cmm != maps[1].layers[0].z_cmm
+    assert maps[0].layers[0].points != maps[1].layers[0].points
+    # same default: a text at the default --at lands the same through both paths
+    out = tmp_path / "t.json"
+    assert run("strokes", "--text", "I", "-o", out).exit_code == 0
+    r1 = run("build", g, "-s", out, "-o", tmp_path / "a", "--no-preview")
+    r2 = run("build", g, "--text", "I", "-o", tmp_path / "b", "--no-preview")
+    assert r1.exit_code == r2.exit_code == 0, r1.output + r2.output
+    assert (tmp_path / "a/prusa_cyl.bkm").read_bytes() == (tmp_path / "b/prusa_cyl.bkm").read_bytes()
+    # --tolerance is M720 T only; the SVG curve tolerance is --curve-tolerance everywhere
+    r = run("strokes", "--text", "I", "--tolerance", "0.1")
+    assert r.exit_code == 2 and "No such option" in r.output
+    assert run("strokes", "--text", "I", "--curve-tolerance", "0.1").exit_code == 0
+    r = run("build", g, "--text", "I", "--curve-tolerance", "0.1", "--tolerance", "0.3",
+            "--size", "5", "-o", tmp_path / "c", "--no-preview")
+    assert r.exit_code == 0, r.output
+    assert "T0.300" in (tmp_path / "c/prusa_cyl.bulge.gcode").read_text()
