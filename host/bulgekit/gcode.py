@@ -6,8 +6,8 @@ only the axes it names.  Arcs are linearised into chords (flagged on the
 moves) so walls printed with arc fitting still have a toolpath.
 
 Feature tags tell whether a move belongs to the outer wall.  Recognised:
-  PrusaSlicer/SuperSlicer/Slic3r PE  ;TYPE:External perimeter
-  OrcaSlicer/BambuStudio             ;TYPE:Outer wall   ; FEATURE: Outer wall
+  PrusaSlicer/SuperSlicer/Slic3r PE  ;TYPE:External perimeter  ;TYPE:Overhang perimeter
+  OrcaSlicer/BambuStudio             ;TYPE:Outer wall   ; FEATURE: Outer wall  (and Overhang wall)
   Cura, ideaMaker                    ;TYPE:WALL-OUTER
   Simplify3D                         ; outer perimeter
 Any other tag of the same family ends the outer wall.
@@ -29,7 +29,9 @@ class GcodeError(BulgekitError):
 # Role names (normalised to lower case) that mean "outer wall".
 OUTER_ROLES = frozenset({
     "external perimeter",  # PrusaSlicer, SuperSlicer
+    "overhang perimeter",  # PrusaSlicer: outer-wall stretches over air (also the outer wall)
     "outer wall",          # OrcaSlicer, BambuStudio
+    "overhang wall",       # OrcaSlicer, BambuStudio: overhanging outer-wall stretch
     "wall-outer",          # Cura, ideaMaker
     "outer perimeter",     # Simplify3D
 })

@@ -131,3 +131,21 @@ def test_a_cut_off_last_line_is_refused_by_every_reader(tmp_path, data_dir):
     check_complete(b"G1 X1\r\n", "x")
     with pytest.raises(GcodeError, match="'G1 X1'"):
         check_complete(b"G28\nG1 X1", "x")
+
+
+@pytest.mark.parametrize("tag", [";TYPE:Overhang perimeter", ";TYPE:Overhang wall", "; FEATURE: Overhang wall"])
+def test_overhang_sections_of_the_outer_wall_count_as_outer_wall(tag):
+    from bulgekit.annotate import annotate_bytes
+    from bulgekit.fallback import Settings
+    from bulgekit.gcode import parse_lines
+    from bulgekit import mapformat
+    text = ("G90\nM83\nG1 X0 Y0 Z0.2 F1200\n;TYPE:External perimeter\nG1 X10 Y0 E0.5\n"
+            f"{tag}\nG1 X10 Y10 E0.5\n;TYPE:Perimeter\nG1 X0 Y10 E0.5\n")
+    outer = [m.outer for ln in parse_lines(text.splitlines(keepends=True)) for m in ln.moves]
+    assert outer == [False, True, True, False]
+    bm = mapformat.encode_map([(0.2, [(10.0, 5.0)])], quantum_um=100, layer_height_mm=0.2)
+    out = annotate_bytes(text.encode(), bm, Settings()).decode()
+    # the marker stays on through the overhang and goes off at the inner perimeter
+    body = out[out.index(";TYPE:External"):]
+    assert body.count("M722 S1") == 1 and body.count("M722 S0") == 1
+    assert body.index("M722 S0") > body.index("G1 X10 Y10 E0.5")
