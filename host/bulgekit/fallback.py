@@ -117,7 +117,11 @@ class RefPlanner:
         self.tol2 = f32(settings.tolerance) * f32(settings.tolerance)
         self.layer = None          # (z_cmm, pts sorted [(x,y,w)], fired list)
         self.miss_z = None
+        self.below = None          # z of the records next to the loaded layer
+        self.above = None
+        self.floor = None          # layers below it are released in the firmware
         self.carry = f32(0)
+        self.stop_ms = 0           # dwell given at the current stop (merged points)
         self.stats = PlanStats()
         self.stops: list[StopRecord] = []
         self.top_z: float | None = None   # highest z of an extruding XY move
@@ -128,6 +132,8 @@ class RefPlanner:
         best = None
         best_d = 0
         for i, z in enumerate(self._zs):
+            if self.floor is not None and z < self.floor:
+                continue  # released
             d = z - zc
             if d > 0 and 2 * d > self.lh:
                 break
@@ -136,9 +142,21 @@ class RefPlanner:
                 best, best_d = i, d
         return best
 
+    def _neighbors(self, z: int):
+        live = [v for v in self._zs if self.floor is None or v >= self.floor]
+        below = max((v for v in live if v < z), default=None)
+        above = min((v for v in live if v > z), default=None)
+        return below, above
+
     def _window(self, zc: int) -> bool:
-        if self.layer is not None and 2 * abs(zc - self.layer[0]) <= self.lh:
-            return True
+        if self.layer is not None:
+            d = zc - self.layer[0]
+            if d == 0:
+                return True
+            if d > 0 and 2 * d <= self.lh and (self.above is None or d <= self.above - zc):
+                return True
+            if d < 0 and -2 * d <= self.lh and (self.below is None or -d < zc - self.below):
+                return True
         if self.map is None or not self.map.layers:
             return False
         if self.miss_z is not None and zc == self.miss_z:
@@ -153,12 +171,14 @@ class RefPlanner:
         w = rec.weights or (255,) * len(rec.points)
         pts = sorted(((x, y, ww) for (x, y), ww in zip(rec.points, w)),
                      key=lambda p: (p[0], p[1]))
+        self.below, self.above = self._neighbors(rec.z_cmm)
         if old is not None and old[0] == rec.z_cmm:
-            fired = old[2]
-        else:
-            fired = [False] * len(pts)
-        self.layer = (rec.z_cmm, pts, fired)
+            self.layer = (rec.z_cmm, pts, old[2])  # the same layer again keeps its marks
+            return True
+        self.layer = (rec.z_cmm, pts, [False] * len(pts))
         self.stats.layers_loaded += 1
+        if old is None or rec.z_cmm > old[0]:
+            self.floor = rec.z_cmm
         return True
 
     def _eligible(self, m: Move, outer: bool) -> bool:
@@ -179,9 +199,11 @@ class RefPlanner:
         if not self._eligible(m, outer):
             # as the firmware: a move that moves nothing keeps the owed extra
             null = m.x0 == m.x1 and m.y0 == m.y1 and m.z0 == m.z1 and m.e == 0
-            if self.carry != 0 and not null:
-                self.stats.extra_dropped += float(self.carry)
-                self.carry = f32(0)
+            if not null:
+                self.stop_ms = 0
+                if self.carry != 0:
+                    self.stats.extra_dropped += float(self.carry)
+                    self.carry = f32(0)
             return [Action("line", m.x1, m.y1, m.z1, m.e)]
         x0, y0, z0 = f32(m.x0), f32(m.y0), f32(m.z0)
         x1, y1, z1 = f32(m.x1), f32(m.y1), f32(m.z1)
@@ -231,6 +253,7 @@ class RefPlanner:
             a.e = piece_e + float(pending)
             self.stats.extra_applied += float(pending)
             pending = f32(0)
+            self.stop_ms = 0
             actions.append(a)
 
         # batches of PLAN_HITS_MAX as the firmware's ActionList holds them;
@@ -251,9 +274,12 @@ class RefPlanner:
                 line_to(t, t_done)
                 t_done = t
             ms = (ms_scale * w + 127) // 255
+            # one stop (merged points) never exceeds the per-point limits
+            ms = min(ms, MAX_DWELL_MS - self.stop_ms)
+            self.stop_ms += ms
             last = actions[-1] if len(actions) > batch_start else None
             if last is not None and last.kind == "dwell":
-                last.ms = min(last.ms + ms, 0xFFFF)
+                last.ms = last.ms + ms
             else:
                 actions.append(Action("dwell", ms=ms))
             self.stats.dwell_ms_total += ms
@@ -261,7 +287,12 @@ class RefPlanner:
             lx = next((a for a in reversed(actions) if a.kind == "line"), None)
             sx, sy, sz = (lx.x, lx.y, lx.z) if lx else (m.x0, m.y0, m.z0)
             self.stops.append(StopRecord(m.line_no, sx, sy, sz, ms, (px, py), zc))
-            pending = pending + f32(self.s.extra_e)
+            extra = f32(self.s.extra_e)
+            room = f32(MAX_EXTRA_E_MM) - pending
+            if extra > room:
+                extra = room if room > 0 else f32(0)
+                self.stats.extra_dropped += float(f32(self.s.extra_e) - extra)
+            pending = pending + extra
         if t_done < 1:
             line_to(f32(1), t_done)
         else:

@@ -201,3 +201,57 @@ def test_width_mode_and_bulges_together(bkcore):
     assert len(wall) == 2
     # the host's E never counted the W filament nor the extra
     assert float(summary["e_offset"]) == pytest.approx(de + 0.1, rel=1e-4)
+
+
+def _core_and_mirror(bkcore, layers, settings, moves, layer_height_mm=0.3):
+    """The same moves through bkcore (M72x + G1) and through RefPlanner."""
+    from bulgekit import mapformat
+    from bulgekit.fallback import RefPlanner
+    from bulgekit.gcode import Move
+    data = mapformat.encode_map(layers, quantum_um=100, layer_height_mm=layer_height_mm)
+    lines = ["M83", f"M720 S2 P{settings.dwell_ms} E{settings.extra_e} T{settings.tolerance}"]
+    lines += mapformat.upload_lines(data)
+    x = y = z = 0.0
+    for (x1, y1, z1, e) in moves:
+        lines.append(f"G1 X{x1} Y{y1} Z{z1} E{e} F1800")
+    core, _, errors = run_core(bkcore, "\n".join(lines) + "\n")
+    assert errors == []
+    ref = RefPlanner(mapformat.decode_map(data), settings)
+    mirror = []
+    for k, (x1, y1, z1, e) in enumerate(moves):
+        m = Move(k, k + 1, x, y, z, x1, y1, z1, e, 0.0, 1800.0, True, None)
+        for a in ref.plan(m, True):
+            mirror.append(("dwell", a.ms) if a.kind == "dwell" else ("line", a.x, a.y, a.z, a.e))
+        x, y, z = x1, y1, z1
+    return [a[:5] if a[0] == "line" else a for a in core], mirror, ref
+
+
+def _same(core, mirror):
+    assert len(core) == len(mirror), (core, mirror)
+    for a, b in zip(core, mirror):
+        assert a[0] == b[0]
+        if a[0] == "dwell":
+            assert a == b
+        else:
+            assert a[1:] == pytest.approx(b[1:], abs=2e-3)
+
+
+def test_close_layers_core_and_mirror_agree(bkcore):
+    # adaptive layers 0.07 mm apart under a 0.30 mm header height: each fires
+    layers = [(0.30, [(5.0, 0.0)]), (0.37, [(5.0, 0.0)]), (0.44, [(5.0, 0.0)])]
+    moves = [(10.0, 0.0, 0.30, 1.0), (0.0, 0.0, 0.37, 1.0), (10.0, 0.0, 0.37, 1.0),
+             (0.0, 0.0, 0.44, 1.0), (10.0, 0.0, 0.44, 1.0)]
+    core, mirror, ref = _core_and_mirror(bkcore, layers, Settings(2, 100, 0.1, 0.25), moves)
+    _same(core, mirror)
+    assert sum(1 for a in core if a[0] == "dwell") == 3
+    assert ref.stats.points_fired == 3
+
+
+def test_merged_stop_limits_core_and_mirror_agree(bkcore):
+    # ten points within the minimum piece: one stop of at most 2000 ms / 1.0 mm
+    pts = [(5.0 + 0.01 * i, 0.0) for i in range(10)]
+    core, mirror, ref = _core_and_mirror(bkcore, [(0.3, pts)], Settings(2, 2000, 1.0, 0.25),
+                                         [(10.0, 0.0, 0.3, 1.0)])
+    _same(core, mirror)
+    assert sum(a[1] for a in core if a[0] == "dwell") == 2000
+    assert sum(a[4] for a in core if a[0] == "line") == pytest.approx(2.0, abs=1e-4)
