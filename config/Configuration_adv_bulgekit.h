@@ -17,8 +17,9 @@
  * there, the head stops for P ms and the next piece carries E mm of extra
  * filament. The splitting happens in the planner queue; the host's X Y Z and E
  * (M82/M83, G92) are never changed. Maps are uploaded with M721.
- * Needs: a Cartesian or Core machine with G0/G1 lines on the outer wall (arcs
- * are not split), one extruder.
+ * Needs: a Cartesian or Core machine with G0/G1 lines on the outer wall (G2/G3
+ * arcs are not split; the first one in a print gets an echo: notice), one
+ * extruder.
  */
 #define BULGE_MAP
 #if ENABLED(BULGE_MAP)
