@@ -23,6 +23,8 @@ def friendly(fn):
             if type(e).__module__.startswith("bulgekit"):
                 raise click.ClickException(str(e)) from None
             raise
+        except BrokenPipeError:
+            raise  # output piped into `head`: click ends quietly
         except OSError as e:
             raise click.ClickException(f"{e.filename or ''}: {e.strerror or e}") from None
     return wrapper

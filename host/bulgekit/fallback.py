@@ -313,6 +313,9 @@ def unreached(planner: RefPlanner) -> list[tuple[int, int, int]]:
 
 def unreached_message(planner: RefPlanner, source: str) -> str | None:
     """What is wrong when map points are never reached, or None."""
+    if planner.map is not None and not planner.map.layers:
+        return (f"{source}: the map has no points (a header only): nothing would bulge. "
+                "Use --allow-unreached to write the file anyway.")
     miss = unreached(planner)
     if not miss:
         return None

@@ -45,6 +45,9 @@ class Stroke:
             raise InputError(f"{self.source or 'stroke'}: stroke has no points")
         if not (isinstance(self.weight, int) and 0 <= self.weight <= 255):
             raise InputError(f"{self.source or 'stroke'}: weight {self.weight!r} is not an integer 0..255")
+        for k, (u, v) in enumerate(self.points):
+            if not (math.isfinite(u) and math.isfinite(v)):  # e.g. an SVG coordinate of 1e400
+                raise InputError(f"{self.source or 'stroke'}: point {k} ({u}, {v}) is not a finite number")
 
     @property
     def is_dot(self) -> bool:

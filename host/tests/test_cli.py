@@ -213,3 +213,18 @@ def test_build_strokes_and_preview_agree_on_at_and_tolerances(tmp_path, data_dir
             "--size", "5", "-o", tmp_path / "c", "--no-preview")
     assert r.exit_code == 0, r.output
     assert "T0.300" in (tmp_path / "c/prusa_cyl.bulge.gcode").read_text()
+
+
+def test_a_map_without_points_is_refused(tmp_path):
+    from click.testing import CliRunner
+    from bulgekit import mapformat
+    from bulgekit.cli import main
+    m = tmp_path / "hdr.bkm"
+    m.write_bytes(mapformat.encode_map([]))
+    g = Path(__file__).resolve().parents[2] / "examples" / "cylinder40x20.gcode"
+    for cmd in ("annotate", "fallback"):
+        out = tmp_path / f"{cmd}.gcode"
+        res = CliRunner().invoke(main, [cmd, str(g), str(m), "-o", str(out)])
+        assert res.exit_code == 1, res.output
+        assert "no points" in res.output
+        assert not out.exists()

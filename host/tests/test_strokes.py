@@ -381,3 +381,14 @@ def test_image_errors(tmp_path):
         image_dots(tmp_path / "gone.png", width_mm=10)
     with pytest.raises(InputError, match="threshold"):
         image_dots(DATA / "gradient_8x4.png", width_mm=10, threshold=2)
+
+
+def test_non_finite_coordinates_are_refused(tmp_path):
+    from bulgekit.strokes import InputError, Stroke, load_svg
+    with pytest.raises(InputError, match="not a finite number"):
+        Stroke(((0.0, 0.0), (float("inf"), 1.0)), source="x.json stroke 0")
+    svg = tmp_path / "inf.svg"
+    svg.write_text('<svg xmlns="http://www.w3.org/2000/svg" width="50mm" height="20mm" '
+                   'viewBox="0 0 50 20">\n  <path id="big" d="M 1 1 L 1e400 5"/>\n</svg>\n')
+    with pytest.raises(InputError, match=r"inf\.svg.*big|big.*inf\.svg|not a finite"):
+        load_svg(str(svg))
