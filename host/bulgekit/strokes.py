@@ -215,6 +215,54 @@ def _check_path_data(d: str) -> str | None:
     return None
 
 
+_TRANSFORM_ARGS = {"matrix": (6,), "translate": (1, 2), "scale": (1, 2), "rotate": (1, 3),
+                   "skewX": (1,), "skewY": (1,)}
+_TRANSFORM_RE = re.compile(r"\s*,?\s*([A-Za-z]+)\s*\(([^)]*)\)")
+
+
+def _check_transform(t: str) -> str | None:
+    """None if t is a valid SVG transform list, else what is wrong.  (svgelements
+    fails on bad ones with bare IndexErrors, or ignores them.)"""
+    i, n = 0, len(t)
+    while i < n:
+        if not t[i:].strip(" \t\r\n,"):
+            return None
+        m = _TRANSFORM_RE.match(t, i)
+        if not m:
+            return f"cannot read transform near {t[i:i + 16].strip()!r}"
+        name, args = m.group(1), m.group(2)
+        if name not in _TRANSFORM_ARGS:
+            return f"unknown transform {name}()"
+        nums = [a for a in re.split(r"[\s,]+", args.strip()) if a]
+        if any(not _NUM_RE.fullmatch(a) or not math.isfinite(float(a)) for a in nums):
+            return f"{name}({args.strip()}): not all arguments are numbers"
+        if len(nums) not in _TRANSFORM_ARGS[name]:
+            want = " or ".join(str(k) for k in _TRANSFORM_ARGS[name])
+            return f"{name}() takes {want} numbers, got {len(nums)}"
+        i = m.end()
+    return None
+
+
+def _check_svg_attributes(path: str, root) -> None:
+    """Transforms and viewBoxes, checked here so the message can name the element."""
+    for el in root.iter():
+        tag = el.tag.split("}")[-1]
+        ident = f" id={el.get('id')!r}" if el.get("id") else ""
+        where = f"{path}:{el.get(_LINE_ATTR)} <{tag}{ident}>"
+        t = el.get("transform")
+        if t is not None:
+            problem = _check_transform(t)
+            if problem:
+                raise InputError(f"{where}: {problem}")
+        vb = el.get("viewBox")
+        if vb is not None:
+            parts = [a for a in re.split(r"[\s,]+", vb.strip()) if a]
+            if len(parts) != 4 or not all(_NUM_RE.fullmatch(a) for a in parts):
+                raise InputError(f"{where}: viewBox {vb!r} is not four numbers")
+            if not (float(parts[2]) > 0 and float(parts[3]) > 0):
+                raise InputError(f"{where}: viewBox {vb!r} has a zero or negative width or height")
+
+
 def _parse_svg_xml(path: str) -> bytes:
     """Re-serialize the SVG with each element's source line in a data
     attribute, so messages can point at file:line.  Raises InputError with
@@ -249,6 +297,7 @@ def _parse_svg_xml(path: str) -> bytes:
     root = tb.close()
     if root.tag not in ("{%s}svg" % _SVG_NS, "svg"):
         raise InputError(f"{path}:{root.get(_LINE_ATTR)}: root element is <{root.tag.split('}')[-1]}>, not <svg>")
+    _check_svg_attributes(path, root)
     # svgelements draws <symbol> contents in place as well as at each <use>;
     # moving them into <defs> leaves only the instances.
     symbols = []

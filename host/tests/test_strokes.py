@@ -392,3 +392,37 @@ def test_non_finite_coordinates_are_refused(tmp_path):
                    'viewBox="0 0 50 20">\n  <path id="big" d="M 1 1 L 1e400 5"/>\n</svg>\n')
     with pytest.raises(InputError, match=r"inf\.svg.*big|big.*inf\.svg|not a finite"):
         load_svg(str(svg))
+
+
+@pytest.mark.parametrize("transform, message", [
+    ("skewX(foo)", "skewX(foo): not all arguments are numbers"),
+    ("matrix(1 2)", "matrix() takes 6 numbers, got 2"),
+    ("rotate()", "rotate() takes 1 or 3 numbers, got 0"),
+    ("frob(1)", "unknown transform frob()"),
+])
+def test_bad_transforms_name_the_element(tmp_path, transform, message):
+    from bulgekit.strokes import InputError, load_svg
+    svg = tmp_path / "t.svg"
+    svg.write_text('<svg xmlns="http://www.w3.org/2000/svg" width="50mm" height="20mm" viewBox="0 0 50 20">\n'
+                   f'<g id="grp" transform="{transform}">\n<path d="M 1 1 L 10 5"/></g>\n</svg>\n')
+    with pytest.raises(InputError) as e:
+        load_svg(str(svg))
+    assert f"t.svg:2 <g id='grp'>: {message}" in str(e.value)
+
+
+def test_zero_viewbox_is_named(tmp_path):
+    from bulgekit.strokes import InputError, load_svg
+    svg = tmp_path / "v.svg"
+    svg.write_text('<svg xmlns="http://www.w3.org/2000/svg" width="50mm" height="20mm" viewBox="0 0 0 10">\n'
+                   '<path d="M 1 1 L 10 5"/>\n</svg>\n')
+    with pytest.raises(InputError, match="viewBox '0 0 0 10' has a zero or negative width"):
+        load_svg(str(svg))
+
+
+def test_valid_transform_list_still_loads(tmp_path):
+    from bulgekit.strokes import load_svg
+    svg = tmp_path / "ok.svg"
+    svg.write_text('<svg xmlns="http://www.w3.org/2000/svg" width="50mm" height="20mm" viewBox="0 0 50 20">\n'
+                   '<g transform="translate(3,4) scale(2) rotate(0 1 1) skewX(0)">\n'
+                   '<path d="M 1 1 L 10 5"/></g>\n</svg>\n')
+    assert len(load_svg(str(svg))) == 1
