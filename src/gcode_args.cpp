@@ -138,20 +138,28 @@ ArgStatus GcodeArgs::get_float(char letter, float &out) const {
   return ARG_OK;
 }
 
+// Whole number up to max, with an optional sign ('-' only where allowed).
+static ArgStatus read_whole(const char *s, const char *e, uint32_t max, bool minus_ok, bool &neg, uint32_t &v) {
+  neg = false;
+  if (*s == '+' || (minus_ok && *s == '-')) neg = (*s++ == '-');
+  if (s == e) return ARG_BAD;
+  v = 0;
+  for (; s < e; s++) {
+    if (!is_digit(*s)) return ARG_BAD;
+    const uint32_t d = (uint32_t)(*s - '0');
+    if (v > (max - d) / 10) return ARG_BAD;  // checked before it can wrap
+    v = v * 10 + d;
+  }
+  return ARG_OK;
+}
+
 ArgStatus GcodeArgs::get_ulong(char letter, uint32_t &out) const {
   const Word *w = find(letter);
   if (!w) return ARG_ABSENT;
   if (w->len == 0) return ARG_EMPTY;
-  const char *s = w->text, *e = w->text + w->len;
-  if (*s == '+') s++;
-  if (s == e) return ARG_BAD;
-  uint32_t v = 0;
-  for (; s < e; s++) {
-    if (!is_digit(*s)) return ARG_BAD;
-    uint32_t d = (uint32_t)(*s - '0');
-    if (v > (0xFFFFFFFFu - d) / 10) return ARG_BAD;  // overflow
-    v = v * 10 + d;
-  }
+  bool neg;
+  uint32_t v;
+  if (read_whole(w->text, w->text + w->len, 0xFFFFFFFFu, false, neg, v) != ARG_OK) return ARG_BAD;
   out = v;
   return ARG_OK;
 }
@@ -160,17 +168,9 @@ ArgStatus GcodeArgs::get_long(char letter, int32_t &out) const {
   const Word *w = find(letter);
   if (!w) return ARG_ABSENT;
   if (w->len == 0) return ARG_EMPTY;
-  const char *s = w->text, *e = w->text + w->len;
-  bool neg = false;
-  if (*s == '+' || *s == '-') neg = (*s++ == '-');
-  if (s == e) return ARG_BAD;
-  uint32_t v = 0;
-  for (; s < e; s++) {
-    if (!is_digit(*s)) return ARG_BAD;
-    const uint32_t d = (uint32_t)(*s - '0');
-    if (v > (0x7FFFFFFFu - d) / 10) return ARG_BAD;  // checked before it can wrap
-    v = v * 10 + d;
-  }
+  bool neg;
+  uint32_t v;
+  if (read_whole(w->text, w->text + w->len, 0x7FFFFFFFu, true, neg, v) != ARG_OK) return ARG_BAD;
   out = neg ? -(int32_t)v : (int32_t)v;
   return ARG_OK;
 }
