@@ -230,3 +230,36 @@ def test_map_for_another_print_is_refused():
     m = mapformat.encode_map(layers)
     with pytest.raises(AnnotateError, match="never reaches z"):
         annotate_bytes(g.encode(), m, Settings())
+
+
+@pytest.mark.parametrize("name", ["prusa_cyl.gcode", "prusa_cyl_m83.gcode", "cura_cyl.gcode",
+                                  "prusa_vase.gcode", "slic3r_cyl.gcode"])
+def test_fast_reach_check_says_what_the_reference_planner_says(name):
+    """annotate's reach check reads only the outer-wall sections near map
+    layers (vectorised); it must name the same missed points as running the
+    reference planner over the whole file, for a right and a wrong map."""
+    from pathlib import Path
+    from bulgekit import api, mapformat
+    from bulgekit.annotate import check_reach
+    from bulgekit.fallback import RefPlanner, unreached_message
+    from bulgekit.gcode import parse_lines
+    from bulgekit.strokes import text_strokes
+    g = Path(__file__).parent / "data" / name
+    data = g.read_bytes()
+    geometric = name.startswith("slic3r")
+    settings = Settings(2 if geometric else 1)
+    good = api.build_map(api.walls(g, geometric=geometric), text_strokes("BULGE", 4.0, u0=4.0, v0=3.0)).map_bytes
+    bm = mapformat.decode_map(good)
+    q = bm.quantum_um / 1000
+    layers = [(l.z_cmm / 100, [(x * q + (5.0 if i % 3 == 0 else 0.0), y * q) for x, y in l.points])
+              for i, l in enumerate(bm.layers)]
+    layers.append((layers[-1][0] + 30.0, [(1.0, 1.0)]))
+    wrong = mapformat.encode_map(layers, quantum_um=bm.quantum_um, layer_height_mm=bm.layer_height_cmm / 100)
+    for m in (good, wrong):
+        ref = RefPlanner(mapformat.decode_map(m), settings)
+        for ln in parse_lines(data.decode().splitlines(keepends=True), str(g)):
+            for mv in ln.moves:
+                ref.plan(mv)
+        assert check_reach(data, m, settings, str(g)) == unreached_message(ref, str(g))
+    assert check_reach(data, good, settings, str(g)) is None
+    assert check_reach(data, wrong, settings, str(g)) is not None
