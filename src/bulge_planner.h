@@ -69,8 +69,9 @@ struct PlannerStats {
   uint32_t moves_split;    // moves that got at least one stop
   uint32_t points_fired;   // bulge points that made a stop
   float extra_applied;     // extra filament extruded, mm
-  float extra_dropped;     // extra of stops at a wall's last vertex that no
-                           // extruding piece followed (a travel came first), mm
+  float extra_dropped;     // extra not extruded, mm: owed by a stop at a wall's
+                           // last vertex when a travel came first, or above the
+                           // per-stop limit when points merged into one stop
   uint16_t layers_loaded;
 };
 

@@ -307,12 +307,12 @@ _MOTION_RX = re.compile(rb"(?m)^[ \t]*G0?([0-3])(?=[ \t\r\n;]|$)([^\n;]*)")
 _WORD_RX = re.compile(rb"([XYZEF])[ \t]*([-+]?[0-9]*\.?[0-9]+)")
 
 
-def _reach_section(data: bytes, a: int, b: int, st: GcodeState, planner, zs) -> bool:
+def _reach_section(data: bytes, a: int, b: int, st: GcodeState, planner, zs, points_mm) -> bool:
     """Mark the map points within tolerance of this outer-wall section's
     extruding moves: the vectorised equivalent of running the reference planner
     over it (each move matched against the map layer nearest its end z, the
     lower on a tie). False where it cannot (arcs); the caller then runs the
-    planner."""
+    planner. points_mm: layer z -> (x, y) arrays of its points in mm, and the points."""
     import numpy as np
     x, y, z, e = st.x, st.y, st.z, st.e
     seg: dict[int, list] = {}  # end z (0.01 mm) -> [x0, y0, x1, y1] of extruding moves
@@ -341,10 +341,7 @@ def _reach_section(data: bytes, a: int, b: int, st: GcodeState, planner, zs) -> 
         if not cands:
             continue
         layer_z = min(cands, key=lambda v: (abs(v - zc), v))  # nearest, the lower on a tie
-        layer = planner._layer_by_z[layer_z]
-        q = planner.q_um / 1000
-        px = np.array([p[0] for p in layer.points], dtype=np.float64) * q
-        py = np.array([p[1] for p in layer.points], dtype=np.float64) * q
+        px, py, pts = points_mm[layer_z]
         mv = np.array(moves, dtype=np.float64)
         x0, y0 = mv[:, 0], mv[:, 1]
         dx, dy = mv[:, 2] - x0, mv[:, 3] - y0
@@ -355,7 +352,7 @@ def _reach_section(data: bytes, a: int, b: int, st: GcodeState, planner, zs) -> 
         ex, ey = ux - t * dx, uy - t * dy
         hit = ((ex * ex + ey * ey) <= planner.s.tolerance ** 2).any(axis=1)
         for i in np.nonzero(hit)[0]:
-            planner.stops.append(StopRecord(0, 0.0, 0.0, 0.0, 0, tuple(layer.points[i]), layer_z))
+            planner.stops.append(StopRecord(0, 0.0, 0.0, 0.0, 0, tuple(pts[i]), layer_z))
     return True
 
 
@@ -379,7 +376,11 @@ def check_reach(data: bytes, map_bytes: bytes, settings: Settings, source: str) 
         # it cannot stop anywhere: skip it (most of a print, for text maps).
         zs = sorted(l.z_cmm for l in planner.map.layers)
         half = planner.lh / 2
-        planner._layer_by_z = {l.z_cmm: l for l in planner.map.layers}
+        import numpy as np
+        q = planner.q_um / 1000  # each layer's points in mm, once for all sections
+        points_mm = {l.z_cmm: (np.array([p[0] for p in l.points], dtype=np.float64) * q,
+                               np.array([p[1] for p in l.points], dtype=np.float64) * q, l.points)
+                     for l in planner.map.layers}
         for (a, b), st in zip(sections, states):
             near = False
             for zv in [st.z] + [float(m.group(1)) for m in _AXIS_RX[b"Z"].finditer(data, a, b)]:
@@ -390,7 +391,7 @@ def check_reach(data: bytes, map_bytes: bytes, settings: Settings, source: str) 
                     break
             if not near:
                 continue
-            if not _reach_section(data, a, b, st, planner, zs):
+            if not _reach_section(data, a, b, st, planner, zs, points_mm):
                 # arcs or an odd line: the reference planner reads it
                 text = data[a:b].decode("utf-8", "replace").splitlines(keepends=True)
                 for ln in parse_lines(text, source, st):

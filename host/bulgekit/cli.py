@@ -197,8 +197,8 @@ def fallback(gcode, map_file, output, allow_unreached, dwell, extra, tolerance, 
     error unless --allow-unreached."""
     from .fallback import rewrite_file
     settings = _settings(dwell, extra, tolerance, geometric)
-    res = rewrite_file(gcode, output, mapformat.decode_map(_read_map(map_file)), settings,
-                       allow_unreached)
+    res = rewrite_file(gcode, output, mapformat.decode_map(Path(map_file).read_bytes(), source=map_file),
+                       settings, allow_unreached)
     if res.unreached:
         click.echo(f"WARNING: {res.unreached}", err=True)
     st = res.stats
