@@ -3,6 +3,8 @@
 #ifndef BK_FLASH_TEXT_H
 #define BK_FLASH_TEXT_H
 
+#include <string.h>
+
 #ifdef __AVR__
 #include <avr/pgmspace.h>
 #define BK_F(s) PSTR(s)                                // a string literal kept in flash
@@ -10,12 +12,14 @@
 #define BK_RD8(p) pgm_read_byte(p)                     // read one byte of it
 #define BK_RD32(p) pgm_read_dword(p)
 #define BK_RDPTR(p) ((const char *)pgm_read_word(p))  // a flash pointer stored in flash
+#define BK_RDBLOCK(dst, src, n) memcpy_P((dst), (src), (n))  // n bytes of a flash table
 #else
 #define BK_F(s) (s)
 #define BK_FLASH
 #define BK_RD8(p) (*(p))
 #define BK_RD32(p) (*(p))
 #define BK_RDPTR(p) (*(p))
+#define BK_RDBLOCK(dst, src, n) memcpy((dst), (src), (n))
 #endif
 
 #endif  // BK_FLASH_TEXT_H

@@ -93,6 +93,33 @@ bool check_words(const GcodeArgs &a, const char *allowed, const char *code_flash
   return false;
 }
 
+int8_t read_limited(const GcodeArgs &a, const Limit &lim, const char *code_flash, float &out, ReplyText &r) {
+  float v = 0;
+  const ArgStatus st = a.get_float(lim.letter, v);
+  if (st == ARG_ABSENT) return 0;
+  const bool ok = st == ARG_OK && (lim.lo_open ? v > lim.lo : v >= lim.lo) && v <= lim.hi;
+  if (ok) {
+    out = v;
+    return 1;
+  }
+  r.p(BK_F("Error:"));
+  r.p(code_flash);
+  r.c(' ');
+  r.c(lim.letter);
+  if (st != ARG_OK) {
+    r.p(BK_F(" bad number"));
+    return -1;
+  }
+  r.fixed(v, 3);
+  r.p(BK_F(" not in "));
+  r.c(lim.lo_open ? '(' : '[');
+  r.fixed(lim.lo, 3);
+  r.p(BK_F(".."));
+  r.fixed(lim.hi, 3);
+  r.c(']');
+  return -1;
+}
+
 bool GcodeArgs::raw(char letter, const char *&text, uint8_t &len) const {
   const Word *w = find(letter);
   if (!w) return false;

@@ -62,6 +62,23 @@ class ReplyText;
 // "duplicate parameter X") and returns false. code_flash: e.g. BK_F("M720").
 bool check_words(const GcodeArgs &a, const char *allowed, const char *code_flash, ReplyText &r);
 
+// A setting with limits, for the table-driven handlers (M720, M723): the value of
+// letter must lie in [lo, hi], or in (lo, hi] when lo_open. Kept in RAM or flash
+// by the caller; read with read_limited(). A table in flash (BK_FLASH): copy the
+// entry out first with BK_RDBLOCK(&lim, &table[i], sizeof(Limit)).
+struct Limit {
+  char letter;
+  bool lo_open;
+  float lo, hi;
+};
+
+// Reads lim.letter: 0 absent; 1 present, well-formed and within the limits (out
+// set); -1 otherwise, with one Error: line written, e.g.
+//   "Error:M723 Q bad number"            (malformed or empty value)
+//   "Error:M723 Q150.000 not in (0.000..100.000]"
+// code_flash: e.g. BK_F("M723"). Nothing is written on 0 or 1.
+int8_t read_limited(const GcodeArgs &a, const Limit &lim, const char *code_flash, float &out, ReplyText &r);
+
 }  // namespace bk
 
 #endif  // BK_GCODE_ARGS_H

@@ -91,6 +91,37 @@ static void test_raw_word(void) {
   TEST_ASSERT_EQUAL_INT('K', t[15]);
 }
 
+static void test_read_limited(void) {
+  static const bk::Limit q = {'Q', true, 0.0f, 100.0f}, l = {'L', false, 0.1f, 1000.0f};
+  GcodeArgs a;
+  char buf[64];
+  float v = -7;
+  bk::ReplyText r(buf, sizeof(buf));
+  TEST_ASSERT_TRUE(a.parse("M723 Q100 L0.1"));
+  TEST_ASSERT_EQUAL_INT(1, bk::read_limited(a, q, BK_F("M723"), v, r));
+  TEST_ASSERT_EQUAL_FLOAT(100.0f, v);
+  TEST_ASSERT_EQUAL_INT(1, bk::read_limited(a, l, BK_F("M723"), v, r));  // closed end
+  TEST_ASSERT_EQUAL_STRING("", buf);
+  TEST_ASSERT_TRUE(a.parse("M723 Q0 L0.05"));
+  v = -7;
+  TEST_ASSERT_EQUAL_INT(-1, bk::read_limited(a, q, BK_F("M723"), v, r));  // open end
+  TEST_ASSERT_EQUAL_STRING("Error:M723 Q0.000 not in (0.000..100.000]", buf);
+  TEST_ASSERT_EQUAL_FLOAT(-7.0f, v);  // untouched on an error
+  bk::ReplyText r2(buf, sizeof(buf));
+  TEST_ASSERT_EQUAL_INT(-1, bk::read_limited(a, l, BK_F("M723"), v, r2));
+  TEST_ASSERT_EQUAL_STRING("Error:M723 L0.050 not in [0.100..1000.000]", buf);
+  TEST_ASSERT_TRUE(a.parse("M723 Q1e3 U"));
+  bk::ReplyText r3(buf, sizeof(buf));
+  TEST_ASSERT_EQUAL_INT(-1, bk::read_limited(a, q, BK_F("M723"), v, r3));
+  TEST_ASSERT_EQUAL_STRING("Error:M723 Q bad number", buf);
+  static const bk::Limit u = {'U', false, 0.0f, 1.0f};
+  bk::ReplyText r4(buf, sizeof(buf));
+  TEST_ASSERT_EQUAL_INT(-1, bk::read_limited(a, u, BK_F("M723"), v, r4));  // empty value
+  TEST_ASSERT_EQUAL_STRING("Error:M723 U bad number", buf);
+  static const bk::Limit x = {'X', false, 0.0f, 1.0f};
+  TEST_ASSERT_EQUAL_INT(0, bk::read_limited(a, x, BK_F("M723"), v, r4));  // absent
+}
+
 int main(void) {
   UNITY_BEGIN();
   RUN_TEST(test_code_and_words);
@@ -99,5 +130,6 @@ int main(void) {
   RUN_TEST(test_raw_word);
   RUN_TEST(test_long_overflow_is_rejected_not_wrapped);
   RUN_TEST(test_duplicate_and_unknown_words);
+  RUN_TEST(test_read_limited);
   return UNITY_END();
 }
