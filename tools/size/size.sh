@@ -22,7 +22,8 @@ read bf br < <(sz $OUT/base.elf); read cf cr < <(sz $OUT/core.elf)
 echo "core flash: $((cf - bf)) B   core static RAM: $((cr - br)) B   (beyond a baseline with float math and UART)"
 avr-nm -C -S $OUT/core.elf > $OUT/core.nm
 python3 - "$OUT/core.nm" "${1:-40}" <<'P'
-import re, sys
+import re, sys, signal
+signal.signal(signal.SIGPIPE, signal.SIG_DFL)
 code, text, ram = {}, {}, []
 for l in open(sys.argv[1]):
     p = l.split(None, 3)
