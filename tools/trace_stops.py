@@ -185,6 +185,14 @@ class Run:
                 out.append((c0, c1, x, y))
         return out
 
+    def first_step_after(self, cycle):
+        """Cycle of the first X, Y or E step after this cycle (None if there is none)."""
+        import bisect
+        ec = [c for c, _ in self.e_steps]
+        xc = [c for c, _, _ in self.xy]
+        cands = [lst[i] for lst in (ec, xc) for i in [bisect.bisect_right(lst, cycle)] if i < len(lst)]
+        return min(cands) if cands else None
+
     def e_at(self, cycle):
         """Net E steps made up to and including this cycle."""
         import bisect
@@ -301,6 +309,13 @@ def stops(args):
     if durs:
         print("added stops: %d, duration min %.4f / mean %.4f / max %.4f ms"
               % (len(durs), min(durs), sum(durs) / len(durs), max(durs)))
+        # A piece whose leading axis is E (a short piece carrying the extra) takes
+        # its first X/Y step one Bresenham event after its first E step: the hold
+        # itself ends at the first step of any axis.
+        holds = [ms(run.first_step_after(c0) - c0) for c0, _, _, _ in added if run.first_step_after(c0)]
+        if holds:
+            print("  hold (last X/Y step to the first step of any axis, E included): "
+                  "min %.4f / mean %.4f / max %.4f ms" % (min(holds), sum(holds) / len(holds), max(holds)))
         if args.dwell is not None:
             bad = [d for d in durs if abs(d - args.dwell) > args.dwell_tol]
             ok &= not bad
