@@ -31,6 +31,13 @@ void error(ReplyText &o, const char *tail) {
   o.p(tail);
 }
 
+// x > 0 (false for NaN) from the bits: cheaper on AVR than a float compare.
+__attribute__((noinline)) bool positive(float x) {
+  uint32_t b;
+  memcpy(&b, &x, sizeof b);
+  return b - 1u < 0x7f800000u;  // +tiny .. +inf; 0, negatives and NaN wrap or lie above
+}
+
 // A ratio as a percentage with two decimals.
 void percent(ReplyText &o, float ratio) {
   o.fixed(ratio * 100.0f, 2);
@@ -40,13 +47,11 @@ void percent(ReplyText &o, float ratio) {
 }  // namespace
 
 void WidthMode::reset() {
+  static const float kPowerOn[SETTINGS] BK_FLASH = {
+      0.0f, BK_DEFAULT_FILAMENT_DIA_MM, 0.0f, BK_DEFAULT_WIDTH_MIN_SPEED, BK_DEFAULT_WIDTH_MAX_SPEED};
   on_ = false;
   target_kind_ = TARGET_NONE;
-  set_[TARGET] = 0;
-  set_[DIA] = BK_DEFAULT_FILAMENT_DIA_MM;
-  set_[HEIGHT] = 0;
-  set_[MIN_V] = BK_DEFAULT_WIDTH_MIN_SPEED;
-  set_[MAX_V] = BK_DEFAULT_WIDTH_MAX_SPEED;
+  BK_RDBLOCK(set_, kPowerOn, sizeof set_);
   percent_ = 100;
   stats_ = WidthStats();
   recompute();
@@ -91,6 +96,7 @@ bool WidthMode::command(const GcodeArgs &a, char *reply, uint8_t reply_size) {
     error(o, BK_F("S must be 0 or 1"));
     return false;
   }
+  const int8_t on = (int8_t)s;  // -1: no S
   if (a.has('Q') && a.has('R')) {
     error(o, BK_F("Q or R, not both"));
     return false;
@@ -131,12 +137,12 @@ bool WidthMode::command(const GcodeArgs &a, char *reply, uint8_t reply_size) {
     o.p(BK_F(" (Q, D)"));
     return false;
   }
-  if (s == 1 && n.target_kind_ == TARGET_NONE) {
+  if (on == 1 && n.target_kind_ == TARGET_NONE) {
     error(o, BK_F("S1 needs Q or R"));
     return false;
   }
-  if (s == 1 && !on_) n.stats_ = WidthStats();  // statistics count from entering the mode
-  if (s >= 0) n.on_ = (s == 1);
+  if (on == 1 && !on_) n.stats_ = WidthStats();  // statistics count from entering the mode
+  if (on >= 0) n.on_ = on;
   *this = n;
   return true;
 }
@@ -192,14 +198,14 @@ float WidthMode::retime(float xy_len, float de) {
 }
 
 float WidthMode::feed(float xy_len, float de, float feed_mm_s) {
-  if (!on_ || !(de > 0.0f) || !(xy_len > 0.0f)) return feed_mm_s;
+  if (!on_ || !positive(de) || !positive(xy_len)) return feed_mm_s;
   return retime(xy_len, de);
 }
 
 float WidthMode::feed_xy(float dx, float dy, float de, float feed_mm_s) {
-  if (!on_ || !(de > 0.0f)) return feed_mm_s;  // no sqrt for travels, retractions, mode off
+  if (!on_ || !positive(de)) return feed_mm_s;  // no sqrt for travels, retractions, mode off
   const float len = sqrtf(dx * dx + dy * dy);
-  return len > 0.0f ? retime(len, de) : feed_mm_s;
+  return positive(len) ? retime(len, de) : feed_mm_s;
 }
 
 bool WidthMode::width_e(float w, bool has_e, float xy_len, float &de_out, char *reply,
@@ -207,17 +213,17 @@ bool WidthMode::width_e(float w, bool has_e, float xy_len, float &de_out, char *
   ReplyText o(reply, reply_size);
   if (reply_size < ERROR_REPLY_MIN) {
     o.p(kBadCall);
-  } else if (!on_ || !(set_[HEIGHT] > 0)) {
+  } else if (!on_ || !positive(set_[HEIGHT])) {
     o.p(BK_F("Error:W needs M723 S1 and H"));
   } else if (has_e) {
     o.p(BK_F("Error:W and E in one move"));
-  } else if (!(w > 0) || w > BK_WIDTH_MAX_LINE_MM) {
+  } else if (!positive(w) || w > BK_WIDTH_MAX_LINE_MM) {
     o.p(BK_F("Error:W"));
     o.fixed(w, 3);
     o.p(BK_F(" not in (0.000.."));
     o.fixed(BK_WIDTH_MAX_LINE_MM, 3);
     o.c(']');
-  } else if (!(xy_len > 0)) {
+  } else if (!positive(xy_len)) {
     o.p(BK_F("Error:W without XY travel"));
   } else {
     de_out = w * set_[HEIGHT] * xy_len * inv_area_;
