@@ -38,6 +38,9 @@ __attribute__((noinline)) bool positive(float x) {
   return b - 1u < 0x7f800000u;  // +tiny .. +inf; 0, negatives and NaN wrap or lie above
 }
 
+// XY length of a move, one routine for both hooks.
+__attribute__((noinline)) float len_xy(float dx, float dy) { return sqrtf(dx * dx + dy * dy); }
+
 // A ratio as a percentage with two decimals.
 void percent(ReplyText &o, float ratio) {
   o.fixed(ratio * 100.0f, 2);
@@ -197,14 +200,14 @@ float WidthMode::retime(float xy_len, float de) {
   return c;
 }
 
-float WidthMode::feed(float xy_len, float de, float feed_mm_s) {
-  if (!on_ || !positive(de) || !positive(xy_len)) return feed_mm_s;
+float WidthMode::feed_on(float xy_len, float de, float feed_mm_s) {
+  if (!positive(de) || !positive(xy_len)) return feed_mm_s;
   return retime(xy_len, de);
 }
 
-float WidthMode::feed_xy(float dx, float dy, float de, float feed_mm_s) {
-  if (!on_ || !positive(de)) return feed_mm_s;  // no sqrt for travels, retractions, mode off
-  const float len = sqrtf(dx * dx + dy * dy);
+float WidthMode::feed_xy_on(float dx, float dy, float de, float feed_mm_s) {
+  if (!positive(de)) return feed_mm_s;  // no sqrt for travels and retractions
+  const float len = len_xy(dx, dy);
   return positive(len) ? retime(len, de) : feed_mm_s;
 }
 
@@ -234,7 +237,7 @@ bool WidthMode::width_e(float w, bool has_e, float xy_len, float &de_out, char *
 
 bool WidthMode::width_e_xy(float w, bool has_e, float dx, float dy, float &de_out, char *reply,
                            uint8_t reply_size) {
-  return width_e(w, has_e, sqrtf(dx * dx + dy * dy), de_out, reply, reply_size);
+  return width_e(w, has_e, len_xy(dx, dy), de_out, reply, reply_size);
 }
 
 bool WidthMode::set_feed_percent(int16_t percent) {

@@ -58,9 +58,14 @@ class WidthMode {
   // feed_mm_s is what the adapter would hand the planner (M220 already applied).
   // Returns the feed to use instead: the input itself, bit for bit, when the mode
   // is off or the move does not extrude (dE <= 0 or no XY travel).
-  float feed(float xy_len, float de, float feed_mm_s);
+  // (The mode test is inline: with the mode off a move costs no call.)
+  float feed(float xy_len, float de, float feed_mm_s) {
+    return on_ ? feed_on(xy_len, de, feed_mm_s) : feed_mm_s;
+  }
   // Same, computing L = hypot(dx, dy) only for moves that need it.
-  float feed_xy(float dx, float dy, float de, float feed_mm_s);
+  float feed_xy(float dx, float dy, float de, float feed_mm_s) {
+    return on_ ? feed_xy_on(dx, dy, de, feed_mm_s) : feed_mm_s;
+  }
 
   // A move carrying a W word: writes the filament length for that width into
   // de_out (dE = W*H*L / area). has_e: the move also has an E word (refused).
@@ -96,6 +101,8 @@ class WidthMode {
   // so one table of limits checks and reports them all.
   enum Setting : uint8_t { TARGET, DIA, HEIGHT, MIN_V, MAX_V, SETTINGS };
 
+  float feed_on(float xy_len, float de, float feed_mm_s);
+  float feed_xy_on(float dx, float dy, float de, float feed_mm_s);
   float retime(float xy_len, float de);
   void recompute();
   void report(ReplyText &o) const;
