@@ -100,13 +100,10 @@ bool WidthMode::command(const GcodeArgs &a, char *reply, uint8_t reply_size) {
     return false;
   }
   const int8_t on = (int8_t)s;  // -1: no S
-  if (a.has('Q') && a.has('R')) {
-    error(o, BK_F("Q or R, not both"));
-    return false;
-  }
 
   // Work on a copy and commit only when every word passed: all-or-nothing.
   WidthMode n = *this;
+  bool q = false;  // this command has a Q
   for (uint8_t i = 0; i < kWords; i++) {
     Limit lim;
     BK_RDBLOCK(&lim, &kLimits[i], sizeof lim);
@@ -115,10 +112,18 @@ bool WidthMode::command(const GcodeArgs &a, char *reply, uint8_t reply_size) {
     if (got < 0) return false;
     if (!got) continue;
     uint8_t k = TARGET;
-    if (i < 2)
-      n.target_kind_ = i + 1;  // TARGET_FLOW, TARGET_RATE
-    else
+    if (i == 0) {
+      q = true;
+      n.target_kind_ = TARGET_FLOW;
+    } else if (i == 1) {
+      if (q) {
+        error(o, BK_F("Q or R, not both"));
+        return false;
+      }
+      n.target_kind_ = TARGET_RATE;
+    } else {
       k = i - 1;
+    }
     n.set_[k] = v;
   }
   if (n.set_[MIN_V] > n.set_[MAX_V]) {  // also against the L or U in force
