@@ -32,6 +32,7 @@ void error(ReplyText &o, const char *tail) {
 }
 
 // x > 0 (false for NaN) from the bits: cheaper on AVR than a float compare.
+// noinline here and below: one copy for all callers, which LTO would inline.
 __attribute__((noinline)) bool positive(float x) {
   uint32_t b;
   memcpy(&b, &x, sizeof b);
@@ -158,7 +159,7 @@ bool WidthMode::command(const GcodeArgs &a, char *reply, uint8_t reply_size) {
 // The first line is a command that sets what it shows (M500 stores it).
 void WidthMode::report(ReplyText &o) const {
   o.p(BK_F("echo:  M723 S"));
-  o.c(on_ ? '1' : '0');
+  o.c((char)('0' + on_));
   for (uint8_t i = 0; i < kWords; i++) {
     if (i < 2 && target_kind_ != i + 1) continue;  // Q or R, whichever is the target
     o.c(' ');
