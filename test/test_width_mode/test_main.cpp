@@ -382,13 +382,17 @@ static void test_settings_line_reads_back(void) {
 // the printable bound, and counters that may grow to 10 digits.
 static void test_report_fits(void) {
   WidthMode m;
-  TEST_ASSERT_TRUE(cmd(m, "M723 S1 Q100 D3.5 H2 L999.99 U1000"));
+  TEST_ASSERT_TRUE(cmd(m, "M723 S1 Q100 D3.5 H2 L1000 U1000"));
   m.set_feed_percent(999);
   m.feed(0.001f, 1000.0f, 1.0f);  // wants ~0 mm/s: deviation far beyond 1e6 %
   TEST_ASSERT_TRUE(cmd(m, "M723"));
   TEST_ASSERT_TRUE(strstr(reply, "maxdev:>=1000000% meandev:>=1000000%") != NULL);
   // Three counters shown with 1 digit here could need 10.
   TEST_ASSERT_LESS_THAN_INT(WidthMode::REPLY_MIN, (int32_t)strlen(reply) + 3 * 9 + 1);
+  // The settings line, as M500 stores it (without "echo:  " and " S1"), fits the
+  // Marlin adapter's 64-byte EEPROM line with its terminating zero.
+  const int32_t stored = (int32_t)(strchr(reply, '\n') - reply) - 7 - 3;
+  TEST_ASSERT_LESS_THAN_INT(64, stored);
 }
 
 int main(void) {
