@@ -1,6 +1,7 @@
 #include "width_mode.h"
 
 #include <math.h>
+#include <string.h>
 
 #include "reply_text.h"
 
@@ -8,52 +9,75 @@ namespace bk {
 
 namespace {
 
-const float kPi = 3.14159265f;
+const char kCode[] BK_FLASH = "M723";
+// Only a caller's bug gets this: a short reply buffer or another command.
+const char kBadCall[] BK_FLASH = "Error:M723 bad call";
 
-// Reads letter as a float: 0 absent, 1 present and well-formed, -1 malformed
-// (then the Error: line is written).
-int8_t get_value(const GcodeArgs &a, char letter, float &v, ReplyText &o) {
-  ArgStatus st = a.get_float(letter, v);
-  if (st == ARG_ABSENT) return 0;
-  if (st == ARG_OK) return 1;
-  o.p(BK_F("Error:M723 bad value for "));
-  o.c(letter);
-  return -1;
+// Limits of the words Q R D H L U, in the order of the settings they set (Q and R
+// both set the target; L's upper end only matters through L <= U).
+const Limit kLimits[] BK_FLASH = {
+    {'Q', true, 0.0f, BK_WIDTH_MAX_FLOW_MM3S},
+    {'R', true, 0.0f, BK_WIDTH_MAX_E_RATE},
+    {'D', false, BK_WIDTH_MIN_FILAMENT_DIA, BK_WIDTH_MAX_FILAMENT_DIA},
+    {'H', false, 0.0f, BK_WIDTH_MAX_LAYER_MM},
+    {'L', false, BK_WIDTH_MIN_SPEED_LIMIT, BK_WIDTH_MAX_SPEED_LIMIT},
+    {'U', false, BK_WIDTH_MIN_SPEED_LIMIT, BK_WIDTH_MAX_SPEED_LIMIT},
+};
+const uint8_t kWords = sizeof kLimits / sizeof kLimits[0];
+
+// "Error:M723 " and the rest of the message: the prefix is stored once.
+void error(ReplyText &o, const char *tail) {
+  o.p(BK_F("Error:M723 "));
+  o.p(tail);
+}
+
+// x > 0 (false for NaN) from the bits: cheaper on AVR than a float compare.
+// noinline here and below: one copy for all callers, which LTO would inline.
+__attribute__((noinline)) bool positive(float x) {
+  uint32_t b;
+  memcpy(&b, &x, sizeof b);
+  return b - 1u < 0x7f800000u;  // +tiny .. +inf; 0, negatives and NaN wrap or lie above
+}
+
+// XY length of a move, one routine for both hooks.
+__attribute__((noinline)) float len_xy(float dx, float dy) { return sqrtf(dx * dx + dy * dy); }
+
+// A ratio as a percentage with two decimals.
+void percent(ReplyText &o, float ratio) {
+  o.fixed(ratio * 100.0f, 2);
+  o.c('%');
 }
 
 }  // namespace
 
 void WidthMode::reset() {
+  static const float kPowerOn[SETTINGS] BK_FLASH = {
+      0.0f, BK_DEFAULT_FILAMENT_DIA_MM, 0.0f, BK_DEFAULT_WIDTH_MIN_SPEED, BK_DEFAULT_WIDTH_MAX_SPEED};
   on_ = false;
   target_kind_ = TARGET_NONE;
-  target_ = 0;
-  dia_ = BK_DEFAULT_FILAMENT_DIA_MM;
-  h_ = 0;
-  min_v_ = BK_DEFAULT_WIDTH_MIN_SPEED;
-  max_v_ = BK_DEFAULT_WIDTH_MAX_SPEED;
+  BK_RDBLOCK(set_, kPowerOn, sizeof set_);
   percent_ = 100;
   stats_ = WidthStats();
   recompute();
 }
 
+// The target is 0 without Q or R, so R and "none" share the plain value.
+float WidthMode::base_rate() const {
+  return target_kind_ == TARGET_FLOW ? set_[TARGET] * inv_area_ : set_[TARGET];
+}
+
 // Derived values, so the per-move paths cost one multiply and one divide.
 void WidthMode::recompute() {
-  area_ = kPi * 0.25f * dia_ * dia_;
-  inv_area_ = 1.0f / area_;
-  if (target_kind_ == TARGET_FLOW)
-    base_rate_ = target_ * inv_area_;
-  else if (target_kind_ == TARGET_RATE)
-    base_rate_ = target_;
-  else
-    base_rate_ = 0;
-  rate_ = base_rate_ * (float)percent_ * 0.01f;
+  const float d = set_[DIA];
+  inv_area_ = (4.0f / 3.14159265f) / (d * d);
+  rate_ = base_rate() * (float)percent_ * 0.01f;
 }
 
 bool WidthMode::command(const char *line, char *reply, uint8_t reply_size) {
   GcodeArgs a;
   if (!a.parse(line)) {
     ReplyText o(reply, reply_size);
-    o.p(BK_F("Error:M723 not a G-code line"));
+    error(o, BK_F("not a G-code line"));
     return false;
   }
   return command(a, reply, reply_size);
@@ -61,184 +85,90 @@ bool WidthMode::command(const char *line, char *reply, uint8_t reply_size) {
 
 bool WidthMode::command(const GcodeArgs &a, char *reply, uint8_t reply_size) {
   ReplyText o(reply, reply_size);
-  if (reply_size < REPLY_MIN) {
-    o.p(BK_F("Error:M723 reply buffer too small"));
-    return false;
-  }
-  if (a.code_letter() != 'M' || a.code() != 723) {
-    o.p(BK_F("Error:M723 handler given another command"));
+  if (reply_size < REPLY_MIN || a.code_letter() != 'M' || a.code() != 723) {
+    o.p(kBadCall);
     return false;
   }
   if (a.none()) {
-    report(reply, reply_size);
+    report(o);
     return true;
   }
-  if (!check_words(a, "SQRDHLU", BK_F("M723"), o)) return false;
+  if (!check_words(a, "SQRDHLU", kCode, o)) return false;
+  int32_t s = -1;
+  const ArgStatus st = a.get_long('S', s);
+  if (st != ARG_ABSENT && (st != ARG_OK || (uint32_t)s > 1)) {
+    error(o, BK_F("S must be 0 or 1"));
+    return false;
+  }
+  const int8_t on = (int8_t)s;  // -1: no S
 
   // Work on a copy and commit only when every word passed: all-or-nothing.
   WidthMode n = *this;
-  int32_t s = -1;
-  ArgStatus st = a.get_long('S', s);
-  if (st != ARG_ABSENT && (st != ARG_OK || (s != 0 && s != 1))) {
-    o.p(BK_F("Error:M723 S must be 0 (off) or 1 (on)"));
-    return false;
+  bool q = false;  // this command has a Q
+  for (uint8_t i = 0; i < kWords; i++) {
+    Limit lim;
+    BK_RDBLOCK(&lim, &kLimits[i], sizeof lim);
+    float v;
+    const int8_t got = read_limited(a, lim, kCode, v, o);
+    if (got < 0) return false;
+    if (!got) continue;
+    uint8_t k = TARGET;
+    if (i == 0) {
+      q = true;
+      n.target_kind_ = TARGET_FLOW;
+    } else if (i == 1) {
+      if (q) {
+        error(o, BK_F("Q or R, not both"));
+        return false;
+      }
+      n.target_kind_ = TARGET_RATE;
+    } else {
+      k = i - 1;
+    }
+    n.set_[k] = v;
   }
-
-  float v;
-  int8_t q = get_value(a, 'Q', v, o);
-  if (q < 0) return false;
-  if (q) {
-    if (!(v > 0)) {
-      o.p(BK_F("Error:M723 Q must be > 0 mm3/s"));
-      return false;
-    }
-    if (v > BK_WIDTH_MAX_FLOW_MM3S) {
-      o.p(BK_F("Error:M723 Q"));
-      o.fixed(v, 3);
-      o.p(BK_F(" exceeds max flow "));
-      o.fixed(BK_WIDTH_MAX_FLOW_MM3S, 1);
-      o.p(BK_F(" mm3/s"));
-      return false;
-    }
-    n.target_kind_ = TARGET_FLOW;
-    n.target_ = v;
-  }
-  int8_t r = get_value(a, 'R', v, o);
-  if (r < 0) return false;
-  if (r) {
-    if (q) {
-      o.p(BK_F("Error:M723 give Q (flow) or R (rate), not both"));
-      return false;
-    }
-    if (!(v > 0)) {
-      o.p(BK_F("Error:M723 R must be > 0 mm/s"));
-      return false;
-    }
-    if (v > BK_WIDTH_MAX_E_RATE) {
-      o.p(BK_F("Error:M723 R"));
-      o.fixed(v, 3);
-      o.p(BK_F(" exceeds max extruder rate "));
-      o.fixed(BK_WIDTH_MAX_E_RATE, 1);
-      o.p(BK_F(" mm/s"));
-      return false;
-    }
-    n.target_kind_ = TARGET_RATE;
-    n.target_ = v;
-  }
-  int8_t d = get_value(a, 'D', v, o);
-  if (d < 0) return false;
-  if (d) {
-    if (!(v > 0)) {
-      o.p(BK_F("Error:M723 D must be > 0 mm"));
-      return false;
-    }
-    if (v < BK_WIDTH_MIN_FILAMENT_DIA || v > BK_WIDTH_MAX_FILAMENT_DIA) {
-      o.p(BK_F("Error:M723 D"));
-      o.fixed(v, 3);
-      o.p(BK_F(" outside "));
-      o.fixed(BK_WIDTH_MIN_FILAMENT_DIA, 2);
-      o.p(BK_F(".."));
-      o.fixed(BK_WIDTH_MAX_FILAMENT_DIA, 2);
-      o.p(BK_F(" mm"));
-      return false;
-    }
-    n.dia_ = v;
-  }
-  int8_t h = get_value(a, 'H', v, o);
-  if (h < 0) return false;
-  if (h) {
-    if (v < 0) {
-      o.p(BK_F("Error:M723 H must be >= 0 mm (0: no layer height)"));
-      return false;
-    }
-    if (v > BK_WIDTH_MAX_LAYER_MM) {
-      o.p(BK_F("Error:M723 H"));
-      o.fixed(v, 3);
-      o.p(BK_F(" exceeds max layer height "));
-      o.fixed(BK_WIDTH_MAX_LAYER_MM, 2);
-      o.p(BK_F(" mm"));
-      return false;
-    }
-    n.h_ = v;
-  }
-  int8_t l = get_value(a, 'L', v, o);
-  if (l < 0) return false;
-  if (l) {
-    if (!(v >= BK_WIDTH_MIN_SPEED_LIMIT)) {
-      o.p(BK_F("Error:M723 L must be at least "));
-      o.fixed(BK_WIDTH_MIN_SPEED_LIMIT, 2);
-      o.p(BK_F(" mm/s"));
-      return false;
-    }
-    n.min_v_ = v;
-  }
-  int8_t u = get_value(a, 'U', v, o);
-  if (u < 0) return false;
-  if (u) {
-    if (!(v >= BK_WIDTH_MIN_SPEED_LIMIT)) {
-      o.p(BK_F("Error:M723 U must be at least "));
-      o.fixed(BK_WIDTH_MIN_SPEED_LIMIT, 2);
-      o.p(BK_F(" mm/s"));
-      return false;
-    }
-    if (v > BK_WIDTH_MAX_SPEED_LIMIT) {
-      o.p(BK_F("Error:M723 U"));
-      o.fixed(v, 2);
-      o.p(BK_F(" exceeds max "));
-      o.fixed(BK_WIDTH_MAX_SPEED_LIMIT, 1);
-      o.p(BK_F(" mm/s"));
-      return false;
-    }
-    n.max_v_ = v;
-  }
-  if (n.min_v_ > n.max_v_) {
-    o.p(BK_F("Error:M723 L"));
-    o.fixed(n.min_v_, 2);
-    o.p(BK_F(" above U"));
-    o.fixed(n.max_v_, 2);
-    o.p(BK_F(" mm/s"));
+  if (n.set_[MIN_V] > n.set_[MAX_V]) {  // also against the L or U in force
+    error(o, BK_F("L"));
+    o.fixed(n.set_[MIN_V], 3);
+    o.p(BK_F(" > U"));
+    o.fixed(n.set_[MAX_V], 3);
     return false;
   }
   n.recompute();
   // Q is checked against the flow limit; with a thin filament it may still ask
-  // for an extruder rate beyond the rate limit.
-  if (n.base_rate_ > BK_WIDTH_MAX_E_RATE) {
-    o.p(BK_F("Error:M723 extruder rate "));
-    o.fixed(n.base_rate_, 3);
-    o.p(BK_F(" exceeds max "));
-    o.fixed(BK_WIDTH_MAX_E_RATE, 1);
-    o.p(BK_F(" mm/s (check Q and D)"));
+  // for an extruder rate beyond R's limit.
+  const float r = n.base_rate();
+  if (r > BK_WIDTH_MAX_E_RATE) {
+    error(o, BK_F("extruder rate "));
+    o.fixed(r, 3);
+    o.p(BK_F(" > "));
+    o.fixed(BK_WIDTH_MAX_E_RATE, 3);
+    o.p(BK_F(" (Q, D)"));
     return false;
   }
-  if (s == 1 && n.target_kind_ == TARGET_NONE) {
-    o.p(BK_F("Error:M723 S1 needs a flow Q or an extruder rate R"));
+  if (on == 1 && n.target_kind_ == TARGET_NONE) {
+    error(o, BK_F("S1 needs Q or R"));
     return false;
   }
-  if (s == 1 && !on_) n.stats_ = WidthStats();  // statistics count from entering the mode
-  if (s >= 0) n.on_ = (s == 1);
+  if (on == 1 && !on_) n.stats_ = WidthStats();  // statistics count from entering the mode
+  if (on >= 0) n.on_ = on;
   *this = n;
   return true;
 }
 
-void WidthMode::report(char *reply, uint8_t reply_size) const {
-  ReplyText o(reply, reply_size);
+// The first line is a command that sets what it shows (M500 stores it).
+void WidthMode::report(ReplyText &o) const {
   o.p(BK_F("echo:  M723 S"));
-  o.c(on_ ? '1' : '0');
-  if (target_kind_ != TARGET_NONE) {
-    o.p(target_kind_ == TARGET_FLOW ? BK_F(" Q") : BK_F(" R"));
-    o.fixed(target_, 3);
+  o.c((char)('0' + on_));
+  for (uint8_t i = 0; i < kWords; i++) {
+    if (i < 2 && target_kind_ != i + 1) continue;  // Q or R, whichever is the target
+    o.c(' ');
+    o.c((char)BK_RD8(&kLimits[i].letter));
+    o.fixed(set_[i < 2 ? 0 : i - 1], 3);
   }
-  o.p(BK_F(" D"));
-  o.fixed(dia_, 3);
-  o.p(BK_F(" H"));
-  o.fixed(h_, 3);
-  o.p(BK_F(" L"));
-  o.fixed(min_v_, 2);
-  o.p(BK_F(" U"));
-  o.fixed(max_v_, 2);
-  o.p(BK_F("\necho:WidthMode rate:"));
+  o.p(BK_F("\necho:width rate:"));
   o.fixed(rate_, 3);
-  o.p(BK_F("mm/s feed%:"));
+  o.p(BK_F(" feed%:"));
   o.u((uint32_t)percent_);
   o.p(BK_F(" moves:"));
   o.u(stats_.moves);
@@ -247,89 +177,79 @@ void WidthMode::report(char *reply, uint8_t reply_size) const {
   o.p(BK_F(" high:"));
   o.u(stats_.clamped_high);
   o.p(BK_F(" maxdev:"));
-  o.fixed(stats_.max_dev * 100.0f, 2);
-  o.p(BK_F("% meandev:"));
-  uint32_t clamped = stats_.clamped_low + stats_.clamped_high;
-  o.fixed(clamped ? stats_.sum_dev * 100.0f / (float)clamped : 0.0f, 2);
-  o.c('%');
+  percent(o, stats_.max_dev);
+  o.p(BK_F(" meandev:"));
+  const uint32_t clamped = stats_.clamped_low + stats_.clamped_high;
+  percent(o, stats_.sum_dev / (float)(clamped ? clamped : 1));  // the sum is 0 while none
 }
 
 // v = L * r / dE, kept within [L, U]. A clamped move's extruder rate differs from
 // r by the factor clamped / wanted; that deviation goes into the statistics.
 float WidthMode::retime(float xy_len, float de) {
   stats_.moves++;
-  float v = xy_len * rate_ / de;
-  float dev;
-  if (v < min_v_) {
-    dev = min_v_ / v - 1.0f;
-    stats_.clamped_low++;
-    v = min_v_;
-  } else if (v > max_v_) {
-    dev = 1.0f - max_v_ / v;
-    stats_.clamped_high++;
-    v = max_v_;
+  const float v = xy_len * rate_ / de;
+  float c;
+  uint32_t *count;
+  if (v < set_[MIN_V]) {
+    c = set_[MIN_V];
+    count = &stats_.clamped_low;
+  } else if (v > set_[MAX_V]) {
+    c = set_[MAX_V];
+    count = &stats_.clamped_high;
   } else {
     return v;
   }
+  ++*count;
+  const float dev = fabsf(c / v - 1.0f);
   if (dev > stats_.max_dev) stats_.max_dev = dev;
   stats_.sum_dev += dev;
-  return v;
+  return c;
 }
 
-float WidthMode::feed(float xy_len, float de, float feed_mm_s) {
-  if (!on_ || !(de > 0.0f) || !(xy_len > 0.0f)) return feed_mm_s;
+float WidthMode::feed_on(float xy_len, float de, float feed_mm_s) {
+  if (!positive(de) || !positive(xy_len)) return feed_mm_s;
   return retime(xy_len, de);
 }
 
-float WidthMode::feed_xy(float dx, float dy, float de, float feed_mm_s) {
-  if (!on_ || !(de > 0.0f)) return feed_mm_s;  // no sqrt for travels, retractions, mode off
-  return feed(sqrtf(dx * dx + dy * dy), de, feed_mm_s);
+float WidthMode::feed_xy_on(float dx, float dy, float de, float feed_mm_s) {
+  if (!positive(de)) return feed_mm_s;  // no sqrt for travels and retractions
+  const float len = len_xy(dx, dy);
+  return positive(len) ? retime(len, de) : feed_mm_s;
 }
 
 bool WidthMode::width_e(float w, bool has_e, float xy_len, float &de_out, char *reply,
                         uint8_t reply_size) {
   ReplyText o(reply, reply_size);
   if (reply_size < ERROR_REPLY_MIN) {
-    o.p(BK_F("Error:W reply buffer too small"));
-    return false;
-  }
-  if (!on_) {
-    o.p(BK_F("Error:W needs width mode on (M723 S1)"));
-    return false;
-  }
-  if (!(h_ > 0)) {
-    o.p(BK_F("Error:W needs a layer height (M723 H)"));
-    return false;
-  }
-  if (has_e) {
-    o.p(BK_F("Error:W and E in one move; send one of them"));
-    return false;
-  }
-  if (!(w > 0) || w > BK_WIDTH_MAX_LINE_MM) {
+    o.p(kBadCall);
+  } else if (!on_ || !positive(set_[HEIGHT])) {
+    o.p(BK_F("Error:W needs M723 S1 and H"));
+  } else if (has_e) {
+    o.p(BK_F("Error:W and E in one move"));
+  } else if (!positive(w) || w > BK_WIDTH_MAX_LINE_MM) {
     o.p(BK_F("Error:W"));
     o.fixed(w, 3);
-    o.p(BK_F(" outside 0.."));
-    o.fixed(BK_WIDTH_MAX_LINE_MM, 2);
-    o.p(BK_F(" mm"));
-    return false;
+    o.p(BK_F(" not in (0.000.."));
+    o.fixed(BK_WIDTH_MAX_LINE_MM, 3);
+    o.c(']');
+  } else if (!positive(xy_len)) {
+    o.p(BK_F("Error:W without XY travel"));
+  } else {
+    de_out = w * set_[HEIGHT] * xy_len * inv_area_;
+    return true;
   }
-  if (!(xy_len > 0)) {
-    o.p(BK_F("Error:W on a move without XY travel"));
-    return false;
-  }
-  de_out = w * h_ * xy_len * inv_area_;
-  return true;
+  return false;
 }
 
 bool WidthMode::width_e_xy(float w, bool has_e, float dx, float dy, float &de_out, char *reply,
                            uint8_t reply_size) {
-  return width_e(w, has_e, sqrtf(dx * dx + dy * dy), de_out, reply, reply_size);
+  return width_e(w, has_e, len_xy(dx, dy), de_out, reply, reply_size);
 }
 
 bool WidthMode::set_feed_percent(int16_t percent) {
   if (percent <= 0) return false;
   percent_ = percent;
-  rate_ = base_rate_ * (float)percent_ * 0.01f;
+  recompute();
   return true;
 }
 

@@ -58,9 +58,14 @@ class WidthMode {
   // feed_mm_s is what the adapter would hand the planner (M220 already applied).
   // Returns the feed to use instead: the input itself, bit for bit, when the mode
   // is off or the move does not extrude (dE <= 0 or no XY travel).
-  float feed(float xy_len, float de, float feed_mm_s);
+  // (The mode test is inline: with the mode off a move costs no call.)
+  float feed(float xy_len, float de, float feed_mm_s) {
+    return on_ ? feed_on(xy_len, de, feed_mm_s) : feed_mm_s;
+  }
   // Same, computing L = hypot(dx, dy) only for moves that need it.
-  float feed_xy(float dx, float dy, float de, float feed_mm_s);
+  float feed_xy(float dx, float dy, float de, float feed_mm_s) {
+    return on_ ? feed_xy_on(dx, dy, de, feed_mm_s) : feed_mm_s;
+  }
 
   // A move carrying a W word: writes the filament length for that width into
   // de_out (dE = W*H*L / area). has_e: the move also has an E word (refused).
@@ -79,36 +84,35 @@ class WidthMode {
   // --- state, for the adapter and the tests ---------------------------------
   bool active() const { return on_; }
   bool has_target() const { return target_kind_ != TARGET_NONE; }
-  float rate() const { return rate_; }            // r in force, mm/s of filament, M220 applied
-  float base_rate() const { return base_rate_; }  // r as set by Q/R, without M220
-  float flow() const { return base_rate_ * area_; }  // mm^3/s without M220
-  float filament_dia() const { return dia_; }
-  float filament_area() const { return area_; }
-  float layer_height() const { return h_; }
-  float min_speed() const { return min_v_; }
-  float max_speed() const { return max_v_; }
+  float rate() const { return rate_; }  // r in force, mm/s of filament, M220 applied
+  float base_rate() const;              // r as set by Q/R, without M220
+  float flow() const { return base_rate() / inv_area_; }  // mm^3/s without M220
+  float filament_dia() const { return set_[DIA]; }
+  float filament_area() const { return 1.0f / inv_area_; }
+  float layer_height() const { return set_[HEIGHT]; }
+  float min_speed() const { return set_[MIN_V]; }
+  float max_speed() const { return set_[MAX_V]; }
   int16_t feed_percent() const { return percent_; }
   const WidthStats &stats() const { return stats_; }
 
  private:
   enum TargetKind : uint8_t { TARGET_NONE = 0, TARGET_FLOW = 1, TARGET_RATE = 2 };
+  // The settings M723 sets, in the order of its words (Q and R share TARGET),
+  // so one table of limits checks and reports them all.
+  enum Setting : uint8_t { TARGET, DIA, HEIGHT, MIN_V, MAX_V, SETTINGS };
 
+  float feed_on(float xy_len, float de, float feed_mm_s);
+  float feed_xy_on(float dx, float dy, float de, float feed_mm_s);
   float retime(float xy_len, float de);
   void recompute();
-  void report(char *reply, uint8_t reply_size) const;
+  void report(ReplyText &o) const;
 
   bool on_;
   uint8_t target_kind_;
-  float target_;     // Q (mm^3/s) or R (mm/s), as the user gave it
-  float dia_;        // filament diameter, mm
-  float area_;       // filament cross-section, mm^2
-  float inv_area_;   // 1 / area_, so the W path needs no division
-  float h_;          // layer height for W words, 0 = none
-  float min_v_;      // L
-  float max_v_;      // U
-  int16_t percent_;  // M220
-  float base_rate_;  // r from target_ and area_
-  float rate_;       // base_rate_ * percent_ / 100: the r the moves use
+  float set_[SETTINGS];  // Q (mm^3/s) or R (mm/s) as given, D mm, H mm (0 = none), L, U mm/s
+  float inv_area_;       // 1 / filament cross-section, so the W path needs no division
+  float rate_;           // r from the target, D and percent_: the r the moves use
+  int16_t percent_;      // M220
   WidthStats stats_;
 };
 

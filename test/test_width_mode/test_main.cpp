@@ -15,8 +15,6 @@ static const float kArea175 = 3.14159265f * 1.75f * 1.75f / 4.0f;
 
 static bool cmd(WidthMode &m, const char *line) { return m.command(line, reply, sizeof reply); }
 
-static bool starts_with_error(const char *s) { return strncmp(s, "Error:", 6) == 0; }
-
 // Snapshot of everything the mode shows: settings, rate, M220 and statistics.
 static void snapshot(WidthMode &m, char *out) {
   TEST_ASSERT_TRUE(m.command("M723", out, WidthMode::REPLY_MIN));
@@ -33,8 +31,8 @@ static void test_defaults_and_report(void) {
   TEST_ASSERT_FALSE(m.has_target());
   TEST_ASSERT_TRUE(cmd(m, "M723"));
   TEST_ASSERT_EQUAL_STRING(
-      "echo:  M723 S0 D1.750 H0.000 L5.00 U150.00\n"
-      "echo:WidthMode rate:0.000mm/s feed%:100 moves:0 low:0 high:0 maxdev:0.00% meandev:0.00%",
+      "echo:  M723 S0 D1.750 H0.000 L5.000 U150.000\n"
+      "echo:width rate:0.000 feed%:100 moves:0 low:0 high:0 maxdev:0.00% meandev:0.00%",
       reply);
 }
 
@@ -47,8 +45,8 @@ static void test_enter_with_flow(void) {
   TEST_ASSERT_FLOAT_WITHIN(1e-4f, 3.6f, m.flow());
   TEST_ASSERT_TRUE(cmd(m, "M723"));
   TEST_ASSERT_EQUAL_STRING(
-      "echo:  M723 S1 Q3.600 D1.750 H0.200 L5.00 U150.00\n"
-      "echo:WidthMode rate:1.497mm/s feed%:100 moves:0 low:0 high:0 maxdev:0.00% meandev:0.00%",
+      "echo:  M723 S1 Q3.600 D1.750 H0.200 L5.000 U150.000\n"
+      "echo:width rate:1.497 feed%:100 moves:0 low:0 high:0 maxdev:0.00% meandev:0.00%",
       reply);
   // A new diameter keeps the flow target and changes the extruder rate.
   TEST_ASSERT_TRUE(cmd(m, "M723 D2.85"));
@@ -61,8 +59,8 @@ static void test_enter_with_rate(void) {
   TEST_ASSERT_EQUAL_FLOAT(2.0f, m.rate());  // R is the rate itself, whatever D is
   TEST_ASSERT_TRUE(cmd(m, "M723"));
   TEST_ASSERT_EQUAL_STRING(
-      "echo:  M723 S1 R2.000 D2.850 H0.000 L5.00 U150.00\n"
-      "echo:WidthMode rate:2.000mm/s feed%:100 moves:0 low:0 high:0 maxdev:0.00% meandev:0.00%",
+      "echo:  M723 S1 R2.000 D2.850 H0.000 L5.000 U150.000\n"
+      "echo:width rate:2.000 feed%:100 moves:0 low:0 high:0 maxdev:0.00% meandev:0.00%",
       reply);
 }
 
@@ -123,8 +121,8 @@ static void test_clamping_and_statistics(void) {
   TEST_ASSERT_FLOAT_WITHIN(1e-4f, 0.6f + 5.0f / 1.5f - 1.0f, s.sum_dev);
   TEST_ASSERT_TRUE(cmd(m, "M723"));
   TEST_ASSERT_EQUAL_STRING(
-      "echo:  M723 S1 R1.500 D1.750 H0.000 L5.00 U60.00\n"
-      "echo:WidthMode rate:1.500mm/s feed%:100 moves:3 low:1 high:1 maxdev:233.33% meandev:146.67%",
+      "echo:  M723 S1 R1.500 D1.750 H0.000 L5.000 U60.000\n"
+      "echo:width rate:1.500 feed%:100 moves:3 low:1 high:1 maxdev:233.33% meandev:146.67%",
       reply);
   // Limits exactly at the bound are not clamps.
   v = m.feed(10.0f, 0.25f, 40.0f);  // exactly 60
@@ -179,7 +177,7 @@ static void test_off_is_bit_identical(void) {
   TEST_ASSERT_EQUAL_UINT32(moves, m.stats().moves);
   // Settings survive S0 so S1 alone resumes.
   TEST_ASSERT_TRUE(cmd(m, "M723"));
-  static const char line1[] = "echo:  M723 S0 Q3.600 D1.750 H0.200 L5.00 U60.00\n";
+  static const char line1[] = "echo:  M723 S0 Q3.600 D1.750 H0.200 L5.000 U60.000\n";
   TEST_ASSERT_EQUAL_INT(0, strncmp(reply, line1, sizeof line1 - 1));
   float de = 0;
   TEST_ASSERT_FALSE(m.width_e(0.5f, false, 10.0f, de, reply, sizeof reply));  // W refused when off
@@ -207,28 +205,28 @@ static void test_width_word_errors(void) {
   WidthMode m;
   float de = 7.0f;
   TEST_ASSERT_FALSE(m.width_e(0.5f, false, 10.0f, de, reply, sizeof reply));
-  TEST_ASSERT_EQUAL_STRING("Error:W needs width mode on (M723 S1)", reply);
+  TEST_ASSERT_EQUAL_STRING("Error:W needs M723 S1 and H", reply);
   TEST_ASSERT_TRUE(cmd(m, "M723 S1 R1.5"));
   TEST_ASSERT_FALSE(m.width_e(0.5f, false, 10.0f, de, reply, sizeof reply));
-  TEST_ASSERT_EQUAL_STRING("Error:W needs a layer height (M723 H)", reply);
+  TEST_ASSERT_EQUAL_STRING("Error:W needs M723 S1 and H", reply);
   TEST_ASSERT_TRUE(cmd(m, "M723 H0.2"));
   TEST_ASSERT_FALSE(m.width_e(0.5f, true, 10.0f, de, reply, sizeof reply));
-  TEST_ASSERT_EQUAL_STRING("Error:W and E in one move; send one of them", reply);
+  TEST_ASSERT_EQUAL_STRING("Error:W and E in one move", reply);
   TEST_ASSERT_FALSE(m.width_e(0.0f, false, 10.0f, de, reply, sizeof reply));
-  TEST_ASSERT_EQUAL_STRING("Error:W0.000 outside 0..5.00 mm", reply);
+  TEST_ASSERT_EQUAL_STRING("Error:W0.000 not in (0.000..5.000]", reply);
   TEST_ASSERT_FALSE(m.width_e(-0.4f, false, 10.0f, de, reply, sizeof reply));
-  TEST_ASSERT_EQUAL_STRING("Error:W-0.400 outside 0..5.00 mm", reply);
+  TEST_ASSERT_EQUAL_STRING("Error:W-0.400 not in (0.000..5.000]", reply);
   TEST_ASSERT_FALSE(m.width_e(5.5f, false, 10.0f, de, reply, sizeof reply));
-  TEST_ASSERT_EQUAL_STRING("Error:W5.500 outside 0..5.00 mm", reply);
+  TEST_ASSERT_EQUAL_STRING("Error:W5.500 not in (0.000..5.000]", reply);
   TEST_ASSERT_FALSE(m.width_e(0.5f, false, 0.0f, de, reply, sizeof reply));
-  TEST_ASSERT_EQUAL_STRING("Error:W on a move without XY travel", reply);
+  TEST_ASSERT_EQUAL_STRING("Error:W without XY travel", reply);
   char small[WidthMode::ERROR_REPLY_MIN - 1];
   TEST_ASSERT_FALSE(m.width_e(0.5f, false, 10.0f, de, small, sizeof small));
-  TEST_ASSERT_TRUE(starts_with_error(small));
+  TEST_ASSERT_EQUAL_STRING("Error:M723 bad call", small);
   TEST_ASSERT_EQUAL_FLOAT(7.0f, de);  // never written on failure
   TEST_ASSERT_TRUE(cmd(m, "M723 H0"));  // H0: no layer height again
   TEST_ASSERT_FALSE(m.width_e(0.5f, false, 10.0f, de, reply, sizeof reply));
-  TEST_ASSERT_EQUAL_STRING("Error:W needs a layer height (M723 H)", reply);
+  TEST_ASSERT_EQUAL_STRING("Error:W needs M723 S1 and H", reply);
 }
 
 struct BadCase {
@@ -240,33 +238,42 @@ struct BadCase {
 // statistic as it was, including the valid words given with the bad one.
 static void test_bad_arguments(void) {
   static const BadCase cases[] = {
-      {"M723 Q0", "Error:M723 Q must be > 0 mm3/s"},
-      {"M723 Q-2", "Error:M723 Q must be > 0 mm3/s"},
-      {"M723 Q150", "Error:M723 Q150.000 exceeds max flow 100.0 mm3/s"},
-      {"M723 R0", "Error:M723 R must be > 0 mm/s"},
-      {"M723 R60", "Error:M723 R60.000 exceeds max extruder rate 50.0 mm/s"},
-      {"M723 Q3 R1", "Error:M723 give Q (flow) or R (rate), not both"},
-      {"M723 D0", "Error:M723 D must be > 0 mm"},
-      {"M723 D-1.75", "Error:M723 D must be > 0 mm"},
-      {"M723 D5", "Error:M723 D5.000 outside 1.00..3.50 mm"},
-      {"M723 S1 Q3 D0", "Error:M723 D must be > 0 mm"},
-      {"M723 H-0.1", "Error:M723 H must be >= 0 mm (0: no layer height)"},
-      {"M723 H2.5", "Error:M723 H2.500 exceeds max layer height 2.00 mm"},
-      {"M723 L0", "Error:M723 L must be at least 0.10 mm/s"},
-      {"M723 U0", "Error:M723 U must be at least 0.10 mm/s"},
-      {"M723 U1500", "Error:M723 U1500.00 exceeds max 1000.0 mm/s"},
-      {"M723 L50 U20", "Error:M723 L50.00 above U20.00 mm/s"},
-      {"M723 L90", "Error:M723 L90.00 above U80.00 mm/s"},  // against the U in force
-      {"M723 Q100 D1", "Error:M723 extruder rate 127.324 exceeds max 50.0 mm/s (check Q and D)"},
-      {"M723 D1", "Error:M723 extruder rate 50.930 exceeds max 50.0 mm/s (check Q and D)"},
-      {"M723 S2", "Error:M723 S must be 0 (off) or 1 (on)"},
-      {"M723 S1.0", "Error:M723 S must be 0 (off) or 1 (on)"},
-      {"M723 S", "Error:M723 S must be 0 (off) or 1 (on)"},
-      {"M723 Q1x", "Error:M723 bad value for Q"},
-      {"M723 H", "Error:M723 bad value for H"},
+      {"M723 Q0", "Error:M723 Q0.000 not in (0.000..100.000]"},
+      {"M723 Q-2", "Error:M723 Q-2.000 not in (0.000..100.000]"},
+      {"M723 Q150", "Error:M723 Q150.000 not in (0.000..100.000]"},
+      {"M723 R0", "Error:M723 R0.000 not in (0.000..50.000]"},
+      {"M723 R60", "Error:M723 R60.000 not in (0.000..50.000]"},
+      {"M723 Q3 R1", "Error:M723 Q or R, not both"},
+      {"M723 R1 Q3", "Error:M723 Q or R, not both"},
+      {"M723 Q3 R", "Error:M723 R bad number"},
+      {"M723 D0", "Error:M723 D0.000 not in [1.000..3.500]"},
+      {"M723 D-1.75", "Error:M723 D-1.750 not in [1.000..3.500]"},
+      {"M723 D5", "Error:M723 D5.000 not in [1.000..3.500]"},
+      {"M723 S1 Q3 D0", "Error:M723 D0.000 not in [1.000..3.500]"},
+      {"M723 H-0.1", "Error:M723 H-0.100 not in [0.000..2.000]"},
+      {"M723 H2.5", "Error:M723 H2.500 not in [0.000..2.000]"},
+      {"M723 L0", "Error:M723 L0.000 not in [0.100..1000.000]"},
+      {"M723 L0.05 U900", "Error:M723 L0.050 not in [0.100..1000.000]"},
+      {"M723 U0", "Error:M723 U0.000 not in [0.100..1000.000]"},
+      {"M723 U1500", "Error:M723 U1500.000 not in [0.100..1000.000]"},
+      {"M723 S1 R2 D1.8 H0.5 L1 U1500", "Error:M723 U1500.000 not in [0.100..1000.000]"},  // last word
+      {"M723 L50 U20", "Error:M723 L50.000 > U20.000"},
+      {"M723 L90", "Error:M723 L90.000 > U80.000"},  // against the U in force
+      {"M723 U7.5", "Error:M723 L8.000 > U7.500"},   // against the L in force
+      {"M723 Q100 D1", "Error:M723 extruder rate 127.324 > 50.000 (Q, D)"},
+      {"M723 D1", "Error:M723 extruder rate 50.930 > 50.000 (Q, D)"},  // Q40 in force
+      {"M723 S2", "Error:M723 S must be 0 or 1"},
+      {"M723 S-1", "Error:M723 S must be 0 or 1"},
+      {"M723 S1.0", "Error:M723 S must be 0 or 1"},
+      {"M723 S", "Error:M723 S must be 0 or 1"},
+      {"M723 Q1x", "Error:M723 Q bad number"},
+      {"M723 H", "Error:M723 H bad number"},
+      {"M723 S1 H0.3 U", "Error:M723 U bad number"},
       {"M723 S1 X5", "Error:M723 unknown parameter X"},
       {"M723 W0.5", "Error:M723 unknown parameter W"},
-      {"M720 S1", "Error:M723 handler given another command"},
+      {"M723 D2 D3", "Error:M723 duplicate parameter D"},
+      {"M720 S1", "Error:M723 bad call"},
+      {"G723 S1", "Error:M723 bad call"},
       {"hello", "Error:M723 not a G-code line"},
   };
   WidthMode m;
@@ -291,13 +298,13 @@ static void test_bad_arguments(void) {
   // S1 needs a target; a fresh mode has none.
   WidthMode fresh;
   TEST_ASSERT_FALSE(cmd(fresh, "M723 S1 H0.2"));
-  TEST_ASSERT_EQUAL_STRING("Error:M723 S1 needs a flow Q or an extruder rate R", reply);
+  TEST_ASSERT_EQUAL_STRING("Error:M723 S1 needs Q or R", reply);
   TEST_ASSERT_FALSE(fresh.active());
   TEST_ASSERT_EQUAL_FLOAT(0.0f, fresh.layer_height());
   // A reply buffer below REPLY_MIN is refused, nothing applied.
   char small[WidthMode::REPLY_MIN - 1];
   TEST_ASSERT_FALSE(fresh.command("M723 S1 R2", small, sizeof small));
-  TEST_ASSERT_TRUE(starts_with_error(small));
+  TEST_ASSERT_EQUAL_STRING("Error:M723 bad call", small);
   TEST_ASSERT_FALSE(fresh.active());
 }
 
@@ -333,20 +340,59 @@ static void test_feed_percentage(void) {
   TEST_ASSERT_TRUE(cmd(m, "M723 S1 R2"));
   TEST_ASSERT_FLOAT_WITHIN(1e-5f, 1.6f, m.rate());
   TEST_ASSERT_TRUE(cmd(m, "M723"));
-  TEST_ASSERT_EQUAL_INT(0, strncmp(strchr(reply, '\n') + 1, "echo:WidthMode rate:1.600mm/s feed%:80 ", 39));
+  TEST_ASSERT_EQUAL_INT(0, strncmp(strchr(reply, '\n') + 1, "echo:width rate:1.600 feed%:80 ", 31));
+}
+
+// The settings line is what M500 stores and the Marlin adapter sends back on load
+// (without "echo:  "): it must be a valid M723 giving the very same settings.
+static void read_back(const char *set) {
+  WidthMode m;
+  TEST_ASSERT_TRUE(cmd(m, set));
+  TEST_ASSERT_TRUE(cmd(m, "M723"));
+  char line[WidthMode::REPLY_MIN];
+  const char *start = reply + 7;  // after "echo:  "
+  const size_t len = (size_t)(strchr(reply, '\n') - start);
+  memcpy(line, start, len);
+  line[len] = 0;
+  WidthMode back;
+  const bool ok = back.command(line, before, sizeof before);
+  if (!ok) {
+    TEST_PRINT("  line: ");
+    bkt_puts(line);
+    bkt_putc('\n');
+  }
+  TEST_ASSERT_TRUE_MESSAGE(ok, "settings line refused");
+  TEST_ASSERT_TRUE(m.active() == back.active());
+  TEST_ASSERT_TRUE(same_bits(m.flow(), back.flow()));
+  TEST_ASSERT_TRUE(same_bits(m.rate(), back.rate()));
+  TEST_ASSERT_TRUE(same_bits(m.filament_dia(), back.filament_dia()));
+  TEST_ASSERT_TRUE(same_bits(m.layer_height(), back.layer_height()));
+  TEST_ASSERT_TRUE(same_bits(m.min_speed(), back.min_speed()));
+  TEST_ASSERT_TRUE(same_bits(m.max_speed(), back.max_speed()));
+}
+
+static void test_settings_line_reads_back(void) {
+  read_back("M723 S0");
+  read_back("M723 S1 Q3.217 D2.85 H0.123 L0.125 U999.999");
+  read_back("M723 R0.001 D1 H2 L0.1 U0.1");
+  read_back("M723 S1 Q100 D3.5 H0 L1000 U1000");
 }
 
 // The report's worst case must fit REPLY_MIN: largest settings, deviations over
 // the printable bound, and counters that may grow to 10 digits.
 static void test_report_fits(void) {
   WidthMode m;
-  TEST_ASSERT_TRUE(cmd(m, "M723 S1 Q100 D3.5 H2 L999.99 U1000"));
+  TEST_ASSERT_TRUE(cmd(m, "M723 S1 Q100 D3.5 H2 L1000 U1000"));
   m.set_feed_percent(999);
   m.feed(0.001f, 1000.0f, 1.0f);  // wants ~0 mm/s: deviation far beyond 1e6 %
   TEST_ASSERT_TRUE(cmd(m, "M723"));
   TEST_ASSERT_TRUE(strstr(reply, "maxdev:>=1000000% meandev:>=1000000%") != NULL);
   // Three counters shown with 1 digit here could need 10.
   TEST_ASSERT_LESS_THAN_INT(WidthMode::REPLY_MIN, (int32_t)strlen(reply) + 3 * 9 + 1);
+  // The settings line, as M500 stores it (without "echo:  " and " S1"), fits the
+  // Marlin adapter's 64-byte EEPROM line with its terminating zero.
+  const int32_t stored = (int32_t)(strchr(reply, '\n') - reply) - 7 - 3;
+  TEST_ASSERT_LESS_THAN_INT(64, stored);
 }
 
 int main(void) {
@@ -364,6 +410,7 @@ int main(void) {
   RUN_TEST(test_width_word_errors);
   RUN_TEST(test_bad_arguments);
   RUN_TEST(test_feed_percentage);
+  RUN_TEST(test_settings_line_reads_back);
   RUN_TEST(test_report_fits);
   return UNITY_END();
 }
