@@ -70,7 +70,7 @@ class BulgeKit {
   /**
    * Settings in EEPROM (hooks in settings.cpp). M720 and M723 keep their
    * parameters as the command line M503 prints, without the S switch:
-   * "M720 P100 E0.100 T0.250", "M723 Q3.200 D1.750 H0.200 L5.00 U60.00".
+   * "M720 P100 E0.100 T0.250", "M723 Q3.200 D1.750 H0.200 L5.000 U60.000".
    * Loading runs that line through the same parser and checks as a typed
    * command, so a stored value can never bypass a limit (a refused line
    * prints its Error: and the values stay as they were). The S switches are
