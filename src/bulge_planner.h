@@ -23,11 +23,14 @@
 //     more = planner.plan_more(out);
 //   }
 //
-// Bounded output: an ActionList holds at most BK_PLAN_HITS_MAX bulge points
-// (2*BK_PLAN_HITS_MAX+1 actions). If the move passes more, plan() returns true
-// and plan_more() gives the next list, until it returns false. No point is
-// dropped; a caller that stops calling plan_more() leaves the rest of the move
-// unexecuted, so it must not.
+// Bounded output: an ActionList holds at most BK_PLAN_HITS_MAX cuts (a line
+// to a stop and the stop: 2*BK_PLAN_HITS_MAX+1 actions with the final line).
+// If the move passes more, plan() returns true and plan_more() gives the next
+// list, until it returns false. No point is dropped; a caller that stops
+// calling plan_more() leaves the rest of the move unexecuted, so it must not.
+// The planner reads the Move given to plan() again in plan_more() (it keeps a
+// pointer, not a copy): keep it alive and unchanged until plan() or
+// plan_more() has returned false.
 //
 // No heap, no STL; builds with avr-gcc 5.4 (gnu++11).
 #ifndef BK_BULGE_PLANNER_H
@@ -118,12 +121,14 @@ class BulgePlanner {
  private:
   bool eligible(const Move &m);
   bool window(int32_t z_cmm);
+  void set_window(int32_t below, int32_t above);
   void derive();
   void collect(const Move &mv);
   bool exact(const Move &mv, uint8_t i, float &t);
   bool emit(ActionList &out);
   void line_to(ActionList &out, float t, float e);
-  void drop_carry();
+  void pay_owed(ActionList &out, Action &a);
+  void drop_owed();
 
   // settings (M720)
   uint8_t mode_;
@@ -133,37 +138,37 @@ class BulgePlanner {
 
   // layer window
   MapStore *store_;
-  bool has_layer_, has_miss_, cache_ok_, overflow_;
+  bool has_layer_, has_miss_;
   uint8_t q_um_, lh_cmm_;
+  // The loaded layer stays in use while a move's z (cmm) is within
+  // [win_lo_, win_hi_]: half a layer height around it, narrowed to the
+  // half-way marks towards the records next to it (MapStore::neighbors).
+  uint16_t win_lo_, win_hi_;
   int32_t miss_z_;        // z (cmm) known to have no layer
-  // The records next to the loaded layer (MapStore::neighbors) and the map's
-  // last z when they (or the miss) were read: an append changes it, and then
-  // both are read again, so a layer that arrives late is still found.
-  int32_t below_z_, above_z_;
+  // The map's last z when the neighbours (or the miss) were read: an append
+  // changes it, and then both are read again, so a late layer is still found.
   uint16_t seen_last_z_;
   int16_t tol_q_;         // tolerance in quanta, rounded up, plus rounding margin
-  float q_mm_, inv_q_, tol2_;
+  float inv_q_;           // quanta per mm
   uint8_t fired_[(BK_LAYER_POINTS_MAX + 7) / 8];
 
   // the last move end, in quanta: the next move usually starts there
-  float cache_x_, cache_y_, cache_z_;
+  bool cache_ok_, cache_far_;
   int16_t cache_qx_, cache_qy_;
-  bool cache_far_;
+  float cache_x_, cache_y_, cache_z_;
   int32_t cache_z_cmm_;
 
-  // the move being split
-  Move m_;
-  float len_, len2_;   // XY length and its square, mm (len2_ < 0: not yet known)
-  float fdx_, fdy_;    // XY extent, mm
+  // the move being split (the caller's, see plan_more())
+  const Move *m_;
+  float len2_;         // its XY length squared, mm^2 (< 0: not yet known)
+  float fdx_, fdy_;    // its XY extent, mm
   float t_done_;       // parameter where the next piece starts
-  float pending_;      // extra for the next piece of this move
-  float carry_;        // extra owed to the next move (stop at the last vertex)
+  float owed_;         // extra for the next piece, of this move or the next
   uint16_t stop_ms_;   // dwell given at the current stop so far (merged points)
-  bool active_;
-  uint8_t nhit_;
-  float hit_t_[BK_PLAN_HITS_MAX];
-  uint8_t hit_i_[BK_PLAN_HITS_MAX];
-  int32_t hit_d_[BK_PLAN_HITS_MAX];  // integer distance along the move (ordering)
+  // The nearest unfired point on the move (collect()): hit_i_, at hit_t_.
+  bool hit_, more_;    // there is one; more lie beyond it
+  uint8_t hit_i_;
+  float hit_t_;
 
   PlannerStats stats_;
   MapLayer layer_;  // the decoded working set (the "arena" of this module)

@@ -656,6 +656,7 @@ static void test_merged_stop_respects_the_limits(void) {
     else e += T.a[i].e;
   }
   TEST_ASSERT_EQUAL_UINT32(2000, ms);
+  TEST_ASSERT_EQUAL_INT(1, count_kind(Action::DWELL));  // one stop: one dwell, across lists too
   TEST_ASSERT_FLOAT_WITHIN(1e-5f, 1.0f + 1.0f, e);  // the host's 1.0 + one stop's 1.0
   TEST_ASSERT_FLOAT_WITHIN(1e-4f, 9.0f, P.stats().extra_dropped);
   TEST_ASSERT_EQUAL_UINT(10, P.stats().points_fired);
@@ -772,19 +773,28 @@ static void test_m720_errors_leave_settings(void) {
   bk::GcodeArgs g;
   g.parse("M720 S1 P250 E0.05 T0.3");
   TEST_ASSERT_TRUE(P.m720(g, reply, sizeof reply));
-  expect_m720_error("M720 S2 P2500", "Error:M720 P2500 exceeds max dwell 2000 ms");
-  expect_m720_error("M720 P100 E1.5", "Error:M720 E1.5 exceeds max extra 1.000 mm");
-  expect_m720_error("M720 E-0.1", "Error:M720 E-0.1: extra must be 0..1.000 mm");
-  expect_m720_error("M720 T0.005 S0", "Error:M720 T0.005: tolerance must be 0.010..2.000 mm");
-  expect_m720_error("M720 T2.5", "Error:M720 T2.5: tolerance must be 0.010..2.000 mm");
-  expect_m720_error("M720 S3", "Error:M720 S3: mode must be 0 (off), 1 (marked) or 2 (geometric)");
-  expect_m720_error("M720 P1.5", "Error:M720 P1.5: dwell must be a whole number of ms, 0..2000");
-  expect_m720_error("M720 P", "Error:M720 P: dwell must be a whole number of ms, 0..2000");
+  expect_m720_error("M720 S2 P2500", "Error:M720 P2500.000 not in [0.000..2000.000]");
+  expect_m720_error("M720 P100 E1.5", "Error:M720 E1.500 not in [0.000..1.000]");
+  expect_m720_error("M720 E-0.1", "Error:M720 E-0.100 not in [0.000..1.000]");
+  expect_m720_error("M720 T0.005 S0", "Error:M720 T0.005 not in [0.010..2.000]");
+  expect_m720_error("M720 T2.5", "Error:M720 T2.500 not in [0.010..2.000]");
+  expect_m720_error("M720 S3", "Error:M720 S3.000 not in [0.000..2.000]");
+  expect_m720_error("M720 S-1", "Error:M720 S-1.000 not in [0.000..2.000]");
+  expect_m720_error("M720 S1.5", "Error:M720 S1.500 not a whole number");
+  expect_m720_error("M720 P1.5", "Error:M720 P1.500 not a whole number");
+  expect_m720_error("M720 P", "Error:M720 P bad number");
   expect_m720_error("M720 S0 Q1", "Error:M720 unknown parameter Q");
-  expect_m720_error("M720 E0.2x", "Error:M720 E0.2x: extra must be 0..1.000 mm");
+  expect_m720_error("M720 E0.2x", "Error:M720 E bad number");
   expect_m720_error("M720 P100 P3000", "Error:M720 duplicate parameter P");
+  // all or nothing: a good S before a bad T changes nothing
+  expect_m720_error("M720 S0 P0 T9", "Error:M720 T9.000 not in [0.010..2.000]");
   // a number that would wrap to 0 past 2^32 is refused, not taken as P0
-  expect_m720_error("M720 P4294967296", "Error:M720 P4294967296: dwell must be a whole number of ms, 0..2000");
+  expect_m720_error("M720 P4294967296", "Error:M720 P bad number");
+  // a whole value written with decimals is that value
+  bk::GcodeArgs g2;
+  g2.parse("M720 P2000.0 S1");
+  TEST_ASSERT_TRUE(P.m720(g2, reply, sizeof reply));
+  TEST_ASSERT_EQUAL_INT(2000, P.dwell_ms());
 }
 
 static void test_m722_errors(void) {
@@ -793,10 +803,11 @@ static void test_m722_errors(void) {
   TEST_ASSERT_TRUE(P.m722(g, reply, sizeof reply));
   g.parse("M722 S2");
   TEST_ASSERT_FALSE(P.m722(g, reply, sizeof reply));
-  TEST_ASSERT_EQUAL_STRING("Error:M722 needs S1 (enter outer wall) or S0 (leave)", reply);
+  TEST_ASSERT_EQUAL_STRING("Error:M722 needs S0 or S1", reply);
   TEST_ASSERT_TRUE(P.in_outer_wall());
   g.parse("M722");
   TEST_ASSERT_FALSE(P.m722(g, reply, sizeof reply));
+  TEST_ASSERT_EQUAL_STRING("Error:M722 needs S0 or S1", reply);
   g.parse("M722 S0 X1");
   TEST_ASSERT_FALSE(P.m722(g, reply, sizeof reply));
   TEST_ASSERT_EQUAL_STRING("Error:M722 unknown parameter X", reply);
