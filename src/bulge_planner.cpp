@@ -23,7 +23,12 @@ void BulgePlanner::reset() {
   derive();
 }
 
+#if BK_PLAN_STATS
 void BulgePlanner::clear_stats() { memset(&stats_, 0, sizeof(stats_)); }
+#define BK_STAT(x) x
+#else
+#define BK_STAT(x)
+#endif
 
 // Values that depend on the quantum and the tolerance, computed once here
 // rather than per move.
@@ -78,7 +83,7 @@ void BulgePlanner::load_layer(const MapLayer &layer, uint8_t quantum_um, uint8_t
   has_miss_ = false;
   set_window(-1, INT32_MAX);  // a layer given directly: no neighbours known
   seen_last_z_ = store_ ? store_->last_z() : 0;
-  stats_.layers_loaded++;
+  BK_STAT(stats_.layers_loaded++);
 }
 
 // ---- layer window --------------------------------------------------------------
@@ -121,7 +126,7 @@ bool BulgePlanner::window(int32_t z_cmm) {
   // Only a different layer starts with no point fired: the same one read again
   // (after an append) keeps its marks, so no point dwells twice.
   if (had && layer_.z_cmm == old_z) return true;
-  stats_.layers_loaded++;
+  BK_STAT(stats_.layers_loaded++);
   memset(fired_, 0, sizeof(fired_));
   // Printing moved up: the layers below are done, give their bytes back (room
   // for appended records). Never on the way down, so nothing still needed goes.
@@ -310,7 +315,7 @@ static Action &put_line(ActionList &out, float x, float y, float z, float e) {
 void BulgePlanner::pay_owed(ActionList &out, Action &a) {
   a.e += owed_;
   out.e_added += owed_;
-  stats_.extra_applied += owed_;
+  BK_STAT(stats_.extra_applied += owed_);
   owed_ = 0.0f;
 }
 
@@ -349,7 +354,7 @@ bool BulgePlanner::emit(ActionList &out) {
     // just behind it): it stops there instead of queueing a sub-step piece.
     const uint8_t i = hit_i_;
     fired_[i >> 3] |= (uint8_t)(1 << (i & 7));
-    stats_.points_fired++;
+    BK_STAT(stats_.points_fired++);
     const uint8_t w = layer_.pts[i].w;
     uint16_t ms = w == MAP_WEIGHT_FULL ? dwell_ms_ : (uint16_t)(((uint32_t)dwell_ms_ * w + 127) / 255);
     // Points closer than the minimum piece share one stop (also across moves,
@@ -369,7 +374,7 @@ bool BulgePlanner::emit(ActionList &out) {
     const float room = BK_MAX_EXTRA_E_MM - owed_;
     if (extra > room) {
       extra = room > 0.0f ? room : 0.0f;
-      stats_.extra_dropped += extra_e_ - extra;
+      BK_STAT(stats_.extra_dropped += extra_e_ - extra);
     }
     owed_ += extra;
     hit_ = false;
@@ -388,7 +393,7 @@ bool BulgePlanner::emit(ActionList &out) {
 // stop at its last vertex is not extruded (counted as dropped).
 void BulgePlanner::drop_owed() {
   if (fbits(owed_)) {
-    stats_.extra_dropped += owed_;
+    BK_STAT(stats_.extra_dropped += owed_);
     owed_ = 0.0f;
   }
   stop_ms_ = 0;
@@ -409,7 +414,7 @@ bool BulgePlanner::plan(const Move &m, ActionList &out) {
   }
   t_done_ = 0.0f;
   collect(m);
-  if (hit_) stats_.moves_split++;
+  BK_STAT(if (hit_) stats_.moves_split++);
   // Nothing on this move (the common case): the move unchanged, plus any
   // extra owed from a stop at its start, without float work.
   if (!hit_) {

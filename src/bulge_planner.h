@@ -68,6 +68,17 @@ struct ActionList {
   Action a[BK_PLAN_ACTIONS_MAX];
 };
 
+// Stop statistics (stats()), for the host tools (bkcore) and tests. The
+// firmware never reads them, so AVR builds leave them out (18 bytes of RAM and
+// the code that counts); define BK_PLAN_STATS 1 to keep them.
+#ifndef BK_PLAN_STATS
+#ifdef __AVR__
+#define BK_PLAN_STATS 0
+#else
+#define BK_PLAN_STATS 1
+#endif
+#endif
+
 struct PlannerStats {
   uint32_t moves_split;    // moves that got at least one stop
   uint32_t points_fired;   // bulge points that made a stop
@@ -115,8 +126,10 @@ class BulgePlanner {
   float extra_e() const { return extra_e_; }
   float tolerance() const { return tol_mm_; }
   bool in_outer_wall() const { return marker_; }
+#if BK_PLAN_STATS
   const PlannerStats &stats() const { return stats_; }
   void clear_stats();
+#endif
 
  private:
   bool eligible(const Move &m);
@@ -170,7 +183,9 @@ class BulgePlanner {
   uint8_t hit_i_;
   float hit_t_;
 
+#if BK_PLAN_STATS
   PlannerStats stats_;
+#endif
   MapLayer layer_;  // the decoded working set (the "arena" of this module)
 };
 
