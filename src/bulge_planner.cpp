@@ -302,7 +302,6 @@ void BulgePlanner::collect(const Move &mv) {
 static Action &put_line(ActionList &out, float x, float y, float z, float e) {
   Action &a = out.a[out.count++];
   a.kind = Action::LINE;
-  a.ms = 0;
   a.x = x;
   a.y = y;
   a.z = z;
@@ -367,8 +366,7 @@ bool BulgePlanner::emit(ActionList &out) {
     } else {
       Action &a = out.a[out.count++];
       a.kind = Action::DWELL;
-      a.ms = ms;
-      a.x = a.y = a.z = a.e = 0.0f;
+      a.ms = ms;  // x, y, z are not used
     }
     float extra = extra_e_;
     const float room = BK_MAX_EXTRA_E_MM - owed_;
@@ -489,7 +487,8 @@ bool BulgePlanner::m720(const GcodeArgs &a, char *reply, uint8_t size) {
 
 bool BulgePlanner::m722(const GcodeArgs &a, char *reply, uint8_t size) {
   ReplyText r(reply, size);
-  if (!check_words(a, "S", BK_F("M722"), r)) return false;
+  const char allowed[2] = {'S', 0};  // on the stack: a literal would take RAM on AVR
+  if (!check_words(a, allowed, BK_F("M722"), r)) return false;
   int32_t s = -1;
   if (a.get_long('S', s) != ARG_OK || (uint32_t)s > 1) {
     r.p(BK_F("Error:M722 needs S0 or S1"));

@@ -55,9 +55,11 @@ enum BulgeMode : uint8_t {
 struct Action {
   enum Kind : uint8_t { LINE = 0, DWELL = 1 };
   uint8_t kind;
-  uint16_t ms;  // DWELL: milliseconds (0 still means: stop here)
   float x, y, z;  // LINE: target, host = machine coordinates
-  float e;        // LINE: filament for this piece (mm), extra included
+  union {
+    float e;      // LINE: filament for this piece (mm), extra included
+    uint16_t ms;  // DWELL: milliseconds (0 still means: stop here)
+  };
 };
 
 static const uint8_t BK_PLAN_ACTIONS_MAX = 2 * BK_PLAN_HITS_MAX + 1;
@@ -145,13 +147,19 @@ class BulgePlanner {
 
   // settings (M720)
   uint8_t mode_;
-  bool marker_;  // M722 S1 seen, no S0 since
+  // Flags in one byte (RAM is what an ATmega2560 lacks).
+  bool marker_ : 1;     // M722 S1 seen, no S0 since
+  bool has_layer_ : 1;  // layer_ is a layer of the map (or load_layer's)
+  bool has_miss_ : 1;   // miss_z_ is known to have no layer
+  bool cache_ok_ : 1;   // cache_* hold the last move's end
+  bool cache_far_ : 1;  // that end was beyond the integer range (see to_q)
+  bool hit_ : 1;        // collect() found a point (hit_i_, hit_t_)...
+  bool more_ : 1;       // ...and more beyond it
   uint16_t dwell_ms_;
   float extra_e_, tol_mm_;
 
   // layer window
   MapStore *store_;
-  bool has_layer_, has_miss_;
   uint8_t q_um_, lh_cmm_;
   // The loaded layer stays in use while a move's z (cmm) is within
   // [win_lo_, win_hi_]: half a layer height around it, narrowed to the
@@ -166,7 +174,6 @@ class BulgePlanner {
   uint8_t fired_[(BK_LAYER_POINTS_MAX + 7) / 8];
 
   // the last move end, in quanta: the next move usually starts there
-  bool cache_ok_, cache_far_;
   int16_t cache_qx_, cache_qy_;
   float cache_x_, cache_y_, cache_z_;
   int32_t cache_z_cmm_;
@@ -179,7 +186,6 @@ class BulgePlanner {
   float owed_;         // extra for the next piece, of this move or the next
   uint16_t stop_ms_;   // dwell given at the current stop so far (merged points)
   // The nearest unfired point on the move (collect()): hit_i_, at hit_t_.
-  bool hit_, more_;    // there is one; more lie beyond it
   uint8_t hit_i_;
   float hit_t_;
 
