@@ -9,6 +9,28 @@
 
 namespace bk {
 
+// A loop over the axes stays a loop: GCC -Os unrolls two or three float
+// iterations (each float operation a library call with its register moves),
+// which is larger. The empty asm hides the counter's value from it.
+static inline uint8_t next_axis(uint8_t k) {
+  __asm__("" : "+r"(k));
+  return (uint8_t)(k + 1);
+}
+#define BK_AXIS_LOOP(k, n) for (uint8_t k = 0; k < (n); k = next_axis(k))
+
+// The hot path runs once per G1 on an 8-bit CPU where every float compare or
+// multiply is a library call (~50-150 cycles), so cheap tests work on the
+// IEEE-754 bits and the per-point work is integer.
+static inline uint32_t fbits(float f) {
+  uint32_t u;
+  memcpy(&u, &f, sizeof u);
+  return u;
+}
+static inline bool fpos(float f) {  // > 0 (not -0, not NaN from the parser)
+  uint32_t u = fbits(f);
+  return u && !(u & 0x80000000UL);
+}
+
 // ---- setup --------------------------------------------------------------------
 
 void BulgePlanner::reset() {
@@ -101,10 +123,18 @@ void BulgePlanner::set_window(int32_t below, int32_t above) {
   win_hi_ = hi > 0xFFFF ? 0xFFFF : (uint16_t)hi;
 }
 
-// True when a layer within half a layer height of z_cmm is loaded, asking the
+// True when a layer within half a layer height of z (mm) is loaded, asking the
 // store when z has left the current one's window. Continuously rising z
 // (spiral vase) walks from layer to layer the same way.
-bool BulgePlanner::window(int32_t z_cmm) {
+bool BulgePlanner::window(float z) {
+  int32_t z_cmm = cache_z_cmm_;
+  if (fbits(z) != fbits(cache_z_)) {  // z in 0.01 mm, rounded; kept for the next move
+    const float v = z * 100.0f;
+    z_cmm = v >= 0.0f ? (int32_t)(v + 0.5f) : -(int32_t)(0.5f - v);
+    cache_z_ = z;
+    cache_z_cmm_ = z_cmm;
+  }
+  if (has_layer_ && z_cmm == (int32_t)layer_.z_cmm) return true;  // see eligible()
   const bool appended = store_ && store_->last_z() != seen_last_z_;
   if (has_layer_ && !appended && z_cmm >= win_lo_ && z_cmm <= win_hi_) return true;
   if (!store_ || (has_miss_ && z_cmm == miss_z_ && !appended)) return false;
@@ -136,19 +166,6 @@ bool BulgePlanner::window(int32_t z_cmm) {
 
 // ---- matching -------------------------------------------------------------------
 
-// The hot path runs once per G1 on an 8-bit CPU where every float compare or
-// multiply is a library call (~50-150 cycles), so cheap tests work on the
-// IEEE-754 bits and the per-point work is integer.
-static inline uint32_t fbits(float f) {
-  uint32_t u;
-  memcpy(&u, &f, sizeof u);
-  return u;
-}
-static inline bool fpos(float f) {  // > 0 (not -0, not NaN from the parser)
-  uint32_t u = fbits(f);
-  return u && !(u & 0x80000000UL);
-}
-
 // mm -> quanta, truncated (derive() widens the tolerance for that). Beyond
 // +-2^14 quanta the result saturates and far is set: the caller then skips the
 // integer tests, whose products would no longer fit 32 bits. The range check
@@ -167,37 +184,40 @@ static inline int16_t to_q(float mm, float inv_q, bool &far) {
 bool BulgePlanner::eligible(const Move &m) {
   if (mode_ == BULGE_OFF || (mode_ == BULGE_MARKED && !marker_)) return false;
   if (!fpos(m.e) || (fbits(m.x0) == fbits(m.x1) && fbits(m.y0) == fbits(m.y1))) return false;
-  int32_t zc;
-  if (fbits(m.z1) == fbits(cache_z_)) {
-    zc = cache_z_cmm_;
-  } else {
-    float v = m.z1 * 100.0f;
-    zc = v >= 0.0f ? (int32_t)(v + 0.5f) : -(int32_t)(0.5f - v);
-    cache_z_ = m.z1;
-    cache_z_cmm_ = zc;
-  }
   // The common case inline: a whole layer printed at the layer's own z (no
   // other layer can be nearer, appended or not). window() handles the rest.
-  if (has_layer_ && zc == (int32_t)layer_.z_cmm) return layer_.count != 0;
-  return window(zc) && layer_.count;
+  if (fbits(m.z1) == fbits(cache_z_) && has_layer_ && cache_z_cmm_ == (int32_t)layer_.z_cmm) return layer_.count != 0;
+  return window(m.z1) && layer_.count;
 }
 
 // Exact test in mm against the host's own segment: true and t (0..1, the
-// parameter of the nearest point) when point i lies within the tolerance.
-bool BulgePlanner::exact(const Move &mv, uint8_t i, float &t) {
+// parameter of the nearest point) when point i lies within the tolerance. fd
+// holds the move's XY extent, set with len2_ by the first call of a collect().
+bool BulgePlanner::exact(const Move &mv, uint8_t i, float *fd, float &t) {
   if (fbits(len2_) & 0x80000000UL) {  // first candidate of this move (len2_ = -1)
-    fdx_ = mv.x1 - mv.x0;
-    fdy_ = mv.y1 - mv.y0;
-    len2_ = fdx_ * fdx_ + fdy_ * fdy_;
+    float s = 0.0f;
+    BK_AXIS_LOOP(k, 2) {
+      fd[k] = mv.p[3 + k] - mv.p[k];
+      s += fd[k] * fd[k];
+    }
+    len2_ = s;
   }
   if (!fbits(len2_)) return false;  // no real motion (a sum of squares is never -0)
   const float q_mm = (float)q_um_ * 0.001f;
-  const float ux = (float)layer_.pts[i].x * q_mm - mv.x0, uy = (float)layer_.pts[i].y * q_mm - mv.y0;
-  t = (ux * fdx_ + uy * fdy_) / len2_;
+  float u[2], dot = 0.0f;
+  BK_AXIS_LOOP(k, 2) {
+    u[k] = (float)(k ? layer_.pts[i].y : layer_.pts[i].x) * q_mm - mv.p[k];
+    dot += u[k] * fd[k];
+  }
+  t = dot / len2_;
   if (t < 0.0f) t = 0.0f;
   if (t > 1.0f) t = 1.0f;
-  const float ex = ux - t * fdx_, ey = uy - t * fdy_;
-  return ex * ex + ey * ey <= tol_mm_ * tol_mm_;
+  float e2 = 0.0f;
+  BK_AXIS_LOOP(k, 2) {
+    const float d = u[k] - t * fd[k];
+    e2 += d * d;
+  }
+  return e2 <= tol_mm_ * tol_mm_;
 }
 
 // Finds the unfired point within the tolerance of segment mv nearest to its
@@ -258,6 +278,7 @@ void BulgePlanner::collect(const Move &mv) {
   // Walk the x range. Once a hit is kept, a point whose integer distance along
   // the move is clearly beyond it skips the float test.
   int32_t dot_cut = 0;
+  float fd[2];  // set by exact() with len2_
   len2_ = -1.0f;
   for (uint8_t i = lo; i < n && pts[i].x <= x_hi; i++) {
     const int16_t py = pts[i].y;
@@ -284,7 +305,7 @@ void BulgePlanner::collect(const Move &mv) {
       }
     }
     float t;
-    if (!exact(mv, i, t)) continue;
+    if (!exact(mv, i, fd, t)) continue;
     if (hit_) {
       more_ = true;
       if (t >= hit_t_) continue;  // equal t: the first in sorted order goes first
@@ -322,13 +343,14 @@ void BulgePlanner::pay_owed(ActionList &out, Action &a) {
 // plus what is owed from the stop before it.
 void BulgePlanner::line_to(ActionList &out, float t, float e) {
   const Move &m = *m_;
-  float x = m.x1, y = m.y1, z = m.z1;  // the end: the host's own numbers
-  if (t < 1.0f) {
-    x = m.x0 + t * fdx_;
-    y = m.y0 + t * fdy_;
-    if (fbits(m.z0) != fbits(m.z1)) z = m.z0 + t * (m.z1 - m.z0);
+  float p[3];
+  const bool inside = t < 1.0f;
+  for (uint8_t k = 0; k < 3; k++) {
+    p[k] = m.p[3 + k];  // the end: the host's own numbers, not a recomputation
+    // z only when it changes along the move (spiral vase)
+    if (inside && (k < 2 || fbits(m.z0) != fbits(m.z1))) p[k] = m.p[k] + t * (m.p[3 + k] - m.p[k]);
   }
-  Action &a = put_line(out, x, y, z, e);
+  Action &a = put_line(out, p[0], p[1], p[2], e);
   stop_ms_ = 0;  // the head moves on: the next stop starts afresh
   if (fbits(owed_)) pay_owed(out, a);
 }
@@ -387,14 +409,19 @@ bool BulgePlanner::emit(ActionList &out) {
   return false;
 }
 
-// A travel, retraction or non-wall move ends the wall: the extra owed from a
-// stop at its last vertex is not extruded (counted as dropped).
-void BulgePlanner::drop_owed() {
-  if (fbits(owed_)) {
-    BK_STAT(stats_.extra_dropped += owed_);
-    owed_ = 0.0f;
+// A move the planner leaves alone, as one LINE. A move that moves nothing
+// (Marlin hands "G1 F1200" to us too) keeps the extra owed from a stop at a
+// wall's end for the next piece; any real travel, retraction or non-wall move
+// ends the wall, and the extra is not extruded (counted as dropped).
+void BulgePlanner::pass(const Move &m, ActionList &out) {
+  if (!(m.x0 == m.x1 && m.y0 == m.y1 && m.z0 == m.z1 && m.e == 0.0f)) {
+    if (fbits(owed_)) {
+      BK_STAT(stats_.extra_dropped += owed_);
+      owed_ = 0.0f;
+    }
+    stop_ms_ = 0;
   }
-  stop_ms_ = 0;
+  put_line(out, m.x1, m.y1, m.z1, m.e);
 }
 
 bool BulgePlanner::plan(const Move &m, ActionList &out) {
@@ -403,25 +430,21 @@ bool BulgePlanner::plan(const Move &m, ActionList &out) {
   hit_ = false;  // a move left unfinished is given up
   m_ = &m;
   if (!eligible(m)) {
-    // A move that moves nothing (Marlin hands "G1 F1200" to us too) keeps the
-    // extra owed from a stop at a wall's end for the next piece; any real
-    // travel, retraction or non-wall move ends it.
-    if (!(m.x0 == m.x1 && m.y0 == m.y1 && m.z0 == m.z1 && m.e == 0.0f)) drop_owed();
-    put_line(out, m.x1, m.y1, m.z1, m.e);
+    pass(m, out);
     return false;
   }
   t_done_ = 0.0f;
   collect(m);
-  BK_STAT(if (hit_) stats_.moves_split++);
+  if (hit_) {
+    BK_STAT(stats_.moves_split++);
+    return emit(out);
+  }
   // Nothing on this move (the common case): the move unchanged, plus any
   // extra owed from a stop at its start, without float work.
-  if (!hit_) {
-    Action &a = put_line(out, m.x1, m.y1, m.z1, m.e);
-    stop_ms_ = 0;
-    if (fbits(owed_)) pay_owed(out, a);
-    return false;
-  }
-  return emit(out);
+  Action &a = put_line(out, m.x1, m.y1, m.z1, m.e);
+  stop_ms_ = 0;
+  if (fbits(owed_)) pay_owed(out, a);
+  return false;
 }
 
 bool BulgePlanner::plan_more(ActionList &out) {
@@ -443,12 +466,10 @@ static const Limit M720_LIMITS[4] BK_FLASH = {
 
 bool BulgePlanner::m720(const GcodeArgs &a, char *reply, uint8_t size) {
   ReplyText r(reply, size);
-  Limit lim[4];
-  BK_RDBLOCK(lim, M720_LIMITS, sizeof(lim));
-  char letters[5];
-  float v[4] = {(float)mode_, (float)dwell_ms_, extra_e_, tol_mm_};
-  for (uint8_t i = 0; i < 4; i++) letters[i] = lim[i].letter;
+  char letters[5];  // "SPET", on the stack (check_words reads RAM)
+  for (uint8_t i = 0; i < 4; i++) letters[i] = (char)BK_RD8(&M720_LIMITS[i].letter);
   letters[4] = 0;
+  float v[4] = {(float)mode_, (float)dwell_ms_, extra_e_, tol_mm_};
   if (a.none()) {
     r.p(BK_F("echo:  M720"));
     for (uint8_t i = 0; i < 4; i++) {
@@ -462,13 +483,15 @@ bool BulgePlanner::m720(const GcodeArgs &a, char *reply, uint8_t size) {
   if (!check_words(a, letters, code, r)) return false;
   // Check everything first, then apply: all or nothing.
   for (uint8_t i = 0; i < 4; i++) {
+    Limit lim;
+    BK_RDBLOCK(&lim, &M720_LIMITS[i], sizeof(lim));
     float x;
-    const int8_t k = read_limited(a, lim[i], code, x, r);
+    const int8_t k = read_limited(a, lim, code, x, r);
     if (k < 0) return false;
     if (!k) continue;
     if (i < 2 && x != (float)(int16_t)x) {
       r.p(BK_F("Error:M720 "));
-      r.c(letters[i]);
+      r.c(lim.letter);
       r.fixed(x, 3);
       r.p(BK_F(" not a whole number"));
       return false;

@@ -135,18 +135,19 @@ class BulgePlanner {
 
  private:
   bool eligible(const Move &m);
-  bool window(int32_t z_cmm);
+  bool window(float z);
   void set_window(int32_t below, int32_t above);
   void derive();
   void collect(const Move &mv);
-  bool exact(const Move &mv, uint8_t i, float &t);
+  bool exact(const Move &mv, uint8_t i, float *fd, float &t);
   bool emit(ActionList &out);
   void line_to(ActionList &out, float t, float e);
   void pay_owed(ActionList &out, Action &a);
-  void drop_owed();
+  void pass(const Move &m, ActionList &out);
 
-  // settings (M720)
-  uint8_t mode_;
+  // What every G1 reads or writes comes first: an AVR reaches the first 64
+  // bytes of an object without address arithmetic.
+  uint8_t mode_;  // M720 S
   // Flags in one byte (RAM is what an ATmega2560 lacks).
   bool marker_ : 1;     // M722 S1 seen, no S0 since
   bool has_layer_ : 1;  // layer_ is a layer of the map (or load_layer's)
@@ -155,6 +156,26 @@ class BulgePlanner {
   bool cache_far_ : 1;  // that end was beyond the integer range (see to_q)
   bool hit_ : 1;        // collect() found a point (hit_i_, hit_t_)...
   bool more_ : 1;       // ...and more beyond it
+  int16_t tol_q_;       // tolerance in quanta, rounded up, plus rounding margin
+  float inv_q_;         // quanta per mm
+
+  // the last move end, in quanta: the next move usually starts there
+  int16_t cache_qx_, cache_qy_;
+  float cache_x_, cache_y_, cache_z_;
+  int32_t cache_z_cmm_;
+
+  // the move being split (the caller's, see plan_more())
+  const Move *m_;
+  float len2_;         // its XY length squared, mm^2 (< 0: not yet known)
+  float t_done_;       // parameter where the next piece starts
+  float owed_;         // extra for the next piece, of this move or the next
+  uint16_t stop_ms_;   // dwell given at the current stop so far (merged points)
+  uint8_t fired_[(BK_LAYER_POINTS_MAX + 7) / 8];  // points of layer_ that stopped
+  // The nearest unfired point on the move (collect()): hit_i_, at hit_t_.
+  uint8_t hit_i_;
+  float hit_t_;
+
+  // the other settings (M720 P E T)
   uint16_t dwell_ms_;
   float extra_e_, tol_mm_;
 
@@ -169,25 +190,6 @@ class BulgePlanner {
   // The map's last z when the neighbours (or the miss) were read: an append
   // changes it, and then both are read again, so a late layer is still found.
   uint16_t seen_last_z_;
-  int16_t tol_q_;         // tolerance in quanta, rounded up, plus rounding margin
-  float inv_q_;           // quanta per mm
-  uint8_t fired_[(BK_LAYER_POINTS_MAX + 7) / 8];
-
-  // the last move end, in quanta: the next move usually starts there
-  int16_t cache_qx_, cache_qy_;
-  float cache_x_, cache_y_, cache_z_;
-  int32_t cache_z_cmm_;
-
-  // the move being split (the caller's, see plan_more())
-  const Move *m_;
-  float len2_;         // its XY length squared, mm^2 (< 0: not yet known)
-  float fdx_, fdy_;    // its XY extent, mm
-  float t_done_;       // parameter where the next piece starts
-  float owed_;         // extra for the next piece, of this move or the next
-  uint16_t stop_ms_;   // dwell given at the current stop so far (merged points)
-  // The nearest unfired point on the move (collect()): hit_i_, at hit_t_.
-  uint8_t hit_i_;
-  float hit_t_;
 
 #if BK_PLAN_STATS
   PlannerStats stats_;
