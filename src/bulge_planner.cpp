@@ -115,12 +115,19 @@ void BulgePlanner::load_layer(const MapLayer &layer, uint8_t quantum_um, uint8_t
 // to it, the lower one on a tie (2 z > layer + below, 2 z <= layer + above).
 // Clamped to 0..65535: a z outside asks find_layer, which answers the same.
 void BulgePlanner::set_window(int32_t below, int32_t above) {
-  const int32_t z = layer_.z_cmm, h = lh_cmm_ >> 1;
-  int32_t lo = z - h, hi = z + h;
-  if (below >= 0 && ((z + below) >> 1) + 1 > lo) lo = ((z + below) >> 1) + 1;
-  if (above != INT32_MAX && (z + above) >> 1 < hi) hi = (z + above) >> 1;
-  win_lo_ = lo < 0 ? 0 : (uint16_t)lo;
-  win_hi_ = hi > 0xFFFF ? 0xFFFF : (uint16_t)hi;
+  const uint16_t z = layer_.z_cmm, h = lh_cmm_ >> 1;
+  uint16_t lo = z > h ? (uint16_t)(z - h) : 0, hi = z < 0xFFFF - h ? (uint16_t)(z + h) : 0xFFFF;
+  // floor((a + b) / 2) of two uint16 without overflow: (a & b) + ((a ^ b) >> 1)
+  if (below >= 0) {
+    const uint16_t b = (uint16_t)below, mid = (uint16_t)((z & b) + ((z ^ b) >> 1) + 1);
+    if (mid > lo) lo = mid;
+  }
+  if (above <= 0xFFFF) {
+    const uint16_t a = (uint16_t)above, mid = (uint16_t)((z & a) + ((z ^ a) >> 1));
+    if (mid < hi) hi = mid;
+  }
+  win_lo_ = lo;
+  win_hi_ = hi;
 }
 
 // True when a layer within half a layer height of z (mm) is loaded, asking the
@@ -129,8 +136,14 @@ void BulgePlanner::set_window(int32_t below, int32_t above) {
 bool BulgePlanner::window(float z) {
   int32_t z_cmm = cache_z_cmm_;
   if (fbits(z) != fbits(cache_z_)) {  // z in 0.01 mm, rounded; kept for the next move
-    const float v = z * 100.0f;
-    z_cmm = v >= 0.0f ? (int32_t)(v + 0.5f) : -(int32_t)(0.5f - v);
+    // rounded half away from zero: |v| + 0.5 truncated, the sign put back
+    uint32_t u = fbits(z * 100.0f);
+    const bool neg = u & 0x80000000UL;
+    u &= 0x7FFFFFFFUL;
+    float a;
+    memcpy(&a, &u, sizeof a);
+    z_cmm = (int32_t)(a + 0.5f);
+    if (neg) z_cmm = -z_cmm;
     cache_z_ = z;
     cache_z_cmm_ = z_cmm;
   }
@@ -400,12 +413,9 @@ bool BulgePlanner::emit(ActionList &out) {
     hit_ = false;
     if (more_) collect(*m_);
   }
-  // The rest of the move; a stop at its last vertex leaves the extra owed to
-  // the next move's first piece.
-  if (!fbits(t_done_))
-    line_to(out, 1.0f, m_->e);  // untouched move: the host's E as it is
-  else if (t_done_ < 1.0f)
-    line_to(out, 1.0f, m_->e * (1.0f - t_done_));
+  // The rest of the move (an untouched move: the host's E as it is); a stop
+  // at its last vertex leaves the extra owed to the next move's first piece.
+  if (t_done_ < 1.0f) line_to(out, 1.0f, fbits(t_done_) ? m_->e * (1.0f - t_done_) : m_->e);
   return false;
 }
 
@@ -501,10 +511,8 @@ bool BulgePlanner::m720(const GcodeArgs &a, char *reply, uint8_t size) {
   mode_ = (uint8_t)v[0];
   dwell_ms_ = (uint16_t)v[1];
   extra_e_ = v[2];
-  if (v[3] != tol_mm_) {
-    tol_mm_ = v[3];
-    derive();
-  }
+  tol_mm_ = v[3];
+  derive();
   return true;
 }
 
@@ -512,8 +520,8 @@ bool BulgePlanner::m722(const GcodeArgs &a, char *reply, uint8_t size) {
   ReplyText r(reply, size);
   const char allowed[2] = {'S', 0};  // on the stack: a literal would take RAM on AVR
   if (!check_words(a, allowed, BK_F("M722"), r)) return false;
-  int32_t s = -1;
-  if (a.get_long('S', s) != ARG_OK || (uint32_t)s > 1) {
+  uint32_t s;  // get_ulong, as M721 uses: one reader less in the firmware
+  if (a.get_ulong('S', s) != ARG_OK || s > 1) {
     r.p(BK_F("Error:M722 needs S0 or S1"));
     return false;
   }
