@@ -203,26 +203,30 @@ bool BulgePlanner::eligible(const Move &m) {
   return window(m.z1) && layer_.count;
 }
 
+// The move's XY extent fd[0], fd[1] (mm) and its length squared, returned.
+static float extent(const Move &mv, float *fd) {
+  float s = 0.0f;
+  BK_AXIS_LOOP(k, 2) {
+    fd[k] = mv.p[3 + k] - mv.p[k];
+    s += fd[k] * fd[k];
+  }
+  return s;
+}
+
 // Exact test in mm against the host's own segment: true and t (0..1, the
 // parameter of the nearest point) when point i lies within the tolerance. fd
-// holds the move's XY extent, set with len2_ by the first call of a collect().
+// holds the move's XY extent and fd[2] its length squared, set by the first
+// call of a collect() (fd[2] < 0 until then).
 bool BulgePlanner::exact(const Move &mv, uint8_t i, float *fd, float &t) {
-  if (fbits(len2_) & 0x80000000UL) {  // first candidate of this move (len2_ = -1)
-    float s = 0.0f;
-    BK_AXIS_LOOP(k, 2) {
-      fd[k] = mv.p[3 + k] - mv.p[k];
-      s += fd[k] * fd[k];
-    }
-    len2_ = s;
-  }
-  if (!fbits(len2_)) return false;  // no real motion (a sum of squares is never -0)
+  if (fbits(fd[2]) & 0x80000000UL) fd[2] = extent(mv, fd);
+  if (!fbits(fd[2])) return false;  // no real motion (a sum of squares is never -0)
   const float q_mm = (float)q_um_ * 0.001f;
   float u[2], dot = 0.0f;
   BK_AXIS_LOOP(k, 2) {
     u[k] = (float)(k ? layer_.pts[i].y : layer_.pts[i].x) * q_mm - mv.p[k];
     dot += u[k] * fd[k];
   }
-  t = dot / len2_;
+  t = dot / fd[2];
   if (t < 0.0f) t = 0.0f;
   if (t > 1.0f) t = 1.0f;
   float e2 = 0.0f;
@@ -291,8 +295,7 @@ void BulgePlanner::collect(const Move &mv) {
   // Walk the x range. Once a hit is kept, a point whose integer distance along
   // the move is clearly beyond it skips the float test.
   int32_t dot_cut = 0;
-  float fd[2];  // set by exact() with len2_
-  len2_ = -1.0f;
+  float fd[3] = {0.0f, 0.0f, -1.0f};  // extent and length squared, from exact()
   for (uint8_t i = lo; i < n && pts[i].x <= x_hi; i++) {
     const int16_t py = pts[i].y;
     if (py < y_lo || py > y_hi || (fired_[i >> 3] & (uint8_t)(1 << (i & 7)))) continue;
@@ -373,7 +376,8 @@ void BulgePlanner::line_to(ActionList &out, float t, float e) {
 // (closer than the minimum piece) go into one DWELL, so a list ends only
 // before a cut: the point that needs one stays in hit_ for the next list.
 bool BulgePlanner::emit(ActionList &out) {
-  const float len = sqrtf(len2_);  // a hit was found: len2_ is known
+  float fd[2];
+  const float len = sqrtf(extent(*m_, fd));  // the same numbers exact() used
   while (hit_) {
     float t = hit_t_;
     if ((t - t_done_) * len >= BK_MIN_PIECE_MM) {

@@ -166,7 +166,6 @@ class BulgePlanner {
 
   // the move being split (the caller's, see plan_more())
   const Move *m_;
-  float len2_;         // its XY length squared, mm^2 (< 0: not yet known)
   float t_done_;       // parameter where the next piece starts
   float owed_;         // extra for the next piece, of this move or the next
   uint16_t stop_ms_;   // dwell given at the current stop so far (merged points)
