@@ -381,7 +381,7 @@ bool BulgePlanner::emit(ActionList &out) {
   while (hit_) {
     float t = hit_t_;
     if ((t - t_done_) * len >= BK_MIN_PIECE_MM) {
-      // A cut: a line to the stop, the stop and a line after it must fit.
+      // A line to the stop, the stop and a line after it must fit.
       if (out.count + 3 > BK_PLAN_ACTIONS_MAX) return true;
       if ((1.0f - t) * len < BK_MIN_PIECE_MM) t = 1.0f;  // stop at the move end
       line_to(out, t, m_->e * (t - t_done_));
@@ -393,11 +393,11 @@ bool BulgePlanner::emit(ActionList &out) {
     const uint8_t i = hit_i_;
     fired_[i >> 3] |= (uint8_t)(1 << (i & 7));
     BK_STAT(stats_.points_fired++);
-    const uint8_t w = layer_.pts[i].w;
-    uint16_t ms = w == MAP_WEIGHT_FULL ? dwell_ms_ : (uint16_t)(((uint32_t)dwell_ms_ * w + 127) / 255);
+    // P * w / 255, rounded (w = 255 gives P itself)
+    uint16_t ms = (uint16_t)(((uint32_t)dwell_ms_ * layer_.pts[i].w + 127) / 255);
     // Points closer than the minimum piece share one stop (also across moves,
-    // at a shared vertex). Their dwell and extra add up, but one stop never
-    // exceeds the hard limits M720 enforces for a single point.
+    // at a shared vertex): one DWELL, their dwell and extra added up, but one
+    // stop never exceeds the hard limits M720 enforces for a single point.
     if (ms > BK_MAX_DWELL_MS - stop_ms_) ms = (uint16_t)(BK_MAX_DWELL_MS - stop_ms_);
     stop_ms_ = (uint16_t)(stop_ms_ + ms);
     if (out.count && out.a[out.count - 1].kind == Action::DWELL) {
