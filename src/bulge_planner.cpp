@@ -59,7 +59,8 @@ void BulgePlanner::derive() {
   // Move ends are truncated to whole quanta (error < 1 q per axis, < sqrt(2) q
   // in distance), so the integer prefilter widens the tolerance by 2 q: it may
   // pass a few extra candidates to the exact test but never rejects a hit.
-  tol_q_ = (int16_t)(ceilf(tol_mm_ * inv_q_) + 2.0f);
+  // Truncated + 1 covers the tolerance itself (no ceilf in the firmware).
+  tol_q_ = (int16_t)((int16_t)(tol_mm_ * inv_q_) + 3);
   cache_ok_ = false;
 }
 

@@ -156,7 +156,7 @@ class BulgePlanner {
   bool cache_far_ : 1;  // that end was beyond the integer range (see to_q)
   bool hit_ : 1;        // collect() found a point (hit_i_, hit_t_)...
   bool more_ : 1;       // ...and more beyond it
-  int16_t tol_q_;       // tolerance in quanta, rounded up, plus rounding margin
+  int16_t tol_q_;       // tolerance in quanta, rounded up, plus rounding margin (derive())
   float inv_q_;         // quanta per mm
 
   // the last move end, in quanta: the next move usually starts there
