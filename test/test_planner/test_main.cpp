@@ -778,6 +778,29 @@ static void test_m720_report_and_set(void) {
   TEST_ASSERT_EQUAL_STRING("echo:  M720 S0 P0 E0.000 T0.010", reply);
 }
 
+static void test_m720_report_is_a_command(void) {
+  // M500 stores the report line as a command (the Marlin adapter drops
+  // "echo:", the blanks and the S word) and M501 runs it: same settings back.
+  bk::GcodeArgs g;
+  g.parse("M720 S1 P1999 E0.123 T1.25");
+  TEST_ASSERT_TRUE(P.m720(g, reply, sizeof reply));
+  g.parse("M720");
+  TEST_ASSERT_TRUE(P.m720(g, reply, sizeof reply));
+  TEST_ASSERT_EQUAL_STRING("echo:  M720 S1 P1999 E0.123 T1.250", reply);
+  char line[BK_PLAN_REPLY_MAX];
+  strcpy(line, reply + 7);               // "M720 S1 P1999 E0.123 T1.250"
+  memmove(line + 4, line + 7, strlen(line + 7) + 1);  // "M720 P1999 E0.123 T1.250"
+  TEST_ASSERT_EQUAL_STRING("M720 P1999 E0.123 T1.250", line);
+  P.reset();
+  TEST_ASSERT_TRUE(g.parse(line));
+  TEST_ASSERT_TRUE(P.m720(g, reply, sizeof reply));
+  TEST_ASSERT_EQUAL_STRING("", reply);
+  TEST_ASSERT_EQUAL_INT(1999, P.dwell_ms());
+  TEST_ASSERT_FLOAT_WITHIN(1e-7f, 0.123f, P.extra_e());
+  TEST_ASSERT_FLOAT_WITHIN(1e-7f, 1.25f, P.tolerance());
+  TEST_ASSERT_EQUAL_INT(0, P.mode());  // S is not stored: the mode starts off
+}
+
 // Each bad line gives one Error: line and leaves S1 P250 E0.05 T0.3 in force.
 static void expect_m720_error(const char *line, const char *text) {
   bk::GcodeArgs g;
@@ -878,6 +901,7 @@ int main(void) {
   RUN_TEST(test_vase_mode_layer_window);
   RUN_TEST(test_store_layer_change_resets_fired);
   RUN_TEST(test_m720_report_and_set);
+  RUN_TEST(test_m720_report_is_a_command);
   RUN_TEST(test_m720_errors_leave_settings);
   RUN_TEST(test_m722_errors);
   RUN_TEST(test_reply_never_overflows);
