@@ -26,8 +26,10 @@
 // Bounded output: an ActionList holds at most BK_PLAN_HITS_MAX cuts (a line
 // to a stop and the stop: 2*BK_PLAN_HITS_MAX+1 actions with the final line).
 // If the move passes more, plan() returns true and plan_more() gives the next
-// list, until it returns false. No point is dropped; a caller that stops
-// calling plan_more() leaves the rest of the move unexecuted, so it must not.
+// list, until it returns false. Points that share a stop (closer than
+// BK_MIN_PIECE_MM) make one DWELL: a list only ends before a cut. No point is
+// dropped; a caller that stops calling plan_more() leaves the rest of the move
+// unexecuted, so it must not.
 // The planner reads the Move given to plan() again in plan_more() (it keeps a
 // pointer, not a copy): keep it alive and unchanged until plan() or
 // plan_more() has returned false.
@@ -58,7 +60,7 @@ struct Action {
   float x, y, z;  // LINE: target, host = machine coordinates
   union {
     float e;      // LINE: filament for this piece (mm), extra included
-    uint16_t ms;  // DWELL: milliseconds (0 still means: stop here)
+    uint16_t ms;  // DWELL: milliseconds (0 still means: stop here); x y z unused
   };
 };
 

@@ -29,7 +29,8 @@ struct Move {
       float x0, y0, z0;  // start
       float x1, y1, z1;  // end
     };
-    float p[6];  // the same by index (start x y z, end x y z): one loop per axis
+    float p[6];  // the same by index (start x y z, end x y z): one loop per
+                 // axis; the anonymous struct is the GNU/Marlin XYZval idiom
   };
   float e;           // filament for the move (end E - start E, host terms)
   float f;           // feedrate mm/min
