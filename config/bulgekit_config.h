@@ -81,18 +81,21 @@
 #endif
 
 // ---- planner (src/bulge_planner, src/move_state) ----------------------------------
-// Bulge points one ActionList carries; a move passing more is continued with
-// BulgePlanner::plan_more(). Each point costs up to 2 actions (line + dwell).
+// Cuts one ActionList carries (a line to a stop + the stop: 2 actions each, plus
+// the final line); a move passing more stops is continued with
+// BulgePlanner::plan_more(). Points that share a stop need no cut of their own.
+// 1 keeps the list at 3 actions (62 bytes on AVR).
 #ifndef BK_PLAN_HITS_MAX
-#define BK_PLAN_HITS_MAX 3
+#define BK_PLAN_HITS_MAX 1
 #endif
 // Feedrate before the first F word (Marlin's power-on value), mm/min.
 #ifndef BK_MOVE_DEFAULT_FEED_MM_MIN
 #define BK_MOVE_DEFAULT_FEED_MM_MIN 1500.0f
 #endif
-// Room for one M720/M722 reply line ("echo:..." or "Error:..."), with the NUL.
+// Room for one M720/M722 reply line ("echo:..." or "Error:..."), with the NUL:
+// the longest is "Error:M720 P->=1000000 not in [0.000..2000.000]" (47).
 #ifndef BK_PLAN_REPLY_MAX
-#define BK_PLAN_REPLY_MAX 72
+#define BK_PLAN_REPLY_MAX 48
 #endif
 
 // ---- map codec (src/bulge_map, src/map_upload: M721) -------------------------------

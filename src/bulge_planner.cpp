@@ -9,66 +9,58 @@
 
 namespace bk {
 
-// ---- reply text (messages stay in flash on AVR) -----------------------------
-
-namespace {
-
-// "Error:M720 P" + the word exactly as the host wrote it
-void error_word(ReplyText &r, const GcodeArgs &a, const char *code_P, char letter) {
-  r.p(BK_F("Error:"));
-  r.p(code_P);
-  r.c(' ');
-  r.c(letter);
-  const char *t;
-  uint8_t n;
-  if (a.raw(letter, t, n)) r.raw(t, n);
+// A loop over the axes stays a loop: GCC -Os unrolls two or three float
+// iterations (each float operation a library call with its register moves),
+// which is larger. The empty asm hides the counter's value from it.
+static inline uint8_t next_axis(uint8_t k) {
+  __asm__("" : "+r"(k));
+  return (uint8_t)(k + 1);
 }
+#define BK_AXIS_LOOP(k, n) for (uint8_t k = 0; k < (n); k = next_axis(k))
 
-}  // namespace
+// The hot path runs once per G1 on an 8-bit CPU where every float compare or
+// multiply is a library call (~50-150 cycles), so cheap tests work on the
+// IEEE-754 bits and the per-point work is integer.
+static inline uint32_t fbits(float f) {
+  uint32_t u;
+  memcpy(&u, &f, sizeof u);
+  return u;
+}
+static inline bool fpos(float f) {  // > 0 (not -0, not NaN from the parser)
+  uint32_t u = fbits(f);
+  return u && !(u & 0x80000000UL);
+}
 
 // ---- setup --------------------------------------------------------------------
 
 void BulgePlanner::reset() {
-  mode_ = BULGE_OFF;
-  marker_ = false;
+  // Everything not set below starts at zero: no layer, no miss, no cache, no
+  // move in progress, nothing owed, no stats.
+  memset((void *)this, 0, sizeof(*this));
   dwell_ms_ = BK_DEFAULT_DWELL_MS;
   extra_e_ = BK_DEFAULT_EXTRA_E_MM;
   tol_mm_ = BK_DEFAULT_TOLERANCE_MM;
-  store_ = nullptr;
-  has_layer_ = has_miss_ = cache_ok_ = overflow_ = active_ = false;
   q_um_ = 50;
   lh_cmm_ = 30;
-  miss_z_ = 0;
-  below_z_ = -1;
-  above_z_ = INT32_MAX;
-  seen_last_z_ = 0;
-  cache_z_ = 0.0f;  // z 0 is 0 cmm: a consistent starting pair
-  cache_z_cmm_ = 0;
-  cache_x_ = cache_y_ = 0.0f;
-  cache_qx_ = cache_qy_ = 0;
-  len_ = len2_ = t_done_ = 0.0f;
-  layer_.count = 0;
-  layer_.z_cmm = 0;
-  carry_ = pending_ = 0.0f;
-  stop_ms_ = 0;
-  nhit_ = 0;
-  memset(fired_, 0, sizeof(fired_));
-  clear_stats();
   derive();
 }
 
+#if BK_PLAN_STATS
 void BulgePlanner::clear_stats() { memset(&stats_, 0, sizeof(stats_)); }
+#define BK_STAT(x) x
+#else
+#define BK_STAT(x)
+#endif
 
 // Values that depend on the quantum and the tolerance, computed once here
 // rather than per move.
 void BulgePlanner::derive() {
-  q_mm_ = (float)q_um_ * 0.001f;
   inv_q_ = 1000.0f / (float)q_um_;
-  tol2_ = tol_mm_ * tol_mm_;
   // Move ends are truncated to whole quanta (error < 1 q per axis, < sqrt(2) q
   // in distance), so the integer prefilter widens the tolerance by 2 q: it may
   // pass a few extra candidates to the exact test but never rejects a hit.
-  tol_q_ = (int16_t)(ceilf(tol_mm_ * inv_q_) + 2.0f);
+  // Truncated + 1 covers the tolerance itself (no ceilf in the firmware).
+  tol_q_ = (int16_t)((int16_t)(tol_mm_ * inv_q_) + 3);
   cache_ok_ = false;
 }
 
@@ -112,28 +104,53 @@ void BulgePlanner::load_layer(const MapLayer &layer, uint8_t quantum_um, uint8_t
   }
   has_layer_ = true;
   has_miss_ = false;
-  below_z_ = -1;  // a layer given directly: no neighbours known
-  above_z_ = INT32_MAX;
+  set_window(-1, INT32_MAX);  // a layer given directly: no neighbours known
   seen_last_z_ = store_ ? store_->last_z() : 0;
-  stats_.layers_loaded++;
+  BK_STAT(stats_.layers_loaded++);
 }
 
 // ---- layer window --------------------------------------------------------------
 
-// True when a layer within half a layer height of z_cmm is loaded, asking the
-// store when z has left the current one or a neighbouring layer is nearer
-// (layers closer than a layer height, e.g. adaptive layer heights): the same
-// layer find_layer would choose, the lower one on a tie. Continuously rising z
+// The z range (cmm) where the loaded layer is the one find_layer would choose:
+// within half a layer height (|dz|*2 <= h), and nearer than the records next
+// to it, the lower one on a tie (2 z > layer + below, 2 z <= layer + above).
+// Clamped to 0..65535: a z outside asks find_layer, which answers the same.
+void BulgePlanner::set_window(int32_t below, int32_t above) {
+  const uint16_t z = layer_.z_cmm, h = lh_cmm_ >> 1;
+  uint16_t lo = z > h ? (uint16_t)(z - h) : 0, hi = z < 0xFFFF - h ? (uint16_t)(z + h) : 0xFFFF;
+  // floor((a + b) / 2) of two uint16 without overflow: (a & b) + ((a ^ b) >> 1)
+  if (below >= 0) {
+    const uint16_t b = (uint16_t)below, mid = (uint16_t)((z & b) + ((z ^ b) >> 1) + 1);
+    if (mid > lo) lo = mid;
+  }
+  if (above <= 0xFFFF) {
+    const uint16_t a = (uint16_t)above, mid = (uint16_t)((z & a) + ((z ^ a) >> 1));
+    if (mid < hi) hi = mid;
+  }
+  win_lo_ = lo;
+  win_hi_ = hi;
+}
+
+// True when a layer within half a layer height of z (mm) is loaded, asking the
+// store when z has left the current one's window. Continuously rising z
 // (spiral vase) walks from layer to layer the same way.
-bool BulgePlanner::window(int32_t z_cmm) {
+bool BulgePlanner::window(float z) {
+  int32_t z_cmm = cache_z_cmm_;
+  if (fbits(z) != fbits(cache_z_)) {  // z in 0.01 mm, rounded; kept for the next move
+    // rounded half away from zero: |v| + 0.5 truncated, the sign put back
+    uint32_t u = fbits(z * 100.0f);
+    const bool neg = u & 0x80000000UL;
+    u &= 0x7FFFFFFFUL;
+    float a;
+    memcpy(&a, &u, sizeof a);
+    z_cmm = (int32_t)(a + 0.5f);
+    if (neg) z_cmm = -z_cmm;
+    cache_z_ = z;
+    cache_z_cmm_ = z_cmm;
+  }
   if (has_layer_ && z_cmm == (int32_t)layer_.z_cmm) return true;  // see eligible()
   const bool appended = store_ && store_->last_z() != seen_last_z_;
-  if (has_layer_ && !appended) {
-    const int32_t d = z_cmm - (int32_t)layer_.z_cmm;
-    if (d > 0 ? (2 * d <= (int32_t)lh_cmm_ && (above_z_ == INT32_MAX || d <= above_z_ - z_cmm))
-              : (-2 * d <= (int32_t)lh_cmm_ && (below_z_ < 0 || -d < z_cmm - below_z_)))
-      return true;
-  }
+  if (has_layer_ && !appended && z_cmm >= win_lo_ && z_cmm <= win_hi_) return true;
   if (!store_ || (has_miss_ && z_cmm == miss_z_ && !appended)) return false;
   if (!store_->loaded() || store_->empty()) return false;
   seen_last_z_ = store_->last_z();
@@ -147,11 +164,13 @@ bool BulgePlanner::window(int32_t z_cmm) {
   has_miss_ = false;
   has_layer_ = true;
   sort_points(layer_);
-  store_->neighbors(layer_.z_cmm, below_z_, above_z_);
+  int32_t below, above;
+  store_->neighbors(layer_.z_cmm, below, above);
+  set_window(below, above);
   // Only a different layer starts with no point fired: the same one read again
   // (after an append) keeps its marks, so no point dwells twice.
   if (had && layer_.z_cmm == old_z) return true;
-  stats_.layers_loaded++;
+  BK_STAT(stats_.layers_loaded++);
   memset(fired_, 0, sizeof(fired_));
   // Printing moved up: the layers below are done, give their bytes back (room
   // for appended records). Never on the way down, so nothing still needed goes.
@@ -161,23 +180,11 @@ bool BulgePlanner::window(int32_t z_cmm) {
 
 // ---- matching -------------------------------------------------------------------
 
-// The hot path runs once per G1 on an 8-bit CPU where every float compare or
-// multiply is a library call (~50-150 cycles), so cheap tests work on the
-// IEEE-754 bits and the per-point work is integer.
-static inline uint32_t fbits(float f) {
-  uint32_t u;
-  memcpy(&u, &f, sizeof u);
-  return u;
-}
-static inline bool fpos(float f) {  // > 0 (not -0, not NaN from the parser)
-  uint32_t u = fbits(f);
-  return u && !(u & 0x80000000UL);
-}
-
 // mm -> quanta, truncated (derive() widens the tolerance for that). Beyond
 // +-2^14 quanta the result saturates and far is set: the caller then skips the
 // integer tests, whose products would no longer fit 32 bits. The range check
-// is an integer compare of the float's bits, not a float compare.
+// is an integer compare of the float's bits, not a float compare. Not inlined:
+// one copy serves the four conversions.
 static inline int16_t to_q(float mm, float inv_q, bool &far) {
   const float v = mm * inv_q;
   const uint32_t u = fbits(v);
@@ -191,44 +198,51 @@ static inline int16_t to_q(float mm, float inv_q, bool &far) {
 bool BulgePlanner::eligible(const Move &m) {
   if (mode_ == BULGE_OFF || (mode_ == BULGE_MARKED && !marker_)) return false;
   if (!fpos(m.e) || (fbits(m.x0) == fbits(m.x1) && fbits(m.y0) == fbits(m.y1))) return false;
-  int32_t zc;
-  if (fbits(m.z1) == fbits(cache_z_)) {
-    zc = cache_z_cmm_;
-  } else {
-    float v = m.z1 * 100.0f;
-    zc = v >= 0.0f ? (int32_t)(v + 0.5f) : -(int32_t)(0.5f - v);
-    cache_z_ = m.z1;
-    cache_z_cmm_ = zc;
-  }
   // The common case inline: a whole layer printed at the layer's own z (no
   // other layer can be nearer, appended or not). window() handles the rest.
-  if (has_layer_ && zc == (int32_t)layer_.z_cmm) return layer_.count != 0;
-  return window(zc) && layer_.count;
+  if (fbits(m.z1) == fbits(cache_z_) && has_layer_ && cache_z_cmm_ == (int32_t)layer_.z_cmm) return layer_.count != 0;
+  return window(m.z1) && layer_.count;
+}
+
+// The move's XY extent fd[0], fd[1] (mm) and its length squared, returned.
+static float extent(const Move &mv, float *fd) {
+  float s = 0.0f;
+  BK_AXIS_LOOP(k, 2) {
+    fd[k] = mv.p[3 + k] - mv.p[k];
+    s += fd[k] * fd[k];
+  }
+  return s;
 }
 
 // Exact test in mm against the host's own segment: true and t (0..1, the
-// parameter of the nearest point) when point i lies within the tolerance.
-bool BulgePlanner::exact(const Move &mv, uint8_t i, float &t) {
-  if (len2_ < 0.0f) {  // first candidate of this move
-    fdx_ = mv.x1 - mv.x0;
-    fdy_ = mv.y1 - mv.y0;
-    len2_ = fdx_ * fdx_ + fdy_ * fdy_;
+// parameter of the nearest point) when point i lies within the tolerance. fd
+// holds the move's XY extent and fd[2] its length squared, set by the first
+// call of a collect() (fd[2] < 0 until then).
+bool BulgePlanner::exact(const Move &mv, uint8_t i, float *fd, float &t) {
+  if (fbits(fd[2]) & 0x80000000UL) fd[2] = extent(mv, fd);
+  if (!fbits(fd[2])) return false;  // no real motion (a sum of squares is never -0)
+  const float q_mm = (float)q_um_ * 0.001f;
+  float u[2], dot = 0.0f;
+  BK_AXIS_LOOP(k, 2) {
+    u[k] = (float)(k ? layer_.pts[i].y : layer_.pts[i].x) * q_mm - mv.p[k];
+    dot += u[k] * fd[k];
   }
-  if (len2_ == 0.0f) return false;  // -0.0 vs 0.0: no real motion
-  const float ux = (float)layer_.pts[i].x * q_mm_ - mv.x0, uy = (float)layer_.pts[i].y * q_mm_ - mv.y0;
-  t = (ux * fdx_ + uy * fdy_) / len2_;
+  t = dot / fd[2];
   if (t < 0.0f) t = 0.0f;
   if (t > 1.0f) t = 1.0f;
-  const float ex = ux - t * fdx_, ey = uy - t * fdy_;
-  return ex * ex + ey * ey <= tol2_;
+  float e2 = 0.0f;
+  BK_AXIS_LOOP(k, 2) {
+    const float d = u[k] - t * fd[k];
+    e2 += d * d;
+  }
+  return e2 <= tol_mm_ * tol_mm_;
 }
 
-// Finds the unfired points within the tolerance of segment m_ and keeps the
-// BK_PLAN_HITS_MAX nearest to its start in hit_t_/hit_i_ (sorted by t).
-// overflow_ tells that more were found than kept.
+// Finds the unfired point within the tolerance of segment mv nearest to its
+// start (hit_, hit_i_, hit_t_); more_ tells that others were found beyond it.
+// Run again after that point has fired, it finds the next one.
 void BulgePlanner::collect(const Move &mv) {
-  nhit_ = 0;
-  overflow_ = false;
+  hit_ = more_ = false;
   int16_t ax, ay;
   bool far = false;
   if (cache_ok_ && fbits(mv.x0) == fbits(cache_x_) && fbits(mv.y0) == fbits(cache_y_)) {
@@ -271,7 +285,7 @@ void BulgePlanner::collect(const Move &mv) {
     else
       hi = mid;
   }
-  if (lo == n || pts[lo].x > x_hi) return;
+  if (lo == n || pts[lo].x > x_hi) return;  // most moves: nothing in the x range
 
   // Below 2^14 quanta of box per side every product of the line test fits
   // int32; longer moves (over 800 mm at 50 um) go to the exact test directly.
@@ -279,293 +293,241 @@ void BulgePlanner::collect(const Move &mv) {
   const int16_t dx = (int16_t)(bx - ax), dy = (int16_t)(by - ay);
   int32_t lim = -1;  // computed when a point first passes the box
 
-  // Walk the x range. Once the list is full, a point whose integer distance
-  // along the move is beyond the last kept one skips the float test.
+  // Walk the x range. Once a hit is kept, a point whose integer distance along
+  // the move is clearly beyond it skips the float test.
   int32_t dot_cut = 0;
-  len2_ = -1.0f;
+  float fd[3] = {0.0f, 0.0f, -1.0f};  // extent and length squared, from exact()
   for (uint8_t i = lo; i < n && pts[i].x <= x_hi; i++) {
     const int16_t py = pts[i].y;
-    if (py >= y_lo && py <= y_hi && !(fired_[i >> 3] & (uint8_t)(1 << (i & 7)))) {
-      int32_t dot = 0;
-      bool pass = true;
-      if (narrow) {
-        if (lim < 0) {
-          // |cross| / |d| is the distance to the line; |d| is bounded above by
-          // max + min/2 (no sqrt), so the test is loose, never tight.
-          uint16_t adx = (uint16_t)(dx < 0 ? -dx : dx), ady = (uint16_t)(dy < 0 ? -dy : dy);
-          uint16_t lub = adx > ady ? (uint16_t)(adx + ady / 2) : (uint16_t)(ady + adx / 2);
-          lim = (int32_t)tol_q_ * (int32_t)lub;
-        }
-        const int16_t ux = (int16_t)(pts[i].x - ax), uy = (int16_t)(py - ay);
-        int32_t cross = (int32_t)ux * dy - (int32_t)uy * dx;
-        if (cross < 0) cross = -cross;
-        pass = cross <= lim;
-        if (pass) {
-          dot = (int32_t)ux * dx + (int32_t)uy * dy;
-          // Full list: a point clearly further along than the last kept one
-          // waits for plan_more(). "Clearly" = by more than the rounding
-          // slack of the ends (tol_q_ quanta times |d|).
-          if (nhit_ == BK_PLAN_HITS_MAX && dot > dot_cut) {
-            overflow_ = true;
-            pass = false;
-          }
-        }
+    if (py < y_lo || py > y_hi || (fired_[i >> 3] & (uint8_t)(1 << (i & 7)))) continue;
+    int32_t dot = 0;
+    if (narrow) {
+      if (lim < 0) {
+        // |cross| / |d| is the distance to the line; |d| is bounded above by
+        // max + min/2 (no sqrt), so the test is loose, never tight.
+        uint16_t adx = (uint16_t)(dx < 0 ? -dx : dx), ady = (uint16_t)(dy < 0 ? -dy : dy);
+        uint16_t lub = adx > ady ? (uint16_t)(adx + ady / 2) : (uint16_t)(ady + adx / 2);
+        lim = (int32_t)tol_q_ * (int32_t)lub;
       }
-      float t;
-      if (pass && exact(mv, i, t)) {
-        // Insert by t; keep the nearest BK_PLAN_HITS_MAX, the rest come later.
-        uint8_t j = nhit_;
-        bool keep = true;
-        if (j == BK_PLAN_HITS_MAX) {
-          overflow_ = true;
-          if (t >= hit_t_[j - 1])
-            keep = false;
-          else
-            j--;
-        } else {
-          nhit_++;
-        }
-        if (keep) {
-          while (j && hit_t_[j - 1] > t) {
-            hit_t_[j] = hit_t_[j - 1];
-            hit_i_[j] = hit_i_[j - 1];
-            hit_d_[j] = hit_d_[j - 1];
-            j--;
-          }
-          hit_t_[j] = t;
-          hit_i_[j] = i;
-          hit_d_[j] = dot;
-          if (nhit_ == BK_PLAN_HITS_MAX) dot_cut = hit_d_[nhit_ - 1] + lim;
-        }
+      const int16_t ux = (int16_t)(pts[i].x - ax), uy = (int16_t)(py - ay);
+      int32_t cross = (int32_t)ux * dy - (int32_t)uy * dx;
+      if (cross < 0) cross = -cross;
+      if (cross > lim) continue;
+      dot = (int32_t)ux * dx + (int32_t)uy * dy;
+      // "Clearly" beyond = by more than the rounding slack of the ends
+      // (tol_q_ quanta times |d|): it waits for the next collect().
+      if (hit_ && dot > dot_cut) {
+        more_ = true;
+        continue;
       }
     }
+    float t;
+    if (!exact(mv, i, fd, t)) continue;
+    if (hit_) {
+      more_ = true;
+      if (t >= hit_t_) continue;  // equal t: the first in sorted order goes first
+    }
+    hit_ = true;
+    hit_t_ = t;
+    hit_i_ = i;
+    dot_cut = dot + lim;
   }
 }
 
 // ---- output ----------------------------------------------------------------------
 
-void BulgePlanner::line_to(ActionList &out, float t, float e) {
+// A LINE action to (x, y, z) extruding e.
+static Action &put_line(ActionList &out, float x, float y, float z, float e) {
   Action &a = out.a[out.count++];
   a.kind = Action::LINE;
-  a.ms = 0;
-  if (t >= 1.0f) {
-    a.x = m_.x1;  // the host's own numbers, not a recomputation
-    a.y = m_.y1;
-    a.z = m_.z1;
-  } else {
-    a.x = m_.x0 + t * (m_.x1 - m_.x0);
-    a.y = m_.y0 + t * (m_.y1 - m_.y0);
-    a.z = fbits(m_.z0) == fbits(m_.z1) ? m_.z1 : m_.z0 + t * (m_.z1 - m_.z0);
-  }
+  a.x = x;
+  a.y = y;
+  a.z = z;
   a.e = e;
-  stop_ms_ = 0;  // the head moves again: the next stop starts afresh
-  if (fbits(pending_)) {
-    a.e += pending_;
-    out.e_added += pending_;
-    stats_.extra_applied += pending_;
-    pending_ = 0.0f;
-  }
+  return a;
 }
 
-// Turns the collected hits into actions; true when the move continues in
-// plan_more().
+// The line a gets the extra owed from the stop before it. The caller checks
+// that something is owed (the common case has nothing: no call).
+void BulgePlanner::pay_owed(ActionList &out, Action &a) {
+  a.e += owed_;
+  out.e_added += owed_;
+  BK_STAT(stats_.extra_applied += owed_);
+  owed_ = 0.0f;
+}
+
+// A LINE to the point at t of the move (its own end at t = 1) extruding e,
+// plus what is owed from the stop before it.
+void BulgePlanner::line_to(ActionList &out, float t, float e) {
+  const Move &m = *m_;
+  float p[3];
+  const bool inside = t < 1.0f;
+  for (uint8_t k = 0; k < 3; k++) {
+    p[k] = m.p[3 + k];  // the end: the host's own numbers, not a recomputation
+    // z only when it changes along the move (spiral vase)
+    if (inside && (k < 2 || fbits(m.z0) != fbits(m.z1))) p[k] = m.p[k] + t * (m.p[3 + k] - m.p[k]);
+  }
+  Action &a = put_line(out, p[0], p[1], p[2], e);
+  stop_ms_ = 0;  // the head moves on: the next stop starts afresh
+  if (fbits(owed_)) pay_owed(out, a);
+}
+
+// Turns the hits into actions, one point at a time (collect() again after
+// each); true when the move continues in plan_more(). Points that share a stop
+// (closer than the minimum piece) go into one DWELL, so a list ends only
+// before a cut: the point that needs one stays in hit_ for the next list.
 bool BulgePlanner::emit(ActionList &out) {
-  if (nhit_) len_ = sqrtf(len2_);
-  for (uint8_t h = 0; h < nhit_; h++) {
-    float t = hit_t_[h];
-    const uint8_t i = hit_i_[h];
-    fired_[i >> 3] |= (uint8_t)(1 << (i & 7));
-    stats_.points_fired++;
-    if ((t - t_done_) * len_ < BK_MIN_PIECE_MM) {
-      // Too close to where the head already is (the move start, or the stop
-      // before; or, by less than a quantum of ordering slack, just behind it):
-      // stop there instead of queueing a sub-step piece.
-    } else {
-      if ((1.0f - t) * len_ < BK_MIN_PIECE_MM) t = 1.0f;  // stop at the move end
-      line_to(out, t, m_.e * (t - t_done_));
+  float fd[2];
+  const float len = sqrtf(extent(*m_, fd));  // the same numbers exact() used
+  while (hit_) {
+    float t = hit_t_;
+    if ((t - t_done_) * len >= BK_MIN_PIECE_MM) {
+      // A line to the stop, the stop and a line after it must fit.
+      if (out.count + 3 > BK_PLAN_ACTIONS_MAX) return true;
+      if ((1.0f - t) * len < BK_MIN_PIECE_MM) t = 1.0f;  // stop at the move end
+      line_to(out, t, m_->e * (t - t_done_));
       t_done_ = t;
     }
-    const uint8_t w = layer_.pts[i].w;
-    uint16_t ms = w == MAP_WEIGHT_FULL ? dwell_ms_ : (uint16_t)(((uint32_t)dwell_ms_ * w + 127) / 255);
+    // Otherwise the point is too close to where the head already is (the move
+    // start, or the stop before; or, by less than a quantum of ordering slack,
+    // just behind it): it stops there instead of queueing a sub-step piece.
+    const uint8_t i = hit_i_;
+    fired_[i >> 3] |= (uint8_t)(1 << (i & 7));
+    BK_STAT(stats_.points_fired++);
+    // P * w / 255, rounded (w = 255 gives P itself)
+    uint16_t ms = (uint16_t)(((uint32_t)dwell_ms_ * layer_.pts[i].w + 127) / 255);
     // Points closer than the minimum piece share one stop (also across moves,
-    // at a shared vertex). Their dwell and extra add up, but one stop never
-    // exceeds the hard limits M720 enforces for a single point.
+    // at a shared vertex): one DWELL, their dwell and extra added up, but one
+    // stop never exceeds the hard limits M720 enforces for a single point.
     if (ms > BK_MAX_DWELL_MS - stop_ms_) ms = (uint16_t)(BK_MAX_DWELL_MS - stop_ms_);
     stop_ms_ = (uint16_t)(stop_ms_ + ms);
-    Action *last = out.count ? &out.a[out.count - 1] : nullptr;
-    if (last && last->kind == Action::DWELL) {
-      last->ms = (uint16_t)(last->ms + ms);
+    if (out.count && out.a[out.count - 1].kind == Action::DWELL) {
+      out.a[out.count - 1].ms = (uint16_t)(out.a[out.count - 1].ms + ms);
     } else {
       Action &a = out.a[out.count++];
       a.kind = Action::DWELL;
-      a.ms = ms;
-      a.x = a.y = a.z = a.e = 0.0f;
+      a.ms = ms;  // x, y, z are not used
     }
     float extra = extra_e_;
-    const float room = BK_MAX_EXTRA_E_MM - pending_;
+    const float room = BK_MAX_EXTRA_E_MM - owed_;
     if (extra > room) {
       extra = room > 0.0f ? room : 0.0f;
-      stats_.extra_dropped += extra_e_ - extra;
+      BK_STAT(stats_.extra_dropped += extra_e_ - extra);
     }
-    pending_ += extra;
+    owed_ += extra;
+    hit_ = false;
+    if (more_) collect(*m_);
   }
-  if (overflow_) return true;
-  if (!fbits(t_done_)) {
-    line_to(out, 1.0f, m_.e);  // untouched move: the host's E as it is
-  } else if (t_done_ < 1.0f) {
-    line_to(out, 1.0f, m_.e * (1.0f - t_done_));
-  } else {
-    carry_ += pending_;  // the stop was at the last vertex: the next piece gets it
-    pending_ = 0.0f;
-  }
-  active_ = false;
+  // The rest of the move (an untouched move: the host's E as it is); a stop
+  // at its last vertex leaves the extra owed to the next move's first piece.
+  if (t_done_ < 1.0f) line_to(out, 1.0f, fbits(t_done_) ? m_->e * (1.0f - t_done_) : m_->e);
   return false;
 }
 
-void BulgePlanner::drop_carry() {
-  if (carry_ != 0.0f) {
-    stats_.extra_dropped += carry_;
-    carry_ = 0.0f;
+// A move the planner leaves alone, as one LINE. A move that moves nothing
+// (Marlin hands "G1 F1200" to us too) keeps the extra owed from a stop at a
+// wall's end for the next piece; any real travel, retraction or non-wall move
+// ends the wall, and the extra is not extruded (counted as dropped).
+void BulgePlanner::pass(const Move &m, ActionList &out) {
+  if (!(m.x0 == m.x1 && m.y0 == m.y1 && m.z0 == m.z1 && m.e == 0.0f)) {
+    if (fbits(owed_)) {
+      BK_STAT(stats_.extra_dropped += owed_);
+      owed_ = 0.0f;
+    }
+    stop_ms_ = 0;
   }
-}
-
-// The host's move unchanged, plus any extra owed from a stop at its start.
-static void whole(ActionList &out, const Move &m) {
-  Action &a = out.a[out.count++];
-  a.kind = Action::LINE;
-  a.ms = 0;
-  a.x = m.x1;
-  a.y = m.y1;
-  a.z = m.z1;
-  a.e = m.e;
+  put_line(out, m.x1, m.y1, m.z1, m.e);
 }
 
 bool BulgePlanner::plan(const Move &m, ActionList &out) {
   out.count = 0;
   out.e_added = 0.0f;
-  active_ = false;
+  hit_ = false;  // a move left unfinished is given up
+  m_ = &m;
   if (!eligible(m)) {
-    // A move that moves nothing (Marlin hands "G1 F1200" to us too) keeps the
-    // extra owed from a stop at a wall's end for the next piece; any real
-    // travel, retraction or non-wall move ends it.
-    const bool null_move = m.x0 == m.x1 && m.y0 == m.y1 && m.z0 == m.z1 && m.e == 0.0f;
-    if (!null_move) {
-      drop_carry();
-      stop_ms_ = 0;
-    }
-    whole(out, m);
+    pass(m, out);
     return false;
   }
-  collect(m);
-  if (!nhit_ && !overflow_) {
-    // Nothing on this move: the common case, kept free of float work.
-    whole(out, m);
-    stop_ms_ = 0;
-    if (fbits(carry_)) {
-      out.a[0].e += carry_;
-      out.e_added = carry_;
-      stats_.extra_applied += carry_;
-      carry_ = 0.0f;
-    }
-    return false;
-  }
-  m_ = m;
   t_done_ = 0.0f;
-  pending_ = carry_;
-  carry_ = 0.0f;
-  active_ = true;
-  stats_.moves_split++;
-  return emit(out);
+  collect(m);
+  if (hit_) {
+    BK_STAT(stats_.moves_split++);
+    return emit(out);
+  }
+  // Nothing on this move (the common case): the move unchanged, plus any
+  // extra owed from a stop at its start, without float work.
+  Action &a = put_line(out, m.x1, m.y1, m.z1, m.e);
+  stop_ms_ = 0;
+  if (fbits(owed_)) pay_owed(out, a);
+  return false;
 }
 
 bool BulgePlanner::plan_more(ActionList &out) {
   out.count = 0;
   out.e_added = 0.0f;
-  if (!active_) return false;
-  collect(m_);
-  return emit(out);
+  return hit_ && emit(out);
 }
 
 // ---- M720 / M722 --------------------------------------------------------------------
 
+// M720's settings in the order of its report: S P E T. S and P are whole
+// numbers. T's floor allows for the parser's rounding of "0.01".
+static const Limit M720_LIMITS[4] BK_FLASH = {
+    {'S', false, 0.0f, 2.0f},
+    {'P', false, 0.0f, (float)BK_MAX_DWELL_MS},
+    {'E', false, 0.0f, BK_MAX_EXTRA_E_MM},
+    {'T', false, 0.01f - 1e-6f, BK_MAX_TOLERANCE_MM},
+};
+
 bool BulgePlanner::m720(const GcodeArgs &a, char *reply, uint8_t size) {
   ReplyText r(reply, size);
+  char letters[5];  // "SPET", on the stack (check_words reads RAM)
+  for (uint8_t i = 0; i < 4; i++) letters[i] = (char)BK_RD8(&M720_LIMITS[i].letter);
+  letters[4] = 0;
+  float v[4] = {(float)mode_, (float)dwell_ms_, extra_e_, tol_mm_};
   if (a.none()) {
-    r.p(BK_F("echo:  M720 S"));
-    r.u(mode_);
-    r.p(BK_F(" P"));
-    r.u(dwell_ms_);
-    r.p(BK_F(" E"));
-    r.fixed(extra_e_, 3);
-    r.p(BK_F(" T"));
-    r.fixed(tol_mm_, 3);
+    r.p(BK_F("echo:  M720"));
+    for (uint8_t i = 0; i < 4; i++) {
+      r.c(' ');
+      r.c(letters[i]);
+      r.fixed(v[i], i < 2 ? 0 : 3);
+    }
     return true;
   }
   const char *code = BK_F("M720");
-  if (!check_words(a, "SPET", code, r)) return false;
+  if (!check_words(a, letters, code, r)) return false;
   // Check everything first, then apply: all or nothing.
-  int32_t s = mode_, p = dwell_ms_;
-  float e = extra_e_, t = tol_mm_;
-  ArgStatus st = a.get_long('S', s);
-  if (st != ARG_ABSENT && (st != ARG_OK || s < 0 || s > 2)) {
-    error_word(r, a, code, 'S');
-    r.p(BK_F(": mode must be 0 (off), 1 (marked) or 2 (geometric)"));
-    return false;
+  for (uint8_t i = 0; i < 4; i++) {
+    Limit lim;
+    BK_RDBLOCK(&lim, &M720_LIMITS[i], sizeof(lim));
+    float x;
+    const int8_t k = read_limited(a, lim, code, x, r);
+    if (k < 0) return false;
+    if (!k) continue;
+    if (i < 2 && x != (float)(int16_t)x) {
+      r.p(BK_F("Error:M720 "));
+      r.c(lim.letter);
+      r.fixed(x, 3);
+      r.p(BK_F(" not a whole number"));
+      return false;
+    }
+    v[i] = x;
   }
-  st = a.get_long('P', p);
-  if (st != ARG_ABSENT && (st != ARG_OK || p < 0)) {
-    error_word(r, a, code, 'P');
-    r.p(BK_F(": dwell must be a whole number of ms, 0.."));
-    r.u(BK_MAX_DWELL_MS);
-    return false;
-  }
-  if (p > BK_MAX_DWELL_MS) {
-    error_word(r, a, code, 'P');
-    r.p(BK_F(" exceeds max dwell "));
-    r.u(BK_MAX_DWELL_MS);
-    r.p(BK_F(" ms"));
-    return false;
-  }
-  st = a.get_float('E', e);
-  if (st != ARG_ABSENT && (st != ARG_OK || e < 0.0f)) {
-    error_word(r, a, code, 'E');
-    r.p(BK_F(": extra must be 0.."));
-    r.fixed(BK_MAX_EXTRA_E_MM, 3);
-    r.p(BK_F(" mm"));
-    return false;
-  }
-  if (e > BK_MAX_EXTRA_E_MM) {
-    error_word(r, a, code, 'E');
-    r.p(BK_F(" exceeds max extra "));
-    r.fixed(BK_MAX_EXTRA_E_MM, 3);
-    r.p(BK_F(" mm"));
-    return false;
-  }
-  st = a.get_float('T', t);
-  if (st != ARG_ABSENT && (st != ARG_OK || t < 0.01f - 1e-6f || t > BK_MAX_TOLERANCE_MM)) {
-    error_word(r, a, code, 'T');
-    r.p(BK_F(": tolerance must be 0.010.."));
-    r.fixed(BK_MAX_TOLERANCE_MM, 3);
-    r.p(BK_F(" mm"));
-    return false;
-  }
-  mode_ = (uint8_t)s;
-  dwell_ms_ = (uint16_t)p;
-  extra_e_ = e;
-  if (t != tol_mm_) {
-    tol_mm_ = t;
-    derive();
-  }
+  mode_ = (uint8_t)v[0];
+  dwell_ms_ = (uint16_t)v[1];
+  extra_e_ = v[2];
+  tol_mm_ = v[3];
+  derive();
   return true;
 }
 
 bool BulgePlanner::m722(const GcodeArgs &a, char *reply, uint8_t size) {
   ReplyText r(reply, size);
-  if (!check_words(a, "S", BK_F("M722"), r)) return false;
-  int32_t s = -1;
-  ArgStatus st = a.get_long('S', s);
-  if (st != ARG_OK || (s != 0 && s != 1)) {
-    r.p(BK_F("Error:M722 needs S1 (enter outer wall) or S0 (leave)"));
+  const char allowed[2] = {'S', 0};  // on the stack: a literal would take RAM on AVR
+  if (!check_words(a, allowed, BK_F("M722"), r)) return false;
+  uint32_t s;  // get_ulong, as M721 uses: one reader less in the firmware
+  if (a.get_ulong('S', s) != ARG_OK || s > 1) {
+    r.p(BK_F("Error:M722 needs S0 or S1"));
     return false;
   }
   marker_ = s == 1;

@@ -23,11 +23,16 @@
 //     more = planner.plan_more(out);
 //   }
 //
-// Bounded output: an ActionList holds at most BK_PLAN_HITS_MAX bulge points
-// (2*BK_PLAN_HITS_MAX+1 actions). If the move passes more, plan() returns true
-// and plan_more() gives the next list, until it returns false. No point is
+// Bounded output: an ActionList holds at most BK_PLAN_HITS_MAX cuts (a line
+// to a stop and the stop: 2*BK_PLAN_HITS_MAX+1 actions with the final line).
+// If the move passes more, plan() returns true and plan_more() gives the next
+// list, until it returns false. Points that share a stop (closer than
+// BK_MIN_PIECE_MM) make one DWELL: a list only ends before a cut. No point is
 // dropped; a caller that stops calling plan_more() leaves the rest of the move
 // unexecuted, so it must not.
+// The planner reads the Move given to plan() again in plan_more() (it keeps a
+// pointer, not a copy): keep it alive and unchanged until plan() or
+// plan_more() has returned false.
 //
 // No heap, no STL; builds with avr-gcc 5.4 (gnu++11).
 #ifndef BK_BULGE_PLANNER_H
@@ -52,9 +57,11 @@ enum BulgeMode : uint8_t {
 struct Action {
   enum Kind : uint8_t { LINE = 0, DWELL = 1 };
   uint8_t kind;
-  uint16_t ms;  // DWELL: milliseconds (0 still means: stop here)
   float x, y, z;  // LINE: target, host = machine coordinates
-  float e;        // LINE: filament for this piece (mm), extra included
+  union {
+    float e;      // LINE: filament for this piece (mm), extra included
+    uint16_t ms;  // DWELL: milliseconds (0 still means: stop here); x y z unused
+  };
 };
 
 static const uint8_t BK_PLAN_ACTIONS_MAX = 2 * BK_PLAN_HITS_MAX + 1;
@@ -64,6 +71,17 @@ struct ActionList {
   float e_added;  // extra filament in these lines: add to the E offset
   Action a[BK_PLAN_ACTIONS_MAX];
 };
+
+// Stop statistics (stats()), for the host tools (bkcore) and tests. The
+// firmware never reads them, so AVR builds leave them out (18 bytes of RAM and
+// the code that counts); define BK_PLAN_STATS 1 to keep them.
+#ifndef BK_PLAN_STATS
+#ifdef __AVR__
+#define BK_PLAN_STATS 0
+#else
+#define BK_PLAN_STATS 1
+#endif
+#endif
 
 struct PlannerStats {
   uint32_t moves_split;    // moves that got at least one stop
@@ -112,60 +130,71 @@ class BulgePlanner {
   float extra_e() const { return extra_e_; }
   float tolerance() const { return tol_mm_; }
   bool in_outer_wall() const { return marker_; }
+#if BK_PLAN_STATS
   const PlannerStats &stats() const { return stats_; }
   void clear_stats();
+#endif
 
  private:
   bool eligible(const Move &m);
-  bool window(int32_t z_cmm);
+  bool window(float z);
+  void set_window(int32_t below, int32_t above);
   void derive();
   void collect(const Move &mv);
-  bool exact(const Move &mv, uint8_t i, float &t);
+  bool exact(const Move &mv, uint8_t i, float *fd, float &t);
   bool emit(ActionList &out);
   void line_to(ActionList &out, float t, float e);
-  void drop_carry();
+  void pay_owed(ActionList &out, Action &a);
+  void pass(const Move &m, ActionList &out);
 
-  // settings (M720)
-  uint8_t mode_;
-  bool marker_;  // M722 S1 seen, no S0 since
+  // What every G1 reads or writes comes first: an AVR reaches the first 64
+  // bytes of an object without address arithmetic.
+  uint8_t mode_;  // M720 S
+  // Flags in one byte (RAM is what an ATmega2560 lacks).
+  bool marker_ : 1;     // M722 S1 seen, no S0 since
+  bool has_layer_ : 1;  // layer_ is a layer of the map (or load_layer's)
+  bool has_miss_ : 1;   // miss_z_ is known to have no layer
+  bool cache_ok_ : 1;   // cache_* hold the last move's end
+  bool cache_far_ : 1;  // that end was beyond the integer range (see to_q)
+  bool hit_ : 1;        // collect() found a point (hit_i_, hit_t_)...
+  bool more_ : 1;       // ...and more beyond it
+  int16_t tol_q_;       // tolerance in quanta, rounded up, plus rounding margin (derive())
+  float inv_q_;         // quanta per mm
+
+  // the last move end, in quanta: the next move usually starts there
+  int16_t cache_qx_, cache_qy_;
+  float cache_x_, cache_y_, cache_z_;
+  int32_t cache_z_cmm_;
+
+  // the move being split (the caller's, see plan_more())
+  const Move *m_;
+  float t_done_;       // parameter where the next piece starts
+  float owed_;         // extra for the next piece, of this move or the next
+  uint16_t stop_ms_;   // dwell given at the current stop so far (merged points)
+  uint8_t fired_[(BK_LAYER_POINTS_MAX + 7) / 8];  // points of layer_ that stopped
+  // The nearest unfired point on the move (collect()): hit_i_, at hit_t_.
+  uint8_t hit_i_;
+  float hit_t_;
+
+  // the other settings (M720 P E T)
   uint16_t dwell_ms_;
   float extra_e_, tol_mm_;
 
   // layer window
   MapStore *store_;
-  bool has_layer_, has_miss_, cache_ok_, overflow_;
   uint8_t q_um_, lh_cmm_;
+  // The loaded layer stays in use while a move's z (cmm) is within
+  // [win_lo_, win_hi_]: half a layer height around it, narrowed to the
+  // half-way marks towards the records next to it (MapStore::neighbors).
+  uint16_t win_lo_, win_hi_;
   int32_t miss_z_;        // z (cmm) known to have no layer
-  // The records next to the loaded layer (MapStore::neighbors) and the map's
-  // last z when they (or the miss) were read: an append changes it, and then
-  // both are read again, so a layer that arrives late is still found.
-  int32_t below_z_, above_z_;
+  // The map's last z when the neighbours (or the miss) were read: an append
+  // changes it, and then both are read again, so a late layer is still found.
   uint16_t seen_last_z_;
-  int16_t tol_q_;         // tolerance in quanta, rounded up, plus rounding margin
-  float q_mm_, inv_q_, tol2_;
-  uint8_t fired_[(BK_LAYER_POINTS_MAX + 7) / 8];
 
-  // the last move end, in quanta: the next move usually starts there
-  float cache_x_, cache_y_, cache_z_;
-  int16_t cache_qx_, cache_qy_;
-  bool cache_far_;
-  int32_t cache_z_cmm_;
-
-  // the move being split
-  Move m_;
-  float len_, len2_;   // XY length and its square, mm (len2_ < 0: not yet known)
-  float fdx_, fdy_;    // XY extent, mm
-  float t_done_;       // parameter where the next piece starts
-  float pending_;      // extra for the next piece of this move
-  float carry_;        // extra owed to the next move (stop at the last vertex)
-  uint16_t stop_ms_;   // dwell given at the current stop so far (merged points)
-  bool active_;
-  uint8_t nhit_;
-  float hit_t_[BK_PLAN_HITS_MAX];
-  uint8_t hit_i_[BK_PLAN_HITS_MAX];
-  int32_t hit_d_[BK_PLAN_HITS_MAX];  // integer distance along the move (ordering)
-
+#if BK_PLAN_STATS
   PlannerStats stats_;
+#endif
   MapLayer layer_;  // the decoded working set (the "arena" of this module)
 };
 

@@ -24,8 +24,14 @@ class GcodeArgs;
 
 // One linear move in host coordinates (mm, mm/min).
 struct Move {
-  float x0, y0, z0;  // start
-  float x1, y1, z1;  // end
+  union {
+    struct {
+      float x0, y0, z0;  // start
+      float x1, y1, z1;  // end
+    };
+    float p[6];  // the same by index (start x y z, end x y z): one loop per
+                 // axis; the anonymous struct is the GNU/Marlin XYZval idiom
+  };
   float e;           // filament for the move (end E - start E, host terms)
   float f;           // feedrate mm/min
   bool xy_motion() const { return x0 != x1 || y0 != y1; }

@@ -45,7 +45,6 @@ MIN_PIECE_MM = 0.1
 MAX_DWELL_MS = 2000
 MAX_EXTRA_E_MM = 1.0
 MAX_TOLERANCE_MM = 2.0
-PLAN_HITS_MAX = 3
 
 MODE_OFF, MODE_MARKED, MODE_GEOMETRIC = 0, 1, 2
 
@@ -256,13 +255,10 @@ class RefPlanner:
             self.stop_ms = 0
             actions.append(a)
 
-        # batches of PLAN_HITS_MAX as the firmware's ActionList holds them;
-        # a dwell merges only with a dwell of the same batch
+        # points that share a stop (no line between them) make one dwell, as
+        # the firmware's action lists do: a list only ends before a cut
         hits.sort(key=lambda h: h[0])
-        batch_start = 0
-        for k, (t, i) in enumerate(hits):
-            if k % PLAN_HITS_MAX == 0:
-                batch_start = len(actions)
+        for t, i in hits:
             fired[i] = True
             self.stats.points_fired += 1
             px, py, w = pts[i]
@@ -277,9 +273,8 @@ class RefPlanner:
             # one stop (merged points) never exceeds the per-point limits
             ms = min(ms, MAX_DWELL_MS - self.stop_ms)
             self.stop_ms += ms
-            last = actions[-1] if len(actions) > batch_start else None
-            if last is not None and last.kind == "dwell":
-                last.ms = last.ms + ms
+            if actions and actions[-1].kind == "dwell":
+                actions[-1].ms += ms
             else:
                 actions.append(Action("dwell", ms=ms))
             self.stats.dwell_ms_total += ms

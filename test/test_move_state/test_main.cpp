@@ -46,6 +46,15 @@ static void test_absolute_move(void) {
   TEST_ASSERT_TRUE(S.e() == 2.0f);
 }
 
+static void test_ends_by_index(void) {
+  // The planner loops over the axes through p[]: the same six numbers.
+  Move m = g1("G1 X10 Y5 Z0.3 E1.25");
+  TEST_ASSERT_TRUE(m.p[0] == m.x0 && m.p[1] == m.y0 && m.p[2] == m.z0);
+  TEST_ASSERT_TRUE(m.p[3] == 10.0f && m.p[4] == 5.0f && m.p[5] == 0.3f);
+  m.p[4] = 7.0f;
+  TEST_ASSERT_TRUE(m.y1 == 7.0f && m.e == 1.25f);
+}
+
 static void test_relative_xyz_and_e(void) {
   g1("G1 X10 Y10 E5");
   S.set_absolute(false);  // G91: everything relative, E included
@@ -131,6 +140,7 @@ int main(void) {
   UNITY_BEGIN();
   RUN_TEST(test_power_on_state);
   RUN_TEST(test_absolute_move);
+  RUN_TEST(test_ends_by_index);
   RUN_TEST(test_relative_xyz_and_e);
   RUN_TEST(test_move_kinds);
   RUN_TEST(test_g92_and_offset);
