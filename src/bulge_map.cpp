@@ -269,22 +269,24 @@ MapError MapStore::put(const uint8_t *header, const uint8_t *records, uint16_t l
 
 // The record walks below meet only validated records (checked on entry,
 // moved whole by release_below); read_head's checks stop them anyway.
+// The head of the record at off in the store, if there is one there.
+static bool head_at(const MapStore &m, uint16_t off, RecordHead &h) {
+  return off < m.bytes_used() && read_head(m.records() + off, (uint16_t)(m.bytes_used() - off), h) == MAP_OK;
+}
+
 uint16_t MapStore::tally(bool points) const {
-  uint16_t off = 0, t = 0;
+  uint16_t t = 0;
   RecordHead h;
-  while (off < used_ && read_head(arena_ + off, (uint16_t)(used_ - off), h) == MAP_OK) {
-    t = (uint16_t)(t + (points ? h.n : 1));
-    off = (uint16_t)(off + h.size);
-  }
+  for (uint16_t off = 0; head_at(*this, off, h); off = (uint16_t)(off + h.size)) t = (uint16_t)(t + (points ? h.n : 1));
   return t;
 }
 
 bool MapStore::find_layer(int32_t z_cmm, MapLayer &out) const {
   const int32_t h = info_.layer_height_cmm;
-  uint16_t off = 0, best = 0;
+  uint16_t best = 0;
   int32_t best_d = INT32_MAX;
   RecordHead rh;
-  while (off < used_ && read_head(arena_ + off, (uint16_t)(used_ - off), rh) == MAP_OK) {
+  for (uint16_t off = 0; head_at(*this, off, rh); off = (uint16_t)(off + rh.size)) {
     int32_t d = (int32_t)rh.z - z_cmm;
     if (d > 0 && 2 * d > h) break;  // z only grows from here
     if (d < 0) d = -d;
@@ -292,7 +294,6 @@ bool MapStore::find_layer(int32_t z_cmm, MapLayer &out) const {
       best = off;
       best_d = d;
     }
-    off = (uint16_t)(off + rh.size);
   }
   return best_d != INT32_MAX &&
          map_decode_record(arena_ + best, (uint16_t)(used_ - best), info_.flags & MAP_FLAG_WEIGHTS, out);
@@ -301,23 +302,20 @@ bool MapStore::find_layer(int32_t z_cmm, MapLayer &out) const {
 void MapStore::neighbors(int32_t z_cmm, int32_t &below, int32_t &above) const {
   below = -1;
   above = INT32_MAX;
-  uint16_t off = 0;
   RecordHead h;
-  while (off < used_ && read_head(arena_ + off, (uint16_t)(used_ - off), h) == MAP_OK) {
+  for (uint16_t off = 0; head_at(*this, off, h); off = (uint16_t)(off + h.size)) {
     if ((int32_t)h.z > z_cmm) {
       above = h.z;
       return;
     }
     if ((int32_t)h.z < z_cmm) below = h.z;
-    off = (uint16_t)(off + h.size);
   }
 }
 
 void MapStore::release_below(int32_t z_cmm) {
   uint16_t off = 0;
   RecordHead h;
-  while (off < used_ && read_head(arena_ + off, (uint16_t)(used_ - off), h) == MAP_OK && (int32_t)h.z < z_cmm)
-    off = (uint16_t)(off + h.size);
+  while (head_at(*this, off, h) && (int32_t)h.z < z_cmm) off = (uint16_t)(off + h.size);
   if (!off) return;
   // Staged upload bytes sit right after the records and move with them.
   memmove(arena_, arena_ + off, (uint16_t)(used_ - off + stage_size_));

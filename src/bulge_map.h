@@ -170,12 +170,14 @@ class MapStore {
   MapError put(const uint8_t *header, const uint8_t *records, uint16_t len);  // header 0: append
   uint16_t tally(bool points) const;  // layers, or points, in force
 
-  uint8_t arena_[BK_MAP_ARENA_BYTES];
+  // The small fields first: AVR reaches them with a displacement from the
+  // object (at most 63 bytes), not with an address sum past the arena.
   uint16_t used_;
   int32_t z_floor_;
   uint16_t stage_size_;
   uint16_t error_offset_;
   MapInfo info_;
+  uint8_t arena_[BK_MAP_ARENA_BYTES];
 };
 
 }  // namespace bk

@@ -57,9 +57,16 @@ static void say(ReplyText &r, const char *fmt, uint16_t x = 0, uint16_t y = 0, u
 }
 
 // "Error:M721 " + fmt as say() writes it.
-static UploadStatus fail(ReplyText &r, const char *fmt, uint16_t x = 0, uint16_t y = 0, uint16_t z = 0) {
+static UploadStatus fail(ReplyText &r, const char *fmt, uint16_t x, uint16_t y = 0, uint16_t z = 0) {
   r.p(s_error);
   say(r, fmt, x, y, z);
+  return UPLOAD_ERROR;
+}
+
+// "Error:M721 " + text (no numbers: no argument registers to load).
+static UploadStatus fail(ReplyText &r, const char *text) {
+  r.p(s_error);
+  r.p(text);
   return UPLOAD_ERROR;
 }
 

@@ -45,7 +45,7 @@ class ReplyText;  // bounded text writer, reply_text.h
 
 class MapUpload {
  public:
-  explicit MapUpload(MapStore &store) : store_(store), head_() {}
+  explicit MapUpload(MapStore &store) : store_(store) {}  // head_ is written before it is read
 
   // Handles one parsed M721 line. reply gets zero or more lines separated by
   // '\n' (no trailing newline; "" = nothing to print); reply_size should be at
