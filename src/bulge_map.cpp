@@ -281,41 +281,39 @@ uint16_t MapStore::tally(bool points) const {
   return t;
 }
 
+// One walk for the three layer questions: at = offset of the first record with
+// z >= z_cmm (used_ if none), below = offset of the one before it (used_ if
+// none). Records are in increasing z, so the walk stops there.
+void MapStore::around(int32_t z_cmm, uint16_t &below, uint16_t &at) const {
+  below = used_;
+  RecordHead h;
+  for (at = 0; head_at(*this, at, h) && (int32_t)h.z < z_cmm; at = (uint16_t)(at + h.size)) below = at;
+}
+
 bool MapStore::find_layer(int32_t z_cmm, MapLayer &out) const {
-  const int32_t h = info_.layer_height_cmm;
-  uint16_t best = 0;
-  int32_t best_d = INT32_MAX;
-  RecordHead rh;
-  for (uint16_t off = 0; head_at(*this, off, rh); off = (uint16_t)(off + rh.size)) {
-    int32_t d = (int32_t)rh.z - z_cmm;
-    if (d > 0 && 2 * d > h) break;  // z only grows from here
-    if (d < 0) d = -d;
-    if (2 * d <= h && d < best_d) {  // strictly nearer: the lower one wins a tie
-      best = off;
-      best_d = d;
-    }
-  }
-  return best_d != INT32_MAX &&
+  uint16_t lo, hi;
+  around(z_cmm, lo, hi);
+  // The nearer of the two records around z_cmm; the lower one on a tie.
+  const int32_t d_lo = lo < used_ ? z_cmm - z_at(lo) : INT32_MAX;
+  const int32_t d_hi = hi < used_ ? z_at(hi) - z_cmm : INT32_MAX;
+  const uint16_t best = d_lo <= d_hi ? lo : hi;
+  const int32_t d = d_lo <= d_hi ? d_lo : d_hi;
+  return d != INT32_MAX && 2 * d <= info_.layer_height_cmm &&
          map_decode_record(arena_ + best, (uint16_t)(used_ - best), info_.flags & MAP_FLAG_WEIGHTS, out);
 }
 
 void MapStore::neighbors(int32_t z_cmm, int32_t &below, int32_t &above) const {
-  below = -1;
-  above = INT32_MAX;
+  uint16_t lo, hi;
+  around(z_cmm, lo, hi);
+  below = lo < used_ ? (int32_t)z_at(lo) : -1;
   RecordHead h;
-  for (uint16_t off = 0; head_at(*this, off, h); off = (uint16_t)(off + h.size)) {
-    if ((int32_t)h.z > z_cmm) {
-      above = h.z;
-      return;
-    }
-    if ((int32_t)h.z < z_cmm) below = h.z;
-  }
+  if (head_at(*this, hi, h) && h.z == z_cmm) hi = (uint16_t)(hi + h.size);  // above is strictly above
+  above = hi < used_ ? (int32_t)z_at(hi) : INT32_MAX;
 }
 
 void MapStore::release_below(int32_t z_cmm) {
-  uint16_t off = 0;
-  RecordHead h;
-  while (head_at(*this, off, h) && (int32_t)h.z < z_cmm) off = (uint16_t)(off + h.size);
+  uint16_t lo, off;
+  around(z_cmm, lo, off);
   if (!off) return;
   // Staged upload bytes sit right after the records and move with them.
   memmove(arena_, arena_ + off, (uint16_t)(used_ - off + stage_size_));

@@ -134,7 +134,7 @@ class MapStore {
   uint16_t free_bytes() const { return (uint16_t)(BK_MAP_ARENA_BYTES - used_); }
   uint16_t point_count() const { return tally(true); }
   // 0 when empty. The last record is the one added last, with z_floor's z.
-  uint16_t first_z() const { return used_ ? (uint16_t)(arena_[0] | (uint16_t)arena_[1] << 8) : 0; }
+  uint16_t first_z() const { return used_ ? z_at(0) : 0; }
   uint16_t last_z() const { return used_ ? (uint16_t)z_floor_ : 0; }
   // Highest z the map has held (appends must exceed it); -1 for none.
   int32_t z_floor() const { return z_floor_; }
@@ -169,6 +169,8 @@ class MapStore {
  private:
   MapError put(const uint8_t *header, const uint8_t *records, uint16_t len);  // header 0: append
   uint16_t tally(bool points) const;  // layers, or points, in force
+  void around(int32_t z_cmm, uint16_t &below, uint16_t &at) const;
+  uint16_t z_at(uint16_t off) const { return (uint16_t)(arena_[off] | (uint16_t)arena_[off + 1] << 8); }
 
   // The small fields first: AVR reaches them with a displacement from the
   // object (at most 63 bytes), not with an address sum past the arena.
