@@ -274,11 +274,15 @@ static bool head_at(const MapStore &m, uint16_t off, RecordHead &h) {
   return off < m.bytes_used() && read_head(m.records() + off, (uint16_t)(m.bytes_used() - off), h) == MAP_OK;
 }
 
-uint16_t MapStore::tally(bool points) const {
-  uint16_t t = 0;
+uint16_t MapStore::counts(uint16_t &points) const {
+  uint16_t layers = 0;
+  points = 0;
   RecordHead h;
-  for (uint16_t off = 0; head_at(*this, off, h); off = (uint16_t)(off + h.size)) t = (uint16_t)(t + (points ? h.n : 1));
-  return t;
+  for (uint16_t off = 0; head_at(*this, off, h); off = (uint16_t)(off + h.size)) {
+    layers++;
+    points = (uint16_t)(points + h.n);
+  }
+  return layers;
 }
 
 // One walk for the three layer questions: at = offset of the first record with

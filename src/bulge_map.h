@@ -128,11 +128,20 @@ class MapStore {
   bool loaded() const { return info_.version != 0; }  // a header is in force
   bool empty() const { return used_ == 0; }           // no layer records
   const MapInfo &info() const { return info_; }
-  uint16_t layer_count() const { return tally(false); }
+  uint16_t layer_count() const {
+    uint16_t points;
+    return counts(points);
+  }
   uint16_t bytes_used() const { return used_; }  // record bytes in the arena
   uint16_t capacity() const { return BK_MAP_ARENA_BYTES; }
   uint16_t free_bytes() const { return (uint16_t)(BK_MAP_ARENA_BYTES - used_); }
-  uint16_t point_count() const { return tally(true); }
+  uint16_t point_count() const {
+    uint16_t points;
+    counts(points);
+    return points;
+  }
+  // Layers in force, and their points, in one walk of the records.
+  uint16_t counts(uint16_t &points) const;
   // 0 when empty. The last record is the one added last, with z_floor's z.
   uint16_t first_z() const { return used_ ? z_at(0) : 0; }
   uint16_t last_z() const { return used_ ? (uint16_t)z_floor_ : 0; }
@@ -168,7 +177,6 @@ class MapStore {
 
  private:
   MapError put(const uint8_t *header, const uint8_t *records, uint16_t len);  // header 0: append
-  uint16_t tally(bool points) const;  // layers, or points, in force
   void around(int32_t z_cmm, uint16_t &below, uint16_t &at) const;
   uint16_t z_at(uint16_t off) const { return (uint16_t)(arena_[off] | (uint16_t)arena_[off + 1] << 8); }
 

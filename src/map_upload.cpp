@@ -209,8 +209,10 @@ UploadStatus MapUpload::commit(ReplyText &r) {
 }
 
 void MapUpload::status(ReplyText &r) const {
-  say(r, BK_F("echo:BulgeMap layers:# bytes:#/#"), store_.layer_count(), store_.bytes_used(), store_.capacity());
-  say(r, BK_F(" points:# z:"), store_.point_count());
+  uint16_t points;
+  const uint16_t layers = store_.counts(points);
+  say(r, BK_F("echo:BulgeMap layers:# bytes:#/#"), layers, store_.bytes_used(), store_.capacity());
+  say(r, BK_F(" points:# z:"), points);
   if (store_.empty()) {
     r.c('-');
   } else {
