@@ -176,14 +176,13 @@ static MapError read_body(const uint8_t *p, const RecordHead &h, bool weights, M
       pt++;
     }
   }
-  if (weights) {
-    if (end - b < h.n) return MAP_ERR_LENGTH;
+  if (weights) {  // n bytes, then nothing
+    if (end - b != h.n) return MAP_ERR_LENGTH;
     if (out)
-      for (uint8_t i = 0; i < h.n; i++) out->pts[i].w = *b++;
-    else
-      b += h.n;
+      for (MapPoint *q = out->pts; b < end; q++) q->w = *b++;
+  } else if (b != end) {
+    return MAP_ERR_LENGTH;  // bytes after the last field
   }
-  if (b != end) return MAP_ERR_LENGTH;  // bytes after the last field
   if (out) {
     out->z_cmm = h.z;
     out->count = h.n;
