@@ -69,8 +69,10 @@ enum MapError : int8_t {
   MAP_ERR_NO_HEADER = -15,    // records appended while no map is loaded
 };
 
-// Short English text for an error. On AVR the text lives in flash (PSTR): print
-// it with a _P function, or copy it with map_error_copy(), which works on both.
+// The error's name, the Python code of the same error ("record_crc"; "ok",
+// "no_header", "unknown" for codes outside the list). On AVR the text lives in
+// flash: print it with a _P function, or copy it with map_error_copy(), which
+// works on both.
 const char *map_error_text(MapError e);
 // Copies the text into buf (always NUL-terminated); returns its length.
 uint8_t map_error_copy(MapError e, char *buf, uint8_t size);
@@ -89,33 +91,21 @@ uint8_t varint_write(uint8_t *p, uint32_t v);
 inline uint32_t zigzag_encode(int32_t v) { return ((uint32_t)v << 1) ^ (uint32_t)(v >> 31); }
 inline int32_t zigzag_decode(uint32_t u) { return (int32_t)(u >> 1) ^ -(int32_t)(u & 1); }
 
-// Result of scanning a byte range of header and/or records.
-struct MapScan {
-  uint16_t layers;
-  uint16_t points;
-  uint16_t first_z, last_z;  // cmm; meaningful when layers > 0
-  uint16_t error_offset;     // byte offset where the scan failed
-};
-
-// Validates a whole image (with_header) or a run of records that follow a map
-// with the given info whose last layer had z == after_z (pass -1 for none).
-// With a header, info is filled from it. Nothing is written on failure except
-// scan.error_offset.
-MapError map_scan(const uint8_t *p, uint16_t len, bool with_header, MapInfo &info, int32_t after_z,
-                  MapScan &scan);
-
 // Checks an 8-byte header (magic, CRC, version, flags, values; in that order)
 // and fills info. len < 8 is MAP_ERR_TRUNCATED.
 MapError map_parse_header(const uint8_t *p, uint16_t len, MapInfo &info);
 
-// Decodes the record at p (already validated, or not: all checks apply except
-// the CRC) into out; returns the record's total size, or 0 on malformed data.
+// The one record decoder: decodes the record at p into out with every check
+// but the CRC (the store checks that on entry); returns the record's total
+// size, or 0 on malformed data. find_layer uses it at each layer change.
 uint16_t map_decode_record(const uint8_t *p, uint16_t avail, bool weights, MapLayer &out);
 
 // The map in force, compact, in a fixed arena of BK_MAP_ARENA_BYTES (no heap).
 // The arena holds the layer records; the 8-byte header is kept decoded in
 // info(). The free space after the records doubles as the staging area for an
-// M721 upload (see stage_open), so an upload costs no RAM of its own.
+// M721 upload (see stage_open), so an upload costs no RAM of its own. Counts
+// and the first z are read from the records when asked (status, tests), so the
+// bookkeeping is 14 bytes.
 class MapStore {
  public:
   MapStore() { clear(); }
@@ -127,22 +117,34 @@ class MapStore {
   // The same with the header apart from the records (M721 keeps the header
   // outside the arena so a full arena's worth of records can be staged).
   // error_offset() still counts from the header's first byte.
-  MapError load_parts(const uint8_t *header, const uint8_t *records, uint16_t len);
+  MapError load_parts(const uint8_t *header, const uint8_t *records, uint16_t len) {
+    return put(header, records, len);
+  }
   // Add records after the last layer: validated, all-or-nothing, first z above
   // every z this map has held (released layers included). Success closes any
   // staging; data may point at the staging area.
-  MapError append(const uint8_t *records, uint16_t len);
+  MapError append(const uint8_t *records, uint16_t len) { return put(0, records, len); }
 
   bool loaded() const { return info_.version != 0; }  // a header is in force
-  bool empty() const { return layers_ == 0; }          // no layer records
+  bool empty() const { return used_ == 0; }           // no layer records
   const MapInfo &info() const { return info_; }
-  uint16_t layer_count() const { return layers_; }
+  uint16_t layer_count() const {
+    uint16_t points;
+    return counts(points);
+  }
   uint16_t bytes_used() const { return used_; }  // record bytes in the arena
   uint16_t capacity() const { return BK_MAP_ARENA_BYTES; }
   uint16_t free_bytes() const { return (uint16_t)(BK_MAP_ARENA_BYTES - used_); }
-  uint16_t point_count() const { return points_; }
-  uint16_t first_z() const { return first_z_; }  // 0 when empty
-  uint16_t last_z() const { return last_z_; }    // 0 when empty
+  uint16_t point_count() const {
+    uint16_t points;
+    counts(points);
+    return points;
+  }
+  // Layers in force, and their points, in one walk of the records.
+  uint16_t counts(uint16_t &points) const;
+  // 0 when empty. The last record is the one added last, with z_floor's z.
+  uint16_t first_z() const { return used_ ? z_at(0) : 0; }
+  uint16_t last_z() const { return used_ ? (uint16_t)z_floor_ : 0; }
   // Highest z the map has held (appends must exceed it); -1 for none.
   int32_t z_floor() const { return z_floor_; }
 
@@ -174,14 +176,18 @@ class MapStore {
   void stage_close() { stage_size_ = 0; }
 
  private:
-  uint8_t arena_[BK_MAP_ARENA_BYTES];
+  MapError put(const uint8_t *header, const uint8_t *records, uint16_t len);  // header 0: append
+  void around(int32_t z_cmm, uint16_t &below, uint16_t &at) const;
+  uint16_t z_at(uint16_t off) const { return (uint16_t)(arena_[off] | (uint16_t)arena_[off + 1] << 8); }
+
+  // The small fields first: AVR reaches them with a displacement from the
+  // object (at most 63 bytes), not with an address sum past the arena.
   uint16_t used_;
-  uint16_t layers_, points_;
-  uint16_t first_z_, last_z_;
   int32_t z_floor_;
   uint16_t stage_size_;
   uint16_t error_offset_;
   MapInfo info_;
+  uint8_t arena_[BK_MAP_ARENA_BYTES];
 };
 
 }  // namespace bk

@@ -8,10 +8,10 @@
 //
 // The record bytes are staged in the map arena's free space
 // (MapStore::stage_open) and a new map's 8-byte header in this object, so an
-// upload costs no RAM beyond this object (about 20 bytes) and the map in force
+// upload costs no RAM beyond this object (19 bytes on AVR) and the map in force
 // is untouched until a commit passes every check. The catch: a replacement's
-// records must fit beside the current map; if they do not, the Error says so
-// and "M721 X" first frees the arena.
+// records must fit beside the current map; if they do not, the Error's S range
+// shows the room left and "M721 X" first frees the arena.
 //
 // Pure logic: the caller parses the line with GcodeArgs, passes it in and
 // prints the reply text (Marlin glue: SERIAL_ECHOLN per line).
@@ -36,24 +36,25 @@ enum UploadStatus : int8_t {
 
 // Base32 (RFC 4648 alphabet, no padding, case-insensitive) as M721 D uses it.
 enum Base32Error : int8_t { B32_BAD_CHAR = -1, B32_BAD_LENGTH = -2, B32_BAD_TAIL = -3 };
-// Checks text and returns the decoded byte count, or a Base32Error with the
-// offending char index in bad_pos (length errors: bad_pos = len).
-int16_t base32_check(const char *s, uint8_t len, uint8_t &bad_pos);
-// Decodes text that base32_check accepted into out (base32_check bytes).
-void base32_decode(const char *s, uint8_t len, uint8_t *out);
+// Checks and decodes text in one pass into out (len * 5 / 8 bytes; written
+// even when the text turns out bad). Returns the byte count, or a Base32Error
+// with the offending char index in bad_pos (length errors: bad_pos = len).
+int16_t base32_decode(const char *s, uint8_t len, uint8_t *out, uint8_t &bad_pos);
 
 class ReplyText;  // bounded text writer, reply_text.h
 
 class MapUpload {
  public:
-  explicit MapUpload(MapStore &store) : store_(store), head_() {}
+  explicit MapUpload(MapStore &store) : store_(store) {}  // head_ is written before it is read
 
   // Handles one parsed M721 line. reply gets zero or more lines separated by
   // '\n' (no trailing newline; "" = nothing to print); reply_size should be at
   // least BK_M721_REPLY_BYTES. Never prints "ok" (Marlin does).
   UploadStatus handle(const GcodeArgs &args, char *reply, uint16_t reply_size);
 
-  bool open() const { return open_ && store_.stage_size() == stage_bytes(); }
+  // Open while size_ is set and the store still holds our staging (a clear or
+  // load underneath closes it).
+  bool open() const { return size_ && store_.stage_size() == stage_bytes(); }
   bool appending() const { return append_; }
   uint16_t size() const { return size_; }
   uint16_t received() const { return received_; }
@@ -65,15 +66,15 @@ class MapUpload {
   UploadStatus commit(ReplyText &r);
   void status(ReplyText &r) const;
 
-  uint16_t stage_bytes() const { return append_ ? size_ : (uint16_t)(size_ - MAP_HEADER_BYTES); }
+  uint8_t head_bytes() const { return append_ ? 0 : MAP_HEADER_BYTES; }  // bytes kept in head_
+  uint16_t stage_bytes() const { return (uint16_t)(size_ - head_bytes()); }
 
   MapStore &store_;
   uint8_t head_[MAP_HEADER_BYTES];  // a new map's header while it is uploaded
   uint32_t crc_ = 0;
-  uint16_t size_ = 0;
+  uint16_t size_ = 0;      // 0: no upload
   uint16_t received_ = 0;  // contiguous bytes from offset 0
   bool append_ = false;
-  bool open_ = false;
 };
 
 }  // namespace bk

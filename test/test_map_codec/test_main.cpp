@@ -97,18 +97,37 @@ static void test_varint_and_zigzag(void) {
 
 static void test_error_texts(void) {
   char t[40];
-  TEST_ASSERT_EQUAL_INT(19, map_error_copy(MAP_ERR_RECORD_CRC, t, sizeof t));
-  TEST_ASSERT_EQUAL_STRING("record CRC mismatch", t);
+  // The texts are the Python codes (host/bulgekit/mapformat.py), so both sides name an error alike.
+  TEST_ASSERT_EQUAL_INT(10, map_error_copy(MAP_ERR_RECORD_CRC, t, sizeof t));
+  TEST_ASSERT_EQUAL_STRING("record_crc", t);
+  map_error_copy(MAP_OK, t, sizeof t);
+  TEST_ASSERT_EQUAL_STRING("ok", t);
+  map_error_copy(MAP_ERR_TRUNCATED, t, sizeof t);
+  TEST_ASSERT_EQUAL_STRING("truncated", t);
+  map_error_copy(MAP_ERR_NO_HEADER, t, sizeof t);
+  TEST_ASSERT_EQUAL_STRING("no_header", t);
   map_error_copy((MapError)-99, t, sizeof t);
-  TEST_ASSERT_EQUAL_STRING("unknown error", t);
+  TEST_ASSERT_EQUAL_STRING("unknown", t);
+  map_error_copy((MapError)-16, t, sizeof t);
+  TEST_ASSERT_EQUAL_STRING("unknown", t);
+  map_error_copy((MapError)3, t, sizeof t);
+  TEST_ASSERT_EQUAL_STRING("unknown", t);
+  // Every code, in enum order: the .code of the Python class of the same error.
+  static const char *const py[] = {"truncated",  "magic",      "version",   "flags",  "header_value",
+                                   "header_crc", "record_crc", "varint",    "count_zero", "count_max",
+                                   "length",     "coord",      "z_order",   "too_large"};
+  for (uint8_t i = 0; i < sizeof py / sizeof py[0]; i++) {
+    map_error_copy((MapError)-(int8_t)(i + 1), t, sizeof t);
+    TEST_ASSERT_EQUAL_STRING(py[i], t);
+  }
   TEST_ASSERT_EQUAL_INT(4, map_error_copy(MAP_ERR_TOO_LARGE, t, 5));  // cut to fit, terminated
-  TEST_ASSERT_EQUAL_STRING("map ", t);
+  TEST_ASSERT_EQUAL_STRING("too_", t);
   // Every code has its own text.
   char u[40];
   for (int8_t a = MAP_ERR_NO_HEADER; a <= MAP_OK; a++) {
     map_error_copy((MapError)a, t, sizeof t);
     TEST_ASSERT_TRUE(t[0] != 0);
-    TEST_ASSERT_FALSE(strcmp(t, "unknown error") == 0);
+    TEST_ASSERT_FALSE(strcmp(t, "unknown") == 0);
     for (int8_t b = (int8_t)(a + 1); b <= MAP_OK; b++) {
       map_error_copy((MapError)b, u, sizeof u);
       TEST_ASSERT_FALSE(strcmp(t, u) == 0);
@@ -199,7 +218,7 @@ static void test_text_cylinder_every_layer(void) {
     uint16_t z = (uint16_t)(scratch[off] | scratch[off + 1] << 8);
     uint16_t size = map_decode_record(scratch + off, (uint16_t)(n - off), false, checked);
     TEST_ASSERT_TRUE(size > 0);
-    // find_layer's trusted fast decoder agrees with the checked one.
+    // find_layer picks this record and decodes it as map_decode_record does.
     TEST_ASSERT_TRUE(store.find_layer(z, layer));
     TEST_ASSERT_EQUAL_UINT8(checked.count, layer.count);
     for (uint8_t k = 0; k < checked.count; k++) {

@@ -1,13 +1,14 @@
-// libFuzzer target: the compact map decoder (MapStore::load / append /
-// find_layer / release_below, map_scan, map_decode_record).
+// libFuzzer target: the compact map decoder (MapStore::load / load_parts /
+// append / find_layer / neighbors / release_below, map_decode_record).
 //
 // Input: byte 0 picks the mode, the rest is the data.
 //   even: data is a full image for load()
 //   odd:  a fixed small map is loaded, then data is appended as records
 // Beyond "no crash, no sanitizer report", it checks the store's promises:
 // a rejected input leaves the previous map byte-identical; an accepted one
-// has counts that match a walk with the checked decoder, and find_layer's
-// trusted fast decoder returns exactly what the checked decoder returns.
+// has counts that match a walk with map_decode_record (the one decoder, which
+// find_layer uses too), every record is found by its z, and neighbors name
+// the records around it.
 #include <stdint.h>
 #include <stdlib.h>
 #include <string.h>
@@ -17,7 +18,7 @@
 using namespace bk;
 
 static MapStore store;
-static MapLayer fast, checked;
+static MapLayer found, checked;
 
 #define CHECK(c)     \
   do {               \
@@ -66,7 +67,8 @@ static void same_as(const Snapshot &s) {
   CHECK(memcmp(s.bytes, store.records(), s.used) == 0);
 }
 
-// Walk the records in force with the checked decoder; compare with find_layer.
+// Walk the records in force with map_decode_record; compare with find_layer
+// and neighbors.
 static void verify_store(void) {
   const uint8_t *p = store.records();
   const uint16_t used = store.bytes_used();
@@ -78,23 +80,52 @@ static void verify_store(void) {
     CHECK(size > 0);
     CHECK(crc8(p + off, (uint16_t)(size - 1)) == p[off + size - 1]);
     CHECK((int32_t)checked.z_cmm > prev);
+    if (!off) CHECK(checked.z_cmm == store.first_z());
+    int32_t below, above;
+    store.neighbors(checked.z_cmm, below, above);
+    CHECK(below == prev);
     prev = checked.z_cmm;
-    CHECK(store.find_layer(checked.z_cmm, fast));
-    CHECK(fast.z_cmm == checked.z_cmm && fast.count == checked.count);
+    CHECK(store.find_layer(checked.z_cmm, found));
+    CHECK(found.z_cmm == checked.z_cmm && found.count == checked.count);
     for (uint8_t i = 0; i < checked.count; i++) {
-      CHECK(fast.pts[i].x == checked.pts[i].x);
-      CHECK(fast.pts[i].y == checked.pts[i].y);
-      CHECK(fast.pts[i].w == checked.pts[i].w);
-      CHECK(w || fast.pts[i].w == MAP_WEIGHT_FULL);
+      CHECK(found.pts[i].x == checked.pts[i].x);
+      CHECK(found.pts[i].y == checked.pts[i].y);
+      CHECK(found.pts[i].w == checked.pts[i].w);
+      CHECK(w || found.pts[i].w == MAP_WEIGHT_FULL);
     }
     layers++;
     points = (uint16_t)(points + checked.count);
     off = (uint16_t)(off + size);
+    if (off < used) CHECK(above == (int32_t)(p[off] | p[off + 1] << 8));
+    else CHECK(above == INT32_MAX && checked.z_cmm == store.last_z());
   }
   CHECK(off == used);
   CHECK(layers == store.layer_count());
   CHECK(points == store.point_count());
   CHECK(used <= store.capacity());
+  CHECK(store.empty() == (used == 0));
+  if (!used) CHECK(store.first_z() == 0 && store.last_z() == 0);
+  if (used) CHECK(store.z_floor() == store.last_z());
+}
+
+// find_layer(z) against a brute-force pick over the records: |dz| * 2 <= h,
+// the nearest, the lower one on a tie.
+static void probe(int32_t z) {
+  const uint8_t *p = store.records();
+  const uint16_t used = store.bytes_used();
+  const int32_t h = store.info().layer_height_cmm;
+  int32_t want = -1, best = 0;
+  for (uint16_t off = 0; off < used;) {
+    const uint16_t size =
+        map_decode_record(p + off, (uint16_t)(used - off), store.info().flags & MAP_FLAG_WEIGHTS, checked);
+    CHECK(size > 0);
+    const int32_t d = labs((int32_t)checked.z_cmm - z);
+    if (2 * d <= h && (want < 0 || d < best)) want = checked.z_cmm, best = d;
+    off = (uint16_t)(off + size);
+  }
+  const bool got = store.find_layer(z, found);
+  CHECK(got == (want >= 0));
+  if (got) CHECK(found.z_cmm == want);
 }
 
 extern "C" int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size) {
@@ -112,12 +143,16 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size) {
   MapError e;
   if (!(mode & 1)) {
     e = store.load(buf, n);
-    MapInfo info = {0, 0, 0, 0};
-    MapScan scan;
-    MapError e2 = map_scan(buf, n, true, info, -1, scan);
-    // load = scan + an arena size limit.
+    // load = load_parts on the same bytes; the header counts in error offsets.
+    if (n >= MAP_HEADER_BYTES) {
+      const uint16_t off = store.error_offset();
+      MapStore *other = new MapStore;
+      CHECK(other->load_parts(buf, buf + MAP_HEADER_BYTES, (uint16_t)(n - MAP_HEADER_BYTES)) == e);
+      CHECK(other->error_offset() == off);
+      if (e != MAP_OK && e != MAP_ERR_TOO_LARGE && off) CHECK(off >= MAP_HEADER_BYTES && off < n);
+      delete other;
+    }
     if (n >= MAP_HEADER_BYTES && n - MAP_HEADER_BYTES > BK_MAP_ARENA_BYTES) CHECK(e == MAP_ERR_TOO_LARGE);
-    else CHECK(e == e2);
   } else {
     e = store.append(buf, n);
   }
@@ -128,6 +163,7 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size) {
     verify_store();
     // Release at a z taken from the input, then everything must still hold.
     int32_t z = n >= 2 ? (int32_t)(buf[0] | buf[1] << 8) - 100 : 0;
+    for (int32_t dz = -40; dz <= 40; dz += 7) probe(z + dz);
     store.release_below(z);
     verify_store();
     if (!store.empty()) CHECK(store.first_z() >= z);
