@@ -495,7 +495,7 @@ bool BulgePlanner::m720(const GcodeArgs &a, char *reply, uint8_t size) {
     return true;
   }
   const char *code = BK_F("M720");
-  if (!check_words(a, letters, code, r)) return false;
+  if (!check_words(a, BK_F("SPET"), code, r)) return false;  // the letters of M720_LIMITS
   // Check everything first, then apply: all or nothing.
   for (uint8_t i = 0; i < 4; i++) {
     Limit lim;
@@ -523,8 +523,7 @@ bool BulgePlanner::m720(const GcodeArgs &a, char *reply, uint8_t size) {
 
 bool BulgePlanner::m722(const GcodeArgs &a, char *reply, uint8_t size) {
   ReplyText r(reply, size);
-  const char allowed[2] = {'S', 0};  // on the stack: a literal would take RAM on AVR
-  if (!check_words(a, allowed, BK_F("M722"), r)) return false;
+  if (!check_words(a, BK_F("S"), BK_F("M722"), r)) return false;
   uint32_t s;  // get_ulong, as M721 uses: one reader less in the firmware
   if (a.get_ulong('S', s) != ARG_OK || s > 1) {
     r.p(BK_F("Error:M722 needs S0 or S1"));

@@ -64,12 +64,11 @@ const GcodeArgs::Word *GcodeArgs::find(char letter) const {
 
 bool GcodeArgs::has(char letter) const { return find(letter) != nullptr; }
 
-char GcodeArgs::unknown(const char *allowed) const {
+char GcodeArgs::unknown(const char *allowed_flash) const {
   for (uint8_t i = 0; i < count_; i++) {
-    char l = words_[i].letter;
-    const char *a = allowed;
+    const char l = words_[i].letter;
     bool ok = false;
-    while (*a) ok |= (upper(*a++) == l);
+    for (const char *a = allowed_flash; char c = (char)BK_RD8(a); a++) ok |= (upper(c) == l);
     if (!ok) return l;
   }
   return 0;
@@ -82,8 +81,8 @@ char GcodeArgs::duplicate() const {
   return 0;
 }
 
-bool check_words(const GcodeArgs &a, const char *allowed, const char *code_flash, ReplyText &r) {
-  char bad = a.unknown(allowed);
+bool check_words(const GcodeArgs &a, const char *allowed_flash, const char *code_flash, ReplyText &r) {
+  char bad = a.unknown(allowed_flash);
   const bool twice = !bad && (bad = a.duplicate()) != 0;
   if (!bad) return true;
   r.p(BK_F("Error:"));

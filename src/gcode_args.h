@@ -35,8 +35,8 @@ class GcodeArgs {
   ArgStatus get_ulong(char letter, uint32_t &out) const;    // 0..4294967295
   // The raw word after letter (up to the next space, ';' or '*'): pointer and length.
   bool raw(char letter, const char *&text, uint8_t &len) const;
-  // The first letter present that is not in allowed ("SPET"), or 0.
-  char unknown(const char *allowed) const;
+  // The first letter present that is not in allowed (flash text: BK_F("SPET")), or 0.
+  char unknown(const char *allowed_flash) const;
   // The first letter that appears twice ("M720 P100 P3000"), or 0.
   char duplicate() const;
 
@@ -60,7 +60,7 @@ class ReplyText;
 // The check every M-code handler starts with: each word's letter is in allowed
 // and appears once. Otherwise writes "Error:<code> unknown parameter X" (or
 // "duplicate parameter X") and returns false. code_flash: e.g. BK_F("M720").
-bool check_words(const GcodeArgs &a, const char *allowed, const char *code_flash, ReplyText &r);
+bool check_words(const GcodeArgs &a, const char *allowed_flash, const char *code_flash, ReplyText &r);
 
 // A setting with limits, for the table-driven handlers (M720, M723): the value of
 // letter must lie in [lo, hi], or in (lo, hi] when lo_open. Kept in RAM or flash

@@ -106,7 +106,7 @@ void MapUpload::abort() {
 UploadStatus MapUpload::handle(const GcodeArgs &a, char *reply, uint16_t reply_size) {
   ReplyText r(reply, reply_size);
   if (a.code_letter() != 'M' || a.code() != 721) return fail(r, BK_F("got another code"));
-  if (!check_words(a, "SCAODEX", BK_F("M721"), r)) return UPLOAD_ERROR;
+  if (!check_words(a, BK_F("SCAODEX"), BK_F("M721"), r)) return UPLOAD_ERROR;
   // One action a line, named by its letters: 1 begin, 2 chunk, 3 commit, 4 clear.
   static const char groups[] BK_FLASH = "SCA OD E X";
   uint8_t act = 0, g = 1;

@@ -93,7 +93,7 @@ bool WidthMode::command(const GcodeArgs &a, char *reply, uint8_t reply_size) {
     report(o);
     return true;
   }
-  if (!check_words(a, "SQRDHLU", kCode, o)) return false;
+  if (!check_words(a, BK_F("SQRDHLU"), kCode, o)) return false;
   int32_t s = -1;
   const ArgStatus st = a.get_long('S', s);
   if (st != ARG_ABSENT && (st != ARG_OK || (uint32_t)s > 1)) {

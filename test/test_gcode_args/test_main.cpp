@@ -19,8 +19,8 @@ static void test_code_and_words(void) {
   TEST_ASSERT_EQUAL_INT(bk::ARG_OK, a.get_long('P', l));
   TEST_ASSERT_EQUAL_INT(100, l);
   TEST_ASSERT_EQUAL_INT(bk::ARG_ABSENT, a.get_long('X', l));
-  TEST_ASSERT_EQUAL_INT(0, a.unknown("SPET"));
-  TEST_ASSERT_EQUAL_INT('T', a.unknown("SPE"));
+  TEST_ASSERT_EQUAL_INT(0, a.unknown(BKT_S("SPET")));
+  TEST_ASSERT_EQUAL_INT('T', a.unknown(BKT_S("SPE")));
 }
 
 static void test_malformed_values(void) {
@@ -68,15 +68,15 @@ static void test_duplicate_and_unknown_words(void) {
   bk::ReplyText r(reply, sizeof reply);
   TEST_ASSERT_TRUE(a.parse("M720 P100 S1 P3000"));
   TEST_ASSERT_EQUAL_INT('P', a.duplicate());
-  TEST_ASSERT_FALSE(bk::check_words(a, "SPET", BKT_S("M720"), r));
+  TEST_ASSERT_FALSE(bk::check_words(a, BKT_S("SPET"), BKT_S("M720"), r));
   TEST_ASSERT_EQUAL_STRING("Error:M720 duplicate parameter P", reply);
   bk::ReplyText r2(reply, sizeof reply);
   TEST_ASSERT_TRUE(a.parse("M720 S1 Q5"));
-  TEST_ASSERT_FALSE(bk::check_words(a, "SPET", BKT_S("M720"), r2));
+  TEST_ASSERT_FALSE(bk::check_words(a, BKT_S("SPET"), BKT_S("M720"), r2));
   TEST_ASSERT_EQUAL_STRING("Error:M720 unknown parameter Q", reply);
   bk::ReplyText r3(reply, sizeof reply);
   TEST_ASSERT_TRUE(a.parse("M720 S1 P100"));
-  TEST_ASSERT_TRUE(bk::check_words(a, "SPET", BKT_S("M720"), r3));
+  TEST_ASSERT_TRUE(bk::check_words(a, BKT_S("SPET"), BKT_S("M720"), r3));
   TEST_ASSERT_EQUAL_STRING("", reply);
 }
 
