@@ -40,6 +40,12 @@ void BulgeKit::print_reply(const char *text) {
   SERIAL_EOL();
 }
 
+bool BulgeKit::parse_P(bk::GcodeArgs &args, char (&buf)[8], PGM_P text) {
+  strncpy_P(buf, text, sizeof(buf) - 1);
+  buf[sizeof(buf) - 1] = '\0';
+  return args.parse(buf);
+}
+
 void BulgeKit::arc_notice() {
   // A travel or retraction arc is not something either mode would change
   if (!(destination.e > current_position.e)) return;
@@ -48,13 +54,13 @@ void BulgeKit::arc_notice() {
     if (!(arc_told & ARC_BULGE)
         && (m == bk::BULGE_GEOMETRIC || (m == bk::BULGE_MARKED && bulge.in_outer_wall()))) {
       arc_told |= ARC_BULGE;
-      SERIAL_ECHO_MSG("bulgekit: G2/G3 arcs are not split at bulge points; turn off arc fitting for outer walls");
+      SERIAL_ECHO_MSG("bulgekit: G2/G3 arcs not split at bulge points (turn off arc fitting)");
     }
   #endif
   #if ENABLED(WIDTH_BY_FEEDRATE)
     if (!(arc_told & ARC_WIDTH) && width.active()) {
       arc_told |= ARC_WIDTH;
-      SERIAL_ECHO_MSG("bulgekit: G2/G3 arcs are not retimed by width mode (M723); turn off arc fitting");
+      SERIAL_ECHO_MSG("bulgekit: G2/G3 arcs not retimed by M723 (turn off arc fitting)");
     }
   #endif
 }
@@ -65,11 +71,12 @@ void BulgeKit::settings_save(const uint16_t code, settings_line_t &line) {
   char reply[TERN(WIDTH_BY_FEEDRATE, bk::WidthMode::REPLY_MIN, BK_PLAN_REPLY_MAX)];
   reply[0] = '\0';
   bk::GcodeArgs args;
+  char cmd[8];
   #if ENABLED(BULGE_MAP)
-    if (code == 720 && args.parse("M720")) bulge.m720(args, reply, sizeof(reply));
+    if (code == 720 && parse_P(args, cmd, PSTR("M720"))) bulge.m720(args, reply, sizeof(reply));
   #endif
   #if ENABLED(WIDTH_BY_FEEDRATE)
-    if (code == 723 && args.parse("M723")) width.command(args, reply, sizeof(reply));
+    if (code == 723 && parse_P(args, cmd, PSTR("M723"))) width.command(args, reply, sizeof(reply));
   #endif
   const char *r = reply;
   if (strncmp_P(r, PSTR("echo:"), 5) == 0) r += 5;
@@ -123,7 +130,8 @@ void BulgeKit::settings_reset() {
     if (marker) {
       bk::GcodeArgs args;
       char reply[BK_PLAN_REPLY_MAX];
-      if (args.parse("M722 S1")) bulge.m722(args, reply, sizeof(reply));  // still inside an outer wall
+      char cmd[8];
+      if (parse_P(args, cmd, PSTR("M722 S1"))) bulge.m722(args, reply, sizeof(reply));  // still inside an outer wall
     }
   #endif
   #if ENABLED(WIDTH_BY_FEEDRATE)

@@ -49,6 +49,10 @@ class BulgeKit {
   // Prints a core reply: zero or more lines separated by '\n'.
   static void print_reply(const char *text);
 
+  // Parses a fixed command kept in flash ("M720") from a copy in buf, which must
+  // outlive args (its words point into it). A literal would be kept in RAM on AVR.
+  static bool parse_P(bk::GcodeArgs &args, char (&buf)[8], PGM_P text);
+
   /**
    * G2/G3 hook (G2_G3.cpp, before plan_arc()). Marlin cuts an arc into segments
    * that go straight to the planner and never reach line_to_destination(), so an
@@ -97,7 +101,7 @@ class BulgeKit {
  private:
   static uint8_t arc_told;  // ARC_BULGE / ARC_WIDTH: that notice was printed since the last re-arm
   #if ENABLED(BULGE_MAP)
-    static bk::ActionList actions;  // static: keeps ~140 bytes off the G1 call stack
+    static bk::ActionList actions;  // static: keeps it (56 bytes) off the G1 call stack
   #endif
 };
 

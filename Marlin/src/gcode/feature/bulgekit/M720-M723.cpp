@@ -49,7 +49,8 @@ static void bk_report_line(const bool forReplay, const char *line) {
   void GcodeSuite::M720_report(const bool forReplay/*=true*/) {
     report_heading(forReplay, F("Bulge map (M720 S<mode> P<ms> E<mm> T<mm>)"));
     bk::GcodeArgs args;
-    args.parse("M720");
+    char cmd[8];
+    BulgeKit::parse_P(args, cmd, PSTR("M720"));
     char reply[BK_PLAN_REPLY_MAX];
     BulgeKit::bulge.m720(args, reply, sizeof(reply));
     bk_report_line(forReplay, reply);
@@ -104,7 +105,8 @@ static void bk_report_line(const bool forReplay, const char *line) {
   void GcodeSuite::M723_report(const bool forReplay/*=true*/) {
     report_heading(forReplay, F("Width by feedrate (M723)"));
     bk::GcodeArgs args;
-    args.parse("M723");
+    char cmd[8];
+    BulgeKit::parse_P(args, cmd, PSTR("M723"));
     char reply[bk::WidthMode::REPLY_MIN];
     BulgeKit::width.command(args, reply, sizeof(reply));
     bk_report_line(forReplay, reply);  // the settings line; the statistics line is for M723 alone
