@@ -276,9 +276,9 @@ def test_busy_keeps_a_long_command_alive(pty_pair):
 
 def test_refused_command_stops_after_it_unless_asked(pty_pair):
     name, start = pty_pair
-    printer = start(refuse={"M720 P2500": "M720 P2500 exceeds max dwell 2000 ms"})
+    printer = start(refuse={"M720 P2500": "M720 P2500.000 not in [0.000..2000.000]"})
     with Sender(name, boot_wait=0.3, timeout=5) as s:
-        with pytest.raises(PrinterError, match=r"cmds:2: printer refused 'M720 P2500': M720 P2500 exceeds"):
+        with pytest.raises(PrinterError, match=r"cmds:2: printer refused 'M720 P2500': M720 P2500.000 not in"):
             s.send([Line("M720 S1", "cmds:1"), Line("M720 P2500", "cmds:2"), Line("M720 P50", "cmds:3")],
                    progress=False)
         assert printer.executed == ["M720 S1", "M720 P2500"]
@@ -408,11 +408,11 @@ def test_send_cli_refusal_and_timeout_messages(pty_pair, tmp_path):
     from bulgekit.cli import main
 
     name, start = pty_pair
-    start(refuse={"M720 P5000": "M720 P5000 exceeds max dwell 2000 ms"})
+    start(refuse={"M720 P5000": "M720 P5000.000 not in [0.000..2000.000]"})
     g = tmp_path / "bad.gcode"
     g.write_text("G90\nM720 P5000\nG1 X1\n")
     r = CliRunner().invoke(main, ["send", "-p", name, "--boot-wait", "0.5", "--timeout", "5", "--no-progress", str(g)])
     assert r.exit_code == 1
-    assert f"{g}:2: printer refused 'M720 P5000': M720 P5000 exceeds max dwell 2000 ms" in r.output
+    assert f"{g}:2: printer refused 'M720 P5000': M720 P5000.000 not in [0.000..2000.000]" in r.output
     r = CliRunner().invoke(main, ["send", "-p", str(tmp_path / "nope"), "--boot-wait", "0", "-c", "M105"])
     assert r.exit_code == 1 and "cannot open" in r.output
