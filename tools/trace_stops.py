@@ -188,9 +188,9 @@ class Run:
     def first_step_after(self, cycle):
         """Cycle of the first X, Y or E step after this cycle (None if there is none)."""
         import bisect
-        ec = [c for c, _ in self.e_steps]
-        xc = [c for c, _, _ in self.xy]
-        cands = [lst[i] for lst in (ec, xc) for i in [bisect.bisect_right(lst, cycle)] if i < len(lst)]
+        if not hasattr(self, "_step_cycles"):  # both lists are in time order already
+            self._step_cycles = ([c for c, _ in self.e_steps], [c for c, _, _ in self.xy])
+        cands = [lst[i] for lst in self._step_cycles for i in [bisect.bisect_right(lst, cycle)] if i < len(lst)]
         return min(cands) if cands else None
 
     def e_at(self, cycle):
@@ -312,7 +312,8 @@ def stops(args):
         # A piece whose leading axis is E (a short piece carrying the extra) takes
         # its first X/Y step one Bresenham event after its first E step: the hold
         # itself ends at the first step of any axis.
-        holds = [ms(run.first_step_after(c0) - c0) for c0, _, _, _ in added if run.first_step_after(c0)]
+        firsts = [(c0, run.first_step_after(c0)) for c0, _, _, _ in added]
+        holds = [ms(c1 - c0) for c0, c1 in firsts if c1 is not None]
         if holds:
             print("  hold (last X/Y step to the first step of any axis, E included): "
                   "min %.4f / mean %.4f / max %.4f ms" % (min(holds), sum(holds) / len(holds), max(holds)))
