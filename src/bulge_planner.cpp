@@ -3,6 +3,7 @@
 #include <math.h>
 #include <string.h>
 
+#include "float_bits.h"
 #include "gcode_args.h"
 
 #include "reply_text.h"
@@ -20,16 +21,7 @@ static inline uint8_t next_axis(uint8_t k) {
 
 // The hot path runs once per G1 on an 8-bit CPU where every float compare or
 // multiply is a library call (~50-150 cycles), so cheap tests work on the
-// IEEE-754 bits and the per-point work is integer.
-static inline uint32_t fbits(float f) {
-  uint32_t u;
-  memcpy(&u, &f, sizeof u);
-  return u;
-}
-static inline bool fpos(float f) {  // > 0 (not -0, not NaN from the parser)
-  uint32_t u = fbits(f);
-  return u && !(u & 0x80000000UL);
-}
+// IEEE-754 bits (float_bits.h) and the per-point work is integer.
 
 // ---- setup --------------------------------------------------------------------
 

@@ -1,8 +1,8 @@
 #include "width_mode.h"
 
 #include <math.h>
-#include <string.h>
 
+#include "float_bits.h"
 #include "reply_text.h"
 
 namespace bk {
@@ -31,13 +31,9 @@ void error(ReplyText &o, const char *tail) {
   o.p(tail);
 }
 
-// x > 0 (false for NaN) from the bits: cheaper on AVR than a float compare.
-// noinline here and below: one copy for all callers, which LTO would inline.
-__attribute__((noinline)) bool positive(float x) {
-  uint32_t b;
-  memcpy(&b, &x, sizeof b);
-  return b - 1u < 0x7f800000u;  // +tiny .. +inf; 0, negatives and NaN wrap or lie above
-}
+// x > 0 on the bits (float_bits.h); noinline here and below: one copy for all
+// callers, which LTO would inline.
+__attribute__((noinline)) bool positive(float x) { return fpos(x); }
 
 // XY length of a move, one routine for both hooks.
 __attribute__((noinline)) float len_xy(float dx, float dy) { return sqrtf(dx * dx + dy * dy); }
