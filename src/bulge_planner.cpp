@@ -57,7 +57,8 @@ void BulgePlanner::derive() {
 }
 
 void BulgePlanner::map_changed() {
-  has_layer_ = has_miss_ = false;
+  has_layer_ = has_miss_ = has_defer_ = false;
+  memset(defer_, 0, sizeof(defer_));
   layer_.count = 0;
   if (store_ && store_->loaded()) {
     const MapInfo &in = store_->info();
@@ -89,6 +90,8 @@ void BulgePlanner::load_layer(const MapLayer &layer, uint8_t quantum_um, uint8_t
   memcpy(layer_.pts, layer.pts, sizeof(MapPoint) * layer_.count);
   sort_points(layer_);
   memset(fired_, 0, sizeof(fired_));
+  memset(defer_, 0, sizeof(defer_));
+  has_defer_ = false;
   if (quantum_um != q_um_ || layer_height_cmm != lh_cmm_) {
     q_um_ = quantum_um ? quantum_um : 1;
     lh_cmm_ = layer_height_cmm;
@@ -123,27 +126,39 @@ void BulgePlanner::set_window(int32_t below, int32_t above) {
   win_hi_ = hi;
 }
 
+// z (mm) in 0.01 mm, rounded half away from zero: |v| + 0.5 truncated, the
+// sign put back.
+__attribute__((noinline)) static int32_t to_cmm(float z) {
+  uint32_t u = fbits(z * 100.0f);
+  const bool neg = u & 0x80000000UL;
+  u &= 0x7FFFFFFFUL;
+  float a;
+  memcpy(&a, &u, sizeof a);
+  const int32_t c = (int32_t)(a + 0.5f);
+  return neg ? -c : c;
+}
+
+// True when the loaded layer is the one for z_cmm without asking the store:
+// its own z (see eligible()), or inside its window while nothing was appended.
+__attribute__((noinline)) bool BulgePlanner::keeps(int32_t z_cmm) const {
+  if (!has_layer_) return false;
+  if (z_cmm == (int32_t)layer_.z_cmm) return true;
+  const bool appended = store_ && store_->last_z() != seen_last_z_;
+  return !appended && z_cmm >= win_lo_ && z_cmm <= win_hi_;
+}
+
 // True when a layer within half a layer height of z (mm) is loaded, asking the
 // store when z has left the current one's window. Continuously rising z
 // (spiral vase) walks from layer to layer the same way.
 bool BulgePlanner::window(float z) {
   int32_t z_cmm = cache_z_cmm_;
-  if (fbits(z) != fbits(cache_z_)) {  // z in 0.01 mm, rounded; kept for the next move
-    // rounded half away from zero: |v| + 0.5 truncated, the sign put back
-    uint32_t u = fbits(z * 100.0f);
-    const bool neg = u & 0x80000000UL;
-    u &= 0x7FFFFFFFUL;
-    float a;
-    memcpy(&a, &u, sizeof a);
-    z_cmm = (int32_t)(a + 0.5f);
-    if (neg) z_cmm = -z_cmm;
+  if (fbits(z) != fbits(cache_z_)) {  // kept for the next move
+    z_cmm = to_cmm(z);
     cache_z_ = z;
     cache_z_cmm_ = z_cmm;
   }
-  if (has_layer_ && z_cmm == (int32_t)layer_.z_cmm) return true;  // see eligible()
-  const bool appended = store_ && store_->last_z() != seen_last_z_;
-  if (has_layer_ && !appended && z_cmm >= win_lo_ && z_cmm <= win_hi_) return true;
-  if (!store_ || (has_miss_ && z_cmm == miss_z_ && !appended)) return false;
+  if (keeps(z_cmm)) return true;
+  if (!store_ || (has_miss_ && z_cmm == miss_z_ && store_->last_z() == seen_last_z_)) return false;
   if (!store_->loaded() || store_->empty()) return false;
   seen_last_z_ = store_->last_z();
   const uint16_t old_z = layer_.z_cmm;
@@ -187,9 +202,14 @@ static inline int16_t to_q(float mm, float inv_q, bool &far) {
   return (int16_t)(int32_t)v;
 }
 
-bool BulgePlanner::eligible(const Move &m) {
+// The mode allows the move and it extrudes with XY motion (the layer aside).
+bool BulgePlanner::qualifies(const Move &m) const {
   if (mode_ == BULGE_OFF || (mode_ == BULGE_MARKED && !marker_)) return false;
-  if (!fpos(m.e) || (fbits(m.x0) == fbits(m.x1) && fbits(m.y0) == fbits(m.y1))) return false;
+  return fpos(m.e) && (fbits(m.x0) != fbits(m.x1) || fbits(m.y0) != fbits(m.y1));
+}
+
+bool BulgePlanner::eligible(const Move &m) {
+  if (!qualifies(m)) return false;
   // The common case inline: a whole layer printed at the layer's own z (no
   // other layer can be nearer, appended or not). window() handles the rest.
   if (fbits(m.z1) == fbits(cache_z_) && has_layer_ && cache_z_cmm_ == (int32_t)layer_.z_cmm) return layer_.count != 0;
@@ -206,8 +226,9 @@ static float extent(const Move &mv, float *fd) {
   return s;
 }
 
-// Exact test in mm against the host's own segment: true and t (0..1, the
-// parameter of the nearest point) when point i lies within the tolerance. fd
+// Exact test in mm against the host's own segment: true and t (the parameter
+// of the point's foot, raised to 0, above 1 when the foot lies beyond B) when
+// point i lies within the tolerance of the segment. fd
 // holds the move's XY extent and fd[2] its length squared, set by the first
 // call of a collect() (fd[2] < 0 until then).
 bool BulgePlanner::exact(const Move &mv, uint8_t i, float *fd, float &t) {
@@ -221,10 +242,11 @@ bool BulgePlanner::exact(const Move &mv, uint8_t i, float *fd, float &t) {
   }
   t = dot / fd[2];
   if (t < 0.0f) t = 0.0f;
-  if (t > 1.0f) t = 1.0f;
+  // t above 1 is kept (the caller defers such a point), the distance is to B
+  const float tc = t > 1.0f ? 1.0f : t;
   float e2 = 0.0f;
   BK_AXIS_LOOP(k, 2) {
-    const float d = u[k] - t * fd[k];
+    const float d = u[k] - tc * fd[k];
     e2 += d * d;
   }
   return e2 <= tol_mm_ * tol_mm_;
@@ -315,6 +337,14 @@ void BulgePlanner::collect(const Move &mv) {
     }
     float t;
     if (!exact(mv, i, fd, t)) continue;
+    if (t > 1.0f) {
+      // Its foot lies beyond B, on the next edge if the wall turns there: the
+      // next move decides (flush()), so a corner point stops at its foot, not
+      // at the vertex up to T away.
+      defer_[i >> 3] |= (uint8_t)(1 << (i & 7));
+      has_defer_ = true;
+      continue;
+    }
     if (hit_) {
       more_ = true;
       if (t >= hit_t_) continue;  // equal t: the first in sorted order goes first
@@ -364,6 +394,34 @@ void BulgePlanner::line_to(ActionList &out, float t, float e) {
   if (fbits(owed_)) pay_owed(out, a);
 }
 
+// Point i stops where the head is now: marked fired, a DWELL, its extra owed
+// to the next piece.
+void BulgePlanner::stop(ActionList &out, uint8_t i) {
+  fired_[i >> 3] |= (uint8_t)(1 << (i & 7));
+  BK_STAT(stats_.points_fired++);
+  // P * w / 255, rounded (w = 255 gives P itself)
+  uint16_t ms = (uint16_t)(((uint32_t)dwell_ms_ * layer_.pts[i].w + 127) / 255);
+  // Points closer than the minimum piece share one stop (also across moves,
+  // at a shared vertex): one DWELL, their dwell and extra added up, but one
+  // stop never exceeds the hard limits M720 enforces for a single point.
+  if (ms > BK_MAX_DWELL_MS - stop_ms_) ms = (uint16_t)(BK_MAX_DWELL_MS - stop_ms_);
+  stop_ms_ = (uint16_t)(stop_ms_ + ms);
+  if (out.count && out.a[out.count - 1].kind == Action::DWELL) {
+    out.a[out.count - 1].ms = (uint16_t)(out.a[out.count - 1].ms + ms);
+  } else {
+    Action &a = out.a[out.count++];
+    a.kind = Action::DWELL;
+    a.ms = ms;  // x, y, z are not used
+  }
+  float extra = extra_e_;
+  const float room = BK_MAX_EXTRA_E_MM - owed_;
+  if (extra > room) {
+    extra = room > 0.0f ? room : 0.0f;
+    BK_STAT(stats_.extra_dropped += extra_e_ - extra);
+  }
+  owed_ += extra;
+}
+
 // Turns the hits into actions, one point at a time (collect() again after
 // each); true when the move continues in plan_more(). Points that share a stop
 // (closer than the minimum piece) go into one DWELL, so a list ends only
@@ -383,30 +441,7 @@ bool BulgePlanner::emit(ActionList &out) {
     // Otherwise the point is too close to where the head already is (the move
     // start, or the stop before; or, by less than a quantum of ordering slack,
     // just behind it): it stops there instead of queueing a sub-step piece.
-    const uint8_t i = hit_i_;
-    fired_[i >> 3] |= (uint8_t)(1 << (i & 7));
-    BK_STAT(stats_.points_fired++);
-    // P * w / 255, rounded (w = 255 gives P itself)
-    uint16_t ms = (uint16_t)(((uint32_t)dwell_ms_ * layer_.pts[i].w + 127) / 255);
-    // Points closer than the minimum piece share one stop (also across moves,
-    // at a shared vertex): one DWELL, their dwell and extra added up, but one
-    // stop never exceeds the hard limits M720 enforces for a single point.
-    if (ms > BK_MAX_DWELL_MS - stop_ms_) ms = (uint16_t)(BK_MAX_DWELL_MS - stop_ms_);
-    stop_ms_ = (uint16_t)(stop_ms_ + ms);
-    if (out.count && out.a[out.count - 1].kind == Action::DWELL) {
-      out.a[out.count - 1].ms = (uint16_t)(out.a[out.count - 1].ms + ms);
-    } else {
-      Action &a = out.a[out.count++];
-      a.kind = Action::DWELL;
-      a.ms = ms;  // x, y, z are not used
-    }
-    float extra = extra_e_;
-    const float room = BK_MAX_EXTRA_E_MM - owed_;
-    if (extra > room) {
-      extra = room > 0.0f ? room : 0.0f;
-      BK_STAT(stats_.extra_dropped += extra_e_ - extra);
-    }
-    owed_ += extra;
+    stop(out, hit_i_);
     hit_ = false;
     if (more_) collect(*m_);
   }
@@ -420,8 +455,34 @@ bool BulgePlanner::emit(ActionList &out) {
 // (Marlin hands "G1 F1200" to us too) keeps the extra owed from a stop at a
 // wall's end for the next piece; any real travel, retraction or non-wall move
 // ends the wall, and the extra is not extruded (counted as dropped).
+// A move that moves nothing: Marlin hands "G1 F1200" to us too.
+static bool still(const Move &m) { return m.x0 == m.x1 && m.y0 == m.y1 && m.z0 == m.z1 && m.e == 0.0f; }
+
+// Points the previous move deferred (feet beyond its end B, which is where the
+// head is now). This move takes over those within the tolerance of it when it
+// continues the wall from B (it starts at B, at the same z, and qualifies):
+// collect() finds them on it. The others stop at B now, before this move:
+// where the old rule put them, a stop at the vertex. If something moved the
+// head meanwhile (an arc, homing: the move does not start at B) they stay
+// unfired for a later move of the layer. A move that moves nothing waits.
+void BulgePlanner::flush(const Move &m, ActionList &out) {
+  if (still(m)) return;
+  has_defer_ = false;
+  const bool at_b = fbits(m.x0) == fbits(cache_x_) && fbits(m.y0) == fbits(cache_y_);
+  // (a move into another layer's window would replace the layer: not "on")
+  const bool on = at_b && qualifies(m) && keeps(to_cmm(m.z1));
+  float fd[3] = {0.0f, 0.0f, -1.0f};
+  for (uint8_t i = 0; i < layer_.count; i++) {
+    const uint8_t bit = (uint8_t)(1 << (i & 7));
+    if (!(defer_[i >> 3] & bit)) continue;
+    defer_[i >> 3] &= (uint8_t)~bit;
+    float t;
+    if (at_b && !(on && exact(m, i, fd, t))) stop(out, i);
+  }
+}
+
 void BulgePlanner::pass(const Move &m, ActionList &out) {
-  if (!(m.x0 == m.x1 && m.y0 == m.y1 && m.z0 == m.z1 && m.e == 0.0f)) {
+  if (!still(m)) {
     if (fbits(owed_)) {
       BK_STAT(stats_.extra_dropped += owed_);
       owed_ = 0.0f;
@@ -436,6 +497,8 @@ bool BulgePlanner::plan(const Move &m, ActionList &out) {
   out.e_added = 0.0f;
   hit_ = false;  // a move left unfinished is given up
   m_ = &m;
+  // Before eligible(): a new layer would replace the deferred points' layer.
+  if (has_defer_) flush(m, out);
   if (!eligible(m)) {
     pass(m, out);
     return false;

@@ -136,13 +136,17 @@ class BulgePlanner {
 #endif
 
  private:
+  bool qualifies(const Move &m) const;
   bool eligible(const Move &m);
   bool window(float z);
+  bool keeps(int32_t z_cmm) const;
   void set_window(int32_t below, int32_t above);
   void derive();
   void collect(const Move &mv);
   bool exact(const Move &mv, uint8_t i, float *fd, float &t);
   bool emit(ActionList &out);
+  void stop(ActionList &out, uint8_t i);
+  void flush(const Move &m, ActionList &out);
   void line_to(ActionList &out, float t, float e);
   void pay_owed(ActionList &out, Action &a);
   void pass(const Move &m, ActionList &out);
@@ -158,6 +162,7 @@ class BulgePlanner {
   bool cache_far_ : 1;  // that end was beyond the integer range (see to_q)
   bool hit_ : 1;        // collect() found a point (hit_i_, hit_t_)...
   bool more_ : 1;       // ...and more beyond it
+  bool has_defer_ : 1;  // defer_ has a point (flush())
   int16_t tol_q_;       // tolerance in quanta, rounded up, plus rounding margin (derive())
   float inv_q_;         // quanta per mm
 
@@ -172,6 +177,7 @@ class BulgePlanner {
   float owed_;         // extra for the next piece, of this move or the next
   uint16_t stop_ms_;   // dwell given at the current stop so far (merged points)
   uint8_t fired_[(BK_LAYER_POINTS_MAX + 7) / 8];  // points of layer_ that stopped
+  uint8_t defer_[(BK_LAYER_POINTS_MAX + 7) / 8];  // left by the last move to the next
   // The nearest unfired point on the move (collect()): hit_i_, at hit_t_.
   uint8_t hit_i_;
   float hit_t_;

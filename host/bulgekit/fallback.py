@@ -9,6 +9,11 @@ G-code give the same stops:
     within half a layer height of its end z;
   * every unfired point of that layer within the tolerance of the segment
     stops the head at its projection, in order along the move;
+  * a point whose foot lies beyond the move's end is left to the next move:
+    if that one continues the wall from the end, it stops the point at its
+    foot there (within the tolerance) or at its start; any other motion from
+    the end stops it at the end first; a move that starts elsewhere leaves
+    it unfired;
   * a piece shorter than BK_MIN_PIECE_MM is not cut: the stop happens where
     the head already is (or at the move end);
   * the piece after a stop carries the extra filament; a stop at the last
@@ -104,6 +109,10 @@ class PlanStats:
     dwell_ms_total: int = 0
 
 
+def _bits(v) -> int:
+    return int(np.array(v, dtype=np.float32).view(np.uint32))
+
+
 class RefPlanner:
     """Python mirror of bk::BulgePlanner (no arena: the whole map is present)."""
 
@@ -125,6 +134,8 @@ class RefPlanner:
         self.stops: list[StopRecord] = []
         self.top_z: float | None = None   # highest z of an extruding XY move
         self._zs = [l.z_cmm for l in bmap.layers] if bmap else []
+        self.deferred: set[int] = set()   # points whose feet lay beyond the last move's end
+        self.last_end = None       # float bits of that move's x1, y1
 
     # -- layer window (MapStore::find_layer + BulgePlanner::window)
     def _find(self, zc: int):
@@ -147,7 +158,8 @@ class RefPlanner:
         above = min((v for v in live if v > z), default=None)
         return below, above
 
-    def _window(self, zc: int) -> bool:
+    def _keeps(self, zc: int) -> bool:
+        """The loaded layer is the one for zc (no search needed)."""
         if self.layer is not None:
             d = zc - self.layer[0]
             if d == 0:
@@ -156,6 +168,16 @@ class RefPlanner:
                 return True
             if d < 0 and -2 * d <= self.lh and (self.below is None or -d < zc - self.below):
                 return True
+        return False
+
+    @staticmethod
+    def _cmm(z) -> int:
+        v = float(f32(z) * f32(100.0))
+        return int(v + 0.5) if v >= 0 else -int(0.5 - v)
+
+    def _window(self, zc: int) -> bool:
+        if self._keeps(zc):
+            return True
         if self.map is None or not self.map.layers:
             return False
         if self.miss_z is not None and zc == self.miss_z:
@@ -185,9 +207,7 @@ class RefPlanner:
             return False
         if not (f32(m.e) > 0 and (f32(m.x0) != f32(m.x1) or f32(m.y0) != f32(m.y1))):
             return False
-        v = float(f32(m.z1) * f32(100.0))
-        zc = int(v + 0.5) if v >= 0 else -int(0.5 - v)
-        return self._window(zc) and len(self.layer[1]) > 0
+        return self._window(self._cmm(m.z1)) and len(self.layer[1]) > 0
 
     def plan(self, m: Move, outer: bool | None = None) -> list[Action]:
         """Actions for one G0/G1 move (or one arc chord)."""
@@ -195,15 +215,19 @@ class RefPlanner:
             outer = m.outer
         if m.e > 0 and (m.x0 != m.x1 or m.y0 != m.y1) and (self.top_z is None or m.z1 > self.top_z):
             self.top_z = m.z1
+        null = m.x0 == m.x1 and m.y0 == m.y1 and m.z0 == m.z1 and m.e == 0
+        actions: list[Action] = []
+        if self.deferred and not null:
+            self._flush(m, outer, actions)
         if not self._eligible(m, outer):
             # as the firmware: a move that moves nothing keeps the owed extra
-            null = m.x0 == m.x1 and m.y0 == m.y1 and m.z0 == m.z1 and m.e == 0
             if not null:
                 self.stop_ms = 0
                 if self.carry != 0:
                     self.stats.extra_dropped += float(self.carry)
                     self.carry = f32(0)
-            return [Action("line", m.x1, m.y1, m.z1, m.e)]
+            return actions + [Action("line", m.x1, m.y1, m.z1, m.e)]
+        self.last_end = (_bits(m.x1), _bits(m.y1))
         x0, y0, z0 = f32(m.x0), f32(m.y0), f32(m.z0)
         x1, y1, z1 = f32(m.x1), f32(m.y1), f32(m.z1)
         fdx, fdy = x1 - x0, y1 - y0
@@ -224,18 +248,19 @@ class RefPlanner:
                 continue
             ux = f32(px) * self.q_mm - x0
             uy = f32(py) * self.q_mm - y0
-            t = (ux * fdx + uy * fdy) / len2
-            t = min(max(t, f32(0)), f32(1))
-            ex, ey = ux - t * fdx, uy - t * fdy
+            t = max((ux * fdx + uy * fdy) / len2, f32(0))
+            tc = min(t, f32(1))
+            ex, ey = ux - tc * fdx, uy - tc * fdy
             if ex * ex + ey * ey > self.tol2:
+                continue
+            if t > 1:
+                self.deferred.add(i)  # its foot is beyond the end: the next move decides
                 continue
             hits.append((t, i))
         if hits:
             self.stats.moves_split += 1
-        actions: list[Action] = []
         ln = np.sqrt(len2, dtype=np.float32)
         t_done = f32(0)
-        ms_scale = self.s.dwell_ms
 
         def line_to(t, t_prev):
             nonlocal pending
@@ -259,9 +284,6 @@ class RefPlanner:
         # the firmware's action lists do: a list only ends before a cut
         hits.sort(key=lambda h: h[0])
         for t, i in hits:
-            fired[i] = True
-            self.stats.points_fired += 1
-            px, py, w = pts[i]
             if (t - t_done) * ln < f32(MIN_PIECE_MM):
                 pass  # stop where the head already is
             else:
@@ -269,30 +291,67 @@ class RefPlanner:
                     t = f32(1)
                 line_to(t, t_done)
                 t_done = t
-            ms = (ms_scale * w + 127) // 255
-            # one stop (merged points) never exceeds the per-point limits
-            ms = min(ms, MAX_DWELL_MS - self.stop_ms)
-            self.stop_ms += ms
-            if actions and actions[-1].kind == "dwell":
-                actions[-1].ms += ms
-            else:
-                actions.append(Action("dwell", ms=ms))
-            self.stats.dwell_ms_total += ms
-            # where the head stops: the end of the last line, or the move start
-            lx = next((a for a in reversed(actions) if a.kind == "line"), None)
-            sx, sy, sz = (lx.x, lx.y, lx.z) if lx else (m.x0, m.y0, m.z0)
-            self.stops.append(StopRecord(m.line_no, sx, sy, sz, ms, (px, py), zc))
-            extra = f32(self.s.extra_e)
-            room = f32(MAX_EXTRA_E_MM) - pending
-            if extra > room:
-                extra = room if room > 0 else f32(0)
-                self.stats.extra_dropped += float(f32(self.s.extra_e) - extra)
-            pending = pending + extra
+            pending = self._stop(m, i, actions, pending)
         if t_done < 1:
             line_to(f32(1), t_done)
         else:
             self.carry = self.carry + pending
         return actions
+
+    def _stop(self, m: Move, i: int, actions: list[Action], pending):
+        """Point i of the layer stops where the head is now (BulgePlanner::stop);
+        returns the extra owed after it."""
+        zc, pts, fired = self.layer
+        fired[i] = True
+        self.stats.points_fired += 1
+        px, py, w = pts[i]
+        ms = (self.s.dwell_ms * w + 127) // 255
+        # one stop (merged points) never exceeds the per-point limits
+        ms = min(ms, MAX_DWELL_MS - self.stop_ms)
+        self.stop_ms += ms
+        if actions and actions[-1].kind == "dwell":
+            actions[-1].ms += ms
+        else:
+            actions.append(Action("dwell", ms=ms))
+        self.stats.dwell_ms_total += ms
+        # where the head stops: the end of the last line, or the move start
+        lx = next((a for a in reversed(actions) if a.kind == "line"), None)
+        sx, sy, sz = (lx.x, lx.y, lx.z) if lx else (m.x0, m.y0, m.z0)
+        self.stops.append(StopRecord(m.line_no, sx, sy, sz, ms, (px, py), zc))
+        extra = f32(self.s.extra_e)
+        room = f32(MAX_EXTRA_E_MM) - pending
+        if extra > room:
+            extra = room if room > 0 else f32(0)
+            self.stats.extra_dropped += float(f32(self.s.extra_e) - extra)
+        return pending + extra
+
+    def _flush(self, m: Move, outer: bool, actions: list[Action]) -> None:
+        """Points the last move deferred (BulgePlanner::flush): a move that
+        continues the wall from its end takes those within the tolerance; the
+        others stop at that end now; a move that starts elsewhere (the head
+        was moved meanwhile) leaves them unfired."""
+        deferred, self.deferred = sorted(self.deferred), set()
+        lx, ly = self.last_end
+        at_b = _bits(m.x0) == lx and _bits(m.y0) == ly
+        on = (at_b and self._keeps(self._cmm(m.z1)) and self.s.mode != MODE_OFF
+              and (self.s.mode != MODE_MARKED or outer) and f32(m.e) > 0
+              and (_bits(m.x0) != _bits(m.x1) or _bits(m.y0) != _bits(m.y1)))
+        if not at_b:
+            return
+        zc, pts, fired = self.layer
+        x0, y0 = f32(m.x0), f32(m.y0)
+        fdx, fdy = f32(m.x1) - x0, f32(m.y1) - y0
+        len2 = fdx * fdx + fdy * fdy
+        for i in deferred:
+            if on and len2 != 0:
+                px, py, _ = pts[i]
+                ux = f32(px) * self.q_mm - x0
+                uy = f32(py) * self.q_mm - y0
+                t = min(max((ux * fdx + uy * fdy) / len2, f32(0)), f32(1))
+                ex, ey = ux - t * fdx, uy - t * fdy
+                if ex * ex + ey * ey <= self.tol2:
+                    continue  # this move's own matching takes it
+            self.carry = self._stop(m, i, actions, self.carry)
 
 
 def unreached(planner: RefPlanner) -> list[tuple[int, int, int]]:

@@ -54,6 +54,24 @@ def test_stop_at_the_last_vertex_gives_the_extra_to_the_next_move():
     assert lines[-4:] == ["G1 X10 Y0 E1", "G4 P100", "G1 X10 Y10 E2.1", "G92 E2"]
 
 
+def test_corner_point_stops_at_its_foot_on_the_next_edge():
+    # (10.2, 0.05) is within T of the first edge's end, but its foot lies on
+    # the second edge: the stop is there, not at the vertex (10, 0)
+    text = HEAD.format(mode="M83") + "G1 X10 Y0 E1.0\nG1 X20 Y2 E1.0\n"
+    lines = run(text, [(0.3, [(10.2, 0.05)])])
+    assert lines[-4:] == ["G1 X10 Y0 E1.0", "G1 X10.2019 Y0.0404 E0.02019", "G4 P100", "G1 X20 Y2 E1.07981"]
+
+
+def test_point_beyond_the_wall_end_stops_there_before_the_travel():
+    text = HEAD.format(mode="M83") + "G1 X10 Y0 E1.0\nG1 X30 Y0\n"
+    planner = RefPlanner(bmap([(0.3, [(10.2, 0.0)])]), Settings())
+    acts = [planner.plan(m) for m in iter_moves(text.splitlines())]
+    assert [a.kind for a in acts[-2]] == ["line"]
+    assert [a.kind for a in acts[-1]] == ["dwell", "line"]
+    assert (planner.stops[0].x, planner.stops[0].y) == (10.0, 0.0)
+    assert planner.stats.extra_dropped == pytest.approx(0.1)
+
+
 def test_extra_owed_at_a_wall_end_is_dropped_by_a_travel():
     text = HEAD.format(mode="M83") + "G1 X10 Y0 E1.0\nG1 X20 Y0\nG1 X30 Y0 E1.0\n"
     planner = RefPlanner(bmap([(0.3, [(9.95, 0.0)])]), Settings())

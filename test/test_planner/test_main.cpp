@@ -307,10 +307,108 @@ static void test_tolerance_beyond_move_end(void) {
   add_point(10.2f, 0);  // 0.2 mm past the end: within T of the path's end
   add_point(-0.3f, 0);  // 0.3 mm before the start: not
   load();
-  run(mv(0, 0, 10, 0, 1.0f));
+  Move m = mv(0, 0, 10, 0, 1.0f);
+  run(m);
+  assert_identity(m);  // its foot is beyond B: the next move decides
+  // A travel from B: the wall ended there, so the point stops at B first.
+  run(mv(10, 0, 30, 0, 0));
   TEST_ASSERT_EQUAL_INT(2, T.n);
-  assert_line(0, 10, 0, 1.0f);
+  assert_dwell(0, 100);
+  assert_line(1, 30, 0, 0);
+  TEST_ASSERT_TRUE(T.e_added == 0.0f);  // no extra during a travel
+#if BK_PLAN_STATS
+  TEST_ASSERT_EQUAL_UINT(1, P.stats().points_fired);
+  TEST_ASSERT_FLOAT_WITHIN(1e-6f, 0.1f, P.stats().extra_dropped);
+#endif
+}
+
+// A polygon wall turning by a few degrees (a cylinder's facets): a point whose
+// foot is 0.2 mm into the second edge is also within T of the first edge's end.
+// It stops at its foot on the second edge, not at the vertex.
+static void test_corner_point_stops_at_its_foot(void) {
+  add_point(10.2f, 0.05f);  // 0.206 mm from the vertex (10, 0)
+  load();
+  Move a = mv(0, 0, 10, 0, 1.0f);
+  run(a);
+  assert_identity(a);
+  run(mv(10, 0, 20, 2, 1.0f));
+  TEST_ASSERT_EQUAL_INT(3, T.n);
+  // the foot of (10.2, 0.05) on the edge: t = (0.2*10 + 0.05*2) / 104
+  const float t = (0.2f * 10 + 0.05f * 2) / 104.0f;
+  assert_line(0, 10 + 10 * t, 2 * t, 1.0f * t);
   assert_dwell(1, 100);
+  assert_line(2, 20, 2, 1.0f * (1 - t) + 0.1f);
+#if BK_PLAN_STATS
+  TEST_ASSERT_EQUAL_UINT(1, P.stats().points_fired);
+#endif
+}
+
+// Outside a convex corner the point is beyond both edges' ends: the second
+// edge takes it at its start, the vertex, once.
+static void test_point_outside_corner_stops_at_vertex(void) {
+  add_point(10.15f, -0.15f);
+  load();
+  run(mv(0, 0, 10, 0, 1.0f));
+  TEST_ASSERT_EQUAL_INT(0, count_kind(Action::DWELL));
+  run(mv(10, 0, 10, 10, 1.0f));
+  TEST_ASSERT_EQUAL_INT(2, T.n);
+  assert_dwell(0, 100);
+  assert_line(1, 10, 10, 1.1f);
+  run(mv(10, 10, 0, 10, 1.0f));
+  TEST_ASSERT_EQUAL_INT(0, count_kind(Action::DWELL));
+}
+
+// Spiral vase: z rises with every move, but within the layer's window the
+// next edge still takes the point. A move that leaves the layer (its z in
+// another window) cannot: the point stops at the vertex before it.
+static void test_deferred_point_in_vase_and_at_layer_change(void) {
+  add_point(10.2f, 0.05f);
+  load();
+  run(mv(0, 0, 10, 0, 1.0f, 0.30f));
+  run(mv(10, 0, 20, 2, 1.0f, 0.31f));
+  TEST_ASSERT_EQUAL_INT(3, T.n);
+  assert_dwell(1, 100);
+  TEST_ASSERT_TRUE(T.a[0].x > 10.1f);
+  P.reset();
+  bk::GcodeArgs g;
+  g.parse("M720 S2");
+  P.m720(g, reply, sizeof reply);
+  load();
+  run(mv(0, 0, 10, 0, 1.0f, 0.30f));
+  run(mv(10, 0, 20, 2, 1.0f, 0.50f));  // 0.2 mm up: beyond half a layer
+  TEST_ASSERT_EQUAL_INT(2, T.n);
+  assert_dwell(0, 100);
+  TEST_ASSERT_TRUE(T.a[1].kind == Action::LINE && T.a[1].x == 20.0f);
+}
+
+// "G1 F..." between the edges moves nothing and keeps the deferred point; a
+// retraction at B ends the wall: the point stops before it.
+static void test_deferred_point_waits_for_motion(void) {
+  add_point(10.2f, 0.05f);
+  load();
+  run(mv(0, 0, 10, 0, 1.0f));
+  run(mv(10, 0, 10, 0, 0));  // G1 F1200
+  TEST_ASSERT_EQUAL_INT(0, count_kind(Action::DWELL));
+  Move r = mv(10, 0, 10, 0, -0.8f);  // retraction
+  run(r);
+  TEST_ASSERT_EQUAL_INT(2, T.n);
+  assert_dwell(0, 100);
+  TEST_ASSERT_TRUE(T.a[1].kind == Action::LINE && T.a[1].e == -0.8f);
+}
+
+// Something moved the head between the edges (an arc, homing): the next move
+// does not start at B. No stop at a place the head has left; the point stays
+// unfired for a later move of the layer that passes it.
+static void test_deferred_point_not_stopped_elsewhere(void) {
+  add_point(10.2f, 0.05f);
+  load();
+  run(mv(0, 0, 10, 0, 1.0f));
+  run(mv(30, 0, 40, 0, 0));  // starts at 30: the head is not at B
+  TEST_ASSERT_EQUAL_INT(0, count_kind(Action::DWELL));
+  run(mv(10.2f, -5, 10.2f, 5, 1.0f));  // passes through the point
+  TEST_ASSERT_EQUAL_INT(1, count_kind(Action::DWELL));
+  TEST_ASSERT_FLOAT_WITHIN(1e-4f, 10.2f, T.a[0].x);
+  TEST_ASSERT_FLOAT_WITHIN(1e-4f, 0.05f, T.a[0].y);
 }
 
 static void test_tolerance_setting_widens_match(void) {
@@ -738,12 +836,19 @@ static void test_matching_agrees_with_reference(void) {
     const float ux = (float)p.x * qmm - x0, uy = (float)p.y * qmm - y0;
     float t = (ux * dx + uy * dy) / (dx * dx + dy * dy);
     if (t < 0) t = 0;
-    if (t > 1) t = 1;
+    const bool beyond = t > 1;  // foot beyond the end: left to the next move
+    if (fabsf(t - 1) < 1e-5f) continue;  // too close to call
+    if (beyond) t = 1;
     const float ex = ux - t * dx, ey = uy - t * dy;
     const float d = sqrtf(ex * ex + ey * ey);
     if (fabsf(d - tol) < 1e-4f * (1.0f + tol)) continue;  // too close to call
     run(mv(x0, y0, x1, y1, 1.0f));
-    const bool fired = count_kind(Action::DWELL) == 1;
+    bool fired = count_kind(Action::DWELL) == 1;
+    if (d < tol && beyond) {
+      TEST_ASSERT_FALSE_MESSAGE(fired, "point beyond the end fired on this move");
+      run(mv(x1, y1, x1, y1, -0.5f));  // a retraction at the end: it stops now
+      fired = count_kind(Action::DWELL) == 1 && T.a[0].kind == Action::DWELL;
+    }
     if (d < tol) {
       TEST_ASSERT_TRUE_MESSAGE(fired, "reference hit missed");
       hits++;
@@ -888,6 +993,11 @@ int main(void) {
   RUN_TEST(test_once_per_layer);
   RUN_TEST(test_tolerance_edges);
   RUN_TEST(test_tolerance_beyond_move_end);
+  RUN_TEST(test_corner_point_stops_at_its_foot);
+  RUN_TEST(test_point_outside_corner_stops_at_vertex);
+  RUN_TEST(test_deferred_point_in_vase_and_at_layer_change);
+  RUN_TEST(test_deferred_point_waits_for_motion);
+  RUN_TEST(test_deferred_point_not_stopped_elsewhere);
   RUN_TEST(test_tolerance_setting_widens_match);
   RUN_TEST(test_geometric_mode_skips_inner_wall);
   RUN_TEST(test_matching_agrees_with_reference);
