@@ -224,22 +224,35 @@ def read_map_points(path):
 def expected_stop(segments, z, px, py, tol, min_piece):
     """Where the core's rule puts the stop for a point: on the first extruding
     move (in G-code order) that passes within tol, at the point's foot on it;
-    a foot closer than min_piece to the move's start or end snaps there."""
+    a foot closer than min_piece to the move's start or end snaps there. A
+    foot beyond the move's end is left to the next move when that one goes on
+    from the end at the same z (it then takes the point at its foot, or at its
+    start); otherwise the stop is at the end."""
+    held = None  # the end a point beyond it would stop at
     for sz, x0, y0, x1, y1 in segments:
-        if abs(sz - z) > 1e-3:
+        if held is not None:
+            if abs(sz - z) > 1e-3 or (x0, y0) != held:
+                return held
+        elif abs(sz - z) > 1e-3:
             continue
         dx, dy = x1 - x0, y1 - y0
         n = math.hypot(dx, dy)
-        t = max(0.0, min(1.0, ((px - x0) * dx + (py - y0) * dy) / (n * n)))
-        fx, fy = x0 + t * dx, y0 + t * dy
+        t = max(0.0, ((px - x0) * dx + (py - y0) * dy) / (n * n))
+        tc = min(1.0, t)
+        fx, fy = x0 + tc * dx, y0 + tc * dy
         if math.hypot(px - fx, py - fy) > tol:
+            if held is not None:
+                return held
+            continue
+        if t > 1.0:
+            held = (x1, y1)
             continue
         if t * n < min_piece:
             return x0, y0
         if (1 - t) * n < min_piece:
             return x1, y1
         return fx, fy
-    return None
+    return held
 
 
 def stops(args):
