@@ -130,6 +130,7 @@ class BulgePlanner {
   float extra_e() const { return extra_e_; }
   float tolerance() const { return tol_mm_; }
   bool in_outer_wall() const { return marker_; }
+  void set_in_outer_wall(bool on) { marker_ = on; }  // M722 without the text (a settings reset keeps it)
 #if BK_PLAN_STATS
   const PlannerStats &stats() const { return stats_; }
   void clear_stats();

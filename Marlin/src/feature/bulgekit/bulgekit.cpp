@@ -127,12 +127,7 @@ void BulgeKit::settings_reset() {
     const bool marker = bulge.in_outer_wall();
     bulge.reset();        // mode, P, E, T to the defaults (and the stop statistics)
     bulge.attach(&store);  // reset() detaches; the map itself stays in force
-    if (marker) {
-      bk::GcodeArgs args;
-      char reply[BK_PLAN_REPLY_MAX];
-      char cmd[8];
-      if (parse_P(args, cmd, PSTR("M722 S1"))) bulge.m722(args, reply, sizeof(reply));  // still inside an outer wall
-    }
+    bulge.set_in_outer_wall(marker);  // a reset inside an outer wall stays inside it
   #endif
   #if ENABLED(WIDTH_BY_FEEDRATE)
     width.reset();
