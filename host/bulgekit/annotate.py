@@ -358,7 +358,8 @@ def _reach_section(data: bytes, a: int, b: int, st: GcodeState, planner, zs, poi
 
 def check_reach(data: bytes, map_bytes: bytes, settings: Settings, source: str) -> str | None:
     """Run the G-code through the reference planner: a message naming the
-    map points no move reaches (the map is for another file?), or None.
+    map points no move reaches (the map is for another file? arcs?), or None.
+    G2/G3 arcs count for nothing, as in the firmware (RefPlanner.bypass).
 
     In marked mode only outer-wall moves can stop, so only the outer-wall
     sections are parsed, each from the machine state read backwards at its
@@ -396,7 +397,7 @@ def check_reach(data: bytes, map_bytes: bytes, settings: Settings, source: str) 
                 text = data[a:b].decode("utf-8", "replace").splitlines(keepends=True)
                 for ln in parse_lines(text, source, st):
                     for m in ln.moves:
-                        planner.plan(m)
+                        planner.bypass(m) if m.arc else planner.plan(m)
         # The message names the print's last extrusion: read it off the file.
         end = len(data)
         win = 65536
@@ -414,7 +415,7 @@ def check_reach(data: bytes, map_bytes: bytes, settings: Settings, source: str) 
         lines = data.decode("utf-8", "replace").splitlines(keepends=True)
         for ln in parse_lines(lines, source):
             for m in ln.moves:
-                planner.plan(m)
+                planner.bypass(m) if m.arc else planner.plan(m)
     return unreached_message(planner, source)
 
 

@@ -134,6 +134,7 @@ class RefPlanner:
         self.stops: list[StopRecord] = []
         self.top_z: float | None = None   # highest z of an extruding XY move
         self._zs = [l.z_cmm for l in bmap.layers] if bmap else []
+        self.arcs: list[Move] = []  # arc chords the firmware does not plan (bypass())
         self.deferred: set[int] = set()   # points whose feet lay beyond the last move's end
         self.last_end = None       # float bits of that move's x1, y1
 
@@ -208,6 +209,14 @@ class RefPlanner:
         if not (f32(m.e) > 0 and (f32(m.x0) != f32(m.x1) or f32(m.y0) != f32(m.y1))):
             return False
         return self._window(self._cmm(m.z1)) and len(self.layer[1]) > 0
+
+    def bypass(self, m: Move) -> None:
+        """A chord of a G2/G3 arc as the bulgekit firmware sees it: not at all.
+        Marlin cuts arcs into segments that go straight to its planner, so
+        nothing on an arc is split and the core's state is untouched (the next
+        G1 starts where the arc ended). Kept to name the arcs when points are
+        missed."""
+        self.arcs.append(m)
 
     def plan(self, m: Move, outer: bool | None = None) -> list[Action]:
         """Actions for one G0/G1 move (or one arc chord)."""
@@ -396,8 +405,39 @@ def unreached_message(planner: RefPlanner, source: str) -> str | None:
     if part:
         out.append(f"{sum(n for _, n in part)} point(s) missed on {len(part)} other layer(s) "
                    f"(z {zl(z for z, _ in part)} mm)")
+    on_arcs = _on_arcs(planner, miss)
+    if on_arcs:
+        n, first = on_arcs
+        return ("; ".join(out) + f". {n} of them lie on G2/G3 arcs (the first on line {first}), "
+                "which the bulgekit firmware does not split at bulge points: turn off arc "
+                "fitting in the slicer (PrusaSlicer/Orca: arc fitting; or remove ArcWelder) and "
+                "slice again. Use --allow-unreached to write the file anyway.")
     return ("; ".join(out) + ". Is the map made for this G-code (same slice, same "
             "--geometric/tolerance)? Use --allow-unreached to write the file anyway.")
+
+
+def _on_arcs(planner: RefPlanner, miss) -> tuple[int, int] | None:
+    """(how many of the missed points lie within the tolerance of an extruding
+    arc chord of their layer, the first such arc's line), or None."""
+    if not planner.arcs or not miss:
+        return None
+    q = planner.q_um / 1000
+    tol = planner.s.tolerance
+    half = planner.lh / 2
+    n, first = 0, None
+    for zc, px, py in miss:
+        x, y = px * q, py * q
+        for m in planner.arcs:
+            if not (m.e > 0 and abs(round(m.z1 * 100) - zc) <= half):
+                continue
+            dx, dy = m.x1 - m.x0, m.y1 - m.y0
+            l2 = dx * dx + dy * dy
+            t = 0.0 if l2 == 0 else min(1.0, max(0.0, ((x - m.x0) * dx + (y - m.y0) * dy) / l2))
+            if (x - m.x0 - t * dx) ** 2 + (y - m.y0 - t * dy) ** 2 <= tol * tol:
+                n += 1
+                first = m.line_no if first is None else min(first, m.line_no)
+                break
+    return (n, first) if n else None
 
 
 def _fmt(v: float, nd: int = 5) -> str:
