@@ -25,24 +25,18 @@ void ReplyText::raw(const char *ram, uint8_t n) {
   while (n--) c(*ram++);
 }
 
-void ReplyText::u(uint32_t v) {
-  char t[10];
+void ReplyText::u(uint32_t v) { decimal(v, 0); }
+
+// Digits from the right, the point dec places in; at least one digit before it.
+void ReplyText::decimal(uint32_t v, uint8_t dec) {
+  char t[12];
   uint8_t k = 0;
   do {
     t[k++] = (char)('0' + v % 10);
     v /= 10;
-  } while (v);
+    if (k == dec) t[k++] = '.';
+  } while (v || k <= dec + (dec != 0));
   while (k) c(t[--k]);
-}
-
-void ReplyText::decimal(uint32_t v, uint8_t dec) {
-  uint32_t scale = 1;
-  for (uint8_t i = 0; i < dec; i++) scale *= 10;
-  u(v / scale);
-  if (!dec) return;
-  c('.');
-  const uint32_t frac = v % scale;
-  for (uint32_t d = scale / 10; d; d /= 10) c((char)('0' + frac / d % 10));
 }
 
 void ReplyText::fixed(float v, uint8_t dec) {
