@@ -451,20 +451,18 @@ bool BulgePlanner::emit(ActionList &out) {
   return false;
 }
 
-// A move the planner leaves alone, as one LINE. A move that moves nothing
-// (Marlin hands "G1 F1200" to us too) keeps the extra owed from a stop at a
-// wall's end for the next piece; any real travel, retraction or non-wall move
-// ends the wall, and the extra is not extruded (counted as dropped).
 // A move that moves nothing: Marlin hands "G1 F1200" to us too.
 static bool still(const Move &m) { return m.x0 == m.x1 && m.y0 == m.y1 && m.z0 == m.z1 && m.e == 0.0f; }
 
 // Points the previous move deferred (feet beyond its end B, which is where the
 // head is now). This move takes over those within the tolerance of it when it
-// continues the wall from B (it starts at B, at the same z, and qualifies):
-// collect() finds them on it. The others stop at B now, before this move:
-// where the old rule put them, a stop at the vertex. If something moved the
-// head meanwhile (an arc, homing: the move does not start at B) they stay
-// unfired for a later move of the layer. A move that moves nothing waits.
+// continues the wall from B (it starts at B, qualifies, and its z keeps the
+// layer): collect() finds them on it. Such a point is within T of B, so of the
+// move too; the exact test here only guards against rounding, which would
+// otherwise lose it. The others stop at B now, before this move, as they did
+// before the rule: at the vertex. If something moved the head meanwhile (an
+// arc, homing: the move does not start at B) they stay unfired for a later
+// move of the layer. A move that moves nothing waits.
 void BulgePlanner::flush(const Move &m, ActionList &out) {
   if (still(m)) return;
   has_defer_ = false;
@@ -481,6 +479,10 @@ void BulgePlanner::flush(const Move &m, ActionList &out) {
   }
 }
 
+// A move the planner leaves alone, as one LINE. A move that moves nothing
+// (Marlin hands "G1 F1200" to us too) keeps the extra owed from a stop at a
+// wall's end for the next piece; any real travel, retraction or non-wall move
+// ends the wall, and the extra is not extruded (counted as dropped).
 void BulgePlanner::pass(const Move &m, ActionList &out) {
   if (!still(m)) {
     if (fbits(owed_)) {

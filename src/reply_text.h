@@ -18,7 +18,7 @@ class ReplyText {
   void p(const char *flash);              // a BK_F literal or flash text
   void raw(const char *ram, uint8_t n);   // n characters from RAM
   void u(uint32_t v);                     // decimal
-  void decimal(uint32_t v, uint8_t dec);  // v / 10^dec with dec digits: (1234, 2) -> "12.34"
+  void decimal(uint32_t v, uint8_t dec);  // v / 10^dec with dec (0..9) digits: (1234, 2) -> "12.34"
   // A float with dec decimals (0..3), rounded half up; NaN as "nan", values of a
   // million or more as ">=1000000", so a report never shows a wrong number.
   void fixed(float v, uint8_t dec);
