@@ -26,6 +26,7 @@ E back (M82), or relative pieces (M83) which need no G92.
 """
 from __future__ import annotations
 
+import bisect
 from dataclasses import dataclass, field
 from typing import Iterable, Iterator
 
@@ -134,7 +135,10 @@ class RefPlanner:
         self.stops: list[StopRecord] = []
         self.top_z: float | None = None   # highest z of an extruding XY move
         self._zs = [l.z_cmm for l in bmap.layers] if bmap else []
-        self.arcs: list[Move] = []  # arc chords the firmware does not plan (bypass())
+        # extruding arc chords the firmware does not plan (bypass()), per end z
+        # in 0.01 mm: [(x0, y0, x1, y1, line)]
+        self.arcs: dict[int, list[tuple]] = {}
+        self._boxes = None
         self.deferred: set[int] = set()   # points whose feet lay beyond the last move's end
         self.last_end = None       # float bits of that move's x1, y1
 
@@ -214,9 +218,24 @@ class RefPlanner:
         """A chord of a G2/G3 arc as the bulgekit firmware sees it: not at all.
         Marlin cuts arcs into segments that go straight to its planner, so
         nothing on an arc is split and the core's state is untouched (the next
-        G1 starts where the arc ended). Kept to name the arcs when points are
-        missed."""
-        self.arcs.append(m)
+        G1 starts where the arc ended). Extruding chords are kept to name the
+        arcs when points are missed."""
+        if not (m.e > 0) or self.map is None:
+            return
+        zc = round(m.z1 * 100)
+        # only chords that can come within the tolerance of a point of a layer
+        # near their z (a map's bounding box per layer): few, even in a long file
+        if self._boxes is None:
+            t, q = self.s.tolerance, self.q_um / 1000
+            self._boxes = [(l.z_cmm, min(x for x, _ in l.points) * q - t, min(y for _, y in l.points) * q - t,
+                            max(x for x, _ in l.points) * q + t, max(y for _, y in l.points) * q + t)
+                           for l in self.map.layers if l.points]
+        k = bisect.bisect_left(self._boxes, (zc - self.lh / 2,))
+        for z, bx0, by0, bx1, by1 in self._boxes[k:k + 2]:
+            if (abs(z - zc) * 2 <= self.lh and max(m.x0, m.x1) >= bx0 and min(m.x0, m.x1) <= bx1
+                    and max(m.y0, m.y1) >= by0 and min(m.y0, m.y1) <= by1):
+                self.arcs.setdefault(zc, []).append((m.x0, m.y0, m.x1, m.y1, m.line_no))
+                return
 
     def plan(self, m: Move, outer: bool | None = None) -> list[Action]:
         """Actions for one G0/G1 move (or one arc chord)."""
@@ -422,21 +441,29 @@ def _on_arcs(planner: RefPlanner, miss) -> tuple[int, int] | None:
     if not planner.arcs or not miss:
         return None
     q = planner.q_um / 1000
-    tol = planner.s.tolerance
+    tol2 = planner.s.tolerance ** 2
     half = planner.lh / 2
-    n, first = 0, None
+    by_layer: dict[int, list] = {}
     for zc, px, py in miss:
-        x, y = px * q, py * q
-        for m in planner.arcs:
-            if not (m.e > 0 and abs(round(m.z1 * 100) - zc) <= half):
-                continue
-            dx, dy = m.x1 - m.x0, m.y1 - m.y0
-            l2 = dx * dx + dy * dy
-            t = 0.0 if l2 == 0 else min(1.0, max(0.0, ((x - m.x0) * dx + (y - m.y0) * dy) / l2))
-            if (x - m.x0 - t * dx) ** 2 + (y - m.y0 - t * dy) ** 2 <= tol * tol:
-                n += 1
-                first = m.line_no if first is None else min(first, m.line_no)
-                break
+        by_layer.setdefault(zc, []).append((px * q, py * q))
+    n, first = 0, None
+    for zc, pts in by_layer.items():
+        chords = [c for z, cs in planner.arcs.items() if abs(z - zc) <= half for c in cs]
+        if not chords:
+            continue
+        c = np.array(chords, dtype=np.float64)
+        p = np.array(pts, dtype=np.float64)
+        x0, y0, dx, dy = c[:, 0], c[:, 1], c[:, 2] - c[:, 0], c[:, 3] - c[:, 1]
+        l2 = dx * dx + dy * dy
+        ux = p[:, 0:1] - x0[None, :]
+        uy = p[:, 1:2] - y0[None, :]
+        t = np.clip(np.divide(ux * dx + uy * dy, l2, out=np.zeros_like(ux), where=l2 > 0), 0.0, 1.0)
+        near = (ux - t * dx) ** 2 + (uy - t * dy) ** 2 <= tol2   # points x chords
+        hit = near.any(axis=1)
+        n += int(hit.sum())
+        if hit.any():
+            line = int(c[near.any(axis=0), 4].min())
+            first = line if first is None else min(first, line)
     return (n, first) if n else None
 
 
