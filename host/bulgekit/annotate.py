@@ -147,7 +147,7 @@ def annotate_bytes(data: bytes, map_bytes: bytes, settings: Settings,
     res.initial_records = k
     first = header + b"".join(recs[:k])
     top = [f"; bulgekit: {len(recs)} layers, {bm.point_count} points, "
-           f"{len(header) + sum(map(len, recs))} bytes"
+           f"{len(header) + sum(map(len, recs))} bytes, arena {arena}"
            + ("" if k == len(recs) else f", {len(recs) - k} layers streamed") , settings.m720(),
            "M721 X"]
     top += mapformat.upload_lines(first)

@@ -199,11 +199,15 @@ def register(group: click.Group) -> None:
             cmds = mapformat.upload_lines(data)
             batches.append((Path(map_file).name,
                             [Line(c, f"{map_file} upload line {i}") for i, c in enumerate(cmds, 1)]))
+        need = None  # (arena an annotated file was made for, the file)
         for f in files:
             if f == "-":
                 batches.append(("stdin", prepare(sys.stdin.read().splitlines(), "stdin")))
             else:
                 batches.append((Path(f).name, read_gcode(f)))
+                a = annotated_arena(f)
+                if a is not None and (need is None or a > need[0]):
+                    need = (a, f)
         if not batches:
             raise click.UsageError("nothing to send: give FILES, -c COMMAND or --map")
 
@@ -215,6 +219,8 @@ def register(group: click.Group) -> None:
                 click.echo(msg)
 
         with Sender(port, baud, timeout=timeout, boot_wait=boot_wait, on_message=show) as s:
+            if need is not None:
+                check_printer_arena(s, *need)
             for name, lines in batches:
                 if not lines:
                     click.echo(f"{name}: nothing to send")
@@ -223,6 +229,41 @@ def register(group: click.Group) -> None:
                 click.echo(f"{name}: {st.summary()}")
                 for src, cmd, why in st.errors:
                     click.echo(f"  refused: {src}: {cmd!r}: {why}")
+
+
+def annotated_arena(path) -> int | None:
+    """The map arena an annotated file was planned for (its "; bulgekit: ...
+    arena N" header line, near the top), or None for other files."""
+    import re
+    with open(path, "rb") as f:
+        head = f.read(4096)
+    m = re.search(rb"(?m)^; bulgekit: .*\barena (\d+)", head)
+    return int(m.group(1)) if m else None
+
+
+def check_printer_arena(sender, need: int, path) -> None:
+    """Before printing an annotated file: the printer's arena (from M721's
+    status line) must be at least the one the file was made for. A smaller one
+    would refuse a map append in the middle of the print."""
+    import re
+    from .sender import PrinterError
+    try:
+        reply = sender.command("M721", "arena check (M721)")
+    except PrinterError as e:
+        raise click.ClickException(
+            f"{path}: carries a bulge map, but the printer refused M721 ({e}): is it running "
+            "bulgekit firmware with BULGE_MAP? For stock firmware use `bulgekit fallback`.") from None
+    m = next((re.search(r"bytes:\d+/(\d+)", r) for r in reply if "bytes:" in r), None)
+    if m is None:
+        raise click.ClickException(
+            f"{path}: carries a bulge map, but the printer's M721 reply has no map status "
+            f"({' | '.join(reply) or 'nothing'}): is it running bulgekit firmware with BULGE_MAP?")
+    have = int(m.group(1))
+    if have < need:
+        raise click.ClickException(
+            f"{path}: was annotated for a {need}-byte map arena, but the printer's is {have} "
+            f"(BK_MAP_ARENA_BYTES): a map append would be refused mid-print. Annotate again with "
+            f"--arena {have}.")
 
 
 def _map_points(m, model):

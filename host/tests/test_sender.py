@@ -23,7 +23,7 @@ from bulgekit.sender import (
 class FakeMarlin(threading.Thread):
     def __init__(self, fd, *, corrupt=(), corrupt_rate=0.0, seed=1, busy_cmds=("G28", "G4"), busy_count=3,
                  busy_delay=0.05, refuse=None, fatal=None, silent_after=None, banner=True, last_n=0,
-                 reboot_on=None, ask_old=None):
+                 reboot_on=None, ask_old=None, arena=2048):
         super().__init__(daemon=True)
         self.fd = fd
         self.corrupt = set(corrupt)          # indexes of received lines (0-based) to damage
@@ -39,6 +39,7 @@ class FakeMarlin(threading.Thread):
         self.last_n = last_n
         self.reboot_on = reboot_on
         self.ask_old = ask_old               # command after which it claims an older line was lost
+        self.arena = arena                   # what M721's status line reports (None: stock firmware)
         self.executed = []
         self.received = 0
         self.damaged = 0
@@ -147,6 +148,11 @@ class FakeMarlin(threading.Thread):
             return
         if cmd.startswith("M720") and cmd.strip() == "M720":
             self.say("echo:  M720 S1 P100 E0.100 T0.250")
+        if cmd.strip() == "M721":
+            if self.arena is None:
+                self.say('echo:Unknown command: "M721"')
+            else:
+                self.say(f"echo:BulgeMap layers:0 bytes:0/{self.arena} points:0 z:-")
         self.say("ok")
 
 
@@ -416,3 +422,41 @@ def test_send_cli_refusal_and_timeout_messages(pty_pair, tmp_path):
     assert f"{g}:2: printer refused 'M720 P5000': M720 P5000.000 not in [0.000..2000.000]" in r.output
     r = CliRunner().invoke(main, ["send", "-p", str(tmp_path / "nope"), "--boot-wait", "0", "-c", "M105"])
     assert r.exit_code == 1 and "cannot open" in r.output
+
+
+def _annotated(tmp_path, arena):
+    from bulgekit import mapformat
+    from bulgekit.annotate import annotate_bytes
+    from bulgekit.fallback import Settings
+    g = "G90\nM83\nG1 Z0.3\n;TYPE:External perimeter\nG1 X10 Y0 E1\n"
+    out = annotate_bytes(g.encode(), mapformat.encode_map([(0.3, [(5.0, 0.0)])]), Settings(), arena=arena)
+    f = tmp_path / f"a{arena}.gcode"
+    f.write_bytes(out)
+    return f
+
+
+@pytest.mark.parametrize("printer_arena, file_arena, ok", [(1024, 2048, False), (2048, 1024, True),
+                                                           (None, 2048, False)])
+def test_send_checks_the_printer_arena_before_an_annotated_file(pty_pair, tmp_path, printer_arena,
+                                                                file_arena, ok):
+    from click.testing import CliRunner
+
+    from bulgekit.cli import main
+
+    name, start = pty_pair
+    printer = start(arena=printer_arena)
+    f = _annotated(tmp_path, file_arena)
+    assert f"arena {file_arena}" in f.read_text().splitlines()[0]
+    r = CliRunner().invoke(main, ["send", "-p", name, "--boot-wait", "0.5", "--timeout", "5",
+                                  "--no-progress", str(f)])
+    assert printer.executed[0] == "M721"  # the status query comes first
+    if ok:
+        assert r.exit_code == 0, r.output
+        assert printer.executed[-1] == "M721 X" and len(printer.executed) > 5
+    else:
+        assert r.exit_code == 1 and printer.executed == ["M721"]  # nothing of the file was sent
+        if printer_arena is None:
+            assert "is it running bulgekit firmware" in r.output and "bulgekit fallback" in r.output
+        else:
+            assert (f"annotated for a 2048-byte map arena, but the printer's is 1024" in r.output
+                    and "--arena 1024" in r.output)
