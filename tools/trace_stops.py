@@ -23,6 +23,7 @@ G-code text; it builds nothing. Exit status 1 if a check fails.
 """
 
 import argparse
+import bisect
 import math
 import re
 import sys
@@ -221,6 +222,64 @@ def read_map_points(path):
     return pts
 
 
+class Mesh:
+    """A leveling mesh for runs with bed leveling on (MBL, bilinear ABL, UBL):
+    a file of "x y z" lines (mm) on a rectangular grid, as probed or set with
+    M421. The correction is bilinear inside the grid and the edge value
+    outside it (keep the print inside the mesh); fade (M420 Z) scales it by
+    1 - z/fade below the fade height and turns it off above."""
+
+    def __init__(self, path, fade=0.0):
+        rows = []
+        with open(path, encoding="utf-8") as f:
+            for n, line in enumerate(f, 1):
+                line = line.split("#", 1)[0].strip()
+                if not line:
+                    continue
+                try:
+                    x, y, z = (float(v) for v in line.split())
+                except ValueError:
+                    raise SystemExit("%s:%d: expected 'x y z' in mm, got %r" % (path, n, line))
+                rows.append((x, y, z))
+        self.xs = sorted({r[0] for r in rows})
+        self.ys = sorted({r[1] for r in rows})
+        self.z = {(r[0], r[1]): r[2] for r in rows}
+        if len(self.xs) < 2 or len(self.ys) < 2 or len(self.z) != len(self.xs) * len(self.ys) \
+                or len(rows) != len(self.z):
+            raise SystemExit("%s: not a full rectangular grid of at least 2 x 2 distinct points "
+                             "(%d lines, %d x %d positions)" % (path, len(rows), len(self.xs), len(self.ys)))
+        self.fade = fade
+
+    @staticmethod
+    def _cell(v, axis):
+        v = min(max(v, axis[0]), axis[-1])
+        i = max(0, min(len(axis) - 2, bisect.bisect_right(axis, v) - 1))
+        return i, (v - axis[i]) / (axis[i + 1] - axis[i])
+
+    def at(self, x, y):
+        """Correction at (x, y) before fade, mm."""
+        i, fx = self._cell(x, self.xs)
+        j, fy = self._cell(y, self.ys)
+        x0, x1, y0, y1 = self.xs[i], self.xs[i + 1], self.ys[j], self.ys[j + 1]
+        lo = self.z[(x0, y0)] + (self.z[(x1, y0)] - self.z[(x0, y0)]) * fx
+        hi = self.z[(x0, y1)] + (self.z[(x1, y1)] - self.z[(x0, y1)]) * fx
+        return lo + (hi - lo) * fy
+
+    def factor(self, z):
+        return 1.0 if not self.fade else max(0.0, 1.0 - z / self.fade)
+
+    def unlevel(self, x, y, z_phys):
+        """The G-code z a physical (leveled) z at (x, y) came from."""
+        m = self.at(x, y)
+        if not self.fade:
+            return z_phys - m
+        z = (z_phys - m) / (1.0 - m / self.fade)
+        return z if z < self.fade else z_phys
+
+    def level(self, x, y, z):
+        return z + self.at(x, y) * self.factor(z)
+
+
 def expected_stop(segments, z, px, py, tol, min_piece):
     """Where the core's rule puts the stop for a point: on the first extruding
     move (in G-code order) that passes within tol, at the point's foot on it;
@@ -338,6 +397,8 @@ def stops(args):
     # Extra E per stop: E steps from the stop to the next stop or section end,
     # minus what the same stretch takes in the reference run.
     segments = []
+    mesh = Mesh(args.mesh, args.fade) if args.mesh else None
+    z_in_hold = 0
     if args.gcode:
         gcode_end_state(args.gcode, origin, segments)
     if args.map:
@@ -349,6 +410,11 @@ def stops(args):
             sx, sy = run.mm("X", x), run.mm("Y", y)
             zc = [zc for cz, zc in run.z if cz <= c0]
             sz = run.mm("Z", zc[-1] if zc else 0)
+            if mesh:
+                # the map and the G-code are in unleveled z
+                sz = mesh.unlevel(sx, sy, sz)
+                if [zc for cz, zc in run.z if cz <= c1][-1:] != zc[-1:]:
+                    z_in_hold += 1
             best = None
             for j, (pz, px, py, w) in enumerate(pts):
                 if abs(pz - sz) > 0.01 + 1e-6:
@@ -373,6 +439,9 @@ def stops(args):
                       % (k, sx, sy, sz, px, py, d, ft[0] if ft else 0, ft[1] if ft else 0, off, w, ms(c1 - c0)))
         print("map points %d, matched by a stop %d, largest stop-to-point distance %.3f mm"
               % (len(pts), len(used), worst))
+        if mesh:
+            print("stops with a Z step during the hold: %d" % z_in_hold)
+            ok &= z_in_hold == 0
         ok &= len(used) == len(pts) == len(added) and worst <= args.tolerance
         if segments:
             # The step grid allows half a step on each axis.
@@ -394,8 +463,11 @@ def stops(args):
               % (run.count["E"], want_e, len(added), args.extra or 0, extra_steps, "ok" if good else "MISMATCH"))
         for a in "XYZ":
             got = run.mm(a, run.count[a])
-            if abs(got - end[a]) > 0.5 / STEPS[a] + 1e-9:
-                print("  final %s: steps give %.4f, G-code %.4f: MISMATCH" % (a, got, end[a]))
+            want = end[a]
+            if a == "Z" and mesh:
+                want = mesh.level(end["X"], end["Y"], end["Z"])  # the steppers stand at the leveled z
+            if abs(got - want) > 0.5 / STEPS[a] + 1e-9:
+                print("  final %s: steps give %.4f, expected %.4f: MISMATCH" % (a, got, want))
                 ok = False
         if args.log:
             with open(args.log, encoding="utf-8", errors="replace") as f:
@@ -437,6 +509,9 @@ def main(argv=None):
     s.add_argument("--extra", type=float, help="extra filament per stop, mm")
     s.add_argument("--fallback", action="store_true", help="the G-code carries the extra E itself (G4 rewrite)")
     s.add_argument("-v", "--verbose", action="store_true", help="one line per added stop")
+    s.add_argument("--mesh", help="leveling mesh, 'x y z' lines (mm): stop layers and the final Z "
+                   "are read with it, and no Z step may fall in a hold")
+    s.add_argument("--fade", type=float, default=0.0, help="fade height of the mesh (M420 Z), mm; 0: none")
     args = ap.parse_args(argv)
     return cut(args) if args.cmd == "cut" else stops(args)
 
