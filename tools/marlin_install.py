@@ -62,9 +62,12 @@ class Edit:
     the block as 'bulgekit:was' comments; 'append': at the end of the file.
     """
 
-    def __init__(self, path, name, mode, anchor, text, comment="//", optional=False, regex=None):
+    def __init__(self, path, name, mode, anchor, text, comment="//", optional=False, regex=None, alts=()):
         self.path, self.name, self.mode = path, name, mode
         self.anchor = anchor.split("\n") if anchor else []
+        # the same place as other 2.1.2.x releases spell it, tried in order
+        # when the anchor itself is not found
+        self.alts = [a.split("\n") for a in alts]
         self.text = text
         self.comment = comment
         self.optional = optional  # the whole file may be absent (ini/features.ini)
@@ -272,6 +275,11 @@ EDITS = [
          "      HOTEND_LOOP()\n"
          "        EEPROM_WRITE(thermalManager.temp_hotend[e].mpc);\n"
          "    #endif",
+         alts=["    #if ENABLED(MPCTEMP)\n"            # 2.1.2.1 names it "constants"
+               "      HOTEND_LOOP()\n"
+               "        EEPROM_WRITE(thermalManager.temp_hotend[e].constants);\n"
+               "    #endif"],
+         text=
          """\
 
     //
@@ -301,6 +309,13 @@ EDITS = [
          "          EEPROM_READ(thermalManager.temp_hotend[e].mpc);\n"
          "      }\n"
          "      #endif",
+         alts=["      #if ENABLED(MPCTEMP)\n"          # 2.1.2.1 names it "constants"
+               "      {\n"
+               "        HOTEND_LOOP()\n"
+               "          EEPROM_READ(thermalManager.temp_hotend[e].constants);\n"
+               "      }\n"
+               "      #endif"],
+         text=
          """\
 
       //
@@ -438,10 +453,28 @@ def remove_blocks(lines, comment, path):
 
 
 def find_anchor(lines, anchor, regex=None):
+    """Where the anchor lines stand. Indentation and trailing blanks are not
+    compared: releases of 2.1.2.x nest the same code at different depths."""
     if regex:
         return [i for i, l in enumerate(lines) if regex.fullmatch(l)]
     n = len(anchor)
-    return [i for i in range(len(lines) - n + 1) if lines[i:i + n] == anchor]
+    want = [a.strip() for a in anchor]
+    return [i for i in range(len(lines) - n + 1) if [l.strip() for l in lines[i:i + n]] == want]
+
+
+def reindent(text, shift):
+    """text with every non-blank line moved right by shift columns (left if
+    negative, never past its first character)."""
+    out = []
+    for l in text.split("\n"):
+        if not l.strip() or shift == 0:
+            out.append(l)
+        elif shift > 0:
+            out.append(" " * shift + l)
+        else:
+            lead = len(l) - len(l.lstrip(" "))
+            out.append(l[min(lead, -shift):])
+    return "\n".join(out)
 
 
 def block_lines(edit, indent, replaced):
@@ -461,18 +494,29 @@ def apply_edits(lines, edits, path):
         if ed.mode == "append":
             lines = lines + block_lines(ed, "", [])
             continue
-        hits = find_anchor(lines, ed.anchor, ed.regex)
+        anchor = ed.anchor
+        hits = find_anchor(lines, anchor, ed.regex)
+        for alt in ed.alts:
+            if hits:
+                break
+            anchor, hits = alt, find_anchor(lines, alt)
         if len(hits) != 1:
             shown = ("a line matching %s, e.g.\n    " % ed.regex.pattern if ed.regex else "") + "\n    ".join(ed.anchor)
             what = "not found" if not hits else "found %d times (must be unique)" % len(hits)
             raise InstallError("%s: anchor '%s' %s; expected the line(s):\n    %s\n"
                                "This Marlin tree differs from 2.1.2.x; nothing was changed."
                                % (path, ed.name, what, shown))
-        i, n = hits[0], len(ed.anchor)
+        i, n = hits[0], len(anchor)
         found = lines[i:i + n]
         indent = re.match(r"\s*", found[0]).group(0)
         if ed.regex:
             ed = Edit(ed.path, ed.name, ed.mode, None, ed.regex.fullmatch(found[0]).expand(ed.text), ed.comment)
+        elif anchor:
+            # the hook's lines follow the anchor's depth in this tree
+            shift = len(indent) - len(re.match(r"\s*", anchor[0]).group(0))
+            if shift:
+                ed = Edit(ed.path, ed.name, ed.mode, "\n".join(anchor), reindent(ed.text, shift),
+                          ed.comment, ed.optional)
         if ed.mode == "before":
             lines = lines[:i] + block_lines(ed, indent, []) + lines[i:]
         elif ed.mode == "after":

@@ -354,3 +354,35 @@ def test_missing_arc_anchor_refuses_and_names_it(tree):
         mi.install(tree, out=quiet)
     assert rel in str(e.value) and "'arc-notice'" in str(e.value) and "not found" in str(e.value)
     assert snapshot(tree) == before
+
+
+def test_deeper_nesting_is_found_and_the_hook_follows_it(tree):
+    # 2.1.2.1 has G0_G1's body one level deeper (inside "if (IsRunning() ...)")
+    path = os.path.join(tree, "Marlin/src/gcode/motion/G0_G1.cpp")
+    text = read(tree, "Marlin/src/gcode/motion/G0_G1.cpp")
+    ed = next(e for e in mi.EDITS if e.name == "line")
+    deeper = "\n".join(("  " + l) if l.strip() else l for l in ed.anchor)
+    with open(path, "w", encoding="utf-8", newline="") as f:
+        f.write(text.replace("\n".join(ed.anchor), deeper))
+    before = snapshot(tree)
+    mi.install(tree, out=quiet)
+    lines = read(tree, "Marlin/src/gcode/motion/G0_G1.cpp").split("\n")
+    i = lines.index("      prepare_line_to_destination();")
+    assert lines[i - 1] == "      // bulgekit:end line"
+    hook = next(l for l in lines if "bulgekit.line_to_destination()" in l)
+    assert hook.startswith("        if (")  # two columns deeper than in the edit table
+    mi.uninstall(tree, out=quiet)
+    assert snapshot(tree) == before
+
+
+def test_an_alternative_anchor_is_used_when_the_first_is_missing(tree):
+    ed = next(e for e in mi.EDITS if e.name == "eeprom-save")
+    assert ed.alts, "eeprom-save carries 2.1.2.1's spelling"
+    path = os.path.join(tree, ed.path)
+    text = read(tree, ed.path)
+    with open(path, "w", encoding="utf-8", newline="") as f:
+        f.write(text.replace("\n".join(ed.anchor), "\n".join(ed.alts[0])))
+    mi.install(tree, out=quiet)
+    lines = read(tree, ed.path).split("\n")
+    j = lines.index(ed.alts[0][2]) + 1  # the alternative's "#endif"
+    assert lines[j] == ed.alts[0][3] and lines[j + 1].strip() == "// bulgekit:begin eeprom-save"
