@@ -194,6 +194,13 @@ class Run:
         cands = [lst[i] for lst in self._step_cycles for i in [bisect.bisect_right(lst, cycle)] if i < len(lst)]
         return min(cands) if cands else None
 
+    def z_at(self, cycle):
+        """Z step count at this cycle (0 before the first Z step)."""
+        if not hasattr(self, "_zc"):
+            self._zc = [c for c, _ in self.z]
+        i = bisect.bisect_right(self._zc, cycle)
+        return self.z[i - 1][1] if i else 0
+
     def e_at(self, cycle):
         """Net E steps made up to and including this cycle."""
         import bisect
@@ -408,12 +415,11 @@ def stops(args):
         print(" #   stop at X,Y (mm)      z     nearest point (mm)   dist mm  expected at (mm)    off mm  w   duration ms")
         for k, (c0, c1, x, y) in enumerate(added):
             sx, sy = run.mm("X", x), run.mm("Y", y)
-            zc = [zc for cz, zc in run.z if cz <= c0]
-            sz = run.mm("Z", zc[-1] if zc else 0)
+            sz = run.mm("Z", run.z_at(c0))
             if mesh:
                 # the map and the G-code are in unleveled z
                 sz = mesh.unlevel(sx, sy, sz)
-                if [zc for cz, zc in run.z if cz <= c1][-1:] != zc[-1:]:
+                if run.z_at(c1) != run.z_at(c0):
                     z_in_hold += 1
             best = None
             for j, (pz, px, py, w) in enumerate(pts):
