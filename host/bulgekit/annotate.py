@@ -27,7 +27,7 @@ import re
 from dataclasses import dataclass, field
 
 from . import mapformat
-from .fallback import MODE_GEOMETRIC, Settings, StopRecord
+from .fallback import MODE_GEOMETRIC, Settings, StopRecord, near_segments
 from .gcode import GcodeState, check_complete, check_not_processed, feature_of_comment, is_outer
 from .strokes import BulgekitError
 
@@ -342,15 +342,7 @@ def _reach_section(data: bytes, a: int, b: int, st: GcodeState, planner, zs, poi
             continue
         layer_z = min(cands, key=lambda v: (abs(v - zc), v))  # nearest, the lower on a tie
         px, py, pts = points_mm[layer_z]
-        mv = np.array(moves, dtype=np.float64)
-        x0, y0 = mv[:, 0], mv[:, 1]
-        dx, dy = mv[:, 2] - x0, mv[:, 3] - y0
-        len2 = dx * dx + dy * dy
-        ux = px[:, None] - x0[None, :]
-        uy = py[:, None] - y0[None, :]
-        t = np.clip((ux * dx + uy * dy) / len2, 0.0, 1.0)
-        ex, ey = ux - t * dx, uy - t * dy
-        hit = ((ex * ex + ey * ey) <= planner.s.tolerance ** 2).any(axis=1)
+        hit = near_segments(px, py, np.array(moves, dtype=np.float64), planner.s.tolerance).any(axis=1)
         for i in np.nonzero(hit)[0]:
             planner.stops.append(StopRecord(0, 0.0, 0.0, 0.0, 0, tuple(pts[i]), layer_z))
     return True

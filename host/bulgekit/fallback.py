@@ -214,6 +214,18 @@ class RefPlanner:
             return False
         return self._window(self._cmm(m.z1)) and len(self.layer[1]) > 0
 
+    def _foot(self, i: int, x0, y0, fdx, fdy, len2):
+        """Point i against the segment from (x0, y0) along (fdx, fdy), in
+        float32 as BulgePlanner::exact: (t of its foot, raised to 0 but not
+        capped at 1; whether it lies within the tolerance of the segment)."""
+        px, py, _ = self.layer[1][i]
+        ux = f32(px) * self.q_mm - x0
+        uy = f32(py) * self.q_mm - y0
+        t = max((ux * fdx + uy * fdy) / len2, f32(0))
+        tc = min(t, f32(1))
+        ex, ey = ux - tc * fdx, uy - tc * fdy
+        return t, ex * ex + ey * ey <= self.tol2
+
     def bypass(self, m: Move) -> None:
         """A chord of a G2/G3 arc as the bulgekit firmware sees it: not at all.
         Marlin cuts arcs into segments that go straight to its planner, so
@@ -274,12 +286,8 @@ class RefPlanner:
             xm, ym = px * self.q_um / 1000, py * self.q_um / 1000
             if xm < bx0 or xm > bx1 or ym < by0 or ym > by1:
                 continue
-            ux = f32(px) * self.q_mm - x0
-            uy = f32(py) * self.q_mm - y0
-            t = max((ux * fdx + uy * fdy) / len2, f32(0))
-            tc = min(t, f32(1))
-            ex, ey = ux - tc * fdx, uy - tc * fdy
-            if ex * ex + ey * ey > self.tol2:
+            t, near = self._foot(i, x0, y0, fdx, fdy, len2)
+            if not near:
                 continue
             if t > 1:
                 self.deferred.add(i)  # its foot is beyond the end: the next move decides
@@ -366,19 +374,12 @@ class RefPlanner:
               and (_bits(m.x0) != _bits(m.x1) or _bits(m.y0) != _bits(m.y1)))
         if not at_b:
             return
-        zc, pts, fired = self.layer
         x0, y0 = f32(m.x0), f32(m.y0)
         fdx, fdy = f32(m.x1) - x0, f32(m.y1) - y0
         len2 = fdx * fdx + fdy * fdy
         for i in deferred:
-            if on and len2 != 0:
-                px, py, _ = pts[i]
-                ux = f32(px) * self.q_mm - x0
-                uy = f32(py) * self.q_mm - y0
-                t = min(max((ux * fdx + uy * fdy) / len2, f32(0)), f32(1))
-                ex, ey = ux - t * fdx, uy - t * fdy
-                if ex * ex + ey * ey <= self.tol2:
-                    continue  # this move's own matching takes it
+            if on and len2 != 0 and self._foot(i, x0, y0, fdx, fdy, len2)[1]:
+                continue  # this move's own matching takes it
             self.carry = self._stop(m, i, actions, self.carry)
 
 
@@ -435,13 +436,26 @@ def unreached_message(planner: RefPlanner, source: str) -> str | None:
             "--geometric/tolerance)? Use --allow-unreached to write the file anyway.")
 
 
+def near_segments(px, py, segs, tol: float):
+    """Which points lie within tol of which segments, in float64: a (points x
+    segments) bool array. px, py: arrays of point coordinates (mm); segs: an
+    (n, 4+) array of x0, y0, x1, y1 rows. Each point is measured to the
+    segment's nearest point (a zero-length segment: its start)."""
+    x0, y0 = segs[:, 0], segs[:, 1]
+    dx, dy = segs[:, 2] - x0, segs[:, 3] - y0
+    l2 = dx * dx + dy * dy
+    ux = np.asarray(px, dtype=np.float64)[:, None] - x0[None, :]
+    uy = np.asarray(py, dtype=np.float64)[:, None] - y0[None, :]
+    t = np.clip(np.divide(ux * dx + uy * dy, l2, out=np.zeros_like(ux), where=l2 > 0), 0.0, 1.0)
+    return (ux - t * dx) ** 2 + (uy - t * dy) ** 2 <= tol * tol
+
+
 def _on_arcs(planner: RefPlanner, miss) -> tuple[int, int] | None:
     """(how many of the missed points lie within the tolerance of an extruding
     arc chord of their layer, the first such arc's line), or None."""
     if not planner.arcs or not miss:
         return None
     q = planner.q_um / 1000
-    tol2 = planner.s.tolerance ** 2
     half = planner.lh / 2
     by_layer: dict[int, list] = {}
     for zc, px, py in miss:
@@ -453,12 +467,7 @@ def _on_arcs(planner: RefPlanner, miss) -> tuple[int, int] | None:
             continue
         c = np.array(chords, dtype=np.float64)
         p = np.array(pts, dtype=np.float64)
-        x0, y0, dx, dy = c[:, 0], c[:, 1], c[:, 2] - c[:, 0], c[:, 3] - c[:, 1]
-        l2 = dx * dx + dy * dy
-        ux = p[:, 0:1] - x0[None, :]
-        uy = p[:, 1:2] - y0[None, :]
-        t = np.clip(np.divide(ux * dx + uy * dy, l2, out=np.zeros_like(ux), where=l2 > 0), 0.0, 1.0)
-        near = (ux - t * dx) ** 2 + (uy - t * dy) ** 2 <= tol2   # points x chords
+        near = near_segments(p[:, 0], p[:, 1], c, planner.s.tolerance)   # points x chords
         hit = near.any(axis=1)
         n += int(hit.sum())
         if hit.any():
