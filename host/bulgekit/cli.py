@@ -292,10 +292,11 @@ def _examples_dir() -> Path:
     raise BulgekitError("demo data not found: run from a bulgekit checkout (examples/cylinder40x20.gcode)")
 
 
-# preview, send and strokes live in cli_io.py, beside the modules they drive.
-from . import cli_io  # noqa: E402  (needs `main` defined above)
+# preview, send and strokes live in cli_io.py, litho in cli_litho.py, beside the modules they drive.
+from . import cli_io, cli_litho  # noqa: E402  (needs `main` defined above)
 
 cli_io.register(main)
+cli_litho.register(main)
 
 
 if __name__ == "__main__":

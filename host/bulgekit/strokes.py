@@ -612,25 +612,12 @@ def save_json(strokes: Sequence[Stroke], path: str) -> None:
 # Images
 
 
-def image_dots(path: str, width_mm: float, u0: float = 0.0, v0: float = 0.0, pitch_mm: float = 1.5,
-               threshold: float = 0.1, invert: bool = False, min_weight: int = 1,
-               mirror: bool = False) -> list[Stroke]:
-    """Dots on a square grid from a grayscale picture (halftone by dwell).
-
-    The picture is scaled to width_mm (height follows the aspect ratio) and
-    averaged over cells of pitch_mm; (u0, v0) is its bottom-left corner.
-    Each cell whose darkness (0 white .. 1 black, after `invert`) is at
-    least `threshold` becomes a dot of weight round(darkness * 255) (never
-    below min_weight).  Transparent pixels count as white.
-    """
+def read_gray(path):
+    """A picture as an 8-bit grayscale PIL image (any format Pillow reads);
+    transparent pixels count as white. Errors name the file."""
     from PIL import Image, UnidentifiedImageError
 
     path = os.fspath(path)
-    if not (width_mm > 0 and pitch_mm > 0):
-        raise InputError(f"{path}: width and pitch must be > 0 mm (got {width_mm}, {pitch_mm})")
-    if not 0 <= threshold <= 1:
-        raise InputError(f"{path}: threshold must be within 0..1, got {threshold}")
-    min_weight = _weight(min_weight, path)
     try:
         with Image.open(path) as im:
             im.load()
@@ -645,6 +632,29 @@ def image_dots(path: str, width_mm: float, u0: float = 0.0, v0: float = 0.0, pit
         raise InputError(f"{path}: cannot read image (not a format Pillow recognizes)") from None
     except (OSError, ValueError, SyntaxError) as e:
         raise InputError(f"{path}: cannot read image: {e}") from None
+    return gray
+
+
+def image_dots(path: str, width_mm: float, u0: float = 0.0, v0: float = 0.0, pitch_mm: float = 1.5,
+               threshold: float = 0.1, invert: bool = False, min_weight: int = 1,
+               mirror: bool = False) -> list[Stroke]:
+    """Dots on a square grid from a grayscale picture (halftone by dwell).
+
+    The picture is scaled to width_mm (height follows the aspect ratio) and
+    averaged over cells of pitch_mm; (u0, v0) is its bottom-left corner.
+    Each cell whose darkness (0 white .. 1 black, after `invert`) is at
+    least `threshold` becomes a dot of weight round(darkness * 255) (never
+    below min_weight).  Transparent pixels count as white.
+    """
+    from PIL import Image
+
+    path = os.fspath(path)
+    if not (width_mm > 0 and pitch_mm > 0):
+        raise InputError(f"{path}: width and pitch must be > 0 mm (got {width_mm}, {pitch_mm})")
+    if not 0 <= threshold <= 1:
+        raise InputError(f"{path}: threshold must be within 0..1, got {threshold}")
+    min_weight = _weight(min_weight, path)
+    gray = read_gray(path)
     w_px, h_px = gray.size
     cols = max(1, round(width_mm / pitch_mm))
     rows = max(1, round(cols * h_px / w_px))

@@ -1,0 +1,148 @@
+"""CLI command `litho`: a picture -> a lithophane printed in width mode, with its stock-firmware
+twin, the body as an STL, the predicted backlit look and the figures.
+
+cli.py calls register(main) to add it to the bulgekit command group.
+"""
+from __future__ import annotations
+
+import math
+import sys
+
+import click
+
+from ._cliutil import NONNEG, POSITIVE, Num, friendly
+
+
+def _bed(ctx, param, value):
+    """--bed X,Y[,Z] (or 220x220x250)."""
+    try:
+        parts = [float(t) for t in value.replace("x", ",").split(",")]
+    except ValueError:
+        raise click.BadParameter(f"expected X,Y or X,Y,Z in mm, got {value!r}") from None
+    if len(parts) not in (2, 3) or not all(math.isfinite(p) and p > 0 for p in parts):
+        raise click.BadParameter(f"expected two or three sizes > 0 mm (X,Y[,Z]), got {value!r}")
+    return tuple(parts)
+
+
+def register(main):
+    @main.command(short_help="A picture -> lithophane G-code (width mode + stock), STL, look, stats.")
+    @click.argument("image", type=click.Path(dir_okay=False))
+    @click.option("--shape", type=click.Choice(["planar", "cylinder"]), default="planar", show_default=True,
+                  help="Flat plate (flat back) or a cylinder (round back, picture around it).")
+    @click.option("-o", "--out", "outdir", type=click.Path(file_okay=False), default=".", show_default=True,
+                  help="Output folder.")
+    @click.option("--name", help="Base name of the outputs (default: the picture's name).")
+    @click.option("--width", type=POSITIVE, default=100.0, show_default=True, help="Planar: plate width, mm.")
+    @click.option("--diameter", type=POSITIVE, default=54.8, show_default=True,
+                  help="Cylinder: outer diameter at the thickest point, mm.")
+    @click.option("--height", type=POSITIVE, default=None,
+                  help="Picture height, mm (default: from its aspect ratio; given, it stretches).")
+    @click.option("--min", "min_thickness", type=POSITIVE, default=0.8, show_default=True,
+                  help="Thickness for white, mm (at least two wall lines).")
+    @click.option("--max", "max_thickness", type=POSITIVE, default=2.4, show_default=True,
+                  help="Thickness for black, mm.")
+    @click.option("--invert", is_flag=True, help="Light areas thick (a negative).")
+    @click.option("--curve", type=click.Choice(["linear", "transmission"]), default="linear", show_default=True,
+                  help="Thickness linear in darkness, or predicted transmission linear in brightness.")
+    @click.option("--gamma", type=POSITIVE, default=1.0, show_default=True,
+                  help="Contrast: darkness ** gamma before the curve (> 1 lightens mid-tones).")
+    @click.option("--attenuation", type=POSITIVE, default=1.5, show_default=True,
+                  help="Light attenuation of the filament, 1/mm (Beer-Lambert), for --curve "
+                       "transmission and the predicted look.")
+    @click.option("--frame", type=NONNEG, default=0.0, show_default=True,
+                  help="Border at full thickness, mm (planar: all four sides; cylinder: top and bottom).")
+    @click.option("--foot", type=NONNEG, default=0.0, show_default=True,
+                  help="Planar: a foot block this deep (mm) under the plate so it stands (0: none).")
+    @click.option("--foot-height", type=NONNEG, default=3.0, show_default=True, help="Foot height, mm.")
+    @click.option("--layer-height", type=POSITIVE, default=0.2, show_default=True, help="mm; one picture row per layer.")
+    @click.option("--line-width", type=POSITIVE, default=0.4, show_default=True, help="Wall line width, mm.")
+    @click.option("--pitch", type=POSITIVE, default=0.4, show_default=True,
+                  help="Distance between samples along a layer, mm.")
+    @click.option("--min-line", type=POSITIVE, default=0.2, show_default=True,
+                  help="Narrowest mid-line, mm; narrower gaps snap to merged walls or to this width.")
+    @click.option("--max-line", type=POSITIVE, default=1.6, show_default=True,
+                  help="Widest single mid-line, mm; wider gaps get two or more.")
+    @click.option("--filament", type=POSITIVE, default=1.75, show_default=True, help="Filament diameter, mm.")
+    @click.option("--wall-speed", type=POSITIVE, default=40.0, show_default=True, help="Walls, mm/s.")
+    @click.option("--infill-flow", type=POSITIVE, default=8.0, show_default=True,
+                  help="The mid-line's constant volumetric rate, mm^3/s (head speed = flow / (W * H)).")
+    @click.option("--paper-rate", is_flag=True,
+                  help="Mid-line at the walls' own rate (line width x layer height x wall speed), "
+                       "the paper's literal setting; slower.")
+    @click.option("--max-speed", type=POSITIVE, default=150.0, show_default=True,
+                  help="Head speed cap for narrow mid-line pieces, mm/s (M723 U).")
+    @click.option("--min-speed", type=POSITIVE, default=5.0, show_default=True, help="M723 L, mm/s.")
+    @click.option("--first-layer-speed", type=POSITIVE, default=20.0, show_default=True,
+                  help="Walls of the first layer, mm/s; its mid-line flow scales by the same ratio.")
+    @click.option("--travel-speed", type=POSITIVE, default=150.0, show_default=True, help="mm/s.")
+    @click.option("--retract", type=NONNEG, default=0.8, show_default=True,
+                  help="Retraction before travels longer than 2 mm, mm of filament.")
+    @click.option("--retract-speed", type=POSITIVE, default=35.0, show_default=True, help="mm/s.")
+    @click.option("--temp", type=click.IntRange(150, 320), default=210, show_default=True, help="Nozzle, °C.")
+    @click.option("--bed-temp", type=click.IntRange(0, 130), default=60, show_default=True, help="Bed, °C.")
+    @click.option("--bed", default="220,220,250", show_default=True, callback=_bed,
+                  help="Printer's bed X,Y and height Z, mm; the part must fit.")
+    @click.option("--words", type=click.Choice(["e", "w"]), default="e", show_default=True,
+                  help="Litho file: mid-line width as E (previews show it; prints on any firmware) "
+                       "or as W words (bulgekit firmware only).")
+    @click.option("--start-gcode", type=click.Path(dir_okay=False), default=None,
+                  help="File replacing the default start G-code ({temp}, {bed_temp} filled in).")
+    @click.option("--end-gcode", type=click.Path(dir_okay=False), default=None,
+                  help="File replacing the default end G-code.")
+    @click.option("--no-purge", is_flag=True, help="No purge line before the part.")
+    @friendly
+    def litho(image, shape, outdir, name, no_purge, **kw):
+        """Make a lithophane from IMAGE (any picture Pillow reads; turned grayscale).
+
+        Printed standing, one picture row per layer: per layer a wall inside the back face, a wall
+        inside the relief face, and ONE mid-line whose width is the gap between them at every
+        point (Jang & Hong 2017, Algorithm 1). In width mode (M723) the firmware keeps the
+        extruder at one rate and sets the width by head speed.
+
+        \b
+        Writes to OUT/:
+          NAME.litho.gcode        for bulgekit firmware (M723 width mode)
+          NAME.stock.gcode        for stock firmware (eq. 2: E and F per piece, same motion)
+          NAME.stl                the same body, watertight (for slicer comparisons)
+          NAME.transmission.png   predicted backlit look beside the source
+          NAME.litho.json         layers, moves, filament, time, fill, caps, similarity
+
+        \b
+        Examples:
+          bulgekit litho photo.jpg -o out/
+          bulgekit litho photo.jpg --shape cylinder --diameter 80 --height 60 -o out/
+          bulgekit litho photo.jpg --curve transmission --frame 3 --foot 8 -o out/
+        """
+        from . import litho as lt
+
+        kw["bed"] = tuple(kw["bed"])
+        opts = lt.LithoOptions(shape=shape, purge=not no_purge, **kw)
+
+        def progress(done, total):
+            if sys.stderr.isatty() or done == total:
+                click.echo(f"\rplanning layers: {done}/{total}", err=True, nl=done == total)
+
+        res = lt.make(image, outdir, name=name, progress=progress, options=opts)
+        s = res.stats
+        click.echo(summary(s))
+        for key in ("gcode", "stock", "stl", "png", "json"):
+            click.echo(f"wrote {res.paths[key]}")
+
+
+def summary(s: dict) -> str:
+    """A few lines a user reads after `bulgekit litho`."""
+    est = s.get("estimate", {})
+    t = est.get("estimated_time_s_gcode")
+    tt = f"{int(t // 3600)}h {int(t % 3600 // 60):02d}m" if t is not None else "n/a"
+    ml, gp, lk = s["mid_line"], s["gaps"], s["look"]
+    return "\n".join([
+        f"{s['name']}: {s['shape']}, {s['layers']} layers, picture {s['size_mm']['picture_width']:g} x "
+        f"{s['size_mm']['picture_height']:g} mm",
+        f"  estimated time {tt}, filament {s['filament_mm'] / 1000:.2f} m, fill ratio {s['fill_ratio']:.3f}, "
+        f"{s['extruding_moves']} extruding moves",
+        f"  mid-line at {s['rates']['mid_line_mm3_s']:g} mm^3/s: capped at --max-speed "
+        f"{100 * ml['capped_time_share']:.1f} % of its time; layers with 2+ mid-lines: "
+        f"{ml['layers_with_two_or_more']}",
+        f"  gaps snapped (narrower than --min-line): {100 * gp['snapped_share']:.2f} % of samples",
+        f"  predicted look vs picture: correlation {lk['correlation']:.3f}, SSIM {lk['ssim']:.3f}",
+    ])
