@@ -1,0 +1,326 @@
+"""bulgekit litho: geometry (walls follow the picture, one centred mid-line as wide as the gap,
+nothing outside the body), eq. 2 in the stock file, width mode in the litho file, the cylinder's
+seam, the STL, and the CLI's errors. Pictures are drawn here, small, so the tests stay fast."""
+from __future__ import annotations
+
+import json
+import math
+import re
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+from PIL import Image
+
+from bulgekit import litho as lt
+from bulgekit.cli import main
+
+W, H = 0.4, 0.2
+
+
+def picture(tmp_path, name="p.png", w=40, h=16, fill=255, boxes=()):
+    """A grey picture with rectangles (x0, y0, x1, y1, grey) drawn in."""
+    a = np.full((h, w), fill, np.uint8)
+    for x0, y0, x1, y1, g in boxes:
+        a[y0:y1, x0:x1] = g
+    p = tmp_path / name
+    Image.fromarray(a).save(p)
+    return p
+
+
+def opts(**kw):
+    base = dict(width=20.0, height=3.0, pitch=0.4)
+    base.update(kw)
+    return lt.LithoOptions(**base)
+
+
+def moves(path):
+    """(x, y, e, f) per G1 with X/Y in a file (relative E, F carried), and the current ;TYPE:."""
+    out, f, kind = [], None, None
+    for line in open(path):
+        if line.startswith(";TYPE:"):
+            kind = line[6:].strip()
+        if not line.startswith("G1 ") or " X" not in line:
+            continue
+        w = dict((m[0], float(m[1:])) for m in line.split(";")[0].split()[1:])
+        f = w.get("F", f)
+        out.append((w["X"], w["Y"], w.get("E", 0.0), f, w.get("W"), kind))
+    return out
+
+
+# --- the thickness field ---------------------------------------------------------------------
+
+def test_dark_is_thick_and_limits_hold(tmp_path):
+    p = picture(tmp_path, boxes=[(0, 0, 20, 16, 0)])            # left half black, right white
+    f = lt.thickness_field(p, opts())
+    assert f.t.shape == (15, 51)                                # 3 mm / 0.2; 20 mm / 0.4 + 1
+    assert f.t[:, 5] == pytest.approx(2.4)
+    assert f.t[:, -5] == pytest.approx(0.8)
+    inv = lt.thickness_field(p, opts(invert=True))
+    assert inv.t[:, 5] == pytest.approx(0.8) and inv.t[:, -5] == pytest.approx(2.4)
+
+
+def test_transmission_curve_is_linear_in_transmission(tmp_path):
+    greys = [0, 64, 128, 192, 255]
+    p = picture(tmp_path, w=50, h=10, boxes=[(10 * i, 0, 10 * i + 10, 10, g) for i, g in enumerate(greys)])
+    o = opts(width=50.0, height=2.0, curve="transmission", attenuation=1.5, min_line=0.01)
+    f = lt.thickness_field(p, o)
+    t = np.array([f.t[3, int(round((10 * i + 5) / 0.4))] for i in range(5)])
+    T = np.exp(-1.5 * t)
+    b = np.array(greys) / 255
+    T_lo, T_hi = math.exp(-1.5 * 2.4), math.exp(-1.5 * 0.8)
+    assert T == pytest.approx(T_lo + b * (T_hi - T_lo), rel=1e-6)
+
+
+def test_narrow_gaps_snap_to_merged_walls_or_the_narrowest_line(tmp_path):
+    # darkness 0.05 -> t = 0.88 (gap 0.08 < 0.1: walls merge); 0.1 -> t = 0.96 (gap 0.16: up to 0.2)
+    p = picture(tmp_path, w=30, h=10, boxes=[(0, 0, 10, 10, round(255 * 0.95)), (10, 0, 20, 10, round(255 * 0.9))])
+    f = lt.thickness_field(p, opts(width=30.0, height=2.0))
+    assert f.t[2, 10] == pytest.approx(0.8)
+    assert f.t[2, 40] == pytest.approx(1.0)
+    assert f.snapped_down > 0 and f.snapped_up > 0
+    gap = f.t - 0.8
+    assert not np.any((gap > 1e-9) & (gap < 0.2 - 1e-9))
+
+
+def test_frame_is_full_thickness(tmp_path):
+    f = lt.thickness_field(picture(tmp_path), opts(frame=1.0))
+    assert np.all(f.t[:5] == 2.4) and np.all(f.t[-5:] == 2.4)
+    assert np.all(f.t[:, :3] == 2.4) and np.all(f.t[:, -3:] == 2.4)
+    assert f.t[7, 25] == pytest.approx(0.8)
+
+
+# --- planar geometry ---------------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def step_plan(tmp_path_factory):
+    """Black left half (2.4 mm), mid-grey right half (1.6 mm)."""
+    d = tmp_path_factory.mktemp("step")
+    p = picture(d, boxes=[(0, 0, 20, 16, 0), (20, 0, 40, 16, 128)])
+    return lt.plan_lithophane(p, opts())
+
+
+def test_walls_follow_the_relief(step_plan):
+    loop = step_plan.layers[5].sections[0]
+    assert loop.kind == "wall"
+    pts = loop.pts
+    back = pts[np.abs(pts[:, 1] - W / 2) < 1e-6]
+    assert len(back) >= 2                                        # back wall: half a line in
+    t = step_plan.field.t[5]
+    from shapely.geometry import LineString
+    ring = LineString(pts)
+    for x0, thick in ((5.0, t[12]), (15.0, t[37])):
+        ys = sorted(c.y for c in ring.intersection(LineString([(x0, -1), (x0, 5)])).geoms)
+        assert ys == pytest.approx([W / 2, thick - W / 2], abs=1e-6)
+
+
+def test_one_mid_line_centred_and_as_wide_as_the_gap(step_plan):
+    layer = step_plan.layers[5]
+    mids = [s for s in layer.sections if s.kind == "mid-line"]
+    assert len(mids) == 1
+    m = mids[0]
+    t = step_plan.field.t[5]
+    for x0, thick in ((5.0, t[12]), (15.0, t[37])):
+        i = np.flatnonzero(np.abs(m.pts[:-1, 0] - x0) < 0.21)[0]
+        assert m.pts[i, 1] == pytest.approx(thick / 2, abs=1e-6)         # centre of the plate
+        assert m.width[min(i, len(m.width) - 1)] == pytest.approx(thick - 2 * W, abs=1e-6)
+    # the mid-line runs from end wall to end wall
+    assert {round(m.pts[0, 0], 6), round(m.pts[-1, 0], 6)} == {W, round(20.0 - W, 6)}
+
+
+def test_nothing_outside_the_body(step_plan):
+    from shapely.geometry import Point
+
+    o, f = step_plan.options, step_plan.field
+    for k in (0, 7, 14):
+        P = lt._layer_polygon(o, f, k)
+        for s in step_plan.layers[k].sections:
+            for x, y in s.pts:
+                assert P.buffer(1e-6).contains(Point(x, y)), (k, s.kind, x, y)
+            # a line's half width stays inside too: walls half a line in, mid-line half its width
+            if s.kind == "wall":
+                assert min(P.exterior.distance(Point(p)) for p in s.pts[::7]) == pytest.approx(W / 2, abs=1e-6)
+
+
+def test_deposited_volume_matches_the_body(step_plan):
+    o = step_plan.options
+    V, F = lt.body_mesh(step_plan)
+    stats = lt.plan_stats(step_plan, lt.mesh_volume(V, F))
+    assert 0.98 <= stats["fill_ratio"] <= 1.02
+    assert stats["mid_line"]["max_lines_per_layer"] == 1
+
+
+def test_wide_gaps_get_two_mid_lines(tmp_path):
+    p = picture(tmp_path, boxes=[(0, 0, 40, 16, 0)])
+    plan = lt.plan_lithophane(p, opts(max_thickness=4.0))          # gap 3.2 > 1.6
+    mids = [s for s in plan.layers[3].sections if s.kind == "mid-line"]
+    assert len(mids) == 2
+    assert all(m.width[3] == pytest.approx(1.6, abs=1e-6) for m in mids)
+    assert sorted(m.pts[3, 1] for m in mids) == pytest.approx([0.4 + 0.8, 0.4 + 2.4], abs=1e-6)
+
+
+def test_speed_from_flow_and_cap(step_plan):
+    """v = q / (W * H), capped at max_speed (first layer at the first-layer ratio)."""
+    o = step_plan.options
+    m = [s for s in step_plan.layers[5].sections if s.kind == "mid-line"][0]
+    laid = m.e > 0
+    v = np.minimum(o.infill_flow / (m.width[laid] * H), o.max_speed)
+    assert m.v[laid] == pytest.approx(v, rel=1e-9)
+
+
+# --- the two G-code files ------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def made(tmp_path_factory):
+    d = tmp_path_factory.mktemp("made")
+    p = picture(d, boxes=[(0, 0, 14, 16, 0), (14, 0, 27, 16, 100), (27, 0, 40, 16, 200)])
+    return lt.make(p, d / "out", options=opts(), name="steps")
+
+
+def test_stock_file_keeps_one_extruder_rate_on_the_mid_line(made):
+    """Eq. 2: E * v / L is the mid-line rate on every uncapped piece after the first layer."""
+    o = made.plan.options
+    r = o.infill_flow / o.filament_area
+    prev = None
+    rates, capped = [], 0
+    for x, y, e, f, _, kind in moves(made.paths["stock"]):
+        if prev and kind == "mid-line" and e > 0:
+            L = math.hypot(x - prev[0], y - prev[1])
+            if f / 60 >= o.max_speed - 0.01:
+                capped += 1
+            else:
+                rates.append(e * f / 60 / L)
+        prev = (x, y)
+    rates = np.array(rates[len(rates) // 15:])                   # skip the first layer's half rate
+    assert len(rates) > 500
+    assert np.median(rates) == pytest.approx(r, rel=1e-3)
+    assert np.mean(np.abs(rates / r - 1) < 0.01) > 0.95            # 5-decimal E, 1-decimal F
+
+
+def test_litho_file_is_the_stock_motion_in_width_mode(made):
+    lit, sto = moves(made.paths["gcode"]), moves(made.paths["stock"])
+    assert [(m[0], m[1], m[2]) for m in lit] == [(m[0], m[1], m[2]) for m in sto]
+    text = made.paths["gcode"].read_text()
+    assert re.search(r"^M723 S1 Q3\.2 D1\.75 H0\.2 L5 U150", text, re.M)
+    assert "M723 Q8\n" in text and text.rstrip().count("M723 S0") == 1
+    assert "M723" not in made.paths["stock"].read_text()
+
+
+def test_w_words(tmp_path):
+    p = picture(tmp_path, boxes=[(0, 0, 40, 16, 60)])
+    res = lt.make(p, tmp_path / "o", options=opts(words="w"))
+    ws = [m for m in moves(res.paths["gcode"]) if m[5] == "mid-line" and m[4] is not None]
+    assert ws and all(m[2] == 0.0 for m in ws)
+    assert np.median([m[4] for m in ws]) == pytest.approx(res.plan.field.t[5, 20] - 2 * W, abs=1e-3)
+
+
+def test_outputs_and_stats(made):
+    s = json.loads(made.paths["json"].read_text())
+    assert s["layers"] == 15 and s["shape"] == "planar"
+    assert 0.98 <= s["fill_ratio"] <= 1.02
+    assert s["look"]["correlation"] > 0.9
+    assert made.paths["png"].stat().st_size > 0
+    import trimesh
+    m = trimesh.load(made.paths["stl"])
+    assert m.is_watertight and m.is_winding_consistent
+    assert m.volume == pytest.approx(s["stl_volume_mm3"], rel=1e-4)
+
+
+def test_start_and_end_gcode_files(tmp_path):
+    p = picture(tmp_path)
+    (tmp_path / "s.g").write_text("M104 S{temp}\nM140 S{bed_temp}\n; my start\n")
+    (tmp_path / "e.g").write_text("; my end\n")
+    res = lt.make(p, tmp_path / "o", options=opts(start_gcode=str(tmp_path / "s.g"),
+                                                  end_gcode=str(tmp_path / "e.g"), temp=215))
+    text = res.paths["gcode"].read_text()
+    assert "M104 S215\nM140 S60\n; my start" in text and text.rstrip().endswith("; my end")
+    assert ";TYPE:purge" not in text and "G28" not in text
+
+
+# --- cylinder --------------------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def cyl(tmp_path_factory):
+    d = tmp_path_factory.mktemp("cyl")
+    # dark stripe at the picture's left edge, light at its right: the seam joins them
+    p = picture(d, w=60, h=10, boxes=[(0, 0, 6, 10, 0), (54, 0, 60, 10, 250)])
+    return lt.make(p, d / "out", options=lt.LithoOptions(shape="cylinder", diameter=30.0, height=2.0,
+                                                         pitch=0.4), name="cyl")
+
+
+def test_cylinder_layers_are_joined_loops(cyl):
+    for L in cyl.plan.layers:
+        kinds = [s.kind for s in L.sections]
+        assert kinds in (["wall", "mid-line", "wall"],)
+        for a, b in zip(L.sections, L.sections[1:]):
+            assert np.linalg.norm(a.pts[-1] - b.pts[0]) < 2.0          # joined, no travel
+        for s in L.sections:
+            assert np.allclose(s.pts[0], s.pts[-1])                     # closed loops
+    text = cyl.paths["gcode"].read_text()
+    body = text[text.index(";LAYER:1"):]
+    assert ";TYPE:travel" not in body and "E-" not in body.split("M723 S0")[0]
+
+
+def test_cylinder_seam(cyl):
+    o, f = cyl.plan.options, cyl.plan.field
+    r_in = o.diameter / 2 - o.max_thickness
+    # samples start at the back (+Y) and run counter-clockwise: the picture's left edge is at
+    # 90 degrees, its right edge just before it; thick on one side of the seam, thin on the other
+    assert f.s[0] == pytest.approx(math.pi / 2)
+    assert f.t[3, 0] == pytest.approx(2.4) and f.t[3, -1] == pytest.approx(0.8)
+    outer = cyl.plan.layers[3].sections
+    ow = [s for s in outer if s.kind == "wall" and np.linalg.norm(s.pts, axis=1).max() > r_in + 1][0]
+    rad = np.linalg.norm(ow.pts, axis=1)
+    ang = np.arctan2(ow.pts[:, 1], ow.pts[:, 0])
+    left = np.abs(ang - (math.pi / 2 + 0.1)) < 0.05
+    right = np.abs(ang - (math.pi / 2 - 0.1)) < 0.05
+    assert rad[left].mean() == pytest.approx(r_in + 2.4 - W / 2, abs=0.05)
+    assert rad[right].mean() < r_in + 1.0
+    import trimesh
+    m = trimesh.load(cyl.paths["stl"])
+    assert m.is_watertight and m.is_winding_consistent and m.volume > 0
+    assert 0.98 <= cyl.stats["fill_ratio"] <= 1.02
+
+
+# --- CLI ---------------------------------------------------------------------------------------
+
+def run(*args):
+    return CliRunner().invoke(main, ["litho", *map(str, args)])
+
+
+def test_cli_writes_everything(tmp_path):
+    p = picture(tmp_path)
+    r = run(p, "-o", tmp_path / "out", "--width", 20, "--height", 3)
+    assert r.exit_code == 0, r.output
+    for ext in (".litho.gcode", ".stock.gcode", ".stl", ".transmission.png", ".litho.json"):
+        assert (tmp_path / "out" / f"p{ext}").exists()
+    assert "fill ratio" in r.output
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--min", "2", "--max", "1"], "--max: 1 mm must be more than --min 2 mm"),
+    (["--min", "0.6"], "--min: 0.6 mm is thinner than two wall lines"),
+    (["--width", "300"], "--bed: the part is 300.0 x 2.4 mm and does not fit a 220 x 220 mm bed"),
+    (["--bed", "220,220,2"], "--bed: the part is 3.0 mm tall, more than the printer's 2 mm"),
+    (["--bed", "220"], "expected two or three sizes"),
+    (["--max", "nan"], "is not a finite number"),
+    (["--shape", "cylinder", "--foot", "5"], "--foot: a cylinder stands by itself"),
+])
+def test_cli_bad_options(tmp_path, args, message):
+    p = picture(tmp_path)
+    r = run(p, "-o", tmp_path / "out", "--width", 20, "--height", 3, *args)
+    assert r.exit_code != 0
+    assert message in r.output
+    assert not (tmp_path / "out").exists() or not any((tmp_path / "out").iterdir())
+
+
+def test_cli_bad_pictures(tmp_path):
+    not_image = tmp_path / "x.png"
+    not_image.write_text("hello")
+    r = run(not_image, "-o", tmp_path / "o")
+    assert r.exit_code != 0 and f"{not_image}: cannot read image" in r.output
+    tiny = picture(tmp_path, "tiny.png", w=5, h=5)
+    r = run(tiny, "-o", tmp_path / "o")
+    assert r.exit_code != 0 and "5 x 5 px; a lithophane needs at least 8 x 8" in r.output
+    r = run(tmp_path / "missing.png", "-o", tmp_path / "o")
+    assert r.exit_code != 0 and "image file not found" in r.output
