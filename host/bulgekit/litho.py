@@ -359,12 +359,52 @@ def _mid_sections(o: LithoOptions, fld: Field, k: int, region, flow) -> tuple[li
             width = np.where(seg > 1e-9, area / np.maximum(seg, 1e-12), 0.0)
         laid = width >= o.min_line / 2
         e = np.where(laid, area * o.layer_height / o.filament_area, 0.0)
-        v = _speeds(width * o.layer_height, o, flow)
-        sec = Section("mid-line", c, e, v, np.where(laid, width, 0.0))
+        speed_of = lambda wd: _speeds(wd * o.layer_height, o, flow)
+        sec = _simplify(Section("mid-line", c, e, speed_of(width), np.where(laid, width, 0.0)),
+                        closed, speed_of)
+        if sec is None:                                     # the walls merge all along
+            continue
         if i % 2 and not closed:                            # serpentine: odd lines run back
             sec = _reverse(sec)
         out.append(sec)
     return out, g, mid
+
+
+def _simplify(s: Section, closed: bool, speed_of, rel_width=0.005, sin_tol=1e-3) -> Section | None:
+    """Fewer, longer pieces: neighbours that run on in the same direction merge when both are
+    laid at the same width (within rel_width) or both are not laid. An open path loses its
+    unlaid ends; a path with nothing laid is None. Filament and area are kept exactly; a merged
+    piece's speed is `speed_of(width)` of its merged width."""
+    laid = s.e > 0
+    if not laid.any():
+        return None
+    d = np.diff(s.pts, axis=0)
+    seg = np.linalg.norm(d, axis=1)
+    keep = [0]
+    for i in range(1, len(seg)):
+        j = keep[-1]
+        # the running piece is pts[j] -> pts[i]; piece i is pts[i] -> pts[i + 1]
+        a, b = s.pts[i] - s.pts[j], d[i]
+        straight = abs(a[0] * b[1] - a[1] * b[0]) <= sin_tol * np.linalg.norm(a) * seg[i] and a @ b > 0
+        same = (laid[i] == laid[i - 1]) and (not laid[i] or abs(s.width[i] - s.width[i - 1])
+                                              <= rel_width * s.width[i - 1])
+        if not (straight and same):
+            keep.append(i)
+    keep.append(len(seg))
+    idx = np.array(keep)
+    pts = s.pts[idx]
+    e = np.add.reduceat(s.e, idx[:-1])
+    area_len = np.add.reduceat(s.width * seg, idx[:-1])       # width x length = area per layer
+    length = np.linalg.norm(np.diff(pts, axis=0), axis=1)
+    width = np.where(e > 0, area_len / np.maximum(length, 1e-12), 0.0)
+    v = s.v[idx[:-1]].copy()
+    v[width > 0] = speed_of(width[width > 0])
+    out = Section(s.kind, pts, e, v, width)
+    if not closed:
+        on = np.flatnonzero(out.e > 0)
+        a, b = on[0], on[-1] + 1
+        out = Section(s.kind, out.pts[a:b + 1], out.e[a:b], out.v[a:b], out.width[a:b])
+    return out
 
 
 def _reverse(s: Section) -> Section:

@@ -121,9 +121,10 @@ def test_one_mid_line_centred_and_as_wide_as_the_gap(step_plan):
     m = mids[0]
     t = step_plan.field.t[5]
     for x0, thick in ((5.0, t[12]), (15.0, t[37])):
-        i = np.flatnonzero(np.abs(m.pts[:-1, 0] - x0) < 0.21)[0]
-        assert m.pts[i, 1] == pytest.approx(thick / 2, abs=1e-6)         # centre of the plate
-        assert m.width[min(i, len(m.width) - 1)] == pytest.approx(thick - 2 * W, abs=1e-6)
+        i = np.flatnonzero((np.minimum(m.pts[:-1, 0], m.pts[1:, 0]) <= x0)
+                           & (np.maximum(m.pts[:-1, 0], m.pts[1:, 0]) > x0))[0]
+        assert m.pts[i:i + 2, 1] == pytest.approx(thick / 2, abs=1e-6)   # centre of the plate
+        assert m.width[i] == pytest.approx(thick - 2 * W, abs=1e-6)
     # the mid-line runs from end wall to end wall
     assert {round(m.pts[0, 0], 6), round(m.pts[-1, 0], 6)} == {W, round(20.0 - W, 6)}
 
@@ -155,8 +156,8 @@ def test_wide_gaps_get_two_mid_lines(tmp_path):
     plan = lt.plan_lithophane(p, opts(max_thickness=4.0))          # gap 3.2 > 1.6
     mids = [s for s in plan.layers[3].sections if s.kind == "mid-line"]
     assert len(mids) == 2
-    assert all(m.width[3] == pytest.approx(1.6, abs=1e-6) for m in mids)
-    assert sorted(m.pts[3, 1] for m in mids) == pytest.approx([0.4 + 0.8, 0.4 + 2.4], abs=1e-6)
+    assert all(m.width == pytest.approx(1.6, abs=1e-6) for m in mids)   # one straight piece each
+    assert sorted(m.pts[0, 1] for m in mids) == pytest.approx([0.4 + 0.8, 0.4 + 2.4], abs=1e-6)
 
 
 def test_speed_from_flow_and_cap(step_plan):
@@ -192,7 +193,7 @@ def test_stock_file_keeps_one_extruder_rate_on_the_mid_line(made):
                 rates.append(e * f / 60 / L)
         prev = (x, y)
     rates = np.array(rates[len(rates) // 15:])                   # skip the first layer's half rate
-    assert len(rates) > 500
+    assert len(rates) > 50
     assert np.median(rates) == pytest.approx(r, rel=1e-3)
     assert np.mean(np.abs(rates / r - 1) < 0.01) > 0.95            # 5-decimal E, 1-decimal F
 
