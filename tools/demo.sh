@@ -4,7 +4,9 @@
 #     bulge map, annotated G-code, stock-firmware fallback, previews, stats;
 #  2. the firmware core, built natively (bkcore), runs the annotated G-code and
 #     reports the stops, dwell and filament it would produce;
-#  3. width by feedrate: the paper's sine-wave wall through the core.
+#  3. width by feedrate: the paper's sine-wave wall through the core;
+#  4. a small lithophane from a sample picture (bulgekit litho): width-mode and stock G-code,
+#     STL, predicted backlit look, figures.
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 out=${1:-out/demo}
@@ -23,5 +25,9 @@ echo
 echo "== 3. width by feedrate: sine-wave wall (Jang & Hong, Fig. 4)"
 make -s -C tools/sinewall sinewall >/dev/null
 tools/sinewall/sinewall
+
 echo
-echo "outputs in $out/ (open demo.preview.png and demo.preview3d.png)"
+echo "== 4. lithophane: bulgekit litho examples/litho/drawing.png --width 40 -o $out/litho"
+bulgekit litho examples/litho/drawing.png --width 40 -o "$out/litho"
+echo
+echo "outputs in $out/ (open demo.preview.png, demo.preview3d.png and litho/drawing.transmission.png)"

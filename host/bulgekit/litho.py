@@ -635,7 +635,8 @@ def write_gcode(plan: Plan, path, mode: str, name: str = "lithophane") -> None:
     end = DEFAULT_END if o.end_gcode is None else _read_text(o.end_gcode, "end-gcode")
     w.out(f"; bulgekit litho: {name}, {o.shape}, {len(plan.layers)} layers, "
           f"{'width mode (M723)' if mode == 'litho' else 'stock firmware (eq. 2: F per piece)'}")
-    w.out(f"; options: {json.dumps(_options_dict(o), sort_keys=True)}")
+    for k, v in sorted(_options_dict(o).items()):          # one short line each (firmware line limits)
+        w.out(f"; {k} = {json.dumps(v)}")
     w.out(fill(start).rstrip("\n"))
     w.out("G90 ; absolute positions")
     w.out("M83 ; relative E")

@@ -325,3 +325,51 @@ def test_cli_bad_pictures(tmp_path):
     assert r.exit_code != 0 and "5 x 5 px; a lithophane needs at least 8 x 8" in r.output
     r = run(tmp_path / "missing.png", "-o", tmp_path / "o")
     assert r.exit_code != 0 and "image file not found" in r.output
+
+
+# --- through the firmware core ------------------------------------------------------------------
+
+from test_e2e_bkcore import bkcore, run_core  # noqa: E402,F401  (the fixture builds the core runner)
+
+
+def g1_kinds(path):
+    """The ;TYPE: of every G1 in a file, in order (bkcore prints one line per G1)."""
+    kinds, kind, layer, out = [], None, -1, []
+    for line in open(path):
+        if line.startswith(";TYPE:"):
+            kind = line[6:].strip()
+        elif line.startswith(";LAYER:"):
+            layer = int(line[7:])
+        elif line.startswith("G1 "):
+            out.append((kind, layer))
+    return out
+
+
+@pytest.mark.parametrize("which", ["gcode", "stock"])
+def test_extruder_rate_through_the_core(bkcore, made, which):
+    """Width mode (litho file) and eq. 2 (stock file) give the same motion through the firmware
+    core: on the mid-line after the first layer, >= 95 % of the extruding time (at cruise) has the
+    extruder within 5 % of the set rate; only pieces capped at --max-speed fall outside."""
+    o = made.plan.options
+    r = o.infill_flow / o.filament_area
+    actions, summary, errors = run_core(bkcore, made.paths[which].read_text())
+    assert not errors
+    lines = [a for a in actions if a[0] == "line"]
+    kinds = g1_kinds(made.paths[which])
+    assert len(lines) == len(kinds)
+    prev = None
+    t_in = t_all = 0.0
+    for (kind, layer), (_, x, y, z, e, f) in zip(kinds, lines):
+        if prev is not None and kind == "mid-line" and layer >= 1 and e > 0:
+            L = math.hypot(x - prev[0], y - prev[1])
+            t = L / (f / 60)
+            rate = e / t
+            t_all += t
+            if abs(rate / r - 1) <= 0.05:
+                t_in += t
+            else:
+                assert f / 60 >= o.max_speed - 0.01, (kind, layer, rate, f)   # capped, nothing else
+        prev = (x, y)
+    assert t_all > 0 and t_in / t_all >= 0.95
+    if which == "gcode":
+        assert "M723" in made.paths[which].read_text()
