@@ -293,15 +293,27 @@ def _probes(o: LithoOptions, fld: Field, k: int):
     return np.column_stack([r0 * c, r0 * sn]), np.column_stack([r1 * c, r1 * sn])
 
 
-def _gap_along(region, a, b):
+def _plate_middle(o: LithoOptions, fld: Field, k: int, a, b):
+    """The middle of the plate on each probe: half the thickness from the back face."""
+    d = (b - a) / np.linalg.norm(b - a, axis=1, keepdims=True)
+    t = fld.t[k]
+    if o.shape == "planar":
+        y0 = (o.max_thickness - o.foot) / 2 if k < fld.n_foot else 0.0
+        return np.column_stack([a[:, 0], y0 + t / 2])
+    r_in = o.diameter / 2 - o.max_thickness
+    return d * (r_in + t / 2)[:, None]
+
+
+def _gap_along(region, a, b, centre):
     """Length of each probe inside `region`, and the middle of its extent (between the first and
-    last point inside, which is the probe's own middle for the usual single interval)."""
+    last point inside). Where the probe misses the region (the walls merge) the middle is
+    `centre`, the plate's own middle, so that the head crosses there inside the part."""
     import shapely
 
     lines = shapely.linestrings(np.stack([a, b], axis=1))
     inter = shapely.intersection(region, lines)
     length = shapely.length(inter)
-    mid = (a + b) / 2
+    mid = np.array(centre, dtype=float)
     empty = shapely.is_empty(inter)
     d = b - a
     dn = d / np.linalg.norm(d, axis=1, keepdims=True)
@@ -335,7 +347,7 @@ def _mid_sections(o: LithoOptions, fld: Field, k: int, region, flow) -> tuple[li
     """The layer's mid-line(s) from probes across R. Pieces narrower than half the narrowest line
     (slivers at steep steps) are not laid: they are hops, and their area is counted as left open."""
     a, b = _probes(o, fld, k)
-    g, mid = _gap_along(region, a, b)
+    g, mid = _gap_along(region, a, b, _plate_middle(o, fld, k, a, b))
     nl = int(fld.lines[k])
     out = []
     d = (b - a) / np.linalg.norm(b - a, axis=1, keepdims=True)

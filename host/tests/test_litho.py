@@ -143,6 +143,19 @@ def test_nothing_outside_the_body(step_plan):
                 assert min(P.exterior.distance(Point(p)) for p in s.pts[::7]) == pytest.approx(W / 2, abs=1e-6)
 
 
+def test_head_crosses_merged_walls_in_the_middle(tmp_path):
+    """Black, white (walls merge: no mid-line), black: the head crosses the white part without
+    laying, along the plate's middle."""
+    p = picture(tmp_path, boxes=[(0, 0, 10, 16, 0), (30, 0, 40, 16, 0)])
+    plan = lt.plan_lithophane(p, opts())
+    m = [s for s in plan.layers[4].sections if s.kind == "mid-line"][0]
+    hop = np.flatnonzero(m.e == 0)
+    assert len(hop) == 1                                          # one straight move across
+    a, b = m.pts[hop[0]], m.pts[hop[0] + 1]
+    assert a[1] == pytest.approx(0.4) and b[1] == pytest.approx(0.4)   # middle of the 0.8 mm plate
+    assert abs(b[0] - a[0]) > 9.0
+
+
 def test_deposited_volume_matches_the_body(step_plan):
     o = step_plan.options
     V, F = lt.body_mesh(step_plan)
