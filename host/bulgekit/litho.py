@@ -163,6 +163,7 @@ class Field:
     snapped_down: int        # samples whose gap was below min_line and went to 0 (walls merge)
     snapped_up: int          # samples whose gap was raised to min_line
     picture_mm: tuple        # (width or circumference, height) of the picture, mm
+    inside: tuple            # (rows, samples) slices of the picture inside the frame
 
     @property
     def layers(self) -> int:
@@ -205,13 +206,17 @@ def thickness_field(image, o: LithoOptions) -> Field:
         # Transmission linear in brightness: T = exp(-mu t) from T(tmin) (white) to T(tmax) (black).
         T_hi, T_lo = math.exp(-o.attenuation * tmin), math.exp(-o.attenuation * tmax)
         t = -np.log(T_hi - dark * (T_hi - T_lo)) / o.attenuation
+    inside = (slice(0, rows), slice(0, n))
     if o.frame > 0:
         fr = int(math.ceil(o.frame / o.layer_height))
         t[:fr] = tmax
         t[-fr:] = tmax
+        cols = slice(0, n)
         if o.shape == "planar":
-            t[:, s <= o.frame + 1e-9] = tmax
-            t[:, s >= pic_w - o.frame - 1e-9] = tmax
+            edge = (s <= o.frame + 1e-9) | (s >= pic_w - o.frame - 1e-9)
+            t[:, edge] = tmax
+            cols = slice(int(np.argmin(edge)), n - int(np.argmin(edge[::-1])))
+        inside = (slice(fr, max(fr, rows - fr)), cols)
     # Gaps narrower than a printable mid-line: snap to the nearer of "walls merge" (gap 0) and
     # "one narrowest line per mid-line". The per-layer line count comes first: a layer whose
     # widest gap needs two lines can only lay 2 * min_line.
@@ -230,7 +235,7 @@ def thickness_field(image, o: LithoOptions) -> Field:
         foot_lines = max(1, math.ceil((o.foot - w2) / o.max_line - 1e-9))
         lines = np.concatenate([np.full(n_foot, foot_lines), lines])
     return Field(t=t, bright=bright, s=s, n_foot=n_foot, lines=lines, snapped_down=int(down.sum()),
-                 snapped_up=int(up.sum()), picture_mm=(pic_w, rows * o.layer_height))
+                 snapped_up=int(up.sum()), picture_mm=(pic_w, rows * o.layer_height), inside=inside)
 
 
 # --- per-layer paths -----------------------------------------------------------------------
@@ -283,7 +288,8 @@ def _layer_polygon(o: LithoOptions, fld: Field, k: int):
 def _probes(o: LithoOptions, fld: Field, k: int):
     """Probe segments across the layer at every sample: (start, end) arrays (k, 2)."""
     if o.shape == "planar":
-        lo, hi = -1.0, max(o.max_thickness, o.foot) + 1.0
+        reach = max(o.max_thickness, o.foot)                # the foot is centred on the plate
+        lo, hi = -reach - 1.0, 2 * reach + 1.0
         x = fld.s.copy()
         x[0], x[-1] = o.line_width, fld.s[-1] - o.line_width   # the ends touch the end walls
         return np.column_stack([x, np.full_like(x, lo)]), np.column_stack([x, np.full_like(x, hi)])
@@ -894,7 +900,7 @@ def plan_stats(plan: Plan, stl_volume: float) -> dict:
                 capped_t += float(tm[cap].sum()); total_mid_t += float(tm.sum())
                 capped_len += float(seg[laid][cap].sum()); mid_len += float(seg[laid].sum())
     filament = sum(d["filament_mm"] for d in by_kind.values())
-    src, pred = look(plan)
+    src, pred = (a[fld.inside] for a in look(plan))               # the frame is not the picture
     r = float(np.corrcoef(src.ravel(), pred.ravel())[0, 1]) if src.std() > 0 and pred.std() > 0 else float("nan")
     t_print = printed_thickness(plan)
     pic = fld.t[fld.n_foot:]

@@ -182,6 +182,22 @@ def test_speed_from_flow_and_cap(step_plan):
     assert m.v[laid] == pytest.approx(v, rel=1e-9)
 
 
+def test_foot_and_frame(tmp_path):
+    p = picture(tmp_path, boxes=[(10, 4, 30, 12, 0)])
+    res = lt.make(p, tmp_path / "o", options=opts(foot=8.0, foot_height=1.0, frame=1.0))
+    plan = res.plan
+    assert plan.field.n_foot == 5
+    foot_mids = [s for s in plan.layers[2].sections if s.kind == "mid-line"]
+    assert len(foot_mids) == 5                                    # 8 - 0.8 = 7.2 mm: five 1.44 mm lines
+    assert all(m.width == pytest.approx(1.44, abs=1e-6) for m in foot_mids)
+    assert 0.98 <= res.stats["fill_ratio"] <= 1.02
+    import trimesh
+    m = trimesh.load(res.paths["stl"])
+    assert m.is_watertight and m.bounds[1][2] == pytest.approx(4.0)
+    assert m.bounds[1][1] - m.bounds[0][1] == pytest.approx(8.0, abs=1e-4)
+    assert res.stats["look"]["correlation"] > 0.9                 # measured inside the frame
+
+
 # --- the two G-code files ------------------------------------------------------------------
 
 @pytest.fixture(scope="module")
