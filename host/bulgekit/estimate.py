@@ -1,0 +1,565 @@
+"""Print time of any G-code, planned the way Marlin 2.1 plans it.
+
+    from bulgekit.estimate import Machine, estimate_file
+    r = estimate_file("part.gcode", Machine(accel=1000, travel_accel=1000))
+    r.total_s, r.by_feature, r.blocks          # blocks: one row per planner block (numpy)
+
+Every G0/G1 becomes a block as in Marlin's Planner::_buffer_steps (module/planner.cpp):
+
+  length      XYZ distance; |dE| for a move of E alone. Moves under MIN_STEPS_PER_SEGMENT (6)
+              steps on every axis are dropped and their distance goes to the next move.
+  speed       F (mm/min) x M220 %, lowered until no axis exceeds its M203 maximum. In width mode
+              (M723 on, our firmware) an extruding XY move gets v = L * r / dE instead (r: the
+              extruder rate, docs/width-mode.md), clamped to [L, U].
+  accel       M204 P for moves that extrude, T for travel, R for E alone; a move with X/Y/Z is
+              lowered until no axis exceeds its M201 maximum: a <= amax_i * length / |d_i|.
+  junction    junction deviation (M205 J): with u, u' the unit vectors of two moves (XYZE,
+              normalised, for moves that extrude; XYZ / length for travel) and
+              cos(theta) = -u'.u, sin(theta/2) = sqrt((1 - cos) / 2),
+                  v_j^2 = a_j * JD * sin(theta/2) / (1 - sin(theta/2))
+              where a_j is the accel lowered by the axis limits along (u - u')/|u - u'|; for
+              moves under 1 mm turning by more than 45 degrees (JD_HANDLE_SMALL_SEGMENTS)
+              v_j^2 <= length * a_j / theta (the speed on an arc through the corner). Then
+              v_j <= both moves' speeds. Classic jerk (Machine.jerk, M205 X Y Z E) follows
+              Marlin's HAS_CLASSIC_JERK branch instead.
+
+The entry speeds then follow the planner's passes: backwards, a block may enter no faster than
+it can brake to the next block's entry (v^2 <= v_next^2 + 2 a L); forwards, no faster than the
+previous block could accelerate to. Marlin plans only what its block buffer holds: when a block
+starts to run, the blocks behind it (up to BLOCK_BUFFER_SIZE - 2 of them, the buffer keeps one
+slot free and the running block is locked) are all it knows, and the last of them must be able
+to stop. `Machine.lookahead` is that buffer size (16, Marlin's default); None plans with the
+whole file, as slicers' estimators do. Both passes are solved in closed form with prefix sums:
+    backward: v_i^2 = min_k (m_k + S_k) - S_i     (k from i over the window; S: sum of 2 a L)
+    forward:  v_i^2 = S_i + min_{k <= i} (b_k - S_k)
+Each block is then a trapezoid (accelerate, cruise, brake).
+
+The planner empties (the machine stops) at G4, G28, M400 and the heating waits M109/M190, which
+add no time here. Not modelled: Marlin's slow-down when the buffer runs low (a host that keeps it
+full: SD card, or a fast enough serial line), LIN_ADVANCE, S-curve acceleration, arcs' exact
+segment count (G2/G3 are cut into pieces of at most 1 mm, as MAX_ARC_SEGMENT_MM).
+"""
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .strokes import BulgekitError
+
+AXES = "XYZE"
+
+
+class EstimateError(BulgekitError):
+    """A G-code line the estimator cannot plan (the message names file and line)."""
+
+
+def _axes(x, y, z, e):
+    return {"X": float(x), "Y": float(y), "Z": float(z), "E": float(e)}
+
+
+@dataclass
+class Machine:
+    """Planner settings. Defaults: Marlin 2.1.2.x's Configuration.h (RAMPS example config)."""
+    accel: float = 3000.0             # M204 P, printing moves, mm/s^2
+    travel_accel: float = 3000.0      # M204 T
+    retract_accel: float = 3000.0     # M204 R, moves of E alone
+    max_accel: dict = field(default_factory=lambda: _axes(3000, 3000, 100, 10000))   # M201
+    max_feedrate: dict = field(default_factory=lambda: _axes(300, 300, 5, 25))       # M203, mm/s
+    steps_per_mm: dict = field(default_factory=lambda: _axes(80, 80, 400, 500))      # M92
+    junction_deviation: float = 0.013  # M205 J, mm
+    jerk: dict | None = None          # classic jerk (M205 X Y Z E, mm/s) instead of JD
+    jd_small_segments: bool = True    # JD_HANDLE_SMALL_SEGMENTS
+    min_planner_speed: float = 0.05   # MINIMUM_PLANNER_SPEED, mm/s
+    min_segment_steps: int = 6        # MIN_STEPS_PER_SEGMENT
+    lookahead: int | None = 16        # BLOCK_BUFFER_SIZE; None: the whole file
+    honour_file_limits: bool = False  # apply the file's M201/M203/M204/M205
+
+
+@dataclass
+class Result:
+    total_s: float
+    moves_s: float
+    dwell_s: float
+    by_feature: dict
+    features: list
+    blocks: np.ndarray            # structured: see BLOCK_DTYPE
+    lines: int
+
+    def summary(self) -> str:
+        h, rem = divmod(self.total_s, 3600)
+        return f"{int(h)}h {int(rem // 60):02d}m {rem % 60:04.1f}s"
+
+
+BLOCK_DTYPE = [("line", "i8"), ("feature", "i4"), ("layer", "i4"), ("dx", "f8"), ("dy", "f8"), ("dz", "f8"),
+               ("de", "f8"), ("length", "f8"), ("nominal_speed", "f8"), ("accel", "f8"),
+               ("entry_speed", "f8"), ("exit_speed", "f8"), ("cruise_speed", "f8"),
+               ("t_accel", "f8"), ("t_cruise", "f8"), ("t_decel", "f8")]
+
+
+class _Parser:
+    """G-code to raw moves (deltas, feed, accel class), in Marlin's modal state."""
+
+    def __init__(self, m: Machine, source: str):
+        self.m, self.src = m, source
+        self.pos = [0.0, 0.0, 0.0, 0.0]
+        self.rel = [False, False, False, False]
+        self.f = 1500.0 / 60                    # Marlin's power-on feedrate, mm/s
+        self.pct = 100.0
+        self.feature, self.features, self.fidx = "", [""], {"": 0}
+        self.layer = -1
+        # planner settings that the file may change (copies)
+        self.accel, self.travel_accel, self.retract_accel = m.accel, m.travel_accel, m.retract_accel
+        self.max_accel = dict(m.max_accel)
+        self.max_fr = dict(m.max_feedrate)
+        self.jd = m.junction_deviation
+        self.jerk = dict(m.jerk) if m.jerk is not None else None
+        self.width = None                       # width mode: dict(r=, D=, H=, L=, U=) when on
+        self.w_state = dict(q=None, r=None, D=1.75, H=0.0, L=5.0, U=150.0)
+        self.rows = []                          # (line, feat, layer, dx, dy, dz, de, v, accel, brk, jd, jerk)
+        self.brk = True                         # the next block starts from rest
+        self.pending = [0.0, 0.0, 0.0, 0.0]     # distance of dropped tiny moves
+        self.dwell = 0.0
+        self.dwell_by_feature: dict[str, float] = {}
+
+    def err(self, n, msg):
+        raise EstimateError(f"{self.src}:{n}: {msg}")
+
+    def words(self, n, toks):
+        w = {}
+        for t in toks:
+            if not t:
+                continue
+            k = t[0].upper()
+            try:
+                w[k] = float(t[1:]) if len(t) > 1 else None
+            except ValueError:
+                self.err(n, f"bad number in {t!r}")
+        return w
+
+    def line(self, n: int, raw: str):
+        if ";" in raw:
+            code, _, comment = raw.partition(";")
+            c = comment.strip()
+            if c.startswith("TYPE:"):
+                name = c[5:].strip()
+                if name not in self.fidx:
+                    self.fidx[name] = len(self.features)
+                    self.features.append(name)
+                self.feature = name
+            elif c.startswith("LAYER:"):
+                try:
+                    self.layer = int(c[6:])
+                except ValueError:
+                    pass
+            elif c == "LAYER_CHANGE":
+                self.layer += 1
+        else:
+            code = raw
+        toks = code.split()
+        if not toks:
+            return
+        cmd = toks[0].upper()
+        if cmd[0] == "N" and len(toks) > 1:              # line numbers from a host
+            toks = toks[1:]
+            cmd = toks[0].upper()
+        if "*" in toks[-1]:
+            toks[-1] = toks[-1].split("*")[0]
+        if cmd in ("G1", "G0", "G01", "G00"):
+            self.move(n, self.words(n, toks[1:]))
+        elif cmd in ("G2", "G3", "G02", "G03"):
+            self.arc(n, cmd in ("G2", "G02"), self.words(n, toks[1:]))
+        elif cmd == "G92":
+            w = self.words(n, toks[1:])
+            if not any(a in w for a in AXES):
+                w = {a: 0.0 for a in AXES}
+            for i, a in enumerate(AXES):
+                if a in w:
+                    self.pos[i] = w[a] or 0.0
+        elif cmd == "G90":
+            self.rel = [False] * 4
+        elif cmd == "G91":
+            self.rel = [True] * 4
+        elif cmd == "M82":
+            self.rel[3] = False
+        elif cmd == "M83":
+            self.rel[3] = True
+        elif cmd == "G4":
+            w = self.words(n, toks[1:])
+            t = (w.get("P") or 0.0) / 1000 + (w.get("S") or 0.0)
+            self.dwell += t
+            self.dwell_by_feature[self.feature] = self.dwell_by_feature.get(self.feature, 0.0) + t
+            self.brk = True
+        elif cmd == "G28":
+            w = self.words(n, toks[1:])
+            for i, a in enumerate("XYZ"):
+                if not any(k in w for k in "XYZ") or a in w:
+                    self.pos[i] = 0.0
+            self.brk = True
+        elif cmd in ("M400", "M109", "M190", "M116", "M0", "M1"):
+            self.brk = True
+        elif cmd == "M220":
+            w = self.words(n, toks[1:])
+            if w.get("S") is not None:
+                if w["S"] <= 0:
+                    self.err(n, f"M220 S{w['S']:g}: feed rate percentage must be > 0")
+                self.pct = w["S"]
+        elif cmd == "M723":
+            self.m723(n, self.words(n, toks[1:]))
+        elif cmd in ("M201", "M203", "M204", "M205") and self.m.honour_file_limits:
+            self.limits(cmd, self.words(n, toks[1:]))
+
+    def limits(self, cmd, w):
+        if cmd == "M201":
+            for a in AXES:
+                if w.get(a):
+                    self.max_accel[a] = w[a]
+        elif cmd == "M203":
+            for a in AXES:
+                if w.get(a):
+                    self.max_fr[a] = w[a]
+        elif cmd == "M204":
+            if w.get("S"):
+                self.accel = self.travel_accel = w["S"]
+            if w.get("P"):
+                self.accel = w["P"]
+            if w.get("T"):
+                self.travel_accel = w["T"]
+            if w.get("R"):
+                self.retract_accel = w["R"]
+        elif cmd == "M205":
+            if w.get("J"):
+                self.jd = w["J"]
+            if self.jerk is not None:
+                for a in AXES:
+                    if w.get(a) is not None:
+                        self.jerk[a] = w[a]
+
+    def m723(self, n, w):
+        s = self.w_state
+        for k in ("D", "H", "L", "U"):
+            if w.get(k) is not None:
+                s[k] = w[k]
+        if w.get("Q") is not None:
+            s["q"], s["r"] = w["Q"], None
+        if w.get("R") is not None:
+            s["r"], s["q"] = w["R"], None
+        if w.get("S") is not None:
+            self.width = bool(w["S"])
+        if self.width and s["q"] is None and s["r"] is None:
+            self.err(n, "M723 S1 without a rate (Q or R)")
+
+    def _rate(self):
+        s = self.w_state
+        r = s["r"] if s["r"] is not None else s["q"] / (math.pi * s["D"] ** 2 / 4)
+        return r * self.pct / 100
+
+    def move(self, n, w, f_override=None):
+        if w.get("F"):
+            self.f = w["F"] / 60
+        target = list(self.pos)
+        for i, a in enumerate(AXES):
+            v = w.get(a)
+            if v is not None:
+                target[i] = self.pos[i] + v if self.rel[i] else v
+        d = [target[i] - self.pos[i] for i in range(4)]
+        self.pos = target
+        if "W" in w and w["W"] is not None:                # width mode: filament from the width
+            s = self.w_state
+            L = math.hypot(d[0], d[1])
+            d[3] = w["W"] * s["H"] * L / (math.pi * s["D"] ** 2 / 4)
+        self.emit(n, d, f_override)
+
+    def emit(self, n, d, f_override=None):
+        m = self.m
+        d = [d[i] + self.pending[i] for i in range(4)]
+        steps = [abs(d[i]) * m.steps_per_mm[a] for i, a in enumerate(AXES)]
+        if max(steps) < m.min_segment_steps:               # Marlin drops it; the distance carries on
+            self.pending = d
+            return
+        self.pending = [0.0, 0.0, 0.0, 0.0]
+        xyz = math.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
+        v = f_override if f_override is not None else self.f * self.pct / 100
+        if self.width and d[3] > 0 and (d[0] or d[1]):
+            s = self.w_state
+            # v = L * r / dE, r scaled by M220; the limits apply to the scaled speed
+            v = min(max(math.hypot(d[0], d[1]) * self._rate() / d[3], s["L"]), s["U"])
+        if xyz > 0:
+            accel = self.accel if d[3] != 0 else self.travel_accel
+        else:
+            accel = self.retract_accel
+        self.rows.append((n, self.fidx[self.feature], self.layer, d[0], d[1], d[2], d[3], v, accel,
+                          self.brk, self.jd, tuple(self.jerk[a] for a in AXES) if self.jerk else None,
+                          tuple(self.max_accel[a] for a in AXES), tuple(self.max_fr[a] for a in AXES)))
+        self.brk = False
+
+    def arc(self, n, cw, w):
+        if "R" in w:
+            self.err(n, "G2/G3 with R is not supported by the estimator (use I/J)")
+        x0, y0 = self.pos[0], self.pos[1]
+        if w.get("F"):
+            self.f = w["F"] / 60
+        x1 = (x0 + w["X"] if self.rel[0] else w["X"]) if w.get("X") is not None else x0
+        y1 = (y0 + w["Y"] if self.rel[1] else w["Y"]) if w.get("Y") is not None else y0
+        z1 = (self.pos[2] + w["Z"] if self.rel[2] else w["Z"]) if w.get("Z") is not None else self.pos[2]
+        e1 = (self.pos[3] + w["E"] if self.rel[3] else w["E"]) if w.get("E") is not None else self.pos[3]
+        cx, cy = x0 + (w.get("I") or 0.0), y0 + (w.get("J") or 0.0)
+        r = math.hypot(x0 - cx, y0 - cy)
+        a0, a1 = math.atan2(y0 - cy, x0 - cx), math.atan2(y1 - cy, x1 - cx)
+        sweep = a1 - a0
+        if cw and sweep >= 0:
+            sweep -= 2 * math.pi
+        elif not cw and sweep <= 0:
+            sweep += 2 * math.pi
+        segs = max(1, math.ceil(abs(sweep) * r / 1.0))      # MAX_ARC_SEGMENT_MM 1
+        z0, e0 = self.pos[2], self.pos[3]
+        px, py = x0, y0
+        for k in range(1, segs + 1):
+            t = k / segs
+            if k == segs:
+                nx, ny = x1, y1
+            else:
+                nx, ny = cx + r * math.cos(a0 + sweep * t), cy + r * math.sin(a0 + sweep * t)
+            self.emit(n, [nx - px, ny - py, (z1 - z0) / segs, (e1 - e0) / segs])
+            px, py = nx, ny
+        self.pos = [x1, y1, z1, e1]
+
+
+def _junctions(b, jd, jerk, amax, m: Machine):
+    """Max entry speed squared of every block from its junction with the one before."""
+    n = len(b)
+    d = np.column_stack([b["dx"], b["dy"], b["dz"], b["de"]])
+    L = b["length"]
+    v = b["nominal_speed"]
+    extr = d[:, 3] != 0
+    unit = np.where(extr[:, None], d / np.linalg.norm(d, axis=1, keepdims=True), d / L[:, None])
+    out = np.zeros(n)
+    if n < 2:
+        return out
+    u, p = unit[1:], unit[:-1]
+    if jerk is None:
+        cos = -(u * p).sum(axis=1)
+        j = u - p
+        jn = np.linalg.norm(j, axis=1, keepdims=True)
+        j = np.divide(j, jn, out=np.zeros_like(j), where=jn > 0)
+        aj = b["accel"][1:].copy()
+        with np.errstate(divide="ignore"):
+            lim = np.where(np.abs(j) > 0, amax[1:] / np.abs(j), np.inf).min(axis=1)
+        aj = np.minimum(aj, lim)
+        c = np.maximum(cos, -0.999999)
+        s2 = np.sqrt(0.5 * (1 - c))
+        vj2 = aj * jd[1:] * s2 / (1 - s2)
+        if m.jd_small_segments:
+            small = (L[1:] < 1) & (c < -0.7071067812)
+            theta = np.arccos(np.clip(-c, -1, 1))          # the turn; Marlin approximates acos
+            vj2 = np.where(small, np.minimum(vj2, L[1:] * aj / np.maximum(theta, 0.033)), vj2)
+        vj2 = np.where(cos > 0.999999, m.min_planner_speed ** 2, vj2)
+        out[1:] = np.minimum(vj2, np.minimum(v[1:], v[:-1]) ** 2)
+    else:
+        out[1:] = _classic_jerk(d, L, v, jerk)
+    return out
+
+
+def _classic_jerk(d, L, v, jerk):
+    """Marlin's HAS_CLASSIC_JERK junction (from Prusa's MK firmware), block by block."""
+    speed = d * (v / L)[:, None]                             # per-axis speed at cruise
+    n = len(v)
+    out = np.zeros(n - 1)
+    safe_prev = None
+    for i in range(n):
+        jk = jerk[i]
+        safe = v[i]
+        limited = False
+        for a in range(4):
+            cs, mj = abs(speed[i, a]), jk[a]
+            if cs > mj:
+                if limited:
+                    if cs * safe > v[i] * mj:
+                        safe = v[i] * mj / cs
+                else:
+                    safe *= mj / cs
+                    limited = True
+        if i > 0:
+            vf = 1.0
+            lim = False
+            if v[i] < v[i - 1]:
+                vj, ssf = v[i], v[i] / v[i - 1]
+            else:
+                vj, ssf = v[i - 1], 1.0
+            for a in range(4):
+                vx, ve = speed[i - 1, a] * ssf, speed[i, a]
+                if lim:
+                    vx *= vf
+                    ve *= vf
+                if vx > ve:
+                    j = (vx - ve) if (ve > 0 or vx < 0) else max(vx, -ve)
+                else:
+                    j = (ve - vx) if (ve < 0 or vx > 0) else max(-vx, ve)
+                if j > jk[a]:
+                    vf *= jk[a] / j
+                    lim = True
+            if lim:
+                vj *= vf
+            if safe_prev > vj * 0.99 and safe > vj * 0.99:
+                vj = safe
+            out[i - 1] = vj * vj
+        safe_prev = safe
+    return out
+
+
+def _plan_segment(b, maxentry2, m: Machine):
+    """Entry/exit speeds and trapezoid times of blocks that run without a stop in between."""
+    n = len(b)
+    vmin2 = m.min_planner_speed ** 2
+    a, L = b["accel"], b["length"]
+    M = np.append(np.minimum(maxentry2, b["nominal_speed"] ** 2), vmin2)
+    M[0] = min(M[0], vmin2)                                 # starts from rest
+    S = np.concatenate([[0.0], np.cumsum(2 * a * L)])       # S[k] = sum_{m<k} 2 a_m L_m
+    arr = M + S
+    if m.lookahead is None or m.lookahead - 2 >= n:
+        back = np.minimum.accumulate(arr[::-1])[::-1][:-1]
+    else:
+        W = max(1, m.lookahead - 2)
+        from numpy.lib.stride_tricks import sliding_window_view
+        pad = np.concatenate([arr, np.full(W - 1, np.inf)])
+        back = sliding_window_view(pad, W).min(axis=1)[:n]
+        end = np.minimum(np.arange(n) + W, n)
+        back = np.minimum(back, vmin2 + S[end])
+    back = back - S[:-1]
+    fwd = S[:-1] + np.minimum.accumulate(back - S[:-1])
+    entry2 = np.maximum(np.minimum(back, fwd), 0.0)
+    exit2 = np.append(entry2[1:], vmin2)
+    vn = b["nominal_speed"]
+    v0, v1 = np.sqrt(entry2), np.sqrt(exit2)
+    # peak speed of a triangle: accelerate from v0, brake to v1 within L
+    vpeak = np.sqrt(np.maximum((2 * a * L + entry2 + exit2) / 2, 0.0))
+    vc = np.minimum(vn, vpeak)
+    vc = np.maximum(vc, np.maximum(v0, v1))
+    ta = (vc - v0) / a
+    td = (vc - v1) / a
+    d_c = np.maximum(L - (vc ** 2 - entry2) / (2 * a) - (vc ** 2 - exit2) / (2 * a), 0.0)
+    tc = d_c / vc
+    b["entry_speed"], b["exit_speed"], b["cruise_speed"] = v0, v1, vc
+    b["t_accel"], b["t_cruise"], b["t_decel"] = ta, tc, td
+
+
+def estimate_lines(lines, machine: Machine | None = None, source: str = "<gcode>") -> Result:
+    m = machine or Machine()
+    p = _Parser(m, source)
+    count = 0
+    for count, raw in enumerate(lines, 1):
+        p.line(count, raw)
+    rows = p.rows
+    b = np.zeros(len(rows), dtype=BLOCK_DTYPE)
+    if rows:
+        cols = list(zip(*rows))
+        for k, name in enumerate(("line", "feature", "layer", "dx", "dy", "dz", "de")):
+            b[name] = cols[k]
+        v = np.array(cols[7], float)
+        b["accel"] = cols[8]
+        brk = np.array(cols[9], bool)
+        jd = np.array(cols[10], float)
+        jerk = cols[11]
+        amax = np.array(cols[12], float)
+        vmax = np.array(cols[13], float)
+        d = np.column_stack([b["dx"], b["dy"], b["dz"], b["de"]])
+        xyz = np.linalg.norm(d[:, :3], axis=1)
+        L = np.where(xyz > 0, xyz, np.abs(d[:, 3]))
+        b["length"] = L
+        # per-axis limits: speed so no axis exceeds its M203, accel so none exceeds its M201
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ratio = np.abs(d) / L[:, None]
+            vlim = np.where(ratio > 0, vmax / ratio, np.inf).min(axis=1)
+            alim = np.where(ratio[:, :4] > 0, amax / ratio, np.inf).min(axis=1)
+        b["nominal_speed"] = np.minimum(v, vlim)
+        b["accel"] = np.where(xyz > 0, np.minimum(b["accel"], alim), b["accel"])
+        if np.any(b["nominal_speed"] <= 0):
+            i = int(np.argmax(b["nominal_speed"] <= 0))
+            raise EstimateError(f"{source}:{b['line'][i]}: move with feed rate 0")
+        jerk_arr = None if jerk[0] is None else np.array(jerk, float)
+        maxentry2 = _junctions(b, jd, jerk_arr, amax, m)
+        starts = np.flatnonzero(brk)
+        if len(starts) == 0 or starts[0] != 0:
+            starts = np.concatenate([[0], starts])
+        bounds = list(starts) + [len(b)]
+        for s, e in zip(bounds[:-1], bounds[1:]):
+            if e > s:
+                seg = b[s:e]
+                _plan_segment(seg, maxentry2[s:e], m)
+                b[s:e] = seg
+    t = b["t_accel"] + b["t_cruise"] + b["t_decel"]
+    feats = p.features
+    by = {}
+    if len(b):
+        sums = np.bincount(b["feature"], weights=t, minlength=len(feats))
+        by = {feats[i]: float(sums[i]) for i in range(len(feats)) if sums[i] > 0}
+    for f, dt in p.dwell_by_feature.items():
+        by[f] = by.get(f, 0.0) + dt
+    moves = float(t.sum())
+    return Result(total_s=moves + p.dwell, moves_s=moves, dwell_s=p.dwell, by_feature=by,
+                  features=feats, blocks=b, lines=count)
+
+
+def estimate_file(path, machine: Machine | None = None) -> Result:
+    path = os.fspath(path)
+    try:
+        with open(path, encoding="utf-8", errors="replace") as f:
+            return estimate_lines(f, machine, source=path)
+    except OSError as e:
+        raise EstimateError(f"{path}: {e.strerror or e}") from None
+
+
+def block_times(res: Result) -> np.ndarray:
+    b = res.blocks
+    return b["t_accel"] + b["t_cruise"] + b["t_decel"]
+
+
+def extruding(res: Result) -> np.ndarray:
+    """Blocks that lay filament: X/Y/Z motion with dE > 0."""
+    b = res.blocks
+    return (b["de"] > 0) & ((b["dx"] != 0) | (b["dy"] != 0) | (b["dz"] != 0))
+
+
+def deposited_filament(res: Result, mask=None) -> float:
+    """Filament (mm) laid by extruding moves (retractions and their primes are not counted)."""
+    sel = extruding(res) if mask is None else (extruding(res) & mask)
+    return float(res.blocks["de"][sel].sum())
+
+
+def e_rate_share(res: Result, mask=None, ref: float | None = None, tol: float = 0.05,
+                 cruise_only: bool = False) -> float:
+    """Share of extruding time with the extruder rate (dE/L x head speed) within +-tol of `ref`
+    (mm/s of filament; None: the time-weighted median rate at cruise of the selected blocks).
+    Exact over the trapezoids: the speed is linear in time while accelerating or braking, so the
+    time spent in a speed band is that band's overlap with the ramp divided by the acceleration.
+    cruise_only: each block counted at its nominal speed for length / nominal speed seconds."""
+    b = res.blocks
+    sel = extruding(res) if mask is None else (extruding(res) & np.asarray(mask, bool))
+    if not sel.any():
+        return float("nan")
+    b = b[sel]
+    k = b["de"] / b["length"]                              # filament per mm of motion
+    if ref is None:
+        rate = k * b["nominal_speed"]
+        w = b["length"] / b["nominal_speed"]
+        o = np.argsort(rate)
+        cw = np.cumsum(w[o])
+        ref = float(rate[o][np.searchsorted(cw, cw[-1] / 2)])
+    lo, hi = ref * (1 - tol) / k, ref * (1 + tol) / k      # speed band per block
+    if cruise_only:
+        t = b["length"] / b["nominal_speed"]
+        inside = (b["nominal_speed"] >= lo) & (b["nominal_speed"] <= hi)
+        return float(t[inside].sum() / t.sum())
+
+    def ramp(va, vb, a):
+        top, bot = np.maximum(va, vb), np.minimum(va, vb)
+        return np.maximum(np.minimum(top, hi) - np.maximum(bot, lo), 0.0) / a
+
+    a = b["accel"]
+    t_in = ramp(b["entry_speed"], b["cruise_speed"], a) + ramp(b["cruise_speed"], b["exit_speed"], a)
+    vc = b["cruise_speed"]
+    t_in = t_in + np.where((vc >= lo) & (vc <= hi), b["t_cruise"], 0.0)
+    total = (b["t_accel"] + b["t_cruise"] + b["t_decel"]).sum()
+    return float(t_in.sum() / total)
