@@ -292,11 +292,12 @@ def _examples_dir() -> Path:
     raise BulgekitError("demo data not found: run from a bulgekit checkout (examples/cylinder40x20.gcode)")
 
 
-# preview, send and strokes live in cli_io.py, litho in cli_litho.py, beside the modules they drive.
-from . import cli_io, cli_litho  # noqa: E402  (needs `main` defined above)
+# preview, send and strokes live in cli_io.py, litho and estimate in their own cli_*.py.
+from . import cli_estimate, cli_io, cli_litho  # noqa: E402  (needs `main` defined above)
 
 cli_io.register(main)
 cli_litho.register(main)
+cli_estimate.register(main)
 
 
 if __name__ == "__main__":

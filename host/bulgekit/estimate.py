@@ -19,7 +19,8 @@ Every G0/G1 becomes a block as in Marlin's Planner::_buffer_steps (module/planne
                   v_j^2 = a_j * JD * sin(theta/2) / (1 - sin(theta/2))
               where a_j is the accel lowered by the axis limits along (u - u')/|u - u'|; for
               moves under 1 mm turning by more than 45 degrees (JD_HANDLE_SMALL_SEGMENTS)
-              v_j^2 <= length * a_j / theta (the speed on an arc through the corner). Then
+              v_j^2 <= length * a_j / theta (the speed on an arc through the corner; theta
+              from Marlin's acos lookup table, as the firmware computes it). Then
               v_j <= both moves' speeds. Classic jerk (Machine.jerk, M205 X Y Z E) follows
               Marlin's HAS_CLASSIC_JERK branch instead.
 
@@ -353,13 +354,35 @@ def _junctions(b, jd, jerk, amax, m: Machine):
         vj2 = aj * jd[1:] * s2 / (1 - s2)
         if m.jd_small_segments:
             small = (L[1:] < 1) & (c < -0.7071067812)
-            theta = np.arccos(np.clip(-c, -1, 1))          # the turn; Marlin approximates acos
-            vj2 = np.where(small, np.minimum(vj2, L[1:] * aj / np.maximum(theta, 0.033)), vj2)
+            vj2 = np.where(small, np.minimum(vj2, L[1:] * aj / _jd_lut_acos_neg(c)), vj2)
         vj2 = np.where(cos > 0.999999, m.min_planner_speed ** 2, vj2)
         out[1:] = np.minimum(vj2, np.minimum(v[1:], v[:-1]) ** 2)
     else:
         out[1:] = _classic_jerk(d, L, v, jerk)
     return out
+
+
+# Marlin's JD_USE_LOOKUP_TABLE (default with JD_HANDLE_SMALL_SEGMENTS): acos by 16 lines
+_JD_K = np.array([-1.03145837, -1.30760646, -1.75205851, -2.41705704, -3.37769222, -4.74888992,
+                  -6.69649887, -9.45661736, -13.3640480, -18.8928222, -26.7136841, -37.7754593,
+                  -53.4201813, -75.5458374, -106.836761, -218.532821])
+_JD_B = np.array([1.57079637, 1.70887053, 2.04220939, 2.62408352, 3.52467871, 4.85302639,
+                  6.77020454, 9.50875854, 13.4009285, 18.9188995, 26.7321243, 37.7885055,
+                  53.4293975, 75.5523529, 106.841369, 218.534011])
+
+
+def _jd_lut_acos_neg(cos):
+    """acos(-cos) as Marlin's table gives it: t = |cos| picks a line by the leading zeros of
+    (1 - t) * 2^15 (16-bit), theta = k t + b, mirrored for cos > 0."""
+    neg = np.where(cos < 0, -1.0, 1.0)
+    t = neg * cos
+    x = np.clip(np.floor((1.0 - t) * 32768.0), 0, 65535).astype(np.int64)
+    bits = np.zeros_like(x)
+    nz = x > 0
+    bits[nz] = np.floor(np.log2(x[nz])).astype(np.int64) + 1
+    idx = np.where(t < 3e-8, 0, np.clip(16 - bits - 1, 0, 15))
+    theta = t * _JD_K[idx] + _JD_B[idx]
+    return np.where(neg > 0, math.pi - theta, theta)
 
 
 def _classic_jerk(d, L, v, jerk):
@@ -415,7 +438,7 @@ def _plan_segment(b, maxentry2, m: Machine):
     vmin2 = m.min_planner_speed ** 2
     a, L = b["accel"], b["length"]
     M = np.append(np.minimum(maxentry2, b["nominal_speed"] ** 2), vmin2)
-    M[0] = min(M[0], vmin2)                                 # starts from rest
+    M[0] = vmin2                                            # starts from rest (a stop: MINIMUM_PLANNER_SPEED)
     S = np.concatenate([[0.0], np.cumsum(2 * a * L)])       # S[k] = sum_{m<k} 2 a_m L_m
     arr = M + S
     if m.lookahead is None or m.lookahead - 2 >= n:
