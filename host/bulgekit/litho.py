@@ -464,10 +464,14 @@ def plan_lithophane(image, o: LithoOptions | None = None, progress=None) -> Plan
         wall_v = o.first_layer_speed if first else o.wall_speed
         flow = o.mid_flow * (o.first_layer_speed / o.wall_speed if first else 1.0)
         P = _layer_polygon(o, fld, k)
-        walls = orient(P.buffer(-w / 2, join_style="mitre", mitre_limit=3.0), 1.0)
-        region = P.buffer(-w, join_style="mitre", mitre_limit=3.0)
-        if walls.geom_type != "Polygon" or walls.is_empty:
-            raise LithoError(f"layer {k + 1}: the part is too thin to hold its walls")
+        # bevel joins: GEOS's mitre joins lost the hole of some rings (a cylinder layer came out
+        # as one polygon without its inside)
+        walls = orient(P.buffer(-w / 2, join_style="bevel"), 1.0)
+        region = P.buffer(-w, join_style="bevel")
+        holes = 1 if o.shape == "cylinder" else 0
+        if walls.geom_type != "Polygon" or walls.is_empty or len(walls.interiors) != holes:
+            raise LithoError(f"layer {k + 1}: the walls' centre line is not one {'ring pair' if holes else 'loop'} "
+                             f"({walls.geom_type}, {len(getattr(walls, 'interiors', []))} holes)")
         rings = [walls.exterior] + list(walls.interiors)
         wall_secs = [_wall_section(r, o, wall_v) for r in rings]
         mids, g, pm = _mid_sections(o, fld, k, region, flow)
