@@ -1,0 +1,294 @@
+#!/usr/bin/env python3
+"""Lithophane benchmark: `bulgekit litho` against CuraEngine 4.13 and PrusaSlicer 2.5 on the same
+bodies, every file timed by one estimator (bulgekit.estimate). Results: DIR/results.md, .json.
+
+    python3 tools/litho_bench.py --out /tmp/lb                # 3 pictures x planar, cylinder
+    python3 tools/litho_bench.py --out /tmp/lb --images examples/litho/wedge.png --shapes planar
+
+Needs: Debian's `cura-engine` and `prusa-slicer`, and CuraEngine's machine definitions from
+Debian's `cura` package (not installed, only unpacked: `apt-get download cura && dpkg-deb -x
+cura_*.deb DIR`), found under --cura-defs. Not part of `make test` (it takes minutes).
+
+Terms (issue 18), the same for every method:
+  bodies       our NAME.stl: planar 100 mm wide (height from the picture), cylinder 54.8 x 60.5 mm
+  lines        0.2 mm layers (first layer too), 0.4 mm lines, 1.75 mm filament
+  speeds       walls 40 mm/s, infill 100 mm/s, travel 150 mm/s; first layer 20 mm/s (slicers: every
+               first-layer move; ours: first-layer walls, mid-line at the same fraction of its rate)
+  fill         100 % infill, top and bottom layers 0, no skirt or brim
+  start/end    the same two lines for everyone (G90/M83; one retraction at the end): no homing,
+               heating or purge is timed
+  machine      acceleration 1000 (and 3000) mm/s^2 for printing and travel, junction deviation
+               0.013 mm, max feedrate X/Y 300, Z 5, E 25 mm/s; the files' own M201-M205 ignored;
+               planned with Marlin's 16-block buffer (the figure with unlimited look-ahead is in
+               the JSON)
+  metrics      time; fill ratio = filament laid by extruding moves x filament area / STL volume;
+               extruding moves; filament; E-rate spread = share of extruding time within +-5 % of
+               the median extruder rate. Best baseline = fastest baseline with fill ratio >= 0.95.
+"""
+from __future__ import annotations
+
+import argparse
+import concurrent.futures as cf
+import json
+import math
+import os
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "host"))
+
+from bulgekit import estimate as es  # noqa: E402
+from bulgekit import litho  # noqa: E402
+
+START = "G90\nM83\n"
+END = "G1 E-0.8 F2100\n"
+FIL_AREA = math.pi * 1.75 ** 2 / 4
+
+# --- PrusaSlicer 2.5 -------------------------------------------------------------------------
+PRUSA_COMMON = {
+    "layer_height": 0.2, "first_layer_height": 0.2, "nozzle_diameter": 0.4, "filament_diameter": 1.75,
+    "extrusion_width": 0.4, "perimeter_extrusion_width": 0.4, "external_perimeter_extrusion_width": 0.4,
+    "infill_extrusion_width": 0.4, "solid_infill_extrusion_width": 0.4, "top_infill_extrusion_width": 0.4,
+    "first_layer_extrusion_width": 0.4,
+    # 100 % infill is printed as solid infill: its pattern and speed are set to the same values
+    "fill_density": "100%", "fill_pattern": "rectilinear", "top_fill_pattern": "rectilinear",
+    "bottom_fill_pattern": "rectilinear",
+    "top_solid_layers": 0, "bottom_solid_layers": 0, "top_solid_min_thickness": 0, "bottom_solid_min_thickness": 0,
+    "skirts": 0, "brim_width": 0,
+    "perimeter_speed": 40, "external_perimeter_speed": 40, "small_perimeter_speed": 40,
+    "infill_speed": 100, "solid_infill_speed": 100, "top_solid_infill_speed": 100, "gap_fill_speed": 100,
+    "travel_speed": 150, "first_layer_speed": 20,
+    "retract_length": 0.8, "retract_speed": 35, "retract_before_travel": 2,
+    "machine_limits_usage": "ignore", "gcode_flavor": "marlin2", "use_relative_e_distances": 1,
+    "layer_gcode": "G92 E0", "start_gcode": START.strip().replace("\n", "\\n"),
+    "end_gcode": END.strip(), "bed_shape": "0x0,220x0,220x220,0x220", "max_print_height": 250,
+}
+PRUSA = {
+    "prusa classic 1p + rectilinear": {"perimeters": 1, "perimeter_generator": "classic"},
+    "prusa arachne 1p": {"perimeters": 1, "perimeter_generator": "arachne"},
+    "prusa arachne 2p": {"perimeters": 2, "perimeter_generator": "arachne"},
+    "prusa arachne 3p": {"perimeters": 3, "perimeter_generator": "arachne"},
+}
+
+# --- CuraEngine 4.13 (its CLI evaluates no formulas: every derived setting is given) ---------
+CURA_COMMON = {
+    # our STL already stands on the bed at its place: with centre-is-zero the engine adds no offset
+    "machine_width": 220, "machine_depth": 220, "machine_height": 250, "machine_center_is_zero": "true",
+    "machine_gcode_flavor": "RepRap (Marlin/Sprinter)", "machine_start_gcode": START.strip(),
+    "machine_end_gcode": END.strip(), "machine_nozzle_size": 0.4, "material_diameter": 1.75,
+    "layer_height": 0.2, "layer_height_0": 0.2,
+    "line_width": 0.4, "wall_line_width": 0.4, "wall_line_width_0": 0.4, "wall_line_width_x": 0.4,
+    "skin_line_width": 0.4, "infill_line_width": 0.4, "skirt_brim_line_width": 0.4,
+    "initial_layer_line_width_factor": 100,
+    "top_layers": 0, "bottom_layers": 0, "initial_bottom_layers": 0, "top_bottom_thickness": 0,
+    "top_thickness": 0, "bottom_thickness": 0,
+    # 100 %: line distance = line width for lines/zigzag/concentric (the formula Cura's frontend runs)
+    "infill_sparse_density": 100, "infill_line_distance": 0.4, "infill_sparse_thickness": 0.2,
+    "speed_print": 100, "speed_infill": 100, "speed_topbottom": 100, "speed_wall": 40, "speed_wall_0": 40,
+    "speed_wall_x": 40, "speed_travel": 150, "speed_layer_0": 20, "speed_print_layer_0": 20,
+    "speed_travel_layer_0": 150, "skirt_brim_speed": 20, "speed_slowdown_layers": 1,
+    "adhesion_type": "none", "skirt_line_count": 0,
+    "retraction_enable": "true", "retraction_amount": 0.8, "retraction_speed": 35,
+    "retraction_retract_speed": 35, "retraction_prime_speed": 35, "retraction_min_travel": 2,
+    "acceleration_enabled": "false", "jerk_enabled": "false", "relative_extrusion": "true",
+}
+CURA = {
+    "cura 1 wall + concentric": {"wall_line_count": 1, "wall_thickness": 0.4, "infill_pattern": "concentric"},
+    "cura 1 wall + zigzag": {"wall_line_count": 1, "wall_thickness": 0.4, "infill_pattern": "zigzag"},
+    "cura 1 wall + lines": {"wall_line_count": 1, "wall_thickness": 0.4, "infill_pattern": "lines"},
+    "cura 0 walls + zigzag": {"wall_line_count": 0, "wall_thickness": 0, "infill_pattern": "zigzag"},
+}
+OURS = "ours: width mode (bulgekit litho)"
+PAPER = "ours at the paper's rate (--paper-rate)"
+
+
+def cura_defs(arg: str | None) -> Path:
+    cands = [Path(arg)] if arg else [Path("/usr/share/cura/resources/definitions"),
+                                     Path("/work/bench/cura/usr/share/cura/resources/definitions")]
+    for c in cands:
+        if (c / "fdmprinter.def.json").is_file():
+            return c
+        if (c / "usr/share/cura/resources/definitions/fdmprinter.def.json").is_file():
+            return c / "usr/share/cura/resources/definitions"
+    sys.exit("litho_bench: CuraEngine's definitions not found: `apt-get download cura && dpkg-deb -x "
+             "cura_*.deb DIR`, then --cura-defs DIR")
+
+
+def slice_cura(stl: Path, out: Path, extra: dict, defs: Path) -> None:
+    s = dict(CURA_COMMON, **extra)
+    args = [a for k, v in s.items() for a in ("-s", f"{k}={v}")]
+    # settings before -e0 are the machine's, after it extruder 0's (whose defaults, e.g. a
+    # 2.85 mm filament, would win otherwise)
+    cmd = ["CuraEngine", "slice", "-j", str(defs / "fdmprinter.def.json"), *args, "-e0", *args,
+           "-l", str(stl), "-o", str(out)]
+    r = subprocess.run(cmd, capture_output=True, text=True, env=dict(os.environ, CURA_ENGINE_SEARCH_PATH=str(defs)))
+    if r.returncode != 0 or not out.is_file():
+        raise RuntimeError(f"CuraEngine failed on {stl}: {r.stderr[-400:]}")
+
+
+def slice_prusa(stl: Path, out: Path, extra: dict) -> None:
+    ini = out.with_suffix(".ini")
+    ini.write_text("".join(f"{k} = {v}\n" for k, v in dict(PRUSA_COMMON, **extra).items()))
+    r = subprocess.run(["prusa-slicer", "--export-gcode", "--load", str(ini), "-o", str(out), str(stl)],
+                       capture_output=True, text=True)
+    if r.returncode != 0 or not out.is_file():
+        raise RuntimeError(f"PrusaSlicer failed on {stl}: {(r.stdout + r.stderr)[-400:]}")
+
+
+def machine(accel: float, lookahead) -> es.Machine:
+    return es.Machine(accel=accel, travel_accel=accel, retract_accel=accel, junction_deviation=0.013,
+                      max_feedrate=es._axes(300, 300, 5, 25), lookahead=lookahead)
+
+
+def measure(gcode: Path, stl_volume: float, accels) -> dict:
+    out = {}
+    for a in accels:
+        r = es.estimate_file(gcode, machine(a, 16))
+        full = es.estimate_file(gcode, machine(a, None))
+        b = r.blocks
+        ext = es.extruding(r)
+        out[str(int(a))] = {
+            "time_s": round(r.total_s, 1), "time_full_lookahead_s": round(full.total_s, 1),
+            "fill_ratio": round(es.deposited_filament(r) * FIL_AREA / stl_volume, 4),
+            "extruding_moves": int(ext.sum()), "filament_mm": round(es.deposited_filament(r), 1),
+            "e_rate_spread": round(es.e_rate_share(r), 4),
+            "by_feature_s": {k: round(v, 1) for k, v in r.by_feature.items()},
+            "ramp_loss_s": round(float(es.block_times(r).sum() - (b["length"] / b["nominal_speed"]).sum()), 1),
+        }
+        if "mid-line" in r.features:                      # ours: the mid-line alone, and its hops
+            mid = (b["feature"] == r.features.index("mid-line"))
+            laid = mid & ext
+            t = es.block_times(r)
+            out[str(int(a))]["mid_line"] = {
+                "laid_s": round(float(t[laid].sum()), 1), "laid_ideal_s": round(float((b["length"] / b["nominal_speed"])[laid].sum()), 1),
+                "crossing_s": round(float(t[mid & ~ext].sum()), 1),
+                "rate_share_cruise": round(es.e_rate_share(r, mask=mid & (b["layer"] >= 1), ref=_mid_rate(gcode), cruise_only=True), 4),
+                "rate_share_planned": round(es.e_rate_share(r, mask=mid & (b["layer"] >= 1), ref=_mid_rate(gcode)), 4),
+            }
+    return out
+
+
+def _mid_rate(gcode: Path) -> float:
+    import re
+    head = gcode.read_text()[:6000]
+    opts = dict(re.findall(r"^; (\w+) = (.+)$", head, re.M))
+    q = float(opts["wall_speed"]) * float(opts["line_width"]) * float(opts["layer_height"]) \
+        if opts["paper_rate"] == "true" else float(opts["infill_flow"])
+    return q / FIL_AREA
+
+
+def body_job(image: Path, shape: str, d: Path) -> dict:
+    """Our two files and the STL for one body."""
+    d.mkdir(parents=True, exist_ok=True)
+    (d / "start.g").write_text(START)
+    (d / "end.g").write_text(END)
+    name = f"{image.stem}_{shape}"
+    kw = dict(shape=shape, start_gcode=str(d / "start.g"), end_gcode=str(d / "end.g"), purge=False)
+    if shape == "cylinder":
+        kw["height"] = 60.5
+    res = litho.make(image, d, name=name, **kw)
+    litho.make(image, d / "paper", name=name, paper_rate=True, **kw)
+    return {"name": name, "stl": str(res.paths["stl"]), "stl_volume": res.stats["stl_volume_mm3"],
+            "ours": str(res.paths["gcode"]), "paper": str(d / "paper" / f"{name}.litho.gcode"),
+            "layers": res.stats["layers"], "stats": res.stats}
+
+
+def method_job(method: str, body: dict, d: Path, defs: Path, accels) -> tuple[str, str, dict]:
+    t0 = time.time()
+    if method == OURS:
+        g = Path(body["ours"])
+    elif method == PAPER:
+        g = Path(body["paper"])
+    else:
+        g = d / (method.replace(" ", "_").replace("+", "") + ".gcode")
+        if method in CURA:
+            slice_cura(Path(body["stl"]), g, CURA[method], defs)
+        else:
+            slice_prusa(Path(body["stl"]), g, PRUSA[method])
+    m = measure(g, body["stl_volume"], accels)
+    m["gcode"] = str(g)
+    m["seconds_to_run"] = round(time.time() - t0, 1)
+    return body["name"], method, m
+
+
+def fmt_t(s: float) -> str:
+    return f"{int(s // 3600)}:{int(s % 3600 // 60):02d}:{int(s % 60):02d}"
+
+
+def report(bodies: list, res: dict, accels) -> str:
+    lines = []
+    for a in map(lambda x: str(int(x)), accels):
+        lines.append(f"## Acceleration {a} mm/s²\n")
+        lines.append("| body | ours | best baseline (fill ≥ 0.95) | its time | saving | paper's rate | saving | Arachne 3p | saving |")
+        lines.append("|---|---:|---|---:|---:|---:|---:|---:|---:|")
+        for b in bodies:
+            r = res[b["name"]]
+            base = {k: v[a] for k, v in r.items() if k not in (OURS, PAPER)}
+            ok = {k: v for k, v in base.items() if v["fill_ratio"] >= 0.95}
+            best = min(ok, key=lambda k: ok[k]["time_s"]) if ok else None
+            o, p, ar = r[OURS][a]["time_s"], r[PAPER][a]["time_s"], base["prusa arachne 3p"]["time_s"]
+            bt = ok[best]["time_s"] if best else float("nan")
+            lines.append(f"| {b['name']} | {fmt_t(o)} | {best} | {fmt_t(bt)} | {100 * (1 - o / bt):.1f} % | "
+                         f"{fmt_t(p)} | {100 * (1 - p / bt):.1f} % | {fmt_t(ar)} | {100 * (1 - o / ar):.1f} % |")
+        lines.append("")
+        for b in bodies:
+            r = res[b["name"]]
+            lines.append(f"### {b['name']} ({b['layers']} layers, STL {b['stl_volume']:.0f} mm³), {a} mm/s²\n")
+            lines.append("| method | time | fill ratio | extruding moves | filament mm | E-rate spread |")
+            lines.append("|---|---:|---:|---:|---:|---:|")
+            for k, v in sorted(r.items(), key=lambda kv: kv[1][a]["time_s"]):
+                m = v[a]
+                lines.append(f"| {k} | {fmt_t(m['time_s'])} | {m['fill_ratio']:.3f} | {m['extruding_moves']} | "
+                             f"{m['filament_mm']:.0f} | {100 * m['e_rate_spread']:.1f} % |")
+            lines.append("")
+    return "\n".join(lines)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--out", type=Path, required=True)
+    ap.add_argument("--images", type=Path, nargs="+",
+                    default=[ROOT / "examples/litho" / f"{n}.png" for n in ("wedge", "text", "drawing")])
+    ap.add_argument("--shapes", nargs="+", default=["planar", "cylinder"], choices=["planar", "cylinder"])
+    ap.add_argument("--accel", type=float, nargs="+", default=[1000.0, 3000.0])
+    ap.add_argument("--jobs", type=int, default=2)
+    ap.add_argument("--cura-defs")
+    a = ap.parse_args(argv)
+    for tool in ("CuraEngine", "prusa-slicer"):
+        if not shutil.which(tool):
+            sys.exit(f"litho_bench: {tool} not found: apt-get install cura-engine prusa-slicer")
+    defs = cura_defs(a.cura_defs)
+    a.out.mkdir(parents=True, exist_ok=True)
+    t0 = time.time()
+    methods = [OURS, PAPER] + list(CURA) + list(PRUSA)
+    with cf.ProcessPoolExecutor(a.jobs) as ex:
+        jobs = {ex.submit(body_job, img, sh, a.out / f"{img.stem}_{sh}"): (img, sh)
+                for img in a.images for sh in a.shapes}
+        bodies = []
+        for f in cf.as_completed(jobs):
+            bodies.append(f.result())
+            print(f"[{time.time() - t0:6.0f} s] body {bodies[-1]['name']} made", file=sys.stderr)
+        bodies.sort(key=lambda b: b["name"])
+        res: dict = {b["name"]: {} for b in bodies}
+        futs = [ex.submit(method_job, m, b, a.out / b["name"], defs, a.accel) for b in bodies for m in methods]
+        for i, f in enumerate(cf.as_completed(futs), 1):
+            name, method, m = f.result()
+            res[name][method] = m
+            print(f"[{time.time() - t0:6.0f} s] {i}/{len(futs)} {name}: {method}: "
+                  f"{fmt_t(m[str(int(a.accel[0]))]['time_s'])}, fill {m[str(int(a.accel[0]))]['fill_ratio']:.3f}",
+                  file=sys.stderr)
+    md = report(bodies, res, a.accel)
+    (a.out / "results.md").write_text(f"# litho_bench results\n\nRun: `python3 tools/litho_bench.py "
+                                      f"--out {a.out}` ({time.time() - t0:.0f} s, {a.jobs} jobs)\n\n" + md)
+    (a.out / "results.json").write_text(json.dumps({"bodies": bodies, "results": res}, indent=1))
+    print(md)
+    print(f"wrote {a.out / 'results.md'} and results.json ({time.time() - t0:.0f} s)", file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
