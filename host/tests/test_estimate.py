@@ -213,3 +213,17 @@ def test_cli(tmp_path):
                                   "--lookahead", "0"])
     assert r.exit_code == 0, r.output
     assert "0h 00m 01.1s" in r.output and "wall" in r.output
+
+
+@pytest.mark.parametrize("name, prusa_s", [("prusa_cyl.gcode", 15 * 60 + 8), ("prusa_cyl_m83.gcode", 15 * 60 + 21)])
+def test_agrees_with_prusaslicer_in_classic_jerk(data_dir, name, prusa_s):
+    """PrusaSlicer 2.5 estimates in classic-jerk mode with the limits in its config block
+    (machine_limits_usage = time_estimate_only; normal mode = the first values): its
+    '; estimated printing time (normal mode)' line is prusa_s. Ours with the same limits."""
+    text = (data_dir / name).read_text()
+    assert f"estimated printing time (normal mode) = {prusa_s // 60}m {prusa_s % 60}s" in text
+    assert "; machine_max_jerk_x = 10,10" in text and "; machine_max_acceleration_extruding = 1500," in text
+    m = es.Machine(accel=1500, travel_accel=1500, retract_accel=1500, max_accel=es._axes(9000, 9000, 500, 10000),
+                   max_feedrate=es._axes(500, 500, 12, 120), jerk=es._axes(10, 10, 0.2, 2.5), lookahead=None)
+    r = es.estimate_file(data_dir / name, m)
+    assert r.total_s == pytest.approx(prusa_s, rel=0.01)
