@@ -1,0 +1,148 @@
+#!/usr/bin/env python3
+"""Print time and the mid-line's extruder rate of a simulated Marlin print, from its step trace.
+
+    trace_width.py TRACE GCODE [--rate MM_S] [--window MS] [--json]
+
+TRACE is bksim's pin trace of a run with the RAMPS pins (see trace_stops.py: F0/F1 X, F6/F7 Y,
+L3/L1 Z, A4/A6 E0); GCODE is the file that was sent. Reported:
+
+  time      first to last step of any axis (the print's motion time as the firmware ran it)
+  mid-line  for every ;TYPE:mid-line move after the first layer, the time at which the E step
+            count reached the move's end: consecutive mid-line moves are gathered into windows
+            of at least --window ms (a 0.4 mm piece carries only 5-20 E steps, too few to time
+            one by one) and each window's E rate (steps / 500 per mm / time) is compared with
+            the set rate (--rate, default: the file's own M723 Q / filament area). The share
+            of mid-line time in windows within +-5 % is printed, and the mean rate over all.
+
+Reads only bksim's trace format and G-code text; it builds nothing.
+"""
+from __future__ import annotations
+
+import argparse
+import bisect
+import json
+import math
+import re
+import sys
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from trace_stops import F_CPU, STEPS, Run, words  # noqa: E402
+
+
+def mid_line_moves(path):
+    """(layer, E steps at the move's end, is mid-line) per move that changes E, in file order.
+    E is followed as Marlin does (M82/M83, G90 resets E to absolute, G92 E)."""
+    out, kind, layer = [], None, -1
+    e_rel, e, rate = False, 0.0, None
+    area = math.pi * 1.75 ** 2 / 4
+    for raw in open(path, encoding="utf-8", errors="replace"):
+        if raw.startswith(";TYPE:"):
+            kind = raw[6:].strip()
+            continue
+        if raw.startswith(";LAYER:"):
+            layer = int(raw[7:])
+            continue
+        w, code = words(raw)
+        head = code.split()[0].upper() if code else ""
+        if head == "M83":
+            e_rel = True
+        elif head in ("M82", "G90"):
+            e_rel = False
+        elif head == "G92" and "E" in w:
+            e_base = w["E"]
+            out.append(("g92", e, e_base))             # the count goes on; only the frame moves
+            e = e_base
+        elif head == "M723":
+            if "D" in w:
+                area = math.pi * w["D"] ** 2 / 4
+            if "Q" in w:
+                rate = w["Q"] / area                   # the rate in force for what follows
+        elif head in ("G0", "G1") and "E" in w:
+            new = e + w["E"] if e_rel else w["E"]
+            out.append(("move", layer, kind, new - e, rate))
+            e = new
+    return out
+
+
+def analyse(trace: str, gcode: str, rate: float | None = None, window_ms: float = 40.0) -> dict:
+    run = Run(trace, {"X": 0.0, "Y": 0.0, "Z": 0.0, "E": 0.0})
+    total = (run.last - run.first) / F_CPU if run.first is not None else 0.0
+    # net E steps after each E step, and their cycles
+    cyc, cum, n = [], [], 0
+    for c, d in run.e_steps:
+        n += d
+        cyc.append(c)
+        cum.append(n)
+    # walk the moves: the commanded E (in steps) after each, and when the trace got there
+    target = 0.0
+    i = 0
+    windows, cur = [], None
+    mid_rate = None
+    prev_t, prev_n = run.first, 0
+    for item in mid_line_moves(gcode):
+        if item[0] == "g92":
+            continue
+        _, layer, kind, de, r = item
+        target += de
+        want = round(target * STEPS["E"])
+        # the first step at which the count equals the target, searching forward
+        while i < len(cum) and cum[i] != want:
+            i += 1
+        if i >= len(cum):
+            break
+        t_end = cyc[i]
+        if kind == "mid-line" and layer >= 1 and de > 0:
+            if r is not None:
+                mid_rate = r
+            if cur is None:
+                cur = [prev_t, t_end, prev_n, want]
+            else:
+                cur[1], cur[3] = t_end, want
+            if (cur[1] - cur[0]) / F_CPU * 1e3 >= window_ms:
+                windows.append(cur)
+                cur = None
+        elif cur is not None:                           # the stretch ended: keep what it has
+            if (cur[1] - cur[0]) / F_CPU * 1e3 >= window_ms / 2:
+                windows.append(cur)
+            cur = None
+        prev_t, prev_n = t_end, want
+    ref = rate if rate is not None else mid_rate
+    t_in = t_all = steps_all = 0.0
+    for t0, t1, n0, n1 in windows:
+        dt = (t1 - t0) / F_CPU
+        if dt <= 0:
+            continue
+        r = (n1 - n0) / STEPS["E"] / dt
+        t_all += dt
+        steps_all += n1 - n0
+        if ref and abs(r / ref - 1) <= 0.05:
+            t_in += dt
+    return {"time_s": round(total, 3), "mid_line_windows": len(windows),
+            "mid_line_time_s": round(t_all, 3),
+            "set_rate_mm_s": ref, "mean_rate_mm_s": (steps_all / STEPS["E"] / t_all) if t_all else None,
+            "share_within_5pct": (t_in / t_all) if t_all else None}
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("trace")
+    ap.add_argument("gcode")
+    ap.add_argument("--rate", type=float, help="set extruder rate, mm/s of filament")
+    ap.add_argument("--window", type=float, default=40.0, help="ms per rate window (default 40)")
+    ap.add_argument("--json", action="store_true")
+    a = ap.parse_args(argv)
+    r = analyse(a.trace, a.gcode, a.rate, a.window)
+    if a.json:
+        print(json.dumps(r, indent=1))
+    else:
+        print(f"motion time {r['time_s']:.2f} s")
+        if r["mid_line_time_s"]:
+            print(f"mid-line after layer 1: {r['mid_line_time_s']:.2f} s in {r['mid_line_windows']} windows; "
+                  f"mean E rate {r['mean_rate_mm_s']:.4f} mm/s against {r['set_rate_mm_s']:.4f}; "
+                  f"{100 * r['share_within_5pct']:.1f} % of the time within 5 %")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
