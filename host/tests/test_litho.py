@@ -291,6 +291,22 @@ def test_cylinder_layers_are_joined_loops(cyl):
     assert ";TYPE:travel" not in body and "E-" not in body.split("M723 S0")[0]
 
 
+def test_cylinder_crossings_are_chords_near_the_middle(cyl):
+    """Where the walls merge the head moves on in chords of 3 samples (about 1.2 mm), not in
+    single-sample pieces, and stays within the chord's sagitta of the plate's middle circle."""
+    o = cyl.plan.options
+    r_mid = o.diameter / 2 - o.max_thickness + 0.4          # middle of a 0.8 mm (white) plate
+    m = [s for s in cyl.plan.layers[4].sections if s.kind == "mid-line"][0]
+    hop = np.flatnonzero(m.e == 0)
+    assert len(hop) > 10
+    lengths = np.linalg.norm(m.pts[hop + 1] - m.pts[hop], axis=1)
+    piece = 2 * math.pi * r_mid / len(cyl.plan.field.s)   # one sample step on the middle circle
+    assert np.median(lengths) == pytest.approx(3 * piece, rel=0.02)
+    mids = (m.pts[hop + 1] + m.pts[hop]) / 2
+    sag = lengths.max() ** 2 / (8 * r_mid)
+    assert np.abs(np.linalg.norm(mids, axis=1) - r_mid).max() < sag + 0.01
+
+
 def test_cylinder_seam(cyl):
     o, f = cyl.plan.options, cyl.plan.field
     r_in = o.diameter / 2 - o.max_thickness
