@@ -254,7 +254,7 @@ def report(bodies: list, res: dict, accels) -> str:
             r = res[b["name"]]
             o = r[OURS][a]
             f, fi = o["by_feature_s"], o["by_feature_ideal_s"]
-            mid = o["mid_line"]
+            mid = o.get("mid_line", {"laid_s": 0.0, "laid_ideal_s": 0.0, "crossing_s": 0.0})  # all white: none
             base = {k: v[a] for k, v in r.items() if k not in (OURS, PAPER) and v[a]["fill_ratio"] >= 0.95}
             best = min(base, key=lambda k: base[k]["time_s"])
             bf = base[best]["by_feature_s"]
@@ -312,10 +312,10 @@ def main(argv=None) -> int:
             print(f"[{time.time() - t0:6.0f} s] {i}/{len(futs)} {name}: {method}: "
                   f"{fmt_t(m[str(int(a.accel[0]))]['time_s'])}, fill {m[str(int(a.accel[0]))]['fill_ratio']:.3f}",
                   file=sys.stderr)
+    (a.out / "results.json").write_text(json.dumps({"bodies": bodies, "results": res}, indent=1))
     md = report(bodies, res, a.accel)
     (a.out / "results.md").write_text(f"# litho_bench results\n\nRun: `python3 tools/litho_bench.py "
                                       f"--out {a.out}` ({time.time() - t0:.0f} s, {a.jobs} jobs)\n\n" + md)
-    (a.out / "results.json").write_text(json.dumps({"bodies": bodies, "results": res}, indent=1))
     print(md)
     print(f"wrote {a.out / 'results.md'} and results.json ({time.time() - t0:.0f} s)", file=sys.stderr)
     return 0

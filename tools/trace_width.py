@@ -19,10 +19,8 @@ Reads only bksim's trace format and G-code text; it builds nothing.
 from __future__ import annotations
 
 import argparse
-import bisect
 import json
 import math
-import re
 import sys
 from pathlib import Path
 

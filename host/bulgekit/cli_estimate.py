@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import click
 
-from ._cliutil import NONNEG, POSITIVE, friendly
+from ._cliutil import POSITIVE, friendly
 
 
 def _jerk(ctx, param, value):

@@ -10,7 +10,7 @@ import sys
 
 import click
 
-from ._cliutil import NONNEG, POSITIVE, Num, friendly
+from ._cliutil import NONNEG, POSITIVE, friendly
 
 
 def _bed(ctx, param, value):

@@ -484,7 +484,6 @@ def _orient(s: Section, near) -> Section:
 
 def plan_lithophane(image, o: LithoOptions | None = None, progress=None) -> Plan:
     """Paths for every layer. `progress(done, total)` is called now and then."""
-    from shapely.geometry import Polygon  # noqa: F401  (import error early, with a clear name)
     from shapely.geometry.polygon import orient
 
     o = o or LithoOptions()
@@ -656,7 +655,7 @@ class _Writer:
             d = math.inf if self.x is None else math.hypot(start[0] - self.x, start[1] - self.y)
             if d < o.retract_min and not self.retracted:
                 # a short join inside the part: laid at this section's width, so no travel
-                self.out(f";TYPE:connector")
+                self.out(";TYPE:connector")
                 self.set_flow(wall_flow if s.kind == "wall" else mid_flow)
                 e = d * s.width[0] * o.layer_height / o.filament_area if s.width[0] > 0 else 0.0
                 self._piece(start[0], start[1], e, s.v[0], s.width[0] if e > 0 else None)
@@ -917,12 +916,10 @@ def write_transmission_png(plan: Plan, path) -> None:
 def plan_stats(plan: Plan, stl_volume: float) -> dict:
     """Figures of the plan (the G-code follows it piece by piece)."""
     o, fld = plan.options, plan.field
-    H = o.layer_height
     area = o.filament_area
     by_kind: dict[str, dict] = {}
     moves = 0
     capped_t = total_mid_t = capped_len = mid_len = 0.0
-    rates = []
     for k, L in enumerate(plan.layers):
         for s in L.sections:
             seg = np.linalg.norm(np.diff(s.pts, axis=0), axis=1)

@@ -157,7 +157,6 @@ def test_head_crosses_merged_walls_in_the_middle(tmp_path):
 
 
 def test_deposited_volume_matches_the_body(step_plan):
-    o = step_plan.options
     V, F = lt.body_mesh(step_plan)
     stats = lt.plan_stats(step_plan, lt.mesh_volume(V, F))
     assert 0.98 <= stats["fill_ratio"] <= 1.02
@@ -379,7 +378,7 @@ from test_e2e_bkcore import bkcore, run_core  # noqa: E402,F401  (the fixture bu
 
 def g1_kinds(path):
     """The ;TYPE: of every G1 in a file, in order (bkcore prints one line per G1)."""
-    kinds, kind, layer, out = [], None, -1, []
+    kind, layer, out = None, -1, []
     for line in open(path):
         if line.startswith(";TYPE:"):
             kind = line[6:].strip()
