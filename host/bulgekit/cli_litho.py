@@ -58,8 +58,11 @@ def register(main):
     @click.option("--line-width", type=POSITIVE, default=0.4, show_default=True, help="Wall line width, mm.")
     @click.option("--pitch", type=POSITIVE, default=0.4, show_default=True,
                   help="Distance between samples along a layer, mm.")
-    @click.option("--min-line", type=POSITIVE, default=0.2, show_default=True,
-                  help="Narrowest mid-line, mm; narrower gaps snap to merged walls or to this width.")
+    @click.option("--min-line", type=POSITIVE, default=None,
+                  help="Narrowest mid-line, mm; narrower gaps snap to merged walls or to this width. "
+                       "Default: the narrowest line laid at --max-speed (flow / (max-speed x layer "
+                       "height), 0.27 mm at the defaults) but at least half a line width, so that "
+                       "no piece is capped.")
     @click.option("--max-line", type=POSITIVE, default=1.6, show_default=True,
                   help="Widest single mid-line, mm; wider gaps get two or more.")
     @click.option("--filament", type=POSITIVE, default=1.75, show_default=True, help="Filament diameter, mm.")

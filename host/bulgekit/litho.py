@@ -16,8 +16,10 @@ its middle the mid-line's centre. A mid-line piece between two samples deposits 
 between them (trapezoid rule), so the filament equals the gap's volume; its width is area / length.
 
 Gaps the method cannot fill as asked are handled, and counted in the stats:
-  - narrower than `min_line` (a line a nozzle cannot lay): the thickness is snapped to two walls
-    (gap 0: the walls merge) or up to two walls plus `min_line`, whichever is nearer. The STL, the
+  - narrower than `min_line`: the thickness is snapped to two walls (gap 0: the walls merge) or
+    up to two walls plus `min_line`, whichever is nearer. By default min_line is the narrowest
+    line the mid-line's rate lays at `max_speed`, q / (U * H), but at least 0.2 mm (half a line),
+    so that no piece is capped and the extruder keeps its one rate everywhere. The STL, the
     G-code and the predicted transmission all use the snapped thickness: nothing is under-filled.
   - wider than `max_line`: the layer gets n = ceil(gap / max_line) mid-lines of gap / n each.
   - head speed above `max_speed` (very narrow lines): capped; the extruder then runs slower there.
@@ -62,7 +64,7 @@ class LithoOptions:
     layer_height: float = 0.2
     line_width: float = 0.4
     pitch: float = 0.4              # mm between samples along a layer
-    min_line: float = 0.2           # narrowest mid-line, mm
+    min_line: float | None = None   # narrowest mid-line, mm (None: the narrowest line_min())
     max_line: float = 1.6           # widest single mid-line, mm
     filament: float = 1.75
     wall_speed: float = 40.0        # mm/s
@@ -87,6 +89,13 @@ class LithoOptions:
     @property
     def filament_area(self) -> float:
         return math.pi * self.filament ** 2 / 4
+
+    def line_min(self) -> float:
+        """The narrowest mid-line: `min_line`, or by default the narrowest line the mid-line's
+        rate lays at max_speed (8 / (150 x 0.2) = 0.27 mm), but at least half a wall line."""
+        if self.min_line is not None:
+            return self.min_line
+        return max(self.line_width / 2, self.mid_flow / (self.max_speed * self.layer_height))
 
     @property
     def wall_flow(self) -> float:
@@ -113,7 +122,7 @@ def check_options(o: LithoOptions) -> None:
                 "wall-speed": o.wall_speed, "infill-flow": o.infill_flow, "max-speed": o.max_speed,
                 "min-speed": o.min_speed, "first-layer-speed": o.first_layer_speed,
                 "travel-speed": o.travel_speed, "z-speed": o.z_speed, "gamma": o.gamma,
-                "attenuation": o.attenuation, "min-line": o.min_line, "max-line": o.max_line,
+                "attenuation": o.attenuation, "min-line": o.line_min(), "max-line": o.max_line,
                 "min": o.min_thickness, "max": o.max_thickness}
     for k, v in positive.items():
         if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
@@ -135,8 +144,8 @@ def check_options(o: LithoOptions) -> None:
         bad("max", f"{o.max_thickness:g} mm: a lithophane thicker than 20 mm lets no light through")
     if o.layer_height > 0.8 * o.line_width:
         bad("layer-height", f"{o.layer_height:g} mm is more than 0.8 x --line-width {o.line_width:g} mm")
-    if o.min_line >= o.max_line:
-        bad("min-line", f"{o.min_line:g} mm must be less than --max-line {o.max_line:g} mm")
+    if o.line_min() >= o.max_line:
+        bad("min-line", f"{o.line_min():g} mm must be less than --max-line {o.max_line:g} mm")
     if o.min_speed >= o.max_speed:
         bad("min-speed", f"{o.min_speed:g} must be less than --max-speed {o.max_speed:g}")
     if o.shape == "cylinder":
@@ -223,7 +232,7 @@ def thickness_field(image, o: LithoOptions) -> Field:
     w2 = 2 * o.line_width
     gap = np.maximum(t - w2, 0.0)
     lines = np.maximum(1, np.ceil(gap.max(axis=1) / o.max_line - 1e-9)).astype(int)
-    thr = (lines * o.min_line)[:, None]
+    thr = (lines * o.line_min())[:, None]
     low = (gap > 1e-9) & (gap < thr - 1e-9)
     down = low & (gap < thr / 2)
     up = low & ~down
@@ -375,7 +384,7 @@ def _mid_sections(o: LithoOptions, fld: Field, k: int, region, flow) -> tuple[li
             area = (gi[:-1] + gi[1:]) / 2 * np.abs(np.diff(c[:, 0]))
         with np.errstate(divide="ignore", invalid="ignore"):
             width = np.where(seg > 1e-9, area / np.maximum(seg, 1e-12), 0.0)
-        laid = width >= o.min_line / 2
+        laid = width >= o.line_min() / 2
         e = np.where(laid, area * o.layer_height / o.filament_area, 0.0)
         speed_of = lambda wd: _speeds(wd * o.layer_height, o, flow)
         sec = _simplify(Section("mid-line", c, e, speed_of(width), np.where(laid, width, 0.0)),
@@ -967,7 +976,7 @@ def plan_stats(plan: Plan, stl_volume: float) -> dict:
             "snapped_to_walls": fld.snapped_down,
             "snapped_up_to_min_line": fld.snapped_up,
             "snapped_share": round((fld.snapped_down + fld.snapped_up) / samples, 4),
-            "min_line_mm": o.min_line, "max_line_mm": o.max_line,
+            "min_line_mm": round(o.line_min(), 4), "max_line_mm": o.max_line,
             "printed_vs_planned_thickness_max_mm": round(float(np.abs(t_print - pic).max()), 3),
         },
         "look": {"attenuation_per_mm": o.attenuation, "curve": o.curve,
