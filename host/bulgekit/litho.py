@@ -347,6 +347,11 @@ def _speeds(area_per_mm, o: LithoOptions, flow):
     return np.clip(v, o.min_speed, o.max_speed)
 
 
+def _capped(s: Section, o: LithoOptions, flow) -> np.ndarray:
+    """Laid pieces whose speed was capped: their volumetric rate W * H * v is below the flow."""
+    return (s.e > 0) & (s.width * o.layer_height * s.v < flow * (1 - 1e-6))
+
+
 def _wall_section(ring, o: LithoOptions, speed) -> Section:
     pts = np.asarray(ring.coords)
     seg = np.linalg.norm(np.diff(pts, axis=0), axis=1)
@@ -358,9 +363,12 @@ def _wall_section(ring, o: LithoOptions, speed) -> Section:
     return Section("wall", pts, e, np.full(n, speed), np.full(n, o.line_width))
 
 
-def _mid_sections(o: LithoOptions, fld: Field, k: int, region, flow) -> tuple[list, np.ndarray, np.ndarray]:
-    """The layer's mid-line(s) from probes across R. Pieces narrower than half the narrowest line
-    (slivers at steep steps) are not laid: they are hops, and their area is counted as left open."""
+def _mid_sections(o: LithoOptions, fld: Field, k: int, region, flow, counts: dict):
+    """The layer's mid-line(s) from probes across R: (sections, gap per sample, probe middles).
+    Next to a steep step R can be narrower than the thickness says (the wall bends round the
+    step). Such slivers narrower than the narrowest line are laid at that width (a little more
+    filament, so the rate stays one) when they are at least half of it, and otherwise not laid
+    (the head moves on); both areas are added up in `counts` (mm^2 per layer, x H = mm^3)."""
     a, b = _probes(o, fld, k)
     g, mid = _gap_along(region, a, b, _plate_middle(o, fld, k, a, b))
     nl = int(fld.lines[k])
@@ -384,7 +392,13 @@ def _mid_sections(o: LithoOptions, fld: Field, k: int, region, flow) -> tuple[li
             area = (gi[:-1] + gi[1:]) / 2 * np.abs(np.diff(c[:, 0]))
         with np.errstate(divide="ignore", invalid="ignore"):
             width = np.where(seg > 1e-9, area / np.maximum(seg, 1e-12), 0.0)
-        laid = width >= o.line_min() / 2
+        lmin = o.line_min()
+        laid = width >= lmin / 2
+        widen = laid & (width < lmin)
+        counts["sliver_added_mm3"] += float(((lmin - width[widen]) * seg[widen]).sum() * o.layer_height)
+        counts["sliver_left_mm3"] += float(area[~laid].sum() * o.layer_height)
+        width = np.where(widen, lmin, width)
+        area = np.where(widen, lmin * seg, area)
         e = np.where(laid, area * o.layer_height / o.filament_area, 0.0)
         speed_of = lambda wd: _speeds(wd * o.layer_height, o, flow)
         sec = _simplify(Section("mid-line", c, e, speed_of(width), np.where(laid, width, 0.0)),
@@ -499,6 +513,7 @@ def plan_lithophane(image, o: LithoOptions | None = None, progress=None) -> Plan
     fld = thickness_field(image, o)
     _check_fits(o, fld)
     plan = Plan(o, fld)
+    plan.counts.update(sliver_added_mm3=0.0, sliver_left_mm3=0.0)
     H, w = o.layer_height, o.line_width
     pos = None
     capped = 0
@@ -517,7 +532,7 @@ def plan_lithophane(image, o: LithoOptions | None = None, progress=None) -> Plan
                              f"({walls.geom_type}, {len(getattr(walls, 'interiors', []))} holes)")
         rings = [walls.exterior] + list(walls.interiors)
         wall_secs = [_wall_section(r, o, wall_v) for r in rings]
-        mids, g, pm = _mid_sections(o, fld, k, region, flow)
+        mids, g, pm = _mid_sections(o, fld, k, region, flow, plan.counts)
         if pos is None:
             pos = wall_secs[0].pts[0]
         secs = []
@@ -540,7 +555,7 @@ def plan_lithophane(image, o: LithoOptions | None = None, progress=None) -> Plan
                 secs.append(s)
         plan.layers.append(Layer(z=(k + 1) * H, sections=secs, gap=g, probe_mid=pm))
         pos = secs[-1].pts[-1]
-        capped += sum(int(np.sum((s.v >= o.max_speed - 1e-9) & (s.e > 0))) for s in mids)
+        capped += sum(int(np.sum(_capped(s, o, flow))) for s in mids)
         if progress and (k % 25 == 0 or k == fld.layers - 1):
             progress(k + 1, fld.layers)
     plan.counts["capped_pieces"] = capped
@@ -941,7 +956,8 @@ def plan_stats(plan: Plan, stl_volume: float) -> dict:
             moves += int(laid.sum())
             if s.kind == "mid-line" and laid.any():
                 tm = seg[laid] / s.v[laid]
-                cap = s.v[laid] >= o.max_speed - 1e-9
+                flow = o.mid_flow * (o.first_layer_speed / o.wall_speed if k == 0 else 1.0)
+                cap = _capped(s, o, flow)[laid]
                 capped_t += float(tm[cap].sum()); total_mid_t += float(tm.sum())
                 capped_len += float(seg[laid][cap].sum()); mid_len += float(seg[laid].sum())
     filament = sum(d["filament_mm"] for d in by_kind.values())
@@ -969,6 +985,8 @@ def plan_stats(plan: Plan, stl_volume: float) -> dict:
             "capped_time_share": round(capped_t / total_mid_t, 4) if total_mid_t else 0.0,
             "capped_length_share": round(capped_len / mid_len, 4) if mid_len else 0.0,
             "capped_pieces": plan.counts.get("capped_pieces", 0),
+            "slivers_widened_to_min_line_mm3": round(plan.counts.get("sliver_added_mm3", 0.0), 2),
+            "slivers_left_open_mm3": round(plan.counts.get("sliver_left_mm3", 0.0), 2),
             "layers_with_two_or_more": int((fld.lines > 1).sum()),
             "max_lines_per_layer": int(fld.lines.max()),
         },
