@@ -627,7 +627,6 @@ class _Writer:
         self.p, self.o, self.mode = plan, plan.options, mode
         self.lines: list[str] = []
         self.x = self.y = None
-        self.z = 0.0
         self.f = None
         self.retracted = False
         self.flow = None
