@@ -9,3 +9,6 @@ export PLATFORMIO_SETTING_CHECK_PRUNE_SYSTEM_THRESHOLD=0
 export PLATFORMIO_SETTING_ENABLE_PROXY_STRICT_SSL=No
 export PLATFORMIO_NO_ANSI=true
 export PATH="$BK_ROOT/.build/bin:$PATH"
+# This checkout's host package first, for `make demo` and the tests alike: `pip install -e` in
+# another clone must not make this one run that clone's code.
+export PYTHONPATH="$BK_ROOT/host${PYTHONPATH:+:$PYTHONPATH}"

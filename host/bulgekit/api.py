@@ -103,10 +103,11 @@ def build(gcode, strokes: Sequence[Stroke], outdir, *, name: str | None = None,
     """Strokes + sliced G-code -> <name>.bkm, <name>.bulge.gcode, <name>.stats.txt
     (and <name>.stock.gcode with write_fallback) in outdir."""
     gcode = Path(gcode)
-    from .gcode import check_not_processed
-    check_not_processed(gcode.read_bytes(), str(gcode))
+    from .gcode import check_not_processed, check_text
+    data = gcode.read_bytes()
+    check_text(data, str(gcode))
+    check_not_processed(data, str(gcode))
     outdir = Path(outdir)
-    outdir.mkdir(parents=True, exist_ok=True)
     name = name or gcode.stem
     if settings is None:
         settings = Settings(mode=MODE_GEOMETRIC if geometric else MODE_MARKED)
@@ -122,17 +123,28 @@ def build(gcode, strokes: Sequence[Stroke], outdir, *, name: str | None = None,
             f"the map ({len(res.map_bytes)} bytes) exceeds the printer's {arena}-byte arena; "
             f"layers {over} mm do not fit. Allow streaming (drop --no-stream) or use fewer points.")
     map_path = outdir / f"{name}.bkm"
-    map_path.write_bytes(res.map_bytes)
     gpath = outdir / f"{name}.bulge.gcode"
-    # the map was placed on this file's walls; points it still misses are
-    # listed by the stats below (one planner run instead of three)
-    ann = annotate_gcode(gcode, res.map_bytes, gpath, settings, stream=stream, arena=arena,
-                         check=False)
-    fpath = None
-    if write_fallback:
-        fpath = outdir / f"{name}.stock.gcode"
-        fallback_gcode(gcode, res.map_bytes, fpath, settings, allow_unreached=True)
-    st = bulge_stats(res.map_bytes, settings, gcode, arena)
+    fpath = outdir / f"{name}.stock.gcode" if write_fallback else None
     spath = outdir / f"{name}.stats.txt"
-    spath.write_text(st.text() + "\n", encoding="utf-8")
+    # The folder is made only now that the inputs are checked, and a build that fails while
+    # writing takes back what it wrote (and the folder, if it made it): all or nothing.
+    made_dir = not outdir.exists()
+    outdir.mkdir(parents=True, exist_ok=True)
+    written = [p for p in (map_path, gpath, fpath, spath) if p is not None and not p.exists()]
+    try:
+        map_path.write_bytes(res.map_bytes)
+        # the map was placed on this file's walls; points it still misses are
+        # listed by the stats below (one planner run instead of three)
+        ann = annotate_gcode(gcode, res.map_bytes, gpath, settings, stream=stream, arena=arena,
+                             check=False)
+        if fpath is not None:
+            fallback_gcode(gcode, res.map_bytes, fpath, settings, allow_unreached=True)
+        st = bulge_stats(res.map_bytes, settings, gcode, arena)
+        spath.write_text(st.text() + "\n", encoding="utf-8")
+    except BaseException:
+        for p in written:
+            p.unlink(missing_ok=True)
+        if made_dir and not any(outdir.iterdir()):
+            outdir.rmdir()
+        raise
     return BuildOutput(map_path, gpath, fpath, spath, res, ann, st)

@@ -46,11 +46,16 @@ def _allow_unreached_option(fn):
                              "(they will not bulge); default: error.")(fn)
 
 
+# Settings' messages start with the field's name; the option that sets it is named in the error.
+_SETTING_OPTION = {"dwell": "--dwell", "extra E": "--extra", "tolerance": "--tolerance"}
+
+
 def _settings(dwell, extra, tolerance, geometric) -> Settings:
     try:
         return Settings(MODE_GEOMETRIC if geometric else MODE_MARKED, dwell, extra, tolerance)
     except ValueError as e:
-        raise click.BadParameter(str(e)) from None
+        opt = next((o for k, o in _SETTING_OPTION.items() if str(e).startswith(k)), None)
+        raise click.BadParameter(str(e), param_hint=f"'{opt}'" if opt else None) from None
 
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})
@@ -249,7 +254,8 @@ def mcodes(map_file, output, numbered, arena, dwell, extra, tolerance, geometric
 @_settings_options
 @friendly
 def stats(map_file, gcode, arena, accel, dwell, extra, tolerance, geometric):
-    """Per-layer points, stops and the time bulges add."""
+    """Per-layer points, stops and the time bulges add. Warnings (points the G-code's moves do
+    not reach) go to stderr, and then the exit status is 1."""
     from . import stats as st
     settings = _settings(dwell, extra, tolerance, geometric)
     data = _read_map(map_file)
@@ -257,7 +263,12 @@ def stats(map_file, gcode, arena, accel, dwell, extra, tolerance, geometric):
         s = st.print_stats(gcode, data, settings, arena, accel)
     else:
         s = st.map_stats(data, settings, arena)
-    click.echo(s.text())
+    warned = False
+    for line in s.text().splitlines():
+        warned |= line.startswith("WARNING:")
+        click.echo(line, err=line.startswith("WARNING:"))
+    if warned:
+        sys.exit(1)
 
 
 @main.command(short_help="Worked example: text on a sliced cylinder.")

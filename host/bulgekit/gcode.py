@@ -287,10 +287,20 @@ def _arc(st: GcodeState, w: dict, no: int, cw: bool, where: str) -> list[Move]:
     return out
 
 
+def check_text(data, source: str = "<gcode>") -> None:
+    """Refuse a file that is not text (a program, an image, a zip passed by mistake): G-code has
+    no NUL bytes, and reading such a file as lines would only produce nonsense errors."""
+    head = data[:65536]
+    i = head.find(b"\0" if isinstance(head, (bytes, bytearray)) else "\0")
+    if i >= 0:
+        raise GcodeError(f"{source}: not a text G-code file (binary data: a NUL byte at byte {i})")
+
+
 def check_complete(text, source: str = "<gcode>") -> None:
-    """Refuse a file whose last line has a command but no line end: that is
-    how a cut-off download or copy looks ("G1 X119.5 E9" for "E9.8731"), and
+    """Refuse a file that is not text (check_text), or whose last line has a command but no line
+    end: that is how a cut-off download or copy looks ("G1 X119.5 E9" for "E9.8731"), and
     its last move would be taken as written."""
+    check_text(text, source)
     if isinstance(text, (bytes, bytearray)):
         if not text or text.endswith(b"\n"):
             return

@@ -512,10 +512,11 @@ def text_strokes(text: str, size_mm: float, spacing: float = 0.0, u0: float = 0.
         raise InputError(f"text: unknown font {font!r}; available: {', '.join(hf.default_font_names)}")
     hf.load_default_font(font)
     glyphs = {}
-    for g_char in set(text) - {"\n"}:
+    for col, g_char in enumerate(text):                 # in text order: the first missing one is named
+        if g_char == "\n" or g_char in glyphs:
+            continue
         found = list(hf.glyphs_for_text(g_char))
         if not found:
-            col = text.index(g_char)
             raise InputError(f"text: character {g_char!r} (position {col + 1}) is not in font {font!r}")
         glyphs[g_char] = found[0]
     any_glyph = next(iter(glyphs.values()))

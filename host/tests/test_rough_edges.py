@@ -1,0 +1,67 @@
+"""Rough edges a new user hit (issue 12), each with its fix: a binary file given as G-code, the
+first unsupported character named, a failed build leaving nothing behind, stats warnings on
+stderr with a non-zero status, and range errors naming their option."""
+from __future__ import annotations
+
+import pytest
+from click.testing import CliRunner
+
+from bulgekit import mapformat
+from bulgekit.cli import main
+from bulgekit.strokes import InputError, text_strokes
+
+
+def run(*args):
+    return CliRunner().invoke(main, [str(a) for a in args])
+
+
+def test_binary_file_as_gcode(tmp_path):
+    binary = tmp_path / "ls"
+    binary.write_bytes(b"\x7fELF\x02\x01\x01\x00" + bytes(range(256)) * 40)
+    out = tmp_path / "out"
+    r = run("build", binary, "--text", "HI", "-o", out)
+    assert r.exit_code != 0
+    assert f"{binary}: not a text G-code file (binary data: a NUL byte at byte 7)" in r.output
+    assert len(r.output) < 300                     # one line, not the file's bytes
+    assert not out.exists()
+    r = run("annotate", binary, "-m", tmp_path / "x.bkm", "-o", tmp_path / "a.gcode")
+    assert r.exit_code != 0
+
+
+def test_first_unsupported_character_is_named():
+    with pytest.raises(InputError, match=r"character 'ü' \(position 3\)"):
+        text_strokes("Grüße ✓", 6)
+
+
+def test_failed_build_leaves_no_folder(tmp_path, data_dir):
+    out = tmp_path / "never"
+    # text far above the 10 mm part: no layer there, the build fails after reading the walls
+    r = run("build", data_dir / "prusa_cyl.gcode", "--text", "HI", "--at", "0,50", "-o", out)
+    assert r.exit_code != 0
+    assert not out.exists()
+
+
+def test_stats_warnings_go_to_stderr_and_fail(tmp_path, data_dir):
+    m = tmp_path / "far.bkm"
+    m.write_bytes(mapformat.encode_map([(0.6, [(150.0, 150.0)])], layer_height_mm=0.3))
+    r = CliRunner().invoke(main, ["stats", str(m), "--gcode", str(data_dir / "prusa_cyl.gcode")])
+    assert r.exit_code == 1
+    assert "WARNING: 1 points are not within" in r.stderr
+    assert "WARNING" not in r.stdout and "stops when printed: 0 of 1 points" in r.stdout
+
+
+@pytest.mark.parametrize("opt, value, name", [("--dwell", "-100", "'--dwell'"), ("--extra", "9", "'--extra'"),
+                                              ("--tolerance", "0.001", "'--tolerance'")])
+def test_range_errors_name_the_option(tmp_path, data_dir, opt, value, name):
+    m = tmp_path / "a.bkm"
+    m.write_bytes(mapformat.encode_map([(0.6, [(100.0, 80.0)])], layer_height_mm=0.3))
+    r = run("stats", m, opt, value)
+    assert r.exit_code == 2
+    assert f"Invalid value for {name}" in r.output
+
+
+def test_tests_import_this_checkout():
+    """make test in a second clone tests that clone's code, whatever `pip install -e` points at."""
+    from pathlib import Path
+    import bulgekit
+    assert Path(bulgekit.__file__).resolve().parents[1] == Path(__file__).resolve().parents[1]
