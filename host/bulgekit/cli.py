@@ -86,6 +86,10 @@ def main():
 @click.option("--at", callback=pair, default="0,0", show_default=True, metavar="U,V",
               help="U,V mm: where input goes (--text baseline start; stroke files shifted by it, "
                    "an SVG page's / image's lower-left corner), as in `strokes` and `preview`.")
+@click.option("--font", default="futural", show_default=True, help="Hershey font of --text (as in `strokes`).")
+@click.option("--letter-spacing", type=FINITE, default=0.0, show_default=True,
+              help="Extra mm between letters of --text.")
+@click.option("--scale", type=POSITIVE, default=1.0, show_default=True, help="Scale SVG/JSON stroke files.")
 @click.option("--image-width", type=POSITIVE, help="Width (mm) on the wall of an image stroke file.")
 @click.option("--curve-tolerance", type=POSITIVE, default=0.05, show_default=True,
               help="SVG curve flattening tolerance, mm (--tolerance is M720 T).")
@@ -103,18 +107,19 @@ def main():
 @click.option("--preview/--no-preview", default=True, show_default=True, help="Write <name>.preview.png.")
 @_settings_options
 @friendly
-def build(gcode, stroke_files, text, text_size, at, image_width, curve_tolerance, mirror, outdir, name, spacing,
-          line_width, layer_height, ref_angle, no_stream, write_fallback, preview,
-          dwell, extra, tolerance, geometric):
+def build(gcode, stroke_files, text, text_size, at, font, letter_spacing, scale, image_width, curve_tolerance,
+          mirror, outdir, name, spacing, line_width, layer_height, ref_angle, no_stream, write_fallback,
+          preview, dwell, extra, tolerance, geometric):
     """Place strokes on GCODE's outer wall: map + annotated G-code + stats."""
     from . import api
     from .strokes import text_strokes
     strokes = []
     for f in stroke_files:
-        strokes += api.load_strokes(f, image_width_mm=image_width, offset=at,
+        strokes += api.load_strokes(f, image_width_mm=image_width, offset=at, scale=scale,
                                     curve_tolerance_mm=curve_tolerance)
     if text:
-        strokes += text_strokes(text, text_size, u0=at[0], v0=at[1], mirror=mirror)
+        strokes += text_strokes(text, text_size, spacing=letter_spacing, u0=at[0], v0=at[1],
+                                mirror=mirror, font=font)
     if not strokes:
         raise click.UsageError("nothing to draw: give --strokes FILE and/or --text TEXT")
     settings = _settings(dwell, extra, tolerance, geometric)

@@ -215,6 +215,7 @@ def build(strokes: Sequence[Stroke], model: WallModel, spacing: float | None = N
                              "(the point spacing defaults to twice it)")
         spacing = 2 * line_width
     per_layer = sample_strokes(strokes, model, spacing)
+    notes = list(model.notes) + _wrap_note(per_layer, model)
     points: list[BulgePoint] = []
     layers = []
     weights = []
@@ -255,6 +256,18 @@ def build(strokes: Sequence[Stroke], model: WallModel, spacing: float | None = N
         raise BuildError(f"map encoding failed: {e}") from None
     bm = mapformat.decode_map(data)
     sizes = [len(mapformat.encode_record(l, bm.has_weights)) for l in bm.layers]
-    res = BuildResult(model, points, layers, wts, data, quantum_um, spacing, sizes,
-                      list(model.notes))
+    res = BuildResult(model, points, layers, wts, data, quantum_um, spacing, sizes, notes)
     return res
+
+
+def _wrap_note(per_layer, model: WallModel) -> list[str]:
+    """u runs round a closed wall: strokes placed past its length (e.g. --at beyond it) land
+    from its start again. Allowed (a loop has no end), but said once, not silently."""
+    for li in sorted(per_layer):
+        w = model.walls[li]
+        top = max(u for u, _, _ in per_layer[li])
+        if w.closed and top >= w.length + 1e-6:
+            return [f"strokes reach u {top:.1f} mm, past the outer wall's {w.length:.1f} mm "
+                    f"(first at z {w.z:.2f} mm): the wall is a loop, so they go on from its "
+                    f"start (u {top % w.length:.1f} mm)"]
+    return []

@@ -65,3 +65,33 @@ def test_tests_import_this_checkout():
     from pathlib import Path
     import bulgekit
     assert Path(bulgekit.__file__).resolve().parents[1] == Path(__file__).resolve().parents[1]
+
+
+def test_at_past_the_wall_is_said_once(tmp_path, data_dir):
+    # the 40 mm cylinder's wall is about 125 mm round: text at u 200 wraps to u ~74
+    r = run("build", data_dir / "prusa_cyl.gcode", "--text", "HI", "--at", "200,3", "--size", "3",
+            "-o", tmp_path / "o", "--no-preview")
+    assert r.exit_code == 0, r.output
+    notes = [l for l in r.output.splitlines() if "past the outer wall" in l]
+    assert len(notes) == 1 and "the wall is a loop" in notes[0]
+    r = run("build", data_dir / "prusa_cyl.gcode", "--text", "HI", "--at", "10,3", "--size", "3",
+            "-o", tmp_path / "p", "--no-preview")
+    assert r.exit_code == 0 and "past the outer wall" not in r.output
+
+
+def test_build_has_the_text_options_of_strokes(tmp_path, data_dir):
+    """--font, --letter-spacing and --scale as in `strokes`: each changes the map."""
+    strokes = data_dir.parent / "data_inputs" / "strokes.json"
+
+    def map_bytes(*extra, at="10,3"):
+        out = tmp_path / ("o" + "_".join(map(str, extra)).replace("-", "").replace(".", "").replace("/", ""))
+        r = run("build", data_dir / "prusa_cyl.gcode", "--at", at, "-o", out, "--no-preview", *extra)
+        assert r.exit_code == 0, r.output
+        return (out / "prusa_cyl.bkm").read_bytes()
+    text = ("--text", "HI", "--size", "3")
+    base = map_bytes(*text)
+    assert map_bytes(*text, "--letter-spacing", "2") != base
+    assert map_bytes(*text, "--font", "futuram") != base
+    assert map_bytes("-s", strokes, "--scale", "0.5", at="10,1") != map_bytes("-s", strokes, "--scale", "0.4", at="10,1")
+    r = run("build", data_dir / "prusa_cyl.gcode", "--text", "HI", "--font", "nosuch", "-o", tmp_path / "x")
+    assert r.exit_code != 0 and "unknown font 'nosuch'" in r.output
