@@ -1,6 +1,7 @@
 """bulgekit command line."""
 from __future__ import annotations
 
+import os
 import sys
 import time
 from pathlib import Path
@@ -80,6 +81,9 @@ def main():
 @click.argument("gcode", type=click.Path(exists=True, dir_okay=False))
 @click.option("-s", "--strokes", "stroke_files", multiple=True, type=click.Path(exists=True, dir_okay=False),
               help="Stroke file: .json stroke list, .svg drawing or an image (dots). Repeatable.")
+@click.option("--placement", type=click.Path(dir_okay=False),
+              help="TOML placement file (text, strokes, [bulges] settings; see examples/placement.toml), "
+                   "as `post-process` reads it; options given here win over its [bulges].")
 @click.option("--text", help="Write this text on the wall (single-stroke font).")
 @click.option("--text-size", "--size", "text_size", type=POSITIVE, default=6.0, show_default=True,
               help="Capital height of --text, mm.")
@@ -107,13 +111,27 @@ def main():
 @click.option("--preview/--no-preview", default=True, show_default=True, help="Write <name>.preview.png.")
 @_settings_options
 @friendly
-def build(gcode, stroke_files, text, text_size, at, font, letter_spacing, scale, image_width, curve_tolerance,
-          mirror, outdir, name, spacing, line_width, layer_height, ref_angle, no_stream, write_fallback,
-          preview, dwell, extra, tolerance, geometric):
+@click.pass_context
+def build(ctx, gcode, placement, stroke_files, text, text_size, at, font, letter_spacing, scale, image_width,
+          curve_tolerance, mirror, outdir, name, spacing, line_width, layer_height, ref_angle, no_stream,
+          write_fallback, preview, dwell, extra, tolerance, geometric):
     """Place strokes on GCODE's outer wall: map + annotated G-code + stats."""
     from . import api
     from .strokes import text_strokes
     strokes = []
+    if placement:
+        from .placement import load_placement
+        pl = load_placement(placement)
+        strokes += pl.strokes
+        given = lambda p: ctx.get_parameter_source(p) == click.core.ParameterSource.COMMANDLINE
+        b = pl.bulges
+        dwell = dwell if given("dwell") else b.get("dwell", dwell)
+        extra = extra if given("extra") else b.get("extra", extra)
+        tolerance = tolerance if given("tolerance") else b.get("tolerance", tolerance)
+        geometric = geometric if given("geometric") else b.get("geometric", geometric)
+        spacing = spacing if given("spacing") else b.get("spacing", spacing)
+        line_width = line_width if given("line_width") else b.get("line_width", line_width)
+        write_fallback = write_fallback or b.get("fallback", False)
     for f in stroke_files:
         strokes += api.load_strokes(f, image_width_mm=image_width, offset=at, scale=scale,
                                     curve_tolerance_mm=curve_tolerance)
@@ -121,7 +139,7 @@ def build(gcode, stroke_files, text, text_size, at, font, letter_spacing, scale,
         strokes += text_strokes(text, text_size, spacing=letter_spacing, u0=at[0], v0=at[1],
                                 mirror=mirror, font=font)
     if not strokes:
-        raise click.UsageError("nothing to draw: give --strokes FILE and/or --text TEXT")
+        raise click.UsageError("nothing to draw: give --strokes FILE, --text TEXT or --placement FILE")
     settings = _settings(dwell, extra, tolerance, geometric)
     t0 = time.perf_counter()
     out = api.build(gcode, strokes, outdir, name=name, spacing=spacing, line_width=line_width,
@@ -140,6 +158,60 @@ def build(gcode, stroke_files, text, text_size, at, font, letter_spacing, scale,
         if png:
             click.echo(f"wrote {png}")
     click.echo(f"done in {time.perf_counter() - t0:.1f} s")
+
+
+@main.command("post-process", short_help="For a slicer's post-processing step: annotate a G-code file in place.")
+@click.option("--placement", required=True, type=click.Path(dir_okay=False),
+              help="TOML placement file: what to draw and the bulge settings (examples/placement.toml).")
+@_arena_option
+@click.option("--keep", type=click.Path(file_okay=False),
+              help="Also keep the map, stats and preview in this folder.")
+@click.argument("gcode", type=click.Path(exists=True, dir_okay=False))
+@friendly
+def post_process(placement, arena, keep, gcode):
+    """Annotate GCODE in place with the drawing a placement file describes, for bulgekit
+    firmware (M720-M722), or rewrite it for stock firmware when the placement says
+    `fallback = true`. Slicers pass the G-code path last:
+
+    \b
+      PrusaSlicer / OrcaSlicer / Bambu Studio, Print settings > Output options >
+      Post-processing scripts:   /path/to/bulgekit post-process --placement /path/to/placement.toml
+      Cura: Extensions > Post Processing > Add a script > bulgekit (integrations/cura/)
+
+    The file is replaced only when everything succeeded; on any error it is left as the slicer
+    wrote it, the message goes to stderr and the exit status is 1."""
+    import shutil
+    import tempfile
+
+    from . import api
+    from .placement import PlacementError, load_placement
+
+    pl = load_placement(placement)
+    b = pl.bulges
+    try:
+        settings = Settings(MODE_GEOMETRIC if b.get("geometric") else MODE_MARKED,
+                            b.get("dwell", DEFAULT_DWELL_MS), b.get("extra", DEFAULT_EXTRA_E_MM),
+                            b.get("tolerance", DEFAULT_TOLERANCE_MM))
+    except ValueError as e:
+        raise PlacementError(f"{placement}: bulges: {e}") from None
+    src = Path(gcode)
+    tmp = Path(tempfile.mkdtemp(prefix=".bulgekit-", dir=src.parent))
+    try:
+        out = api.build(src, pl.strokes, tmp, name="pp", spacing=b.get("spacing"),
+                        line_width=b.get("line_width", 0.45), settings=settings, arena=arena,
+                        write_fallback=bool(b.get("fallback")))
+        result = out.fallback_path if b.get("fallback") else out.gcode_path
+        if keep:
+            Path(keep).mkdir(parents=True, exist_ok=True)
+            for p in (out.map_path, out.stats_path):
+                shutil.copy(p, Path(keep) / f"{src.stem}{p.suffix}")
+        shutil.copymode(src, result)
+        os.replace(result, src)                     # atomic on one file system: all or nothing
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    s = out.stats
+    click.echo(f"bulgekit: {s.points} points on {len(s.layers)} layers "
+               f"{'rewritten for stock firmware' if b.get('fallback') else 'annotated'} into {src}")
 
 
 def _preview(out, path: Path):
