@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import functools
 import math
+import sys
 
 import click
 
@@ -28,6 +29,22 @@ def friendly(fn):
         except OSError as e:
             raise click.ClickException(f"{e.filename or ''}: {e.strerror or e}") from None
     return wrapper
+
+
+def progress_option(fn):
+    """--quiet, and progress on stderr for the command's passes over its G-code while it runs
+    (only on a terminal: a slicer, a pipe or a log gets none)."""
+    @functools.wraps(fn)
+    def wrapper(*a, quiet=False, **kw):
+        from . import progress
+        if not quiet and sys.stderr.isatty():
+            progress.enable()
+        try:
+            return fn(*a, **kw)
+        finally:
+            progress.disable()
+    return click.option("-q", "--quiet", is_flag=True,
+                        help="No progress on stderr (it is shown only on a terminal).")(wrapper)
 
 
 class Num(click.ParamType):

@@ -18,7 +18,7 @@ from typing import Sequence
 
 from . import annotate as _annotate
 from . import fallback as _fallback
-from . import mapbuild, mapformat, stats as _stats, wall
+from . import mapbuild, mapformat, progress, stats as _stats, wall
 from .fallback import MODE_GEOMETRIC, MODE_MARKED, Settings
 from .strokes import BulgekitError, InputError, Stroke
 
@@ -50,7 +50,8 @@ def load_strokes(path, *, image_width_mm: float | None = None, offset=(0.0, 0.0)
 def walls(gcode, *, geometric: bool = False, layer_height: float | None = None,
           ref_angle_deg: float = -90.0) -> wall.WallModel:
     """Outer walls per layer of a sliced file (see wall.py for u and v)."""
-    return wall.walls_from_gcode(gcode, layer_height, geometric, ref_angle_deg)
+    with progress.phase("reading the walls", path=gcode):
+        return wall.walls_from_gcode(gcode, layer_height, geometric, ref_angle_deg)
 
 
 def build_map(model: wall.WallModel, strokes: Sequence[Stroke], *, spacing: float | None = None,
@@ -65,22 +66,25 @@ def annotate_gcode(gcode, map_bytes: bytes, out, settings: Settings = Settings()
                    allow_unreached: bool = False) -> _annotate.AnnotateResult:
     """Map points no move reaches are an error unless allow_unreached
     (check=False skips the reference-planner run that finds them)."""
-    return _annotate.annotate_file(gcode, out, map_bytes, settings, arena, stream, check,
-                                   allow_unreached)
+    with progress.phase("annotating", path=gcode):
+        return _annotate.annotate_file(gcode, out, map_bytes, settings, arena, stream, check,
+                                       allow_unreached)
 
 
 def fallback_gcode(gcode, map_bytes: bytes, out, settings: Settings = Settings(), *,
                    allow_unreached: bool = False) -> _fallback.RewriteResult:
     """Map points no move reaches are an error unless allow_unreached."""
-    return _fallback.rewrite_file(gcode, out, mapformat.decode_map(map_bytes, source="map"),
-                                  settings, allow_unreached)
+    with progress.phase("stock fallback", path=gcode):
+        return _fallback.rewrite_file(gcode, out, mapformat.decode_map(map_bytes, source="map"),
+                                      settings, allow_unreached)
 
 
 def bulge_stats(map_bytes: bytes, settings: Settings = Settings(), gcode=None,
           arena: int = _stats.ARENA_BYTES) -> _stats.Stats:
     if gcode is None:
         return _stats.map_stats(map_bytes, settings, arena)
-    return _stats.print_stats(gcode, map_bytes, settings, arena)
+    with progress.phase("statistics", path=gcode):
+        return _stats.print_stats(gcode, map_bytes, settings, arena)
 
 
 @dataclass

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import click
 
-from ._cliutil import FINITE, POSITIVE, Num, friendly, pair
+from ._cliutil import FINITE, POSITIVE, Num, friendly, pair, progress_option
 from . import __version__, mapformat
 from .fallback import (DEFAULT_DWELL_MS, DEFAULT_EXTRA_E_MM, DEFAULT_TOLERANCE_MM,
                        MODE_GEOMETRIC, MODE_MARKED, Settings)
@@ -110,6 +110,7 @@ def main():
 @click.option("--fallback", "write_fallback", is_flag=True, help="Also write <name>.stock.gcode for stock firmware.")
 @click.option("--preview/--no-preview", default=True, show_default=True, help="Write <name>.preview.png.")
 @_settings_options
+@progress_option
 @friendly
 @click.pass_context
 def build(ctx, gcode, placement, stroke_files, text, text_size, at, font, letter_spacing, scale, image_width,
@@ -244,6 +245,7 @@ def _preview_3d(out, path: Path):
 @_arena_option
 @_allow_unreached_option
 @_settings_options
+@progress_option
 @friendly
 def annotate(gcode, map_file, output, no_stream, arena, allow_unreached, dwell, extra, tolerance,
              geometric):
@@ -251,11 +253,11 @@ def annotate(gcode, map_file, output, no_stream, arena, allow_unreached, dwell, 
 
     GCODE is also run through the reference planner: map points that no move
     reaches (a map made for another file) are an error unless --allow-unreached."""
-    from .annotate import annotate_file
+    from . import api
     settings = _settings(dwell, extra, tolerance, geometric)
     t0 = time.perf_counter()
-    res = annotate_file(gcode, output, _read_map(map_file), settings, arena, not no_stream,
-                        allow_unreached=allow_unreached)
+    res = api.annotate_gcode(gcode, _read_map(map_file), output, settings, stream=not no_stream,
+                             arena=arena, allow_unreached=allow_unreached)
     for note in res.notes:
         click.echo(f"WARNING: {note}", err=True)
     dt = time.perf_counter() - t0
@@ -271,16 +273,16 @@ def annotate(gcode, map_file, output, no_stream, arena, allow_unreached, dwell, 
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="G-code to write.")
 @_allow_unreached_option
 @_settings_options
+@progress_option
 @friendly
 def fallback(gcode, map_file, output, allow_unreached, dwell, extra, tolerance, geometric):
     """Rewrite GCODE for stock firmware: split, G4 dwell, extra E, G92 E.
 
     Map points that no move reaches (a map made for another file) are an
     error unless --allow-unreached."""
-    from .fallback import rewrite_file
+    from . import api
     settings = _settings(dwell, extra, tolerance, geometric)
-    res = rewrite_file(gcode, output, mapformat.decode_map(Path(map_file).read_bytes(), source=map_file),
-                       settings, allow_unreached)
+    res = api.fallback_gcode(gcode, _read_map(map_file), output, settings, allow_unreached=allow_unreached)
     if res.unreached:
         click.echo(f"WARNING: {res.unreached}", err=True)
     st = res.stats
@@ -329,6 +331,7 @@ def mcodes(map_file, output, numbered, arena, dwell, extra, tolerance, geometric
 @click.option("--accel", type=POSITIVE, default=1000.0, show_default=True,
               help="Acceleration (mm/s^2) for the stop/start time estimate.")
 @_settings_options
+@progress_option
 @friendly
 def stats(map_file, gcode, arena, accel, dwell, extra, tolerance, geometric):
     """Per-layer points, stops and the time bulges add. Warnings (points the G-code's moves do
@@ -337,7 +340,9 @@ def stats(map_file, gcode, arena, accel, dwell, extra, tolerance, geometric):
     settings = _settings(dwell, extra, tolerance, geometric)
     data = _read_map(map_file)
     if gcode:
-        s = st.print_stats(gcode, data, settings, arena, accel)
+        from . import progress
+        with progress.phase("statistics", path=gcode):
+            s = st.print_stats(gcode, data, settings, arena, accel)
     else:
         s = st.map_stats(data, settings, arena)
     warned = False

@@ -6,11 +6,10 @@ cli.py calls register(main) to add it to the bulgekit command group.
 from __future__ import annotations
 
 import math
-import sys
 
 import click
 
-from ._cliutil import NONNEG, POSITIVE, friendly
+from ._cliutil import NONNEG, POSITIVE, friendly, progress_option
 
 
 def _bed(ctx, param, value):
@@ -93,6 +92,7 @@ def register(main):
     @click.option("--end-gcode", type=click.Path(dir_okay=False), default=None,
                   help="File replacing the default end G-code.")
     @click.option("--no-purge", is_flag=True, help="No purge line before the part.")
+    @progress_option
     @friendly
     def litho(image, shape, outdir, name, no_purge, **kw):
         """Make a lithophane from IMAGE (any picture Pillow reads; turned grayscale).
@@ -117,15 +117,16 @@ def register(main):
           bulgekit litho photo.jpg --curve transmission --frame 3 --foot 8 -o out/
         """
         from . import litho as lt
+        from . import progress
 
         kw["bed"] = tuple(kw["bed"])
         opts = lt.LithoOptions(shape=shape, purge=not no_purge, **kw)
 
-        def progress(done, total):
-            if sys.stderr.isatty() or done == total:
+        def show(done, total):
+            if progress.enabled():
                 click.echo(f"\rplanning layers: {done}/{total}", err=True, nl=done == total)
 
-        res = lt.make(image, outdir, name=name, progress=progress, options=opts)
+        res = lt.make(image, outdir, name=name, progress=show, options=opts)
         s = res.stats
         click.echo(summary(s))
         for key in ("gcode", "stock", "stl", "png", "json"):

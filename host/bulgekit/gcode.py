@@ -19,6 +19,7 @@ import re
 from dataclasses import dataclass
 from typing import Iterable, Iterator
 
+from . import progress
 from .strokes import BulgekitError
 
 
@@ -167,6 +168,8 @@ def parse_lines(lines: Iterable[str], source: str = "<gcode>",
     """Parse a G-code stream; yields one Line per input line."""
     st = state or GcodeState()
     for no, raw in enumerate(lines, 1):
+        if not no & 0x3FFF:                 # every 16,384 lines: progress (a no-op unless shown)
+            progress.tick(no)
         code, comment = split_code(raw)
         if not code:
             role = None

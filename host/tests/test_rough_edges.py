@@ -95,3 +95,45 @@ def test_build_has_the_text_options_of_strokes(tmp_path, data_dir):
     assert map_bytes("-s", strokes, "--scale", "0.5", at="10,1") != map_bytes("-s", strokes, "--scale", "0.4", at="10,1")
     r = run("build", data_dir / "prusa_cyl.gcode", "--text", "HI", "--font", "nosuch", "-o", tmp_path / "x")
     assert r.exit_code != 0 and "unknown font 'nosuch'" in r.output
+
+
+def test_progress_is_shown_only_when_switched_on(tmp_path, data_dir):
+    """The passes over the G-code report on stderr when a terminal asks for it (the CLI switches
+    it on for a tty without --quiet); a slicer, a pipe or CliRunner gets none."""
+    import io
+    from bulgekit import api, progress
+    buf = io.StringIO()
+    progress.enable(buf)
+    try:
+        api.build(data_dir / "prusa_cyl.gcode", text_strokes("HI", 3, u0=10, v0=3), tmp_path / "o",
+                  write_fallback=True)
+    finally:
+        progress.disable()
+    shown = buf.getvalue()
+    for label in ("reading the walls", "annotating", "stock fallback", "statistics"):
+        assert f"{label}: done in" in shown
+    r = CliRunner().invoke(main, ["build", str(data_dir / "prusa_cyl.gcode"), "--text", "HI", "--at", "10,3",
+                                  "--size", "3", "-o", str(tmp_path / "p"), "--no-preview"])
+    assert r.exit_code == 0 and "done in" in r.stdout and r.stderr == ""
+    r = CliRunner().invoke(main, ["build", str(data_dir / "prusa_cyl.gcode"), "--text", "HI", "--at", "10,3",
+                                  "--size", "3", "-o", str(tmp_path / "q"), "--no-preview", "--quiet"])
+    assert r.exit_code == 0 and r.stderr == ""
+
+
+def test_progress_ticks_on_a_long_file(tmp_path):
+    """parse_lines ticks every 16,384 lines: a pass over 50,000 lines redraws its line."""
+    import io
+    from bulgekit import progress
+    from bulgekit.gcode import parse_lines
+    buf = io.StringIO()
+    progress.enable(buf)
+    progress._state = None
+    try:
+        with progress.phase("test pass", total_lines=50000):
+            for i, _ in enumerate(parse_lines(f"G1 X{i % 100} Y1 E0.1\n" for i in range(50000))):
+                if i % 16384 == 16383:
+                    progress._state[3] = 0.0          # let the next tick draw at once
+    finally:
+        progress.disable()
+    assert "test pass:  32 % (16,384 of 50,000 lines)" in buf.getvalue()
+    assert "test pass: done in" in buf.getvalue()
