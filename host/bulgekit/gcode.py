@@ -100,6 +100,23 @@ ARC_CHORD_MM = 0.5  # chord length used to linearise G2/G3 (Marlin uses 1 mm)
 
 def parse_words(code: str, where: str) -> dict[str, float]:
     """X10 Y-2.5 ... -> {'X': 10.0, ...}.  Raises GcodeError naming `where`."""
+    # Fast path: float() takes every value _NUM takes; of what it takes besides, only '_'
+    # digit separators can come out of _WORD (letters such as 'inf' split into words), so a
+    # value with '_' or one float() refuses goes the checked way, which names the bad word.
+    out: dict[str, float] = {}
+    try:
+        for letter, val in _WORD.findall(code.upper()):
+            if letter == "N" and not out:
+                continue
+            if "_" in val:
+                raise ValueError(val)
+            out[letter] = float(val)
+        return out
+    except ValueError:
+        return _parse_words_checked(code, where)
+
+
+def _parse_words_checked(code: str, where: str) -> dict[str, float]:
     out: dict[str, float] = {}
     up = code.upper()
     for mt in _WORD.finditer(up):
