@@ -166,7 +166,7 @@ def build(ctx, gcode, placement, stroke_files, text, text_size, at, font, letter
               help="TOML placement file: what to draw and the bulge settings (examples/placement.toml).")
 @_arena_option
 @click.option("--keep", type=click.Path(file_okay=False),
-              help="Also keep the map, stats and preview in this folder.")
+              help="Also keep the map and the stats in this folder.")
 @click.argument("gcode", type=click.Path(exists=True, dir_okay=False))
 @friendly
 def post_process(placement, arena, keep, gcode):
@@ -185,6 +185,7 @@ def post_process(placement, arena, keep, gcode):
     import tempfile
 
     from . import api
+    from .mapbuild import DEFAULT_LINE_WIDTH
     from .placement import PlacementError, load_placement
 
     pl = load_placement(placement)
@@ -199,7 +200,7 @@ def post_process(placement, arena, keep, gcode):
     tmp = Path(tempfile.mkdtemp(prefix=".bulgekit-", dir=src.parent))
     try:
         out = api.build(src, pl.strokes, tmp, name="pp", spacing=b.get("spacing"),
-                        line_width=b.get("line_width", 0.45), settings=settings, arena=arena,
+                        line_width=b.get("line_width", DEFAULT_LINE_WIDTH), settings=settings, arena=arena,
                         write_fallback=bool(b.get("fallback")))
         result = out.fallback_path if b.get("fallback") else out.gcode_path
         if keep:
