@@ -24,8 +24,12 @@ def test_binary_file_as_gcode(tmp_path):
     assert f"{binary}: not a text G-code file (binary data: a NUL byte at byte 7)" in r.output
     assert len(r.output) < 300                     # one line, not the file's bytes
     assert not out.exists()
-    r = run("annotate", binary, "-m", tmp_path / "x.bkm", "-o", tmp_path / "a.gcode")
-    assert r.exit_code != 0
+    m = tmp_path / "x.bkm"
+    m.write_bytes(mapformat.encode_map([(0.6, [(100.0, 80.0)])], layer_height_mm=0.3))
+    for cmd in ("annotate", "fallback"):
+        r = run(cmd, binary, m, "-o", tmp_path / "a.gcode")
+        assert r.exit_code == 1 and "not a text G-code file (binary data: a NUL byte at byte 7)" in r.output
+        assert not (tmp_path / "a.gcode").exists()
 
 
 def test_first_unsupported_character_is_named():
