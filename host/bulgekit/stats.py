@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 
 from . import mapformat
 from .fallback import RefPlanner, Settings
-from .gcode import parse_lines, read_text
+from .gcode import open_checked, parse_lines
 
 ARENA_BYTES = mapformat.ARENA_BYTES
 
@@ -129,10 +129,10 @@ def print_stats(gcode_path, map_bytes: bytes, settings: Settings, arena: int = A
     """map_stats plus a run of the G-code through the reference planner."""
     st = map_stats(map_bytes, settings, arena)
     bm = mapformat.decode_map(map_bytes)
-    text_lines = read_text(gcode_path)
+    ends, lines = open_checked(gcode_path)         # streamed, as the walls are read
     planner = RefPlanner(bm, settings)
     decel = 0.0
-    for ln in parse_lines(text_lines, str(gcode_path)):
+    for ln in parse_lines(lines, str(gcode_path)):
         for m in ln.moves:
             before = len(planner.stops)
             planner.plan(m)
@@ -162,5 +162,5 @@ def print_stats(gcode_path, map_bytes: bytes, settings: Settings, arena: int = A
     st.dwell_s = dwell_ms / 1000
     st.extra_e_mm = planner.stats.extra_applied
     st.decel_s = decel
-    st.slicer_time_s = slicer_time("".join(text_lines[:400]) + "".join(text_lines[-400:]))
+    st.slicer_time_s = slicer_time(ends)
     return st

@@ -21,7 +21,7 @@ from typing import Iterable
 
 import numpy as np
 
-from .gcode import Move, check_complete, header_layer_height, parse_lines
+from .gcode import Move, header_layer_height, open_checked, parse_lines
 from .strokes import BulgekitError
 
 
@@ -344,10 +344,7 @@ def extract_walls(moves: Iterable[Move], layer_height: float | None = None,
 
 def walls_from_gcode(path, layer_height: float | None = None, geometric: bool = False,
                      ref_angle_deg: float = -90.0) -> WallModel:
-    with open(path, "r", encoding="utf-8", errors="replace", newline="") as f:
-        text = f.read()
-    check_complete(text, str(path))
-    lines = text.splitlines(keepends=True)
+    ends, lines = open_checked(path)                # streamed: a 100 MB file is not held as lines
     moves = (m for ln in parse_lines(lines, str(path)) for m in ln.moves)
     return extract_walls(moves, layer_height, geometric, ref_angle_deg, str(path),
-                         header_layer_height(text))
+                         header_layer_height(ends))
