@@ -111,6 +111,7 @@ def build(gcode, strokes: Sequence[Stroke], outdir, *, name: str | None = None,
     data = gcode.read_bytes()
     check_text(data, str(gcode))
     check_not_processed(data, str(gcode))
+    del data                                    # each pass below reads the file itself
     outdir = Path(outdir)
     name = name or gcode.stem
     if settings is None:

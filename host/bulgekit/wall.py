@@ -15,6 +15,7 @@ the grid of layer heights, the same windows the firmware matches moves in.
 """
 from __future__ import annotations
 
+from array import array
 import math
 from dataclasses import dataclass, field
 from typing import Iterable
@@ -222,19 +223,26 @@ def extract_walls(moves: Iterable[Move], layer_height: float | None = None,
     chains: list[_Chain] = []
     cur: _Chain | None = None
     planar_count: dict[int, int] = {}
-    eligible_moves: list[Move] = []
+    # The eligible moves' ends in flat arrays (x0 y0 x1 y1 z0 z1 per move, and its index), not
+    # the Move objects: a 100 MB file has a million of them. A chain break is a NaN row.
+    ends = array("d")
+    index = array("q")
+    brk = (math.nan,) * 6
     any_outer = False
     for m in moves:
         if m.outer:
             any_outer = True
         ok = m.extruding and (geometric or m.outer)
         if ok:
-            eligible_moves.append(m)
+            ends.extend((m.x0, m.y0, m.x1, m.y1, m.z0, m.z1))
+            index.append(m.index)
             if abs(m.z1 - m.z0) < 1e-6:
                 zc = _z_cmm(m.z1)
                 planar_count[zc] = planar_count.get(zc, 0) + 1
-        elif m.x0 != m.x1 or m.y0 != m.y1 or (not geometric and not m.outer):
-            eligible_moves.append(None)  # chain break
+        elif (m.x0 != m.x1 or m.y0 != m.y1 or (not geometric and not m.outer)) \
+                and (not index or index[-1] >= 0):
+            ends.extend(brk)                 # chain break (one for a run of them)
+            index.append(-1)
     if not geometric and not any_outer:
         raise WallError(
             f"{source}: no outer-wall feature comments found (;TYPE:External perimeter, "
@@ -258,11 +266,11 @@ def extract_walls(moves: Iterable[Move], layer_height: float | None = None,
         h = float(np.bincount(diffs).argmax()) / 100 if len(diffs) else 0.2
     h_cmm = max(1, round(h * 100))
 
-    def bucket_of(m: Move) -> int:
+    def bucket_of(z0: float, z1: float) -> int:
         # the firmware's reading of a move's z: its end z in 0.01 mm, rounded
         # in float32 (bulge_planner.cpp eligible())
-        zc = _z_cmm(m.z1)
-        if abs(m.z1 - m.z0) < 1e-6 and zc in planar_set:
+        zc = _z_cmm(z1)
+        if abs(z1 - z0) < 1e-6 and zc in planar_set:
             return zc
         # spiral: snap to the layer grid above the highest planar layer below,
         # nearest grid z, the lower one on a tie (as MapStore::find_layer)
@@ -276,17 +284,18 @@ def extract_walls(moves: Iterable[Move], layer_height: float | None = None,
         k = -((h_cmm - 2 * d) // (2 * h_cmm))
         return base + k * h_cmm
 
-    for m in eligible_moves:
-        if m is None:
+    for k, mi in enumerate(index):
+        if mi < 0:
             cur = None
             continue
-        b = bucket_of(m)
+        x0, y0, x1, y1, z0, z1 = ends[6 * k:6 * k + 6]
+        b = bucket_of(z0, z1)
         if (cur is None or cur.bucket != b
-                or abs(cur.pts[-1][0] - m.x0) > 1e-4 or abs(cur.pts[-1][1] - m.y0) > 1e-4):
-            cur = _Chain(b, m.x0, m.y0)
+                or abs(cur.pts[-1][0] - x0) > 1e-4 or abs(cur.pts[-1][1] - y0) > 1e-4):
+            cur = _Chain(b, x0, y0)
             chains.append(cur)
-        cur.pts.append((m.x1, m.y1))
-        cur.idx.append(m.index)
+        cur.pts.append((x1, y1))
+        cur.idx.append(mi)
 
     by_bucket: dict[int, list[_Chain]] = {}
     for c in chains:
