@@ -15,6 +15,7 @@ Prints the size, the seconds annotate took and MB/s.  Goal: < 10 s / 100 MB.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import re
 import sys
 import tempfile
@@ -70,14 +71,26 @@ def make_map(z_top: float) -> bytes:
     return mapformat.encode_map([(z, [(x, y)]) for z in zs], layer_height_mm=0.3)
 
 
-def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def bench_setup(doc: str):
+    """The benchmarks' command line (--mb, --keep) and their working folder: --keep's, or a
+    temporary one that goes when the run ends."""
+    ap = argparse.ArgumentParser(description=doc.splitlines()[0])
     ap.add_argument("--mb", type=float, default=100.0, help="input size in MB (default 100)")
-    ap.add_argument("--keep", type=Path, help="write the input and output here instead of a temp dir")
+    ap.add_argument("--keep", type=Path, help="write the input and outputs here instead of a temp dir")
     a = ap.parse_args()
-    with tempfile.TemporaryDirectory() as tmp:
-        d = a.keep or Path(tmp)
-        d.mkdir(parents=True, exist_ok=True)
+
+    @contextlib.contextmanager
+    def folder():
+        with tempfile.TemporaryDirectory() as tmp:
+            d = a.keep or Path(tmp)
+            d.mkdir(parents=True, exist_ok=True)
+            yield d
+    return a, folder()
+
+
+def main() -> int:
+    a, folder = bench_setup(__doc__)
+    with folder as d:
         src, dst = d / "big.gcode", d / "big.bulge.gcode"
         t = time.perf_counter()
         size, z_top = make_gcode(src, a.mb)

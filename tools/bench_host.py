@@ -11,10 +11,8 @@ goal where the issue sets one (build <= 15 s and annotate <= 8 s per 100 MB, pea
 """
 from __future__ import annotations
 
-import argparse
 import subprocess
 import sys
-import tempfile
 import time
 from pathlib import Path
 
@@ -22,7 +20,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "tools"))
 sys.path.insert(0, str(ROOT / "host"))
 
-from bench_annotate import make_gcode, make_map  # noqa: E402
+from bench_annotate import bench_setup, make_gcode, make_map  # noqa: E402
 
 # run one CLI command in this process and report its peak memory (kB on Linux) on the last line
 _RUNNER = ("import resource, runpy, sys\n"
@@ -54,13 +52,8 @@ def run(args: list[str]) -> tuple[float, float]:
 
 
 def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--mb", type=float, default=100.0, help="input size in MB (default 100)")
-    ap.add_argument("--keep", type=Path, help="write the input and outputs here instead of a temp dir")
-    a = ap.parse_args()
-    with tempfile.TemporaryDirectory() as tmp:
-        d = a.keep or Path(tmp)
-        d.mkdir(parents=True, exist_ok=True)
+    a, folder = bench_setup(__doc__)
+    with folder as d:
         src, bkm = d / "big.gcode", d / "big.bkm"
         size, z_top = make_gcode(src, a.mb)
         bkm.write_bytes(make_map(z_top))
@@ -80,8 +73,8 @@ def main() -> int:
         for name, args, goal in cases:
             dt, peak = run(args)
             per100 = dt * scale
-            g = "" if goal is None else (f"<= {goal:g} s: {'met' if per100 <= goal else 'NOT met'} "
-                                         f"({per100:.1f} s)")
+            # goals are checked on the full 100 MB: a small file's run is mostly start-up
+            g = "" if goal is None or mb < 99 else f"<= {goal:g} s: {'met' if per100 <= goal else 'NOT met'}"
             # memory is checked on the full 100 MB only: it does not scale with size alone
             m = f"; peak <= 500 MB: {'met' if peak <= 500 else 'NOT met'}" if mb >= 99 else ""
             print(f"{name:<10}{dt:8.2f}{mb / dt:8.1f}{dt / base:8.1f}{peak:9.0f}  {g}{m}")
