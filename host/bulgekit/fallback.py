@@ -586,10 +586,9 @@ def rewrite_file(src, dst, bmap: mapformat.BulgeMap, settings: Settings,
     map is likely for another file) unless allow_unreached; then the message
     is in result.unreached.  dst is only written when the rewrite succeeds."""
     import os
-    from .gcode import check_not_processed, read_text
+    from .gcode import check_not_processed, open_checked
     res = RewriteResult()
-    lines = read_text(src)
-    check_not_processed("".join(lines), str(src))
+    _, lines = open_checked(src, checks=(check_not_processed,))     # streamed, not held
     tmp = f"{os.fspath(dst)}.part"
     try:
         with open(tmp, "w", encoding="utf-8", newline="") as f:

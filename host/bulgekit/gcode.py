@@ -367,12 +367,15 @@ def check_not_processed(data, source: str = "<gcode>") -> None:
         "Start from the slicer's original G-code (or remove the M720/M721/M722 lines).")
 
 
-def open_checked(path, ends: int = 1 << 21) -> tuple[str, "Iterator[str]"]:
-    """Check a G-code file as read_text does (text, not cut off), then stream it: returns the
-    text of its two ends (`ends` bytes each, where slicers write their settings and time) and an
-    iterator over its lines. The whole file is never held as lines, only briefly as bytes."""
+def open_checked(path, ends: int = 1 << 21, checks=()) -> tuple[str, "Iterator[str]"]:
+    """Check a G-code file (check_complete: text, not cut off; and `checks`, each called with
+    the bytes and the name), then stream it: returns the text of its two ends (`ends` bytes each,
+    where slicers write their settings and time) and an iterator over its lines. The whole file
+    is never held as lines, only briefly as bytes."""
     data = open(path, "rb").read()
     check_complete(data, str(path))
+    for check in checks:
+        check(data, str(path))
     head = data[:ends].decode("utf-8", "replace")
     tail = data[-ends:].decode("utf-8", "replace") if len(data) > ends else ""
     del data
@@ -381,14 +384,6 @@ def open_checked(path, ends: int = 1 << 21) -> tuple[str, "Iterator[str]"]:
         with open(path, "r", encoding="utf-8", errors="replace", newline="") as f:
             yield from f
     return head + "\n" + tail, lines()
-
-
-def read_text(path) -> list[str]:
-    """Lines of a G-code file (keeps line ends); a cut-off last line is an error."""
-    with open(path, "r", encoding="utf-8", errors="replace", newline="") as f:
-        text = f.read()
-    check_complete(text, str(path))
-    return text.splitlines(keepends=True)
 
 
 def iter_moves(lines: Iterable[str], source: str = "<gcode>") -> Iterator[Move]:
