@@ -17,18 +17,18 @@ and sends only what fits in the rest of the arena (BK_MAP_ARENA_BYTES).
 
 The scan is a few regular-expression passes over the whole file (no per-line
 Python work), so 100 MB annotate in a few seconds.  The check that every map
-point is reached (check_reach, on by default) runs the reference planner over
-every move and costs about 0.5 s per MB.
+point is reached (check_reach, on by default) runs the reference planner on the
+moves that can stop or change its state (fallback.Skipper), read by the
+compiled scanner (movescan): a few seconds per 100 MB as well.
 """
 from __future__ import annotations
 
-import bisect
 import re
 from dataclasses import dataclass, field
 
 from . import mapformat
-from .fallback import MODE_GEOMETRIC, Settings, StopRecord, near_segments
-from .gcode import GcodeState, check_complete, check_not_processed, feature_of_comment, is_outer
+from .fallback import MODE_GEOMETRIC, Settings
+from .gcode import check_complete, check_not_processed, feature_of_comment, is_outer
 from .strokes import BulgekitError
 
 ARENA_BYTES = mapformat.ARENA_BYTES
@@ -241,174 +241,20 @@ def annotate_bytes(data: bytes, map_bytes: bytes, settings: Settings,
     return b"".join(parts)
 
 
-# The last value of an axis word on a motion line before a point of the file
-# (G92 included, so "G92 E0" counts for E).
-_AXIS_RX = {a: re.compile(rb"(?m)^[ \t]*G(?:0?[0-3]|92)(?=[ \t])[^\n;]*?[ \t]" + a + rb"[ \t]*([-+]?[0-9]*\.?[0-9]+)")
-            for a in (b"X", b"Y", b"Z", b"E")}
-_MODE_RX = re.compile(rb"(?m)^[ \t]*(M8[23]|G9[01]|G28)\b")
+def check_reach(gcode, map_bytes: bytes, settings: Settings, source: str) -> str | None:
+    """Run the G-code (a path, or its bytes) through the reference planner: a message naming
+    the map points no move reaches (the map is for another file? arcs?), or None. G2/G3 arcs
+    count for nothing, as in the firmware (RefPlanner.bypass). Only the moves that can change
+    the planner's work go through its Python code (fallback.Skipper)."""
+    from . import movescan
+    from .fallback import RefPlanner, plan_records, unreached_message
+    bm = mapformat.decode_map(map_bytes, source="map")
 
-
-def _last_axis(data: bytes, end: int, axis: bytes):
-    """(value, offset) of the axis's last value on a motion line before end,
-    looking back in growing windows (a layer's Z can be some way back), or None."""
-    rx = _AXIS_RX[axis]
-    win = 4096
-    while True:
-        start = max(0, end - win)
-        last = None
-        for last in rx.finditer(data, start, end):
-            pass
-        if last is not None and (start == 0 or last.start() > start):
-            return float(last.group(1)), last.start()
-        if start == 0:
-            return None
-        win *= 8
-
-
-def _outer_sections(data: bytes):
-    """(start, end) byte ranges from an outer-wall feature comment to the next
-    feature comment."""
-    marks = list(_feature_comments(data))
-    for k, (pos, role) in enumerate(marks):
-        if is_outer(role):
-            ls = _line_start(data, pos - 1)
-            yield ls, marks[k + 1][0] if k + 1 < len(marks) else len(data)
-
-
-def _mode_events(data: bytes) -> list[tuple[int, bytes]]:
-    """(offset, code) of every M82/M83/G90/G91/G28 line, in file order."""
-    return [(mt.start(), mt.group(1)) for mt in _MODE_RX.finditer(data)]
-
-
-def _state_before(data: bytes, pos: int, events: list[tuple[int, bytes]]) -> GcodeState | None:
-    """The machine state at pos, read backwards; None where that is not
-    reliable (relative XYZ, a homing after the last coordinates)."""
-    modes = {}
-    for off, code in events[:bisect.bisect_left(events, (pos, b""))]:
-        modes[code[:2]] = (code, off)
-    if modes.get(b"G9", (b"G90", 0))[0] == b"G91":
-        return None
-    homed = modes.get(b"G2", (None, -1))[1]
-    st = GcodeState()
-    st.abs_e = modes.get(b"M8", (b"M82", 0))[0] == b"M82"
-    for axis in (b"X", b"Y", b"Z", b"E"):
-        if axis == b"E" and not st.abs_e:
-            continue
-        found = _last_axis(data, pos, axis)
-        if found is None or found[1] < homed:
-            if axis == b"E":
-                continue  # no E yet: 0, as at power-on
-            return None
-        setattr(st, axis.decode().lower(), found[0])
-    return st
-
-
-_MOTION_RX = re.compile(rb"(?m)^[ \t]*G0?([0-3])(?=[ \t\r\n;]|$)([^\n;]*)")
-_WORD_RX = re.compile(rb"([XYZEF])[ \t]*([-+]?[0-9]*\.?[0-9]+)")
-
-
-def _reach_section(data: bytes, a: int, b: int, st: GcodeState, planner, zs, points_mm) -> bool:
-    """Mark the map points within tolerance of this outer-wall section's
-    extruding moves: the vectorised equivalent of running the reference planner
-    over it (each move matched against the map layer nearest its end z, the
-    lower on a tie). False where it cannot (arcs); the caller then runs the
-    planner. points_mm: layer z -> (x, y) arrays of its points in mm, and the points."""
-    import numpy as np
-    x, y, z, e = st.x, st.y, st.z, st.e
-    seg: dict[int, list] = {}  # end z (0.01 mm) -> [x0, y0, x1, y1] of extruding moves
-    for mt in _MOTION_RX.finditer(data, a, b):
-        if mt.group(1) in (b"2", b"3"):
-            return False
-        words = dict(_WORD_RX.findall(mt.group(2)))
-        x1 = float(words.get(b"X", x))
-        y1 = float(words.get(b"Y", y))
-        z = float(words.get(b"Z", z))
-        de = 0.0
-        if b"E" in words:
-            ev = float(words[b"E"])
-            de = ev - e if st.abs_e else ev
-            e = ev if st.abs_e else e + ev
-        if de > 0 and (x1 != x or y1 != y):
-            zc = int(z * 100 + 0.5) if z >= 0 else -int(0.5 - z * 100)
-            seg.setdefault(zc, []).append((x, y, x1, y1))
-            if planner.top_z is None or z > planner.top_z:
-                planner.top_z = z
-        x, y = x1, y1
-    half = planner.lh / 2
-    for zc, moves in seg.items():
-        k = bisect.bisect_left(zs, zc - half)
-        cands = [v for v in zs[k:k + 2] if abs(v - zc) <= half]
-        if not cands:
-            continue
-        layer_z = min(cands, key=lambda v: (abs(v - zc), v))  # nearest, the lower on a tie
-        px, py, pts = points_mm[layer_z]
-        hit = near_segments(px, py, np.array(moves, dtype=np.float64), planner.s.tolerance).any(axis=1)
-        for i in np.nonzero(hit)[0]:
-            planner.stops.append(StopRecord(0, 0.0, 0.0, 0.0, 0, tuple(pts[i]), layer_z))
-    return True
-
-
-def check_reach(data: bytes, map_bytes: bytes, settings: Settings, source: str) -> str | None:
-    """Run the G-code through the reference planner: a message naming the
-    map points no move reaches (the map is for another file? arcs?), or None.
-    G2/G3 arcs count for nothing, as in the firmware (RefPlanner.bypass).
-
-    In marked mode only outer-wall moves can stop, so only the outer-wall
-    sections are parsed, each from the machine state read backwards at its
-    start (position, Z and E of the last motion lines; M82/M83). That keeps
-    the check at a few seconds per 100 MB; files it cannot read that way
-    (relative XYZ, G28 in the middle, geometric mode) are parsed whole."""
-    from .fallback import MODE_MARKED, RefPlanner, unreached_message
-    from .gcode import parse_lines
-    planner = RefPlanner(mapformat.decode_map(map_bytes, source="map"), settings)
-    sections = list(_outer_sections(data)) if settings.mode == MODE_MARKED else []
-    events = _mode_events(data)
-    states = [_state_before(data, a, events) for a, _ in sections]
-    if sections and all(st is not None for st in states):
-        # A section at one z with no map layer within half a layer height of
-        # it cannot stop anywhere: skip it (most of a print, for text maps).
-        zs = sorted(l.z_cmm for l in planner.map.layers)
-        half = planner.lh / 2
-        import numpy as np
-        q = planner.q_um / 1000  # each layer's points in mm, once for all sections
-        points_mm = {l.z_cmm: (np.array([p[0] for p in l.points], dtype=np.float64) * q,
-                               np.array([p[1] for p in l.points], dtype=np.float64) * q, l.points)
-                     for l in planner.map.layers}
-        for (a, b), st in zip(sections, states):
-            near = False
-            for zv in [st.z] + [float(m.group(1)) for m in _AXIS_RX[b"Z"].finditer(data, a, b)]:
-                zc = round(zv * 100)
-                k = bisect.bisect_left(zs, zc - half)
-                if k < len(zs) and zs[k] <= zc + half:
-                    near = True
-                    break
-            if not near:
-                continue
-            if not _reach_section(data, a, b, st, planner, zs, points_mm):
-                # arcs or an odd line: the reference planner reads it
-                text = data[a:b].decode("utf-8", "replace").splitlines(keepends=True)
-                for ln in parse_lines(text, source, st):
-                    for m in ln.moves:
-                        planner.bypass(m) if m.arc else planner.plan(m)
-        # The message names the print's last extrusion: read it off the file.
-        end = len(data)
-        win = 65536
-        last = None
-        while last is None and end > 0:
-            for last in _EXTRUDE_RX.finditer(data, max(0, end - win), end):
-                pass
-            end, win = max(0, end - win), win * 8
-        if last is not None:
-            line_end = data.find(b"\n", last.end())
-            found = _last_axis(data, line_end if line_end >= 0 else len(data), b"Z")
-            if found is not None and (planner.top_z is None or found[0] > planner.top_z):
-                planner.top_z = found[0]
-    else:
-        lines = data.decode("utf-8", "replace").splitlines(keepends=True)
-        for ln in parse_lines(lines, source):
-            for m in ln.moves:
-                planner.bypass(m) if m.arc else planner.plan(m)
-    return unreached_message(planner, source)
+    def run(chunks):
+        planner = RefPlanner(bm, settings)
+        plan_records(planner, chunks, arcs_bypass=True)
+        return unreached_message(planner, source)
+    return movescan.run(gcode, run, source)
 
 
 def annotate_file(src, dst, map_bytes: bytes, settings: Settings, arena: int = ARENA_BYTES,
@@ -424,7 +270,7 @@ def annotate_file(src, dst, map_bytes: bytes, settings: Settings, arena: int = A
     res = AnnotateResult()
     out = annotate_bytes(data, map_bytes, settings, arena, stream, str(src), res)
     if check:
-        msg = check_reach(data, map_bytes, settings, str(src))
+        msg = check_reach(src, map_bytes, settings, str(src))
         if msg and not allow_unreached:
             raise AnnotateError(msg)
         if msg:

@@ -383,6 +383,157 @@ class RefPlanner:
             self.carry = self._stop(m, i, actions, self.carry)
 
 
+class Skipper:
+    """Which moves of a file can change what a RefPlanner does, so that only those go through
+    its Python code (a 100 MB file has three million moves; a map's points lie on a few
+    thousand). A move is planned when
+      - it is a candidate (eligible but for the layer window: mode, outer wall, extruding in
+        float32) whose z (0.01 mm, float32) differs from the last candidate's: only then can the
+        window load, switch or miss a layer (the same z gives the same window, see _window);
+      - it is a candidate whose box, widened by plan()'s own margin, holds a point of a map layer
+        within half a layer height of its z: only such moves stop or defer points;
+      - it is the first move after one of those that moves anything (null moves change nothing):
+        it flushes deferred points and takes or drops the extra filament still owed.
+    A skipped candidate would only lay its filament unchanged; a skipped other move would only
+    keep the state clean, which the moves planned before it already left so. top_z is set from
+    every extruding move. host/tests/test_movescan.py checks stops, extras and drops against
+    planning every move.
+
+    With arcs_bypass, arc chords are the firmware's (RefPlanner.bypass: not planned at all) and
+    select() leaves them out; bypass_rows() names the extruding ones."""
+
+    def __init__(self, planner: RefPlanner, arcs_bypass: bool = False):
+        self.p = planner
+        self.arcs_bypass = arcs_bypass
+        s = planner.s
+        bm = planner.map
+        self.lh = planner.lh
+        self.margin = s.tolerance + 3 * planner.q_um / 1000 + 1e-6
+        pz, px, py = [], [], []
+        if bm is not None:
+            q = planner.q_um / 1000
+            for l in bm.layers:
+                for x, y in l.points:
+                    pz.append(l.z_cmm)
+                    px.append(x * q)
+                    py.append(y * q)
+        order = np.lexsort((np.array(px), np.array(pz))) if pz else np.empty(0, np.int64)
+        self.pz = np.array(pz, dtype=np.int64)[order]
+        self.px = np.array(px, dtype=np.float64)[order]
+        self.py = np.array(py, dtype=np.float64)[order]
+        self.last_zc = None        # the last candidate's z
+        self.owed = False          # a planned move still needs the next moving one planned
+        self.top_z = None
+
+    def select(self, a: np.ndarray) -> np.ndarray:
+        """Indices into the RECORD array a (one chunk, in file order) to plan."""
+        x0, y0, x1, y1, e = a["x0"], a["y0"], a["x1"], a["y1"], a["e"]
+        moved = (x0 != x1) | (y0 != y1)
+        ext = (e > 0) & moved
+        seen = np.ones(len(a), bool)            # moves the planner sees
+        if self.arcs_bypass:
+            seen = (a["flags"] & 2) == 0
+            ext &= seen
+        if ext.any():
+            z = float(a["z1"][ext].max())
+            self.top_z = z if self.top_z is None else max(self.top_z, z)
+        null = ~moved & (a["z0"] == a["z1"]) & (e == 0)
+        mode = self.p.s.mode
+        if mode == MODE_OFF or len(self.pz) == 0:
+            cand = np.zeros(len(a), bool)
+        else:
+            f = np.float32
+            cand = (e.astype(f) > 0) & ((x0.astype(f) != x1.astype(f)) | (y0.astype(f) != y1.astype(f)))
+            if mode == MODE_MARKED:
+                cand &= (a["flags"] & 1) != 0
+            cand &= seen
+        pick = np.zeros(len(a), bool)
+        ci = np.flatnonzero(cand)
+        if len(ci):
+            zc = (a["z1"][ci].astype(np.float32) * np.float32(100.0)).astype(np.float64)
+            zc = np.where(zc >= 0, np.floor(zc + 0.5), -np.floor(0.5 - zc)).astype(np.int64)
+            prev = np.concatenate([[self.last_zc if self.last_zc is not None else zc[0] + 1], zc[:-1]])
+            pick[ci[zc != prev]] = True
+            self.last_zc = int(zc[-1])
+            pick[ci[self._near(a[ci], zc)]] = True
+        # the first moving move after each picked one (and after the last chunk's)
+        moving = np.flatnonzero(~null & seen)
+        if self.owed and len(moving):
+            pick[moving[0]] = True
+        picked = np.flatnonzero(pick)
+        if len(picked) and len(moving):
+            k = np.searchsorted(moving, picked, side="right")
+            nxt = moving[k[k < len(moving)]]
+            pick[nxt] = True
+            self.owed = bool((k >= len(moving)).any())
+        elif self.owed and not len(moving):
+            pass                                    # still owed: no moving move in this chunk
+        else:
+            self.owed = False
+        return np.flatnonzero(pick)
+
+    def _near(self, c: np.ndarray, zc: np.ndarray) -> np.ndarray:
+        """Candidates (RECORD rows c, z in 0.01 mm) whose widened box holds a map point of a layer
+        within half a layer height of their z."""
+        half = self.lh / 2
+        lo = np.searchsorted(self.pz, zc - half, side="left")
+        hi = np.searchsorted(self.pz, zc + half, side="right")
+        out = np.zeros(len(c), bool)
+        span = hi - lo
+        has = np.flatnonzero(span > 0)
+        if not len(has):
+            return out
+        m = self.margin
+        bx0 = np.minimum(c["x0"], c["x1"]) - m
+        bx1 = np.maximum(c["x0"], c["x1"]) + m
+        by0 = np.minimum(c["y0"], c["y1"]) - m
+        by1 = np.maximum(c["y0"], c["y1"]) + m
+        # candidate x point pairs, a few million at a time
+        csum = np.cumsum(span[has])
+        start = 0
+        while start < len(has):
+            stop = int(np.searchsorted(csum, (csum[start - 1] if start else 0) + 4_000_000, side="right"))
+            stop = max(stop, start + 1)
+            sel = has[start:stop]
+            n = span[sel]
+            rep = np.repeat(sel, n)
+            off = np.arange(len(rep)) - np.repeat(np.cumsum(n) - n, n)
+            j = lo[rep] + off
+            px, py = self.px[j], self.py[j]
+            ok = (px >= bx0[rep]) & (px <= bx1[rep]) & (py >= by0[rep]) & (py <= by1[rep])
+            out[np.unique(rep[ok])] = True
+            start = stop
+        return out
+
+
+def record_move(r, index: int, roles) -> Move:
+    """One movescan RECORD row as a gcode.Move."""
+    role, fl = int(r["role"]), int(r["flags"])
+    return Move(index, int(r["line_no"]), float(r["x0"]), float(r["y0"]), float(r["z0"]),
+                float(r["x1"]), float(r["y1"]), float(r["z1"]), float(r["e"]), float(r["e_start"]),
+                float(r["f"]), bool(fl & 1), roles[role] if role >= 0 else None, bool(fl & 2))
+
+
+def plan_records(planner: RefPlanner, chunks, on_move=None, arcs_bypass: bool = False) -> None:
+    """Run a file's moves (movescan chunks) through the planner, skipping the moves that cannot
+    change what it does (Skipper). on_move(move, actions) is called for every planned move.
+    arcs_bypass: arc chords go to planner.bypass, as the firmware sees them."""
+    sk = Skipper(planner, arcs_bypass)
+    done = 0
+    for a in chunks:
+        for i in sk.select(a):
+            m = record_move(a[i], done + int(i), chunks.roles)
+            acts = planner.plan(m)
+            if on_move is not None:
+                on_move(m, acts)
+        if arcs_bypass:
+            for i in np.flatnonzero(((a["flags"] & 2) != 0) & (a["e"] > 0)):
+                planner.bypass(record_move(a[i], done + int(i), chunks.roles))
+        done += len(a)
+    if sk.top_z is not None and (planner.top_z is None or sk.top_z > planner.top_z):
+        planner.top_z = sk.top_z
+
+
 def unreached(planner: RefPlanner) -> list[tuple[int, int, int]]:
     """Map points (layer z in 0.01 mm, x, y in quanta) the planner never stopped at."""
     if planner.map is None:
@@ -498,9 +649,7 @@ def rewrite(lines: Iterable[str], bmap: mapformat.BulgeMap, settings: Settings,
     planner = RefPlanner(bmap, settings)
     st = GcodeState()
     res = result if result is not None else RewriteResult()
-    yield (f"; bulgekit fallback: {len(bmap.layers)} layers, {bmap.point_count} points, "
-           f"dwell {settings.dwell_ms} ms, extra E {settings.extra_e:.3f} mm, "
-           f"tolerance {settings.tolerance:.3f} mm, mode {settings.mode}\n")
+    yield _header(bmap, settings)
     for ln in parse_lines(lines, source, st):
         res.lines_in += 1
         raw = ln.raw if ln.raw.endswith("\n") else ln.raw.rstrip("\r") + "\n"
@@ -580,6 +729,84 @@ def _emit(ln: Line, per_move, st: GcodeState) -> Iterator[str]:
         yield comment + "\n"
 
 
+def _header(bmap: mapformat.BulgeMap, settings: Settings) -> str:
+    return (f"; bulgekit fallback: {len(bmap.layers)} layers, {bmap.point_count} points, "
+            f"dwell {settings.dwell_ms} ms, extra E {settings.extra_e:.3f} mm, "
+            f"tolerance {settings.tolerance:.3f} mm, mode {settings.mode}\n")
+
+
+def _rewrite_records(src, out, chunks, bmap: mapformat.BulgeMap, settings: Settings,
+                     source: str, res: RewriteResult) -> None:
+    """rewrite() on the compiled scanner's chunks: the same output, but lines that stay as they
+    are copied as bytes and only the moves that can change planned (Skipper). Needs a file
+    whose lines end in \n or \r\n and that is valid UTF-8 (rewrite_file checks)."""
+    from . import movescan
+    from .gcode import parse_words, split_code
+    planner = RefPlanner(bmap, settings)
+    sk = Skipper(planner)
+    out.write(_header(bmap, settings).encode())
+    pos = 0                                   # bytes of src copied so far
+    done = 0
+    for a in chunks:
+        planned: dict[int, list[Action]] = {}
+        changed: list[int] = []
+        for i in sk.select(a):
+            m = record_move(a[i], done + int(i), chunks.roles)
+            acts = planner.plan(m)
+            planned[int(i)] = acts
+            if not (len(acts) == 1 and acts[0].kind == "line" and acts[0].t == 1.0
+                    and abs(acts[0].e - m.e) < 1e-12):
+                changed.append(int(i))
+        lines = a["line_no"]
+        for ln_no in dict.fromkeys(int(lines[i]) for i in changed):
+            idx = np.flatnonzero(lines == ln_no)
+            r0 = a[idx[0]]
+            start = int(r0["offset"])
+            out.write(src.read(start - pos))
+            raw = src.readline()                  # the line, through its \n
+            pos = start + len(raw)
+            text = raw.decode("utf-8")
+            code, _ = split_code(text)
+            head = code.split(None, 1)
+            words = parse_words(head[1] if len(head) > 1 else "", f"{source}:{ln_no}")
+            per_move = []
+            for i in idx:
+                m = record_move(a[i], done + int(i), chunks.roles)
+                acts = planned.get(int(i)) or [Action("line", m.x1, m.y1, m.z1, m.e)]
+                per_move.append((m, acts))
+            st = GcodeState()
+            st.abs_xyz = bool(int(r0["flags"]) & movescan.ABS_XYZ)
+            st.abs_e = bool(int(r0["flags"]) & movescan.ABS_E)
+            res.moves_split += 1
+            out.write("".join(_emit(Line(ln_no, text, head[0].upper(), words, [], None),
+                                    per_move, st)).encode())
+        done += len(a)
+    rest = src.read()
+    out.write(rest)
+    if (rest or pos) and not (rest or b"\n").endswith(b"\n"):
+        out.write(b"\n")                         # as rewrite(): every line ends in a line end
+    res.lines_in = chunks.lines
+    if sk.top_z is not None and (planner.top_z is None or sk.top_z > planner.top_z):
+        planner.top_z = sk.top_z
+    res.stops = planner.stops
+    res.stats = planner.stats
+    res.unreached = unreached_message(planner, source)
+
+
+def _plain_lines(data, source) -> None:
+    """rewrite_file's byte path needs \n or \r\n line ends and UTF-8 (else rewrite() runs)."""
+    if data.count(b"\r") != data.count(b"\r\n"):
+        raise _TextPath
+    try:
+        data.decode("utf-8")
+    except UnicodeDecodeError:
+        raise _TextPath from None
+
+
+class _TextPath(Exception):
+    pass
+
+
 def rewrite_file(src, dst, bmap: mapformat.BulgeMap, settings: Settings,
                  allow_unreached: bool = False) -> RewriteResult:
     """Rewrite src into dst.  Map points no move reaches are an error (the
@@ -587,18 +814,40 @@ def rewrite_file(src, dst, bmap: mapformat.BulgeMap, settings: Settings,
     is in result.unreached.  dst is only written when the rewrite succeeds."""
     import os
     from .gcode import check_not_processed, open_checked
+    from . import movescan
     res = RewriteResult()
-    _, lines = open_checked(src, checks=(check_not_processed,))     # streamed, not held
+    byte_path = movescan.available()
+
+    def plain(data, source):
+        nonlocal byte_path
+        try:
+            _plain_lines(data, source)
+        except _TextPath:
+            byte_path = False
+    _, lines = open_checked(src, checks=(check_not_processed, plain))     # streamed, not held
     tmp = f"{os.fspath(dst)}.part"
     try:
-        with open(tmp, "w", encoding="utf-8", newline="") as f:
-            buf = []
-            for out in rewrite(lines, bmap, settings, str(src), res):
-                buf.append(out)
-                if len(buf) >= 4096:
-                    f.write("".join(buf))
-                    buf.clear()
-            f.write("".join(buf))
+        done = False
+        if byte_path:
+            def fast(chunks):
+                r = RewriteResult()
+                with open(tmp, "wb") as f, open(src, "rb") as g:
+                    _rewrite_records(g, f, chunks, bmap, settings, str(src), r)
+                return r
+            try:
+                res = movescan.run(src, fast, fast=True)
+                done = True
+            except movescan.Unsupported:
+                pass                          # a line the compiled scanner leaves to gcode.py
+        if not done:
+            with open(tmp, "w", encoding="utf-8", newline="") as f:
+                buf = []
+                for out in rewrite(lines, bmap, settings, str(src), res):
+                    buf.append(out)
+                    if len(buf) >= 4096:
+                        f.write("".join(buf))
+                        buf.clear()
+                f.write("".join(buf))
         if res.unreached and not allow_unreached:
             raise UnreachedError(res.unreached)
         os.replace(tmp, dst)

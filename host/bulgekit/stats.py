@@ -11,8 +11,9 @@ import re
 from dataclasses import dataclass, field
 
 from . import mapformat
-from .fallback import RefPlanner, Settings
-from .gcode import open_checked, parse_lines
+from . import movescan
+from .fallback import RefPlanner, Settings, plan_records
+from .gcode import open_checked
 
 ARENA_BYTES = mapformat.ARENA_BYTES
 
@@ -129,18 +130,21 @@ def print_stats(gcode_path, map_bytes: bytes, settings: Settings, arena: int = A
     """map_stats plus a run of the G-code through the reference planner."""
     st = map_stats(map_bytes, settings, arena)
     bm = mapformat.decode_map(map_bytes)
-    ends, lines = open_checked(gcode_path)         # streamed, as the walls are read
-    planner = RefPlanner(bm, settings)
-    decel = 0.0
-    for ln in parse_lines(lines, str(gcode_path)):
-        for m in ln.moves:
-            before = len(planner.stops)
-            planner.plan(m)
-            k = len(planner.stops) - before
+    ends, _ = open_checked(gcode_path)             # checked; its moves are scanned in chunks
+
+    def run(chunks):
+        planner = RefPlanner(bm, settings)
+        acc = {"stops": 0, "decel": 0.0}
+
+        def count(m, actions):
+            k = len(planner.stops) - acc["stops"]      # stops this move made
+            acc["stops"] = len(planner.stops)
             if k:
                 # decelerating to a stop and back costs v/a over cruising
-                v = m.f / 60.0
-                decel += k * v / accel_mm_s2
+                acc["decel"] += k * (m.f / 60.0) / accel_mm_s2
+        plan_records(planner, chunks, count)
+        return planner, acc["decel"]
+    planner, decel = movescan.run(gcode_path, run)
     fired: dict[int, set] = {}
     per_z: dict[int, int] = {}
     dwell_ms = 0

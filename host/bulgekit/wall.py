@@ -15,14 +15,14 @@ the grid of layer heights, the same windows the firmware matches moves in.
 """
 from __future__ import annotations
 
-from array import array
 import math
 from dataclasses import dataclass, field
 from typing import Iterable
 
 import numpy as np
 
-from .gcode import Move, header_layer_height, open_checked, parse_lines
+from . import movescan
+from .gcode import Move, header_layer_height, open_checked
 from .strokes import BulgekitError
 
 
@@ -197,17 +197,31 @@ def _median_distance(pts: np.ndarray, poly: np.ndarray) -> float:
 
 
 class _Chain:
-    __slots__ = ("pts", "idx", "bucket")
+    """A run of eligible moves that join end to start at one layer bucket: its points are the
+    first move's start and every move's end (rows r0..r1-1 of the collected moves)."""
+    __slots__ = ("bucket", "r0", "r1", "_pts")
 
-    def __init__(self, bucket, x, y):
-        self.bucket = bucket
-        self.pts = [(x, y)]
-        self.idx: list[int] = []
+    def __init__(self, bucket, r0, r1, ends):
+        self.bucket, self.r0, self.r1 = bucket, r0, r1
+        self._pts = ends
+
+    @property
+    def pts(self) -> np.ndarray:
+        e = self._pts
+        return np.concatenate([e[self.r0:self.r0 + 1, 0:2], e[self.r0:self.r1, 2:4]])
 
 
 def _closed(c: _Chain, gap: float) -> bool:
-    (x0, y0), (x1, y1) = c.pts[0], c.pts[-1]
+    e = c._pts
+    x0, y0 = e[c.r0, 0], e[c.r0, 1]
+    x1, y1 = e[c.r1 - 1, 2], e[c.r1 - 1, 3]
     return math.hypot(x1 - x0, y1 - y0) <= gap
+
+
+def _z_cmm_v(z: np.ndarray) -> np.ndarray:
+    """_z_cmm of an array (the firmware's float32 rounding to 0.01 mm)."""
+    v = (z.astype(np.float32) * np.float32(100.0)).astype(np.float64)
+    return np.where(v >= 0, np.floor(v + 0.5), -np.floor(0.5 - v)).astype(np.int64)
 
 
 def extract_walls(moves: Iterable[Move], layer_height: float | None = None,
@@ -220,39 +234,62 @@ def extract_walls(moves: Iterable[Move], layer_height: float | None = None,
     geometric=True uses every extruding move and keeps, per layer, the closed
     loop of largest area (the outermost one).
     """
-    chains: list[_Chain] = []
-    cur: _Chain | None = None
-    planar_count: dict[int, int] = {}
-    # The eligible moves' ends in flat arrays (x0 y0 x1 y1 z0 z1 per move, and its index), not
-    # the Move objects: a 100 MB file has a million of them. A chain break is a NaN row.
-    ends = array("d")
-    index = array("q")
-    brk = (math.nan,) * 6
+    return walls_from_records(movescan.from_moves(moves), layer_height, geometric,
+                              ref_angle_deg, source, header_height)
+
+
+def walls_from_records(chunks: Iterable[np.ndarray], layer_height: float | None = None,
+                       geometric: bool = False, ref_angle_deg: float = -90.0,
+                       source: str = "<gcode>", header_height: float | None = None
+                       ) -> WallModel:
+    """extract_walls on the moves as movescan.RECORD arrays, chunk by chunk, without a Python
+    step per move: a 100 MB file has some three million."""
+    # Per chunk: the eligible moves' ends (x0 y0 x1 y1 z0 z1) and their move numbers; other
+    # moves that travel (or leave the outer wall) break a chain: a NaN row with number -1, one
+    # for a run of them.
+    parts: list[np.ndarray] = []
+    nums: list[np.ndarray] = []
+    planar_z: list[np.ndarray] = []
     any_outer = False
-    for m in moves:
-        if m.outer:
-            any_outer = True
-        ok = m.extruding and (geometric or m.outer)
-        if ok:
-            ends.extend((m.x0, m.y0, m.x1, m.y1, m.z0, m.z1))
-            index.append(m.index)
-            if abs(m.z1 - m.z0) < 1e-6:
-                zc = _z_cmm(m.z1)
-                planar_count[zc] = planar_count.get(zc, 0) + 1
-        elif (m.x0 != m.x1 or m.y0 != m.y1 or (not geometric and not m.outer)) \
-                and (not index or index[-1] >= 0):
-            ends.extend(brk)                 # chain break (one for a run of them)
-            index.append(-1)
+    last_was_break = False
+    done = 0                                   # moves before this chunk
+    for a in chunks:
+        x0, y0, x1, y1, e = a["x0"], a["y0"], a["x1"], a["y1"], a["e"]
+        outer = (a["flags"] & movescan.OUTER) != 0
+        any_outer = any_outer or bool(outer.any())
+        moved = (x0 != x1) | (y0 != y1)
+        ok = (e > 0.0) & moved
+        if not geometric:
+            ok &= outer
+        other = ~ok & (moved | (~outer if not geometric else False))
+        ev = np.flatnonzero(ok | other)
+        is_brk = other[ev]
+        prev = np.concatenate([[last_was_break], is_brk[:-1]])
+        ev = ev[~is_brk | ~prev]                 # a run of breaks makes one row
+        if len(ev):
+            last_was_break = bool(other[ev[-1]])
+        rows = np.stack([x0[ev], y0[ev], x1[ev], y1[ev], a["z0"][ev], a["z1"][ev]], axis=1)
+        brk = other[ev]
+        rows[brk] = np.nan
+        parts.append(rows)
+        nums.append(np.where(brk, -1, ev + done))
+        flat = ok & (np.abs(a["z1"] - a["z0"]) < 1e-6)
+        planar_z.append(_z_cmm_v(a["z1"][flat]))
+        done += len(a)
     if not geometric and not any_outer:
         raise WallError(
             f"{source}: no outer-wall feature comments found (;TYPE:External perimeter, "
             ";TYPE:Outer wall, ;TYPE:WALL-OUTER, ; outer perimeter). Slice with feature "
             "comments enabled, or use geometric mode (M720 S2): pass --geometric to take "
             "the outermost closed loop of each layer as the wall.")
+    ends = np.concatenate(parts) if parts else np.empty((0, 6))
+    index = np.concatenate(nums) if nums else np.empty(0, np.int64)
+    del parts, nums
     # A layer has many moves at its z; a spiral wall only now and then two
     # consecutive moves at the same rounded z.
-    zs_planar = sorted(z for z, n in planar_count.items() if n >= 4)
-    planar_set = set(zs_planar)
+    zp, counts = np.unique(np.concatenate(planar_z) if planar_z else np.empty(0, np.int64),
+                           return_counts=True)
+    zs_planar = [int(z) for z in zp[counts >= 4]]
     if layer_height is not None and not (math.isfinite(layer_height) and 0 < layer_height <= 2.0):
         raise WallError(f"{source}: layer height {layer_height} mm must be > 0 and <= 2 mm")
     notes: list[str] = []
@@ -266,40 +303,35 @@ def extract_walls(moves: Iterable[Move], layer_height: float | None = None,
         h = float(np.bincount(diffs).argmax()) / 100 if len(diffs) else 0.2
     h_cmm = max(1, round(h * 100))
 
-    def bucket_of(z0: float, z1: float) -> int:
-        # the firmware's reading of a move's z: its end z in 0.01 mm, rounded
-        # in float32 (bulge_planner.cpp eligible())
-        zc = _z_cmm(z1)
-        if abs(z1 - z0) < 1e-6 and zc in planar_set:
-            return zc
-        # spiral: snap to the layer grid above the highest planar layer below,
-        # nearest grid z, the lower one on a tie (as MapStore::find_layer)
-        base = 0
-        for zp in zs_planar:
-            if zp <= zc:
-                base = zp
-            else:
-                break
-        d = zc - base
-        k = -((h_cmm - 2 * d) // (2 * h_cmm))
-        return base + k * h_cmm
-
-    for k, mi in enumerate(index):
-        if mi < 0:
-            cur = None
-            continue
-        x0, y0, x1, y1, z0, z1 = ends[6 * k:6 * k + 6]
-        b = bucket_of(z0, z1)
-        if (cur is None or cur.bucket != b
-                or abs(cur.pts[-1][0] - x0) > 1e-4 or abs(cur.pts[-1][1] - y0) > 1e-4):
-            cur = _Chain(b, x0, y0)
-            chains.append(cur)
-        cur.pts.append((x1, y1))
-        cur.idx.append(mi)
+    # The bucket of each move: the firmware's reading of its z, its end z in 0.01 mm rounded in
+    # float32 (bulge_planner.cpp eligible()); a move off the planar layers (a spiral) snaps to
+    # the layer grid above the highest planar layer below, nearest grid z, the lower one on a
+    # tie (as MapStore::find_layer).
+    real = index >= 0
+    zc = np.zeros(len(index), np.int64)
+    zc[real] = _z_cmm_v(ends[real, 5])
+    zsp = np.array(zs_planar, dtype=np.int64)
+    planar = real & (np.abs(ends[:, 5] - ends[:, 4]) < 1e-6) & np.isin(zc, zsp)
+    i = np.searchsorted(zsp, zc, side="right") - 1
+    base = np.where(i >= 0, zsp[np.maximum(i, 0)] if len(zsp) else 0, 0)
+    d = zc - base
+    bucket = np.where(planar, zc, base - ((h_cmm - 2 * d) // (2 * h_cmm)) * h_cmm)
+    # A chain starts after a break, or where a move does not start at the last one's end or
+    # lies in another bucket.
+    n = len(index)
+    start = real.copy()
+    if n > 1:
+        cont = (real[1:] & real[:-1] & (bucket[1:] == bucket[:-1])
+                & (np.abs(ends[:-1, 2] - ends[1:, 0]) <= 1e-4)
+                & (np.abs(ends[:-1, 3] - ends[1:, 1]) <= 1e-4))
+        start[1:] &= ~cont
+    starts = np.flatnonzero(start)
+    stops = np.flatnonzero(real & np.concatenate([~real[1:] | start[1:], [True]])) + 1
+    chains = [_Chain(int(bucket[r0]), int(r0), int(r1), ends) for r0, r1 in zip(starts, stops)]
 
     by_bucket: dict[int, list[_Chain]] = {}
     for c in chains:
-        if len(c.pts) >= 3:
+        if c.r1 - c.r0 >= 2:                    # three points or more
             by_bucket.setdefault(c.bucket, []).append(c)
     if not math.isfinite(ref_angle_deg):
         raise WallError(f"{source}: reference angle {ref_angle_deg} is not a finite number")
@@ -337,7 +369,7 @@ def extract_walls(moves: Iterable[Move], layer_height: float | None = None,
         if prev_z is not None and height > 1.5 * h:
             height = h  # a layer without wall in between
         prev_z = z
-        w = Wall(z=z, xy=xy, s=s, move_index=np.array(best.idx), height=height,
+        w = Wall(z=z, xy=xy, s=s, move_index=index[best.r0:best.r1].copy(), height=height,
                  ccw=area >= 0, centroid=cen, closed=_closed(best, gap))
         w.s_ref = _ray_hit(xy, s, cen, direction)
         walls.append(w)
@@ -353,7 +385,6 @@ def extract_walls(moves: Iterable[Move], layer_height: float | None = None,
 
 def walls_from_gcode(path, layer_height: float | None = None, geometric: bool = False,
                      ref_angle_deg: float = -90.0) -> WallModel:
-    ends, lines = open_checked(path)                # streamed: a 100 MB file is not held as lines
-    moves = (m for ln in parse_lines(lines, str(path)) for m in ln.moves)
-    return extract_walls(moves, layer_height, geometric, ref_angle_deg, str(path),
-                         header_layer_height(ends))
+    ends, _ = open_checked(path)                    # checked; its moves are scanned in chunks
+    return movescan.run(path, lambda chunks: walls_from_records(
+        chunks, layer_height, geometric, ref_angle_deg, str(path), header_layer_height(ends)))
