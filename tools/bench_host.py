@@ -62,8 +62,11 @@ def main() -> int:
         print(f"input: {mb:.1f} MB; a plain Python line read takes {base:.2f} s ({mb / base:.0f} MB/s)")
         scale = 100.0 / mb                       # goals are per 100 MB
         cases = [
+            # issue 12's build: map, annotated, stock fallback, stats and previews
             ("build", ["build", str(src), "--text", "HELLO", "--at", "5,3", "-o", str(d / "build"),
-                       "--no-preview", "--quiet"], 15.0),
+                       "--fallback", "--quiet"], 15.0),
+            ("build -P", ["build", str(src), "--text", "HELLO", "--at", "5,3", "-o", str(d / "b2"),
+                          "--no-preview", "--quiet"], None),
             ("annotate", ["annotate", str(src), str(bkm), "-o", str(d / "a.gcode"), "--quiet"], 8.0),
             ("fallback", ["fallback", str(src), str(bkm), "-o", str(d / "f.gcode"), "--quiet",
                           "--allow-unreached"], None),

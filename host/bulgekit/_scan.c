@@ -28,7 +28,7 @@ typedef struct {
     double e;        /* filament of this move (end E - start E) */
     double e_start;  /* E at its start */
     double f;        /* mm/min */
-    int64_t offset;  /* byte offset of its line in the buffer given to feed() */
+    int64_t offset;  /* byte offset of its line in the file (feed()'s base + in its buffer) */
     int32_t line_no; /* 1-based */
     int16_t role;    /* index into Scanner.roles, -1: none yet */
     uint8_t flags;   /* 1: outer wall, 2: chord of an arc, 4: G90 (else G91), 8: M82 (else M83) */
@@ -55,6 +55,7 @@ typedef struct {
     Record *out;
     Py_ssize_t n, cap;
     const char *base;
+    long long base_offset;
 } Scanner;
 
 static PyObject *ScanUnsupported;
@@ -222,7 +223,7 @@ static int emit(Scanner *s, const char *line, double x, double y, double z, doub
     r.e = e - s->e;
     r.e_start = s->e;
     r.f = s->f;
-    r.offset = line - s->base;
+    r.offset = (int64_t)(s->base_offset + (line - s->base));
     r.line_no = (int32_t)s->line_no;
     r.role = (int16_t)s->role;
     r.flags = (uint8_t)((s->outer ? 1 : 0) | (arc ? 2 : 0) | (s->abs_xyz ? 4 : 0) | (s->abs_e ? 8 : 0));
@@ -351,12 +352,15 @@ static int do_line(Scanner *s, const char *p, const char *end) {
     return 0;
 }
 
-/* feed(data, final) -> (records: bytes, used: int). Lines that end in data are scanned; without
- * final, the bytes after the last line end are left for the next call (used says where). */
+/* feed(data, final, base) -> (records: bytes, used: int). Lines that end in data are scanned;
+ * without final, the bytes after the last line end are left for the next call (used says where).
+ * base: the file offset of data[0], for the records' offsets. */
 static PyObject *Scanner_feed(Scanner *s, PyObject *args) {
     Py_buffer buf;
     int final = 0;
-    if (!PyArg_ParseTuple(args, "y*|p", &buf, &final)) return NULL;
+    long long base = 0;
+    if (!PyArg_ParseTuple(args, "y*|pL", &buf, &final, &base)) return NULL;
+    s->base_offset = base;
     const char *p = buf.buf, *end = p + buf.len;
     s->n = 0;
     s->base = p;
@@ -435,7 +439,7 @@ static PyObject *Scanner_lines(Scanner *s, void *c) {
 
 static PyMethodDef Scanner_methods[] = {
     {"feed", (PyCFunction)Scanner_feed, METH_VARARGS,
-     "feed(data, final=False) -> (records, used): move records of data's complete lines"},
+     "feed(data, final=False, base=0) -> (records, used): move records of data's complete lines"},
     {NULL, NULL, 0, NULL}};
 
 static PyGetSetDef Scanner_getset[] = {

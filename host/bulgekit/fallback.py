@@ -797,8 +797,11 @@ def _plain_lines(data, source) -> None:
     """rewrite_file's byte path needs \n or \r\n line ends and UTF-8 (else rewrite() runs)."""
     if data.count(b"\r") != data.count(b"\r\n"):
         raise _TextPath
+    import codecs
+    dec = codecs.getincrementaldecoder("utf-8")()
     try:
-        data.decode("utf-8")
+        for i in range(0, len(data), 1 << 23):        # in slices: no second copy of the file
+            dec.decode(data[i:i + (1 << 23)], final=i + (1 << 23) >= len(data))
     except UnicodeDecodeError:
         raise _TextPath from None
 

@@ -36,7 +36,7 @@ ARC = 2                      # flags: a chord of a linearised G2/G3
 ABS_XYZ = 4                  # flags: G90 in force (else G91)
 ABS_E = 8                    # flags: absolute E in force (M82/G90; else M83/G91)
 
-CHUNK_BYTES = 8 << 20
+CHUNK_BYTES = 2 << 20        # 2 MB of G-code: about 7 MB of records at a time
 T = TypeVar("T")
 
 
@@ -85,11 +85,9 @@ def _fast(path) -> Chunks:
                 data = f.read(CHUNK_BYTES)
                 final = not data
                 buf = buf + data if buf else data
-                recs, used = sc.feed(buf, final)
-                a = np.frombuffer(recs, dtype=RECORD).copy() if recs else np.empty(0, RECORD)
-                if len(a):
-                    a["offset"] += base
-                    yield a
+                recs, used = sc.feed(buf, final, base)
+                if recs:
+                    yield np.frombuffer(recs, dtype=RECORD)         # read-only, not copied
                 progress.tick(sc.lines)
                 base += used
                 buf = buf[used:]
