@@ -59,8 +59,16 @@ def _settings(dwell, extra, tolerance, geometric) -> Settings:
         raise click.BadParameter(str(e), param_hint=f"'{opt}'" if opt else None) from None
 
 
+def _movescan_available() -> bool:
+    from . import movescan
+    return movescan.available()
+
+
 @click.group(context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})
-@click.version_option(__version__, prog_name="bulgekit")
+@click.version_option(__version__, prog_name="bulgekit",
+                      message="%(prog)s %(version)s (G-code scanner: " +
+                      ("compiled" if _movescan_available() else
+                       "Python only, bulgekit._scan not built: slower on large files") + ")")
 def main():
     """Bulges on the outer wall of FDM prints (over-extrusion by dwell + extra filament).
 

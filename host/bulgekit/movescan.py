@@ -9,7 +9,7 @@ leaves to the Python parser (a command with non-ASCII bytes, a value or arc gcod
 consume is called again with the Python parser's chunks, which give the moves or the error
 message naming the file and line.
 
-    python3 -m bulgekit.movescan FILE.gcode     # which scanner, moves, lines/s
+`bulgekit --version` says which scanner is in use.
 """
 from __future__ import annotations
 
@@ -161,25 +161,3 @@ def run(path, consume: Callable[[Chunks], T], source: str | None = None,
             if fast:
                 raise Unsupported(f"line {e.args[0]}") from None
     return consume(_slow(path, source))
-
-
-def _main(argv: list[str]) -> int:
-    import sys
-    import time
-    if len(argv) != 1:
-        print("usage: python3 -m bulgekit.movescan FILE.gcode", file=sys.stderr)
-        return 2
-    print(f"scanner: {'compiled (_scan)' if _scan else 'Python only (bulgekit._scan not built)'}")
-    t = time.perf_counter()
-
-    def count(chunks):
-        return sum(len(a) for a in chunks), chunks.lines
-    n, lines = run(argv[0], count)
-    dt = time.perf_counter() - t
-    print(f"{n} moves, {lines} lines in {dt:.2f} s ({lines / dt:,.0f} lines/s)")
-    return 0
-
-
-if __name__ == "__main__":
-    import sys
-    sys.exit(_main(sys.argv[1:]))

@@ -43,6 +43,9 @@ def _same(p, q):
 def test_the_compiled_scanner_is_built():
     # make deps builds it (host/setup.py); without it every pass reads G-code in Python
     assert movescan.available(), "bulgekit._scan is not built: pip install -e host with a C compiler"
+    from click.testing import CliRunner
+    from bulgekit.cli import main
+    assert "(G-code scanner: compiled)" in CliRunner().invoke(main, ["--version"]).output
 
 
 @pytest.mark.parametrize("path", FILES, ids=lambda p: p.name)
