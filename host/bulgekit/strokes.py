@@ -488,6 +488,58 @@ def font_names() -> list[str]:
     return list(HersheyFonts().default_font_names)
 
 
+class _Composed:
+    """A letter the Hershey fonts lack, made of one they have and an accent (see _accented)."""
+    __slots__ = ("strokes", "left_offset", "char_width", "cap_line", "base_line")
+
+    def __init__(self, base, strokes):
+        self.strokes = strokes
+        self.left_offset, self.char_width = base.left_offset, base.char_width
+        self.cap_line, self.base_line = base.cap_line, base.base_line
+
+
+# Accents as strokes in units of 1/21 of the capital height (the Hershey fonts' own: capitals
+# are 21 units tall), x from the letter's middle, y upward from the letter's top (or, for the
+# cedilla, downward from the baseline). A one-point stroke is a dot (one bump).
+_ACCENTS = {
+    "\u0300": [[(1.5, 1.5), (-1.5, 4.5)]],                             # grave
+    "\u0301": [[(-1.5, 1.5), (1.5, 4.5)]],                             # acute
+    "\u0302": [[(-3, 1.5), (0, 4.5), (3, 1.5)]],                       # circumflex
+    "\u0303": [[(-3.5, 2), (-1.5, 4), (1.5, 2), (3.5, 4)]],            # tilde
+    "\u0308": [[(-2.5, 3)], [(2.5, 3)]],                               # diaeresis
+    "\u030a": [[(0, 1.5), (1.4, 2.1), (2, 3.5), (1.4, 4.9), (0, 5.5), (-1.4, 4.9), (-2, 3.5),
+                (-1.4, 2.1), (0, 1.5)]],                               # ring
+    "\u0327": [[(0, 0), (0, 2), (1.5, 3), (0, 4.5), (-1.5, 4.5)]],     # cedilla (below)
+}
+
+
+def _accented(hf, ch: str):
+    """Latin letters with accents (é, ü, ñ, å, ç ... all of Latin-1's that decompose): the base
+    letter of the font with the accent drawn above it (a dotless i or j under it), or None."""
+    import unicodedata
+    parts = unicodedata.normalize("NFD", ch)
+    if len(parts) < 2 or any(m not in _ACCENTS for m in parts[1:]):
+        return None
+    found = list(hf.glyphs_for_text(parts[0]))
+    if not found:
+        return None
+    base = found[0]
+    strokes = [list(st) for st in base.strokes]
+    if parts[0] in "ij" and len(strokes) > 1:        # the dot gives way to the accent
+        strokes = [st for st in strokes if max(y for _, y in st) > base.cap_line + 3]
+    pts = [p for st in strokes for p in st]
+    mid = (min(x for x, _ in pts) + max(x for x, _ in pts)) / 2
+    top, unit = min(y for _, y in pts), (base.base_line - base.cap_line) / 21
+    for mark in parts[1:]:
+        for st in _ACCENTS[mark]:
+            if mark == "\u0327":
+                strokes.append([(mid + x * unit, base.base_line + y * unit) for x, y in st])
+            else:
+                strokes.append([(mid + x * unit, top - y * unit) for x, y in st])
+        top -= 5 * unit
+    return _Composed(base, strokes)
+
+
 def text_strokes(text: str, size_mm: float, spacing: float = 0.0, u0: float = 0.0, v0: float = 0.0,
                  mirror: bool = False, font: str = "futural", line_spacing: float = 1.6,
                  weight: int = 255) -> list[Stroke]:
@@ -516,9 +568,10 @@ def text_strokes(text: str, size_mm: float, spacing: float = 0.0, u0: float = 0.
         if g_char == "\n" or g_char in glyphs:
             continue
         found = list(hf.glyphs_for_text(g_char))
-        if not found:
+        glyph = found[0] if found else _accented(hf, g_char)
+        if glyph is None:
             raise InputError(f"text: character {g_char!r} (position {col + 1}) is not in font {font!r}")
-        glyphs[g_char] = found[0]
+        glyphs[g_char] = glyph
     any_glyph = next(iter(glyphs.values()))
     cap, base = any_glyph.cap_line, any_glyph.base_line
     k = size_mm / float(base - cap)  # font units → mm; font y grows downward

@@ -33,8 +33,28 @@ def test_binary_file_as_gcode(tmp_path):
 
 
 def test_first_unsupported_character_is_named():
-    with pytest.raises(InputError, match=r"character 'ü' \(position 3\)"):
+    # ü is drawn (u + diaeresis); ß is in no Hershey font and comes first of the missing ones
+    with pytest.raises(InputError, match=r"character 'ß' \(position 4\)"):
         text_strokes("Grüße ✓", 6)
+
+
+@pytest.mark.parametrize("ch, base, marks", [("é", "e", 1), ("ü", "u", 2), ("ñ", "n", 1),
+                                               ("Å", "A", 1), ("ç", "c", 1), ("í", "i", 1)])
+def test_latin1_accented_letters_are_their_letter_and_an_accent(ch, base, marks):
+    got, plain = text_strokes(ch, 6), text_strokes(base, 6)
+    # the letter's own strokes (the i without its dot), then the accent's
+    keep = plain[1:] if base == "i" else plain
+    assert [s.points for s in got[:len(keep)]] == [s.points for s in keep]
+    accent = got[len(keep):]
+    assert len(accent) == marks
+    top = max(v for s in keep for _, v in s.points)
+    pts = [p for s in accent for p in s.points]
+    if ch == "ç":                                   # the cedilla hangs below the baseline
+        assert min(v for _, v in pts) < -0.5
+    else:
+        assert min(v for _, v in pts) > top         # above the letter, inside its width
+        lo, hi = min(u for s in keep for u, _ in s.points), max(u for s in keep for u, _ in s.points)
+        assert all(lo - 0.5 <= u <= hi + 0.5 for u, _ in pts)
 
 
 def test_failed_build_leaves_no_folder(tmp_path, data_dir):
