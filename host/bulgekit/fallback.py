@@ -399,8 +399,8 @@ class Skipper:
     every extruding move. host/tests/test_movescan.py checks stops, extras and drops against
     planning every move.
 
-    With arcs_bypass, arc chords are the firmware's (RefPlanner.bypass: not planned at all) and
-    select() leaves them out; bypass_rows() names the extruding ones."""
+    With arcs_bypass, arc chords are the firmware's (RefPlanner.bypass: not planned at all):
+    select() leaves them out, and plan_records() hands the extruding ones to bypass."""
 
     def __init__(self, planner: RefPlanner, arcs_bypass: bool = False):
         self.p = planner
