@@ -32,7 +32,7 @@ from typing import Iterable, Iterator
 
 import numpy as np
 
-from . import mapformat
+from . import mapformat, movescan
 from .gcode import GcodeState, Line, Move, parse_lines
 from .strokes import BulgekitError
 
@@ -432,7 +432,7 @@ class Skipper:
         ext = (e > 0) & moved
         seen = np.ones(len(a), bool)            # moves the planner sees
         if self.arcs_bypass:
-            seen = (a["flags"] & 2) == 0
+            seen = (a["flags"] & movescan.ARC) == 0
             ext &= seen
         if ext.any():
             z = float(a["z1"][ext].max())
@@ -445,13 +445,12 @@ class Skipper:
             f = np.float32
             cand = (e.astype(f) > 0) & ((x0.astype(f) != x1.astype(f)) | (y0.astype(f) != y1.astype(f)))
             if mode == MODE_MARKED:
-                cand &= (a["flags"] & 1) != 0
+                cand &= (a["flags"] & movescan.OUTER) != 0
             cand &= seen
         pick = np.zeros(len(a), bool)
         ci = np.flatnonzero(cand)
         if len(ci):
-            zc = (a["z1"][ci].astype(np.float32) * np.float32(100.0)).astype(np.float64)
-            zc = np.where(zc >= 0, np.floor(zc + 0.5), -np.floor(0.5 - zc)).astype(np.int64)
+            zc = movescan.z_cmm(a["z1"][ci])
             prev = np.concatenate([[self.last_zc if self.last_zc is not None else zc[0] + 1], zc[:-1]])
             pick[ci[zc != prev]] = True
             self.last_zc = int(zc[-1])
@@ -460,16 +459,11 @@ class Skipper:
         moving = np.flatnonzero(~null & seen)
         if self.owed and len(moving):
             pick[moving[0]] = True
-        picked = np.flatnonzero(pick)
-        if len(picked) and len(moving):
+        picked = np.flatnonzero(pick)              # all of them move (candidates, moving[0])
+        if len(picked):
             k = np.searchsorted(moving, picked, side="right")
-            nxt = moving[k[k < len(moving)]]
-            pick[nxt] = True
+            pick[moving[k[k < len(moving)]]] = True
             self.owed = bool((k >= len(moving)).any())
-        elif self.owed and not len(moving):
-            pass                                    # still owed: no moving move in this chunk
-        else:
-            self.owed = False
         return np.flatnonzero(pick)
 
     def _near(self, c: np.ndarray, zc: np.ndarray) -> np.ndarray:
@@ -511,23 +505,30 @@ def record_move(r, index: int, roles) -> Move:
     role, fl = int(r["role"]), int(r["flags"])
     return Move(index, int(r["line_no"]), float(r["x0"]), float(r["y0"]), float(r["z0"]),
                 float(r["x1"]), float(r["y1"]), float(r["z1"]), float(r["e"]), float(r["e_start"]),
-                float(r["f"]), bool(fl & 1), roles[role] if role >= 0 else None, bool(fl & 2))
+                float(r["f"]), bool(fl & movescan.OUTER), roles[role] if role >= 0 else None,
+                bool(fl & movescan.ARC))
 
 
-def plan_records(planner: RefPlanner, chunks, on_move=None, arcs_bypass: bool = False) -> None:
+def plan_records(planner: RefPlanner, chunks, on_move=None, arcs_bypass: bool = False,
+                 on_chunk=None) -> None:
     """Run a file's moves (movescan chunks) through the planner, skipping the moves that cannot
-    change what it does (Skipper). on_move(move, actions) is called for every planned move.
+    change what it does (Skipper). on_move(move, actions) is called for every planned move as it
+    is planned; on_chunk(chunk, moves before it, {row: (move, actions)}) after each chunk.
     arcs_bypass: arc chords go to planner.bypass, as the firmware sees them."""
     sk = Skipper(planner, arcs_bypass)
     done = 0
     for a in chunks:
+        planned = {}
         for i in sk.select(a):
             m = record_move(a[i], done + int(i), chunks.roles)
             acts = planner.plan(m)
+            planned[int(i)] = (m, acts)
             if on_move is not None:
                 on_move(m, acts)
+        if on_chunk is not None:
+            on_chunk(a, done, planned)
         if arcs_bypass:
-            for i in np.flatnonzero(((a["flags"] & 2) != 0) & (a["e"] > 0)):
+            for i in np.flatnonzero(((a["flags"] & movescan.ARC) != 0) & (a["e"] > 0)):
                 planner.bypass(record_move(a[i], done + int(i), chunks.roles))
         done += len(a)
     if sk.top_z is not None and (planner.top_z is None or sk.top_z > planner.top_z):
@@ -657,8 +658,7 @@ def rewrite(lines: Iterable[str], bmap: mapformat.BulgeMap, settings: Settings,
             yield raw
             continue
         per_move = [(m, planner.plan(m)) for m in ln.moves]
-        if all(len(a) == 1 and a[0].kind == "line" and a[0].t == 1.0
-               and abs(a[0].e - m.e) < 1e-12 for m, a in per_move):
+        if all(_unchanged(m, a) for m, a in per_move):
             yield raw
             continue
         res.moves_split += 1
@@ -666,6 +666,12 @@ def rewrite(lines: Iterable[str], bmap: mapformat.BulgeMap, settings: Settings,
     res.stops = planner.stops
     res.stats = planner.stats
     res.unreached = unreached_message(planner, source)
+
+
+def _unchanged(m: Move, actions: list[Action]) -> bool:
+    """The planner left the move as it was: one line to its end with its own filament."""
+    return (len(actions) == 1 and actions[0].kind == "line" and actions[0].t == 1.0
+            and abs(actions[0].e - m.e) < 1e-12)
 
 
 def _emit(ln: Line, per_move, st: GcodeState) -> Iterator[str]:
@@ -740,26 +746,17 @@ def _rewrite_records(src, out, chunks, bmap: mapformat.BulgeMap, settings: Setti
     """rewrite() on the compiled scanner's chunks: the same output, but lines that stay as they
     are copied as bytes and only the moves that can change planned (Skipper). Needs a file
     whose lines end in \n or \r\n and that is valid UTF-8 (rewrite_file checks)."""
-    from . import movescan
     from .gcode import parse_words, split_code
     planner = RefPlanner(bmap, settings)
-    sk = Skipper(planner)
     out.write(_header(bmap, settings).encode())
     pos = 0                                   # bytes of src copied so far
-    done = 0
-    for a in chunks:
-        planned: dict[int, list[Action]] = {}
-        changed: list[int] = []
-        for i in sk.select(a):
-            m = record_move(a[i], done + int(i), chunks.roles)
-            acts = planner.plan(m)
-            planned[int(i)] = acts
-            if not (len(acts) == 1 and acts[0].kind == "line" and acts[0].t == 1.0
-                    and abs(acts[0].e - m.e) < 1e-12):
-                changed.append(int(i))
+
+    def emit_changed(a, done, planned):
+        nonlocal pos
         lines = a["line_no"]
-        for ln_no in dict.fromkeys(int(lines[i]) for i in changed):
-            idx = np.flatnonzero(lines == ln_no)
+        changed = (int(lines[i]) for i, (m, acts) in planned.items() if not _unchanged(m, acts))
+        for ln_no in dict.fromkeys(changed):
+            idx = np.flatnonzero(lines == ln_no)      # the line's moves (an arc's chords)
             r0 = a[idx[0]]
             start = int(r0["offset"])
             out.write(src.read(start - pos))
@@ -772,42 +769,36 @@ def _rewrite_records(src, out, chunks, bmap: mapformat.BulgeMap, settings: Setti
             per_move = []
             for i in idx:
                 m = record_move(a[i], done + int(i), chunks.roles)
-                acts = planned.get(int(i)) or [Action("line", m.x1, m.y1, m.z1, m.e)]
-                per_move.append((m, acts))
+                per_move.append(planned.get(int(i)) or (m, [Action("line", m.x1, m.y1, m.z1, m.e)]))
             st = GcodeState()
             st.abs_xyz = bool(int(r0["flags"]) & movescan.ABS_XYZ)
             st.abs_e = bool(int(r0["flags"]) & movescan.ABS_E)
             res.moves_split += 1
             out.write("".join(_emit(Line(ln_no, text, head[0].upper(), words, [], None),
                                     per_move, st)).encode())
-        done += len(a)
+    plan_records(planner, chunks, on_chunk=emit_changed)
     rest = src.read()
     out.write(rest)
-    if (rest or pos) and not (rest or b"\n").endswith(b"\n"):
+    if rest and not rest.endswith(b"\n"):
         out.write(b"\n")                         # as rewrite(): every line ends in a line end
     res.lines_in = chunks.lines
-    if sk.top_z is not None and (planner.top_z is None or sk.top_z > planner.top_z):
-        planner.top_z = sk.top_z
     res.stops = planner.stops
     res.stats = planner.stats
     res.unreached = unreached_message(planner, source)
 
 
-def _plain_lines(data, source) -> None:
+def _plain_lines(data) -> bool:
     """rewrite_file's byte path needs \n or \r\n line ends and UTF-8 (else rewrite() runs)."""
     if data.count(b"\r") != data.count(b"\r\n"):
-        raise _TextPath
+        return False
     import codecs
     dec = codecs.getincrementaldecoder("utf-8")()
     try:
         for i in range(0, len(data), 1 << 23):        # in slices: no second copy of the file
             dec.decode(data[i:i + (1 << 23)], final=i + (1 << 23) >= len(data))
     except UnicodeDecodeError:
-        raise _TextPath from None
-
-
-class _TextPath(Exception):
-    pass
+        return False
+    return True
 
 
 def rewrite_file(src, dst, bmap: mapformat.BulgeMap, settings: Settings,
@@ -817,16 +808,12 @@ def rewrite_file(src, dst, bmap: mapformat.BulgeMap, settings: Settings,
     is in result.unreached.  dst is only written when the rewrite succeeds."""
     import os
     from .gcode import check_not_processed, open_checked
-    from . import movescan
     res = RewriteResult()
     byte_path = movescan.available()
 
-    def plain(data, source):
+    def plain(data, source):                  # run with open_checked's checks, on the bytes
         nonlocal byte_path
-        try:
-            _plain_lines(data, source)
-        except _TextPath:
-            byte_path = False
+        byte_path = byte_path and _plain_lines(data)
     _, lines = open_checked(src, checks=(check_not_processed, plain))     # streamed, not held
     tmp = f"{os.fspath(dst)}.part"
     try:

@@ -1,5 +1,5 @@
 """Moves of a G-code file as numpy record arrays, chunk by chunk, for the passes that need only
-moves (walls, statistics): the compiled scanner (_scan.c) when it is built and takes the file,
+moves (walls, statistics, the stock fallback, annotate's reach check): the compiled scanner (_scan.c) when it is built and takes the file,
 gcode.parse_lines otherwise. Both give the same numbers (host/tests/test_movescan.py).
 
     run(path, consume)      # consume(chunks) gets an iterator of RECORD arrays and the role names
@@ -58,6 +58,13 @@ class Chunks:
     @property
     def lines(self) -> int:
         return self._lines()
+
+
+def z_cmm(z: np.ndarray) -> np.ndarray:
+    """Move z (mm) as the firmware reads it: 0.01 mm, rounded in float32, half away from zero
+    (bulge_planner.cpp; fallback.RefPlanner._cmm and wall._z_cmm one at a time)."""
+    v = (np.asarray(z).astype(np.float32) * np.float32(100.0)).astype(np.float64)
+    return np.where(v >= 0, np.floor(v + 0.5), -np.floor(0.5 - v)).astype(np.int64)
 
 
 def available() -> bool:
@@ -144,9 +151,8 @@ def _slow(path, source: str) -> Chunks:
 def run(path, consume: Callable[[Chunks], T], source: str | None = None,
         fast: bool | None = None) -> T:
     """consume(chunks) over the moves of the file at path (or of G-code bytes); see the module
-    comment. fast=False forces the
-    Python parser (tests compare the two); fast=True the compiled one only (Unsupported when it
-    leaves the file to the Python parser)."""
+    comment. fast=False forces the Python parser (tests compare the two); fast=True the compiled
+    one only (Unsupported when it leaves the file to the Python parser)."""
     source = source or ("<gcode>" if isinstance(path, (bytes, bytearray)) else str(path))
     if fast is None:
         use = _scan is not None

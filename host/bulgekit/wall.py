@@ -218,12 +218,6 @@ def _closed(c: _Chain, gap: float) -> bool:
     return math.hypot(x1 - x0, y1 - y0) <= gap
 
 
-def _z_cmm_v(z: np.ndarray) -> np.ndarray:
-    """_z_cmm of an array (the firmware's float32 rounding to 0.01 mm)."""
-    v = (z.astype(np.float32) * np.float32(100.0)).astype(np.float64)
-    return np.where(v >= 0, np.floor(v + 0.5), -np.floor(0.5 - v)).astype(np.int64)
-
-
 def extract_walls(moves: Iterable[Move], layer_height: float | None = None,
                   geometric: bool = False, ref_angle_deg: float = -90.0,
                   source: str = "<gcode>", header_height: float | None = None
@@ -274,7 +268,7 @@ def walls_from_records(chunks: Iterable[np.ndarray], layer_height: float | None 
         parts.append(rows)
         nums.append(np.where(brk, -1, ev + done))
         flat = ok & (np.abs(a["z1"] - a["z0"]) < 1e-6)
-        planar_z.append(_z_cmm_v(a["z1"][flat]))
+        planar_z.append(movescan.z_cmm(a["z1"][flat]))
         done += len(a)
     if not geometric and not any_outer:
         raise WallError(
@@ -309,7 +303,7 @@ def walls_from_records(chunks: Iterable[np.ndarray], layer_height: float | None 
     # tie (as MapStore::find_layer).
     real = index >= 0
     zc = np.zeros(len(index), np.int64)
-    zc[real] = _z_cmm_v(ends[real, 5])
+    zc[real] = movescan.z_cmm(ends[real, 5])
     zsp = np.array(zs_planar, dtype=np.int64)
     planar = real & (np.abs(ends[:, 5] - ends[:, 4]) < 1e-6) & np.isin(zc, zsp)
     i = np.searchsorted(zsp, zc, side="right") - 1
