@@ -115,7 +115,9 @@ static int comment_role(Scanner *s, const char *c, const char *end) {
     if (len >= 5 && memcmp(c, "TYPE:", 5) == 0) v = c + 5;
     else if (len >= 8 && memcmp(c, "FEATURE:", 8) == 0) v = c + 8;
     if (v == NULL) {
-        if (len == 0 || len > 64) return 0;
+        /* Simplify3D's bare tags are lower-case words: other slicers' comments (";LAYER_CHANGE",
+         * ";Z:0.3", ";WIDTH:0.45" ...) need no lookup */
+        if (len == 0 || len > 64 || c[0] < 'a' || c[0] > 'z') return 0;
         PyObject *str = PyUnicode_DecodeASCII(c, len, "strict");
         if (!str) return -1;
         int k = PySet_Contains(s->s3d_roles, str);
