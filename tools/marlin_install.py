@@ -145,8 +145,12 @@ EDITS = [
     Edit("Marlin/src/module/planner.h", "is-move", "replace",
          "  bool is_move() { return !(is_sync() || is_page()); }",
          """\
-  bool is_dwell() { return TERN0(BULGE_MAP, flag.dwell); }
-  bool is_move() { return !(is_sync() || is_page() || is_dwell()); }
+  #if ENABLED(BULGE_MAP)
+    bool is_dwell() { return flag.dwell; }
+    bool is_move() { return !(is_sync() || is_page() || is_dwell()); }
+  #else
+    bool is_move() { return !(is_sync() || is_page()); }
+  #endif
 """),
     Edit("Marlin/src/module/planner.h", "buffer-dwell", "after",
          "      static void buffer_sync_block(const BlockFlagBit flag=BLOCK_BIT_SYNC_POSITION);",
@@ -228,18 +232,23 @@ EDITS = [
          '    cap_line(F("CONFIG_EXPORT"), ENABLED(CONFIGURATION_EMBEDDING));',
          """\
 
-    // bulgekit: bulge maps (M720-M722), width by feedrate (M723)
-    cap_line(F("BULGE_MAP"), ENABLED(BULGE_MAP));
-    cap_line(F("WIDTH_BY_FEEDRATE"), ENABLED(WIDTH_BY_FEEDRATE));
+    // bulgekit: bulge maps (M720-M722), width by feedrate (M723); with both
+    // off the block is empty and M115 is stock
+    #if ANY(BULGE_MAP, WIDTH_BY_FEEDRATE)
+      cap_line(F("BULGE_MAP"), ENABLED(BULGE_MAP));
+      cap_line(F("WIDTH_BY_FEEDRATE"), ENABLED(WIDTH_BY_FEEDRATE));
+    #endif
 """),
     Edit("Marlin/src/module/settings.cpp", "report", "before",
          "    //\n    // Model predictive control\n    //\n    TERN_(MPCTEMP, gcode.M306_report(forReplay));",
          """\
-    //
-    // bulgekit
-    //
-    TERN_(BULGE_MAP, gcode.M720_report(forReplay));
-    TERN_(WIDTH_BY_FEEDRATE, gcode.M723_report(forReplay));
+    #if ANY(BULGE_MAP, WIDTH_BY_FEEDRATE)
+      //
+      // bulgekit
+      //
+      TERN_(BULGE_MAP, gcode.M720_report(forReplay));
+      TERN_(WIDTH_BY_FEEDRATE, gcode.M723_report(forReplay));
+    #endif
 
 """),
     # EEPROM: M720/M723 parameters (see BulgeKit::settings_save). Marlin changes

@@ -386,3 +386,121 @@ def test_an_alternative_anchor_is_used_when_the_first_is_missing(tree):
     lines = read(tree, ed.path).split("\n")
     j = lines.index(ed.alts[0][2]) + 1  # the alternative's "#endif"
     assert lines[j] == ed.alts[0][3] and lines[j + 1].strip() == "// bulgekit:begin eeprom-save"
+
+
+# ---- features off = stock ---------------------------------------------------------------
+# Marlin's option macros, re-created here from what they do (ENABLED(X) is 1 for an
+# option defined empty, 0 for one not defined), enough for the hook texts.
+MACROS = r"""
+#define _BK_ON_ ~, 1
+#define _BK_SECOND(a, b, ...) b
+#define _BK_IS(...) _BK_SECOND(__VA_ARGS__, 0)
+#define _BK_EN(O) _BK_IS(_BK_ON_##O)
+#define _BK_CAT(a, b) a##b
+#define _BK_XCAT(a, b) _BK_CAT(a, b)
+#define ENABLED(O) _BK_EN(O)
+#define DISABLED(O) (!ENABLED(O))
+#define ANY(A, B) (ENABLED(A) || ENABLED(B))
+#define _BK_PICK_0(on, off) off
+#define _BK_PICK_1(on, off) on
+#define _BK_PICK(e, on, off) _BK_XCAT(_BK_PICK_, e)(on, off)
+#define TERN(O, A, B) _BK_PICK(ENABLED(O), A, B)
+#define TERN0(O, A) _BK_PICK(ENABLED(O), A, 0)
+#define _BK_ARGS_0(...)
+#define _BK_ARGS_1(...) __VA_ARGS__
+#define _BK_COMMA_ARGS_1(...) , __VA_ARGS__
+#define TERN_(O, ...) _BK_XCAT(_BK_ARGS_, ENABLED(O))(__VA_ARGS__)
+#define OPTARG(O, ...) _BK_XCAT(_BK_ARGS_, ENABLED(O))(, __VA_ARGS__)
+"""
+
+
+def preprocess(root, rel, defines, hooked=True):
+    """The file as the compiler sees it (gcc -E -P), every quoted include that
+    does not exist in the tree stubbed with an empty file."""
+    import re
+    import shutil
+    import subprocess
+    full = os.path.join(root, rel)
+    text = read(root, rel)
+    # The fake files hold anchors cut out of context (an #if without its
+    # #endif): such lines become comments, the same in both trees.
+    # Outside the installed blocks every line is filler or anchor.
+    lines, inside = [], False
+    for l in text.split("\n"):
+        if "bulgekit:begin" in l or "bulgekit:end" in l:
+            inside = "bulgekit:begin" in l
+        elif hooked and not inside and re.match(r"\s*#\s*(if|ifdef|ifndef|else|elif|endif)\b", l):
+            l = "// anchor " + l
+        lines.append(l)
+    text = "\n".join(lines)
+    # Marlin's own headers are not in the fake tree: empty stand-ins, also for
+    # what the copied files include (until no include is missing).
+    new = True
+    while new:
+        new = False
+        for dirpath, _, names in os.walk(root):
+            for name in names:
+                if not name.endswith((".h", ".cpp")):
+                    continue
+                with open(os.path.join(dirpath, name), encoding="utf-8") as f:
+                    incs = re.findall(r'#include "([^"]+)"', f.read())
+                for inc in incs:
+                    path = os.path.normpath(os.path.join(dirpath, inc))
+                    if not os.path.exists(path):
+                        os.makedirs(os.path.dirname(path), exist_ok=True)
+                        open(path, "w").close()
+                        new = True
+    prelude = os.path.join(root, "bk_macros.h")
+    with open(prelude, "w") as f:
+        f.write(MACROS)
+    # a use of the EEPROM version string, so its value shows in the output
+    probe = full + ".probe.cpp"
+    with open(probe, "w", encoding="utf-8") as f:
+        f.write(text + '\n#ifdef EEPROM_VERSION\nconst char v[] = EEPROM_VERSION;\n#endif\n')
+    gxx = shutil.which("g++") or shutil.which("gcc")
+    args = [gxx, "-E", "-P", "-x", "c++", "-include", prelude] + ["-D%s=" % d for d in defines] + [probe]
+    run = subprocess.run(args, capture_output=True, text=True)
+    assert run.returncode == 0, "%s: %s" % (rel, run.stderr)
+    out = run.stdout
+    os.remove(probe)
+    # tokens as the compiler reads them: blank space does not count
+    return [" ".join(l.split()) for l in out.split("\n") if l.strip() and l.strip() != "#pragma once"]
+
+
+def test_both_features_off_compile_to_the_stock_sources(tree, tmp_path):
+    """With BULGE_MAP and WIDTH_BY_FEEDRATE off, every hooked Marlin file reads
+    to the compiler exactly as before the install (M115's caps included), and
+    the copied files compile to nothing."""
+    import shutil
+    stock = str(tmp_path / "stock")
+    shutil.copytree(tree, stock)
+    mi.install(tree, out=quiet)
+    hooked = sorted({ed.path for ed in mi.EDITS if ed.path.endswith((".cpp", ".h"))})
+    assert "Marlin/src/gcode/host/M115.cpp" in hooked
+    for rel in hooked:
+        assert preprocess(tree, rel, []) == preprocess(stock, rel, []), rel
+    copied = [rel for rel, _ in mi.files_to_copy() if rel.endswith(".cpp") and not rel.startswith(mi.CORE_DIR)]
+    assert copied
+    for rel in copied:
+        assert preprocess(tree, rel, [], hooked=False) == [], rel
+    # and the check is not blind: each feature on changes M115's caps
+    for feature in ("BULGE_MAP", "WIDTH_BY_FEEDRATE"):
+        on = preprocess(tree, "Marlin/src/gcode/host/M115.cpp", [feature])
+        assert any('F("%s"), 1' % feature in l.replace(" ", "").replace(",1", ", 1") for l in on), on
+        assert on != preprocess(stock, "Marlin/src/gcode/host/M115.cpp", [feature])
+
+
+def test_config_block_with_both_features_off_defines_nothing(tmp_path):
+    import subprocess
+    import shutil
+    text = mi.config_edit().text
+    for f in ("BULGE_MAP", "WIDTH_BY_FEEDRATE"):
+        assert "\n#define %s\n" % f in text
+        text = text.replace("\n#define %s\n" % f, "\n//#define %s\n" % f)
+    src = tmp_path / "block.h"
+    src.write_text(MACROS + "\n#define BK_MACROS_END\n" + text)
+    gxx = shutil.which("g++") or shutil.which("gcc")
+    out = subprocess.run([gxx, "-E", "-dM", "-x", "c++", str(src)], capture_output=True, text=True, check=True).stdout
+    base = subprocess.run([gxx, "-E", "-dM", "-x", "c++", "-"], input=MACROS + "\n#define BK_MACROS_END\n",
+                          capture_output=True, text=True, check=True).stdout
+    assert set(out.split("\n")) - set(base.split("\n")) == set()
