@@ -98,6 +98,13 @@
 #define BK_PLAN_REPLY_MAX 48
 #endif
 
+// ---- replies (src/reply_text) ---------------------------------------------------------
+// 1: the M-code replies are printed by the firmware's serial port (the Marlin
+// install sets it; the adapter implements ReplyText). 0: into a buffer (tests, tools).
+#ifndef BK_REPLY_SERIAL
+#define BK_REPLY_SERIAL 0
+#endif
+
 // ---- map codec (src/bulge_map, src/map_upload: M721) -------------------------------
 // Base32 characters one "M721 O<offset> D<base32>" line may carry (40 bytes):
 // with "N<n> " and "*<cs>" the line stays within Marlin's 96-byte buffer.

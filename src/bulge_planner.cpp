@@ -536,50 +536,69 @@ static const Limit M720_LIMITS[4] BK_FLASH = {
     {'T', false, 0.01f - 1e-6f, BK_MAX_TOLERANCE_MM},
 };
 
-bool BulgePlanner::m720(const GcodeArgs &a, char *reply, uint8_t size) {
-  ReplyText r(reply, size);
-  char letters[5];  // "SPET", on the stack (check_words reads RAM)
-  for (uint8_t i = 0; i < 4; i++) letters[i] = (char)BK_RD8(&M720_LIMITS[i].letter);
-  letters[4] = 0;
-  float v[4] = {(float)mode_, (float)dwell_ms_, extra_e_, tol_mm_};
-  if (a.none()) {
-    r.p(BK_F("echo:  M720"));
-    for (uint8_t i = 0; i < 4; i++) {
-      r.c(' ');
-      r.c(letters[i]);
-      r.fixed(v[i], i < 2 ? 0 : 3);
-    }
-    return true;
-  }
-  const char *code = BK_F("M720");
-  if (!check_words(a, BK_F("SPET"), code, r)) return false;  // the letters of M720_LIMITS
-  // Check everything first, then apply: all or nothing.
+static const char M720_CODE[] BK_FLASH = "M720";
+
+void BulgePlanner::report(ReplyText &r, bool echo) const {
+  if (echo) r.p(BK_F("echo:"));
+  r.p(BK_F("  M720"));
+  const float v[4] = {(float)mode_, (float)dwell_ms_, extra_e_, tol_mm_};
   for (uint8_t i = 0; i < 4; i++) {
-    Limit lim;
-    BK_RDBLOCK(&lim, &M720_LIMITS[i], sizeof(lim));
-    float x;
-    const int8_t k = read_limited(a, lim, code, x, r);
-    if (k < 0) return false;
-    if (!k) continue;
-    if (i < 2 && x != (float)(int16_t)x) {
-      r.p(BK_F("Error:M720 "));
-      r.c(lim.letter);
-      r.fixed(x, 3);
-      r.p(BK_F(" not a whole number"));
-      return false;
-    }
-    v[i] = x;
+    r.c(' ');
+    r.c((char)BK_RD8(&M720_LIMITS[i].letter));
+    r.fixed(v[i], i < 2 ? 0 : 3);
   }
+}
+
+// Value v for word i (S P E T) within its limits, and S and P whole numbers;
+// otherwise one Error: line.
+static bool check(uint8_t i, float v, ReplyText &r) {
+  Limit lim;
+  BK_RDBLOCK(&lim, &M720_LIMITS[i], sizeof(lim));
+  if (!check_limit(lim, v, M720_CODE, r)) return false;
+  if (i < 2 && v != (float)(int16_t)v) {
+    r.p(BK_F("Error:M720 "));
+    r.c(lim.letter);
+    r.fixed(v, 3);
+    r.p(BK_F(" not a whole number"));
+    return false;
+  }
+  return true;
+}
+
+// All of S P E T in force at once (after every check passed).
+void BulgePlanner::apply(const float *v) {
   mode_ = (uint8_t)v[0];
   dwell_ms_ = (uint16_t)v[1];
   extra_e_ = v[2];
   tol_mm_ = v[3];
   derive();
+}
+
+bool BulgePlanner::restore(float dwell_ms, float extra_e, float tolerance, ReplyText &r) {
+  const float v[4] = {(float)mode_, dwell_ms, extra_e, tolerance};
+  for (uint8_t i = 1; i < 4; i++)
+    if (!check(i, v[i], r)) return false;
+  apply(v);
   return true;
 }
 
-bool BulgePlanner::m722(const GcodeArgs &a, char *reply, uint8_t size) {
-  ReplyText r(reply, size);
+bool BulgePlanner::m720(const GcodeArgs &a, ReplyText &r) {
+  if (a.none()) {
+    report(r, true);
+    return true;
+  }
+  if (!check_words(a, BK_F("SPET"), M720_CODE, r)) return false;  // the letters of M720_LIMITS
+  // Check everything first, then apply: all or nothing.
+  float v[4] = {(float)mode_, (float)dwell_ms_, extra_e_, tol_mm_};
+  for (uint8_t i = 0; i < 4; i++) {
+    const int8_t k = read_number(a, (char)BK_RD8(&M720_LIMITS[i].letter), M720_CODE, v[i], r);
+    if (k < 0 || (k && !check(i, v[i], r))) return false;
+  }
+  apply(v);
+  return true;
+}
+
+bool BulgePlanner::m722(const GcodeArgs &a, ReplyText &r) {
   if (!check_words(a, BK_F("S"), BK_F("M722"), r)) return false;
   uint32_t s;  // get_ulong, as M721 uses: one reader less in the firmware
   if (a.get_ulong('S', s) != ARG_OK || s > 1) {

@@ -43,6 +43,7 @@
 #include "bulge_map.h"
 #include "bulgekit_config.h"
 #include "move_state.h"
+#include "reply_text.h"
 
 namespace bk {
 
@@ -119,11 +120,27 @@ class BulgePlanner {
   bool plan(const Move &m, ActionList &out);
   bool plan_more(ActionList &out);
 
-  // M720 and M722 from the raw command text. reply gets one line ("echo:..."
-  // or "Error:..."), or "" when there is nothing to say. Returns false on an
-  // Error, which changes nothing.
-  bool m720(const GcodeArgs &a, char *reply, uint8_t size);
-  bool m722(const GcodeArgs &a, char *reply, uint8_t size);
+  // M720 and M722. The reply is one line ("echo:..." or "Error:..."), or
+  // nothing. Returns false on an Error, which changes nothing.
+  bool m720(const GcodeArgs &a, ReplyText &r);
+  bool m722(const GcodeArgs &a, ReplyText &r);
+  // The settings as the command that sets them, "  M720 S2 P100 E0.100 T0.250"
+  // (M503), after "echo:" when echo is set (M720 alone).
+  void report(ReplyText &r, bool echo) const;
+  // Stored settings (EEPROM) back in force: each value checked as M720 checks
+  // it. False with an Error: line, nothing changed, when one is out of range.
+  bool restore(float dwell_ms, float extra_e, float tolerance, ReplyText &r);
+#if !BK_REPLY_SERIAL
+  // The same into a buffer (tests, tools): size >= BK_PLAN_REPLY_MAX.
+  bool m720(const GcodeArgs &a, char *reply, uint8_t size) {
+    ReplyText r(reply, size);
+    return m720(a, r);
+  }
+  bool m722(const GcodeArgs &a, char *reply, uint8_t size) {
+    ReplyText r(reply, size);
+    return m722(a, r);
+  }
+#endif
 
   BulgeMode mode() const { return (BulgeMode)mode_; }
   uint16_t dwell_ms() const { return dwell_ms_; }
@@ -145,6 +162,7 @@ class BulgePlanner {
   void derive();
   void collect(const Move &mv);
   bool exact(const Move &mv, uint8_t i, float *fd, float &t);
+  void apply(const float *v);
   bool emit(ActionList &out);
   void stop(ActionList &out, uint8_t i);
   void flush(const Move &m, ActionList &out);

@@ -92,23 +92,30 @@ bool check_words(const GcodeArgs &a, const char *allowed_flash, const char *code
   return false;
 }
 
-int8_t read_limited(const GcodeArgs &a, const Limit &lim, const char *code_flash, float &out, ReplyText &r) {
-  float v = 0;
-  const ArgStatus st = a.get_float(lim.letter, v);
-  if (st == ARG_ABSENT) return 0;
-  const bool ok = st == ARG_OK && (lim.lo_open ? v > lim.lo : v >= lim.lo) && v <= lim.hi;
-  if (ok) {
-    out = v;
-    return 1;
-  }
+// "Error:M723 Q" (the start of every value error)
+static void value_error(const char *code_flash, char letter, ReplyText &r) {
   r.p(BK_F("Error:"));
   r.p(code_flash);
   r.c(' ');
-  r.c(lim.letter);
-  if (st != ARG_OK) {
-    r.p(BK_F(" bad number"));
-    return -1;
+  r.c(letter);
+}
+
+int8_t read_number(const GcodeArgs &a, char letter, const char *code_flash, float &out, ReplyText &r) {
+  float v = 0;
+  const ArgStatus st = a.get_float(letter, v);
+  if (st == ARG_ABSENT) return 0;
+  if (st == ARG_OK) {
+    out = v;
+    return 1;
   }
+  value_error(code_flash, letter, r);
+  r.p(BK_F(" bad number"));
+  return -1;
+}
+
+bool check_limit(const Limit &lim, float v, const char *code_flash, ReplyText &r) {
+  if ((lim.lo_open ? v > lim.lo : v >= lim.lo) && v <= lim.hi) return true;
+  value_error(code_flash, lim.letter, r);
   r.fixed(v, 3);
   r.p(BK_F(" not in "));
   r.c(lim.lo_open ? '(' : '[');
@@ -116,7 +123,16 @@ int8_t read_limited(const GcodeArgs &a, const Limit &lim, const char *code_flash
   r.p(BK_F(".."));
   r.fixed(lim.hi, 3);
   r.c(']');
-  return -1;
+  return false;
+}
+
+int8_t read_limited(const GcodeArgs &a, const Limit &lim, const char *code_flash, float &out, ReplyText &r) {
+  float v = 0;
+  const int8_t k = read_number(a, lim.letter, code_flash, v, r);
+  if (k <= 0) return k;
+  if (!check_limit(lim, v, code_flash, r)) return -1;
+  out = v;
+  return 1;
 }
 
 bool GcodeArgs::raw(char letter, const char *&text, uint8_t &len) const {

@@ -72,11 +72,14 @@ struct Limit {
   float lo, hi;
 };
 
-// Reads lim.letter: 0 absent; 1 present, well-formed and within the limits (out
-// set); -1 otherwise, with one Error: line written, e.g.
-//   "Error:M723 Q bad number"            (malformed or empty value)
-//   "Error:M723 Q150.000 not in (0.000..100.000]"
-// code_flash: e.g. BK_F("M723"). Nothing is written on 0 or 1.
+// Reads letter's number: 0 absent (out unchanged); 1 present and well-formed
+// (out set); -1 malformed or empty, with "Error:M723 Q bad number" written.
+// code_flash: e.g. BK_F("M723").
+int8_t read_number(const GcodeArgs &a, char letter, const char *code_flash, float &out, ReplyText &r);
+// v within lim, or false with "Error:M723 Q150.000 not in (0.000..100.000]".
+bool check_limit(const Limit &lim, float v, const char *code_flash, ReplyText &r);
+// Both: 0 absent; 1 present, well-formed and within the limits (out set); -1
+// otherwise, with one Error: line written.
 int8_t read_limited(const GcodeArgs &a, const Limit &lim, const char *code_flash, float &out, ReplyText &r);
 
 }  // namespace bk

@@ -97,14 +97,29 @@ static bool get_in(const GcodeArgs &a, char letter, uint16_t lo, uint16_t hi, ui
   return false;
 }
 
+// z in 0.01 mm as mm with two decimals ("0.30").
+static void cmm(ReplyText &r, uint16_t z) {
+  r.u(z / 100u);
+  r.c('.');
+  z %= 100u;
+  r.c((char)('0' + z / 10u));
+  r.c((char)('0' + z % 10u));
+}
+
 // ---- M721 ------------------------------------------------------------------------------
 void MapUpload::abort() {
   if (open()) store_.stage_close();
   size_ = received_ = 0;
 }
 
+#if !BK_REPLY_SERIAL
 UploadStatus MapUpload::handle(const GcodeArgs &a, char *reply, uint16_t reply_size) {
   ReplyText r(reply, reply_size);
+  return handle(a, r);
+}
+#endif
+
+UploadStatus MapUpload::handle(const GcodeArgs &a, ReplyText &r) {
   if (a.code_letter() != 'M' || a.code() != 721) return fail(r, BK_F("got another code"));
   if (!check_words(a, BK_F("SCAODEX"), BK_F("M721"), r)) return UPLOAD_ERROR;
   // One action a line, named by its letters: 1 begin, 2 chunk, 3 commit, 4 clear.
@@ -216,9 +231,9 @@ void MapUpload::status(ReplyText &r) const {
   if (store_.empty()) {
     r.c('-');
   } else {
-    r.decimal(store_.first_z(), 2);
+    cmm(r, store_.first_z());
     r.p(BK_F(".."));
-    r.decimal(store_.last_z(), 2);
+    cmm(r, store_.last_z());
   }
   if (open()) {
     say(r, BK_F(" upload:#/#"), received_, size_);

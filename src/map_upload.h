@@ -22,6 +22,7 @@
 
 #include "bulge_map.h"
 #include "gcode_args.h"
+#include "reply_text.h"
 
 namespace bk {
 
@@ -41,16 +42,18 @@ enum Base32Error : int8_t { B32_BAD_CHAR = -1, B32_BAD_LENGTH = -2, B32_BAD_TAIL
 // with the offending char index in bad_pos (length errors: bad_pos = len).
 int16_t base32_decode(const char *s, uint8_t len, uint8_t *out, uint8_t &bad_pos);
 
-class ReplyText;  // bounded text writer, reply_text.h
-
 class MapUpload {
  public:
   explicit MapUpload(MapStore &store) : store_(store) {}  // head_ is written before it is read
 
-  // Handles one parsed M721 line. reply gets zero or more lines separated by
-  // '\n' (no trailing newline; "" = nothing to print); reply_size should be at
-  // least BK_M721_REPLY_BYTES. Never prints "ok" (Marlin does).
+  // Handles one parsed M721 line. The reply is zero or more lines separated by
+  // '\n' (no trailing newline; nothing written = nothing to print). Never
+  // prints "ok" (Marlin does).
+  UploadStatus handle(const GcodeArgs &args, ReplyText &r);
+#if !BK_REPLY_SERIAL
+  // The same into a buffer (tests, tools): reply_size >= BK_M721_REPLY_BYTES.
   UploadStatus handle(const GcodeArgs &args, char *reply, uint16_t reply_size);
+#endif
 
   // Open while size_ is set and the store still holds our staging (a clear or
   // load underneath closes it).

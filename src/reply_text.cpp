@@ -1,4 +1,8 @@
+// The buffer implementation of ReplyText (tests and host tools). The firmware
+// prints instead: see reply_text.h.
 #include "reply_text.h"
+
+#if !BK_REPLY_SERIAL
 
 namespace bk {
 
@@ -25,20 +29,26 @@ void ReplyText::raw(const char *ram, uint8_t n) {
   while (n--) c(*ram++);
 }
 
-void ReplyText::u(uint32_t v) { decimal(v, 0); }
-
-// Digits from the right, the point dec places in; at least one digit before it.
-void ReplyText::decimal(uint32_t v, uint8_t dec) {
-  char t[12];
+void ReplyText::u(uint32_t v) {
+  char t[10];
   uint8_t k = 0;
   do {
     t[k++] = (char)('0' + v % 10);
     v /= 10;
-    if (k == dec) t[k++] = '.';
-  } while (v || k <= dec + (dec != 0));
+  } while (v);
   while (k) c(t[--k]);
 }
 
+}  // namespace bk
+
+#endif  // !BK_REPLY_SERIAL
+
+namespace bk {
+
+// Shared by both implementations, so the tests pin the firmware's digits.
+// Rounded half up at the last decimal, then printed as two whole numbers: no
+// float printing (Marlin's takes the digit count at run time only in a larger
+// general copy).
 void ReplyText::fixed(float v, uint8_t dec) {
   if (v != v) {
     p(BK_F("nan"));
@@ -52,9 +62,17 @@ void ReplyText::fixed(float v, uint8_t dec) {
     p(BK_F(">=1000000"));
     return;
   }
-  float scale = 1;
-  for (uint8_t i = 0; i < dec; i++) scale *= 10;
-  decimal((uint32_t)(v * scale + 0.5f), dec);
+  uint16_t scale = 1;
+  for (uint8_t i = 0; i < dec; i++) scale = (uint16_t)(scale * 10u);
+  const uint32_t n = (uint32_t)(v * (float)scale + 0.5f);
+  u(n / scale);
+  if (!dec) return;
+  c('.');
+  uint32_t frac = n % scale;
+  while (dec--) {
+    scale = (uint16_t)(scale / 10u);
+    c((char)('0' + frac / scale));
+    frac %= scale;
+  }
 }
-
 }  // namespace bk

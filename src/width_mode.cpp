@@ -10,8 +10,6 @@ namespace bk {
 namespace {
 
 const char kCode[] BK_FLASH = "M723";
-// Only a caller's bug gets this: a short reply buffer or another command.
-const char kBadCall[] BK_FLASH = "Error:M723 bad call";
 
 // Limits of the words Q R D H L U, in the order of the settings they set (Q and R
 // both set the target; L's upper end only matters through L <= U).
@@ -69,24 +67,21 @@ void WidthMode::recompute() {
   rate_ = base_rate() * (float)percent_ * 0.01f;
 }
 
+#if !BK_REPLY_SERIAL
 bool WidthMode::command(const char *line, char *reply, uint8_t reply_size) {
+  ReplyText o(reply, reply_size);
   GcodeArgs a;
   if (!a.parse(line)) {
-    ReplyText o(reply, reply_size);
     error(o, BK_F("not a G-code line"));
     return false;
   }
-  return command(a, reply, reply_size);
+  return command(a, o);
 }
+#endif
 
-bool WidthMode::command(const GcodeArgs &a, char *reply, uint8_t reply_size) {
-  ReplyText o(reply, reply_size);
-  if (reply_size < REPLY_MIN || a.code_letter() != 'M' || a.code() != 723) {
-    o.p(kBadCall);
-    return false;
-  }
+bool WidthMode::command(const GcodeArgs &a, ReplyText &o) {
   if (a.none()) {
-    report(o);
+    report(o, true, true);
     return true;
   }
   if (!check_words(a, BK_F("SQRDHLU"), kCode, o)) return false;
@@ -96,7 +91,6 @@ bool WidthMode::command(const GcodeArgs &a, char *reply, uint8_t reply_size) {
     error(o, BK_F("S must be 0 or 1"));
     return false;
   }
-  const int8_t on = (int8_t)s;  // -1: no S
 
   // Work on a copy and commit only when every word passed: all-or-nothing.
   WidthMode n = *this;
@@ -123,6 +117,12 @@ bool WidthMode::command(const GcodeArgs &a, char *reply, uint8_t reply_size) {
     }
     n.set_[k] = v;
   }
+  return finish(n, (int8_t)s, o);
+}
+
+// The checks that involve several settings, then n in force (on: -1 keeps the
+// mode, 0 leaves it, 1 enters it).
+bool WidthMode::finish(WidthMode &n, int8_t on, ReplyText &o) {
   if (n.set_[MIN_V] > n.set_[MAX_V]) {  // also against the L or U in force
     error(o, BK_F("L"));
     o.fixed(n.set_[MIN_V], 3);
@@ -152,9 +152,24 @@ bool WidthMode::command(const GcodeArgs &a, char *reply, uint8_t reply_size) {
   return true;
 }
 
+bool WidthMode::restore(uint8_t kind, const float *v, ReplyText &o) {
+  WidthMode n = *this;
+  n.target_kind_ = kind > TARGET_RATE ? (uint8_t)TARGET_NONE : kind;
+  for (uint8_t i = 0; i < SETTINGS; i++) {
+    // the target's limit is Q's or R's; none keeps 0
+    const uint8_t w = i ? (uint8_t)(i + 1) : (kind == TARGET_RATE ? 1 : 0);
+    Limit lim;
+    BK_RDBLOCK(&lim, &kLimits[w], sizeof lim);
+    if ((i || n.target_kind_) && !check_limit(lim, v[i], kCode, o)) return false;
+    n.set_[i] = i || n.target_kind_ ? v[i] : 0.0f;
+  }
+  return finish(n, -1, o);
+}
+
 // The first line is a command that sets what it shows (M500 stores it).
-void WidthMode::report(ReplyText &o) const {
-  o.p(BK_F("echo:  M723 S"));
+void WidthMode::report(ReplyText &o, bool echo, bool stats) const {
+  if (echo) o.p(BK_F("echo:"));
+  o.p(BK_F("  M723 S"));
   o.c((char)('0' + on_));
   for (uint8_t i = 0; i < kWords; i++) {
     if (i < 2 && target_kind_ != i + 1) continue;  // Q or R, whichever is the target
@@ -162,6 +177,7 @@ void WidthMode::report(ReplyText &o) const {
     o.c((char)BK_RD8(&kLimits[i].letter));
     o.fixed(set_[i < 2 ? 0 : i - 1], 3);
   }
+  if (!stats) return;
   o.p(BK_F("\necho:width rate:"));
   o.fixed(rate_, 3);
   o.p(BK_F(" feed%:"));
@@ -213,12 +229,8 @@ float WidthMode::feed_xy_on(float dx, float dy, float de, float feed_mm_s) {
   return positive(len) ? retime(len, de) : feed_mm_s;
 }
 
-bool WidthMode::width_e(float w, bool has_e, float xy_len, float &de_out, char *reply,
-                        uint8_t reply_size) {
-  ReplyText o(reply, reply_size);
-  if (reply_size < ERROR_REPLY_MIN) {
-    o.p(kBadCall);
-  } else if (!on_ || !positive(set_[HEIGHT])) {
+bool WidthMode::width_e(float w, bool has_e, float xy_len, float &de_out, ReplyText &o) {
+  if (!on_ || !positive(set_[HEIGHT])) {
     o.p(BK_F("Error:W needs M723 S1 and H"));
   } else if (has_e) {
     o.p(BK_F("Error:W and E in one move"));
@@ -237,9 +249,8 @@ bool WidthMode::width_e(float w, bool has_e, float xy_len, float &de_out, char *
   return false;
 }
 
-bool WidthMode::width_e_xy(float w, bool has_e, float dx, float dy, float &de_out, char *reply,
-                           uint8_t reply_size) {
-  return width_e(w, has_e, len_xy(dx, dy), de_out, reply, reply_size);
+bool WidthMode::width_e_xy(float w, bool has_e, float dx, float dy, float &de_out, ReplyText &o) {
+  return width_e(w, has_e, len_xy(dx, dy), de_out, o);
 }
 
 bool WidthMode::set_feed_percent(int16_t percent) {

@@ -18,6 +18,7 @@
 
 #include "bulgekit_config.h"
 #include "gcode_args.h"
+#include "reply_text.h"
 
 namespace bk {
 
@@ -33,7 +34,7 @@ struct WidthStats {
 class WidthMode {
  public:
   // A reply buffer of this size holds every reply M723 writes (the report is two
-  // lines); command() refuses a smaller one rather than cut a reply short.
+  // lines; tests and tools that reply into a buffer).
   static const uint8_t REPLY_MIN = 200;
   // Enough for every Error: line of width_e().
   static const uint8_t ERROR_REPLY_MIN = 64;
@@ -47,11 +48,25 @@ class WidthMode {
   //   D filament dia mm    H layer height mm (0 = none; W words need it)
   //   L min speed, U max speed (mm/s, applied after the M220 percentage)
   // No parameters: two "echo:" report lines. Returns false with an "Error:..."
-  // reply and unchanged state on a bad command; true with "" or the report.
+  // reply and unchanged state on a bad command; true with nothing or the report.
   // Replies may hold several lines separated by '\n' (no trailing newline).
-  bool command(const GcodeArgs &args, char *reply, uint8_t reply_size);
-  // Convenience for tests and tools: parses the line first.
+  bool command(const GcodeArgs &args, ReplyText &r);
+  // The settings line, "  M723 S0 Q3.200 D1.750 H0.200 L5.000 U60.000" (M503),
+  // after "echo:" when echo is set; stats adds the statistics line (M723 alone).
+  void report(ReplyText &r, bool echo, bool stats) const;
+  // Stored settings (EEPROM) back in force, each value checked as M723 checks
+  // it; the mode (S) is not touched. kind: 0 none, 1 Q (target = flow), 2 R (target =
+  // rate). False with an Error: line, nothing changed, when one is refused.
+  bool restore(uint8_t kind, const float *target_d_h_l_u, ReplyText &r);
+#if !BK_REPLY_SERIAL
+  // Tests and tools: the reply into a buffer (>= REPLY_MIN), from a parsed or
+  // a raw line.
+  bool command(const GcodeArgs &args, char *reply, uint8_t reply_size) {
+    ReplyText r(reply, reply_size);
+    return command(args, r);
+  }
   bool command(const char *line, char *reply, uint8_t reply_size);
+#endif
 
   // --- per-move hooks (called by the adapter for each G0/G1, before any bulge
   // split, with the host's dE, i.e. before the M221 flow factor) --------------
@@ -69,11 +84,20 @@ class WidthMode {
 
   // A move carrying a W word: writes the filament length for that width into
   // de_out (dE = W*H*L / area). has_e: the move also has an E word (refused).
-  // On false, reply (>= ERROR_REPLY_MIN bytes) holds "Error:..." and the
-  // adapter must drop the move. On true, reply is "".
-  bool width_e(float w, bool has_e, float xy_len, float &de_out, char *reply, uint8_t reply_size);
-  bool width_e_xy(float w, bool has_e, float dx, float dy, float &de_out, char *reply,
-                  uint8_t reply_size);
+  // On false, r holds "Error:..." and the adapter must drop the move. On true
+  // nothing is written.
+  bool width_e(float w, bool has_e, float xy_len, float &de_out, ReplyText &r);
+  bool width_e_xy(float w, bool has_e, float dx, float dy, float &de_out, ReplyText &r);
+#if !BK_REPLY_SERIAL
+  bool width_e(float w, bool has_e, float xy_len, float &de_out, char *reply, uint8_t reply_size) {
+    ReplyText r(reply, reply_size);
+    return width_e(w, has_e, xy_len, de_out, r);
+  }
+  bool width_e_xy(float w, bool has_e, float dx, float dy, float &de_out, char *reply, uint8_t reply_size) {
+    ReplyText r(reply, reply_size);
+    return width_e_xy(w, has_e, dx, dy, de_out, r);
+  }
+#endif
 
   // M220 hook: the adapter passes Marlin's feedrate percentage after every
   // change. In width mode it scales the extruder rate r, so all retimed speeds
@@ -84,6 +108,8 @@ class WidthMode {
   // --- state, for the adapter and the tests ---------------------------------
   bool active() const { return on_; }
   bool has_target() const { return target_kind_ != TARGET_NONE; }
+  uint8_t target_kind() const { return target_kind_; }  // 0 none, 1 Q, 2 R (restore())
+  float target() const { return set_[TARGET]; }          // Q or R as given
   float rate() const { return rate_; }  // r in force, mm/s of filament, M220 applied
   float base_rate() const;              // r as set by Q/R, without M220
   float flow() const { return base_rate() / inv_area_; }  // mm^3/s without M220
@@ -105,7 +131,7 @@ class WidthMode {
   float feed_xy_on(float dx, float dy, float de, float feed_mm_s);
   float retime(float xy_len, float de);
   void recompute();
-  void report(ReplyText &o) const;
+  bool finish(WidthMode &n, int8_t on, ReplyText &o);
 
   bool on_;
   uint8_t target_kind_;

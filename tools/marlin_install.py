@@ -46,6 +46,7 @@ SHIM = """\
 // set there wins; the core's own file then fills in the rest.
 #pragma once
 #include "../../../inc/MarlinConfigPre.h"
+#define BK_REPLY_SERIAL 1  // replies go out through Marlin's serial port (bulgekit.cpp)
 #include "bulgekit_config_defaults.h"
 """
 
@@ -270,13 +271,13 @@ EDITS = [
          """\
 
   //
-  // bulgekit: parameters as command lines (see bulgekit.h)
+  // bulgekit: M720 / M723 parameters (see bulgekit.h)
   //
   #if ENABLED(BULGE_MAP)
-    BulgeKit::settings_line_t bulgekit_m720;          // M720 P E T
+    BulgeKit::settings_t bulgekit_m720;               // M720 P E T
   #endif
   #if ENABLED(WIDTH_BY_FEEDRATE)
-    BulgeKit::settings_line_t bulgekit_m723;          // M723 Q|R D H L U
+    BulgeKit::settings_t bulgekit_m723;               // M723 Q|R D H L U
   #endif
 """),
     Edit("Marlin/src/module/settings.cpp", "eeprom-save", "after",
@@ -297,7 +298,7 @@ EDITS = [
     #if ENABLED(BULGE_MAP)
     {
       _FIELD_TEST(bulgekit_m720);
-      BulgeKit::settings_line_t line;
+      BulgeKit::settings_t line;
       BulgeKit::settings_save(720, line);
       EEPROM_WRITE(line);
     }
@@ -305,7 +306,7 @@ EDITS = [
     #if ENABLED(WIDTH_BY_FEEDRATE)
     {
       _FIELD_TEST(bulgekit_m723);
-      BulgeKit::settings_line_t line;
+      BulgeKit::settings_t line;
       BulgeKit::settings_save(723, line);
       EEPROM_WRITE(line);
     }
@@ -333,7 +334,7 @@ EDITS = [
       #if ENABLED(BULGE_MAP)
       {
         _FIELD_TEST(bulgekit_m720);
-        BulgeKit::settings_line_t line;
+        BulgeKit::settings_t line;
         EEPROM_READ(line);
         if (!validating) BulgeKit::settings_load(720, line);
       }
@@ -341,7 +342,7 @@ EDITS = [
       #if ENABLED(WIDTH_BY_FEEDRATE)
       {
         _FIELD_TEST(bulgekit_m723);
-        BulgeKit::settings_line_t line;
+        BulgeKit::settings_t line;
         EEPROM_READ(line);
         if (!validating) BulgeKit::settings_load(723, line);
       }

@@ -313,7 +313,7 @@ def test_eeprom_hooks_save_and_load_the_same_fields_in_the_same_order(tree):
         a = text.index("bulgekit:begin %s" % name)
         return text[a:text.index("bulgekit:end %s" % name)]
     fields = [l.split()[1].rstrip(";") for l in block("eeprom-fields").split("\n")
-              if "settings_line_t bulgekit_" in l]
+              if "settings_t bulgekit_" in l]
     assert fields == ["bulgekit_m720", "bulgekit_m723"]
     for name, call in (("eeprom-save", "EEPROM_WRITE(line)"), ("eeprom-load", "EEPROM_READ(line)")):
         b = block(name)

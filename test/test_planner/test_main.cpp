@@ -882,8 +882,8 @@ static void test_m720_report_and_set(void) {
 }
 
 static void test_m720_report_is_a_command(void) {
-  // M500 stores the report line as a command (the Marlin adapter drops
-  // "echo:", the blanks and the S word) and M501 runs it: same settings back.
+  // M503 prints the report line as a command (for replay, without "echo:"):
+  // sent back, it gives the same settings.
   bk::GcodeArgs g;
   g.parse("M720 S1 P1999 E0.123 T1.25");
   TEST_ASSERT_TRUE(P.m720(g, reply, sizeof reply));
@@ -901,7 +901,36 @@ static void test_m720_report_is_a_command(void) {
   TEST_ASSERT_EQUAL_INT(1999, P.dwell_ms());
   TEST_ASSERT_FLOAT_WITHIN(1e-7f, 0.123f, P.extra_e());
   TEST_ASSERT_FLOAT_WITHIN(1e-7f, 1.25f, P.tolerance());
-  TEST_ASSERT_EQUAL_INT(0, P.mode());  // S is not stored: the mode starts off
+  TEST_ASSERT_EQUAL_INT(0, P.mode());  // without its S word the mode stays as it was
+}
+
+// M501: stored values come back through the same checks as M720's words; a
+// set with one value out of range is refused whole with an Error: line.
+static void test_m720_restore_checks_each_value(void) {
+  bk::GcodeArgs g;
+  g.parse("M720 S2");
+  TEST_ASSERT_TRUE(P.m720(g, reply, sizeof reply));
+  bk::ReplyText r(reply, sizeof reply);
+  TEST_ASSERT_TRUE(P.restore(250.0f, 0.2f, 0.3f, r));
+  TEST_ASSERT_TRUE(r.empty());
+  TEST_ASSERT_EQUAL_INT(250, P.dwell_ms());
+  TEST_ASSERT_FLOAT_WITHIN(1e-7f, 0.2f, P.extra_e());
+  TEST_ASSERT_FLOAT_WITHIN(1e-7f, 0.3f, P.tolerance());
+  TEST_ASSERT_EQUAL_INT(2, P.mode());  // the mode is not a stored setting
+  const struct { float p, e, t; const char *error; } bad[] = {
+      {2500.0f, 0.2f, 0.3f, "Error:M720 P2500.000 not in [0.000..2000.000]"},
+      {100.5f, 0.2f, 0.3f, "Error:M720 P100.500 not a whole number"},
+      {100.0f, 1.5f, 0.3f, "Error:M720 E1.500 not in [0.000..1.000]"},
+      {100.0f, 0.1f, 0.0f, "Error:M720 T0.000 not in [0.010..2.000]"},
+  };
+  for (uint8_t i = 0; i < sizeof bad / sizeof bad[0]; i++) {
+    bk::ReplyText e(reply, sizeof reply);
+    TEST_ASSERT_FALSE(P.restore(bad[i].p, bad[i].e, bad[i].t, e));
+    TEST_ASSERT_EQUAL_STRING(bad[i].error, reply);
+    TEST_ASSERT_EQUAL_INT(250, P.dwell_ms());  // nothing changed
+    TEST_ASSERT_FLOAT_WITHIN(1e-7f, 0.2f, P.extra_e());
+    TEST_ASSERT_FLOAT_WITHIN(1e-7f, 0.3f, P.tolerance());
+  }
 }
 
 // Each bad line gives one Error: line and leaves S1 P250 E0.05 T0.3 in force.
@@ -1010,6 +1039,7 @@ int main(void) {
   RUN_TEST(test_store_layer_change_resets_fired);
   RUN_TEST(test_m720_report_and_set);
   RUN_TEST(test_m720_report_is_a_command);
+  RUN_TEST(test_m720_restore_checks_each_value);
   RUN_TEST(test_m720_errors_leave_settings);
   RUN_TEST(test_m722_errors);
   RUN_TEST(test_reply_never_overflows);

@@ -5,6 +5,7 @@
 #include "bktest.h"
 #include "width_mode.h"
 
+using bk::ReplyText;
 using bk::WidthMode;
 
 static char reply[WidthMode::REPLY_MIN];
@@ -220,9 +221,6 @@ static void test_width_word_errors(void) {
   TEST_ASSERT_EQUAL_STRING("Error:W5.500 not in (0.000..5.000]", reply);
   TEST_ASSERT_FALSE(m.width_e(0.5f, false, 0.0f, de, reply, sizeof reply));
   TEST_ASSERT_EQUAL_STRING("Error:W without XY travel", reply);
-  char small[WidthMode::ERROR_REPLY_MIN - 1];
-  TEST_ASSERT_FALSE(m.width_e(0.5f, false, 10.0f, de, small, sizeof small));
-  TEST_ASSERT_EQUAL_STRING("Error:M723 bad call", small);
   TEST_ASSERT_EQUAL_FLOAT(7.0f, de);  // never written on failure
   TEST_ASSERT_TRUE(cmd(m, "M723 H0"));  // H0: no layer height again
   TEST_ASSERT_FALSE(m.width_e(0.5f, false, 10.0f, de, reply, sizeof reply));
@@ -272,8 +270,6 @@ static void test_bad_arguments(void) {
       {"M723 S1 X5", "Error:M723 unknown parameter X"},
       {"M723 W0.5", "Error:M723 unknown parameter W"},
       {"M723 D2 D3", "Error:M723 duplicate parameter D"},
-      {"M720 S1", "Error:M723 bad call"},
-      {"G723 S1", "Error:M723 bad call"},
       {"hello", "Error:M723 not a G-code line"},
   };
   WidthMode m;
@@ -301,11 +297,6 @@ static void test_bad_arguments(void) {
   TEST_ASSERT_EQUAL_STRING("Error:M723 S1 needs Q or R", reply);
   TEST_ASSERT_FALSE(fresh.active());
   TEST_ASSERT_EQUAL_FLOAT(0.0f, fresh.layer_height());
-  // A reply buffer below REPLY_MIN is refused, nothing applied.
-  char small[WidthMode::REPLY_MIN - 1];
-  TEST_ASSERT_FALSE(fresh.command("M723 S1 R2", small, sizeof small));
-  TEST_ASSERT_EQUAL_STRING("Error:M723 bad call", small);
-  TEST_ASSERT_FALSE(fresh.active());
 }
 
 // M220: the percentage scales r, hence every retimed speed; widths stay.
@@ -389,10 +380,43 @@ static void test_report_fits(void) {
   TEST_ASSERT_TRUE(strstr(reply, "maxdev:>=1000000% meandev:>=1000000%") != NULL);
   // Three counters shown with 1 digit here could need 10.
   TEST_ASSERT_LESS_THAN_INT(WidthMode::REPLY_MIN, (int32_t)strlen(reply) + 3 * 9 + 1);
-  // The settings line, as M500 stores it (without "echo:  " and " S1"), fits the
-  // Marlin adapter's 64-byte EEPROM line with its terminating zero.
-  const int32_t stored = (int32_t)(strchr(reply, '\n') - reply) - 7 - 3;
-  TEST_ASSERT_LESS_THAN_INT(64, stored);
+}
+
+// M501: the stored values (target kind, Q|R D H L U) come back through M723's
+// checks, the mode untouched; one refused value refuses the set.
+static void test_restore_checks_each_value(void) {
+  WidthMode m;
+  TEST_ASSERT_TRUE(cmd(m, "M723 S1 R1"));
+  const float ok[5] = {3.2f, 2.85f, 0.2f, 8.0f, 90.0f};
+  ReplyText r(reply, sizeof reply);
+  TEST_ASSERT_TRUE(m.restore(1, ok, r));
+  TEST_ASSERT_TRUE(r.empty());
+  TEST_ASSERT_TRUE(m.active());  // the mode is not a stored setting
+  TEST_ASSERT_TRUE(cmd(m, "M723"));
+  static const char line1[] = "echo:  M723 S1 Q3.200 D2.850 H0.200 L8.000 U90.000\n";
+  TEST_ASSERT_EQUAL_INT(0, strncmp(reply, line1, sizeof line1 - 1));
+  snapshot(m, before);
+  const struct { uint8_t kind; float v[5]; const char *error; } bad[] = {
+      {1, {150.0f, 2.85f, 0.2f, 8.0f, 90.0f}, "Error:M723 Q150.000 not in (0.000..100.000]"},
+      {2, {0.0f, 2.85f, 0.2f, 8.0f, 90.0f}, "Error:M723 R0.000 not in (0.000..50.000]"},
+      {1, {3.2f, 0.5f, 0.2f, 8.0f, 90.0f}, "Error:M723 D0.500 not in [1.000..3.500]"},
+      {1, {3.2f, 2.85f, 0.2f, 95.0f, 90.0f}, "Error:M723 L95.000 > U90.000"},
+      {1, {90.0f, 1.0f, 0.2f, 8.0f, 90.0f}, "Error:M723 extruder rate 114.592 > 50.000 (Q, D)"},
+  };
+  for (uint8_t i = 0; i < sizeof bad / sizeof bad[0]; i++) {
+    ReplyText e(reply, sizeof reply);
+    TEST_ASSERT_FALSE(m.restore(bad[i].kind, bad[i].v, e));
+    TEST_ASSERT_EQUAL_STRING(bad[i].error, reply);
+    snapshot(m, reply);
+    TEST_ASSERT_EQUAL_STRING_MESSAGE(before, reply, "state changed by a refused restore");
+  }
+  // no target: the stored target value does not matter
+  const float none[5] = {123.0f, 1.75f, 0.0f, 5.0f, 150.0f};
+  WidthMode fresh;
+  ReplyText f(reply, sizeof reply);
+  TEST_ASSERT_TRUE(fresh.restore(0, none, f));
+  TEST_ASSERT_FALSE(fresh.has_target());
+  TEST_ASSERT_EQUAL_FLOAT(0.0f, fresh.target());
 }
 
 int main(void) {
@@ -412,5 +436,6 @@ int main(void) {
   RUN_TEST(test_feed_percentage);
   RUN_TEST(test_settings_line_reads_back);
   RUN_TEST(test_report_fits);
+  RUN_TEST(test_restore_checks_each_value);
   return UNITY_END();
 }

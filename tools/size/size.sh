@@ -5,10 +5,19 @@
 # the largest functions with the flash text (BK_F strings) each one owns.
 #   bash tools/size/size.sh [N]          N: how many rows to list (default 40)
 #   NOINLINE=1 bash tools/size/size.sh   every function on its own row (total grows)
+#   PROBE=bulge|width bash tools/size/size.sh   one feature only (default: both)
+#   tools/size/budget.sh                 the CI check of these totals against tools/size/budget
 set -euo pipefail
 cd "$(dirname "$0")/../.."
-OUT=.build/size; mkdir -p $OUT
+OUT=.build/size/${PROBE:-both}; mkdir -p $OUT
 FLAGS="-mmcu=atmega2560 -DF_CPU=16000000L -Os -std=gnu++1z -fno-exceptions -fno-threadsafe-statics -ffunction-sections -fdata-sections -flto -Wall -Isrc -Iconfig"
+CORE="-DBK_REPLY_SERIAL=1"  # replies printed as in the firmware (size_main.cpp)
+case "${PROBE:-both}" in
+  both) ;;
+  bulge) CORE="$CORE -DBK_PROBE_WIDTH=0" ;;
+  width) CORE="$CORE -DBK_PROBE_BULGE=0" ;;
+  *) echo "size.sh: PROBE must be both, bulge or width" >&2; exit 2 ;;
+esac
 [ -n "${NOINLINE:-}" ] && FLAGS="$FLAGS -fno-inline -fno-inline-small-functions"
 avr-g++ $FLAGS -x c++ - -o $OUT/base.elf -Wl,--gc-sections -Wl,--relax <<'C'
 #include <avr/io.h>
@@ -16,7 +25,7 @@ avr-g++ $FLAGS -x c++ - -o $OUT/base.elf -Wl,--gc-sections -Wl,--relax <<'C'
 volatile float a, b; volatile long l;
 int main() { for (;;) { a = sqrtf(a * b + a / b - b); l = (long)a; a = (float)(unsigned long)l; b = (a < b); UDR0 = UDR0; } }
 C
-avr-g++ $FLAGS tools/size/size_main.cpp src/*.cpp -o $OUT/core.elf -Wl,--gc-sections -Wl,--relax
+avr-g++ $FLAGS $CORE tools/size/size_main.cpp src/*.cpp -o $OUT/core.elf -Wl,--gc-sections -Wl,--relax
 sz() { avr-size -A "$1" | awk '$1==".text"||$1==".data"{f+=$2} $1==".data"||$1==".bss"{r+=$2} END{print f, r}'; }
 read bf br < <(sz $OUT/base.elf); read cf cr < <(sz $OUT/core.elf)
 echo "core flash: $((cf - bf)) B   core static RAM: $((cr - br)) B   (beyond a baseline with float math and UART)"

@@ -32,19 +32,16 @@ BulgeKit::BulgeKit() {
   TERN_(BULGE_MAP, bulge.attach(&store));
 }
 
-void BulgeKit::print_reply(const char *text) {
-  if (!text || !*text) return;
-  for (; *text; ++text) {
-    if (*text == '\n') SERIAL_EOL(); else SERIAL_CHAR(*text);
-  }
-  SERIAL_EOL();
-}
+// The core's replies, printed by Marlin's serial port and its number printing
+// (core/reply_text.h; ReplyText::fixed is the core's, shared with the tests).
+namespace bk {
+  ReplyText::ReplyText(char *, uint16_t) : b_(nullptr), size_(0), n_(0), cut_(false) {}
+  void ReplyText::c(const char ch) { n_++; SERIAL_CHAR(ch); }
+  void ReplyText::p(const char *flash) { n_++; serial_print_P(flash); }
+  void ReplyText::raw(const char *ram, uint8_t n) { while (n--) c(*ram++); }
+  void ReplyText::u(const uint32_t v) { n_++; SERIAL_ECHO(v); }
+}  // fixed() is the core's (reply_text.cpp), built on these
 
-bool BulgeKit::parse_P(bk::GcodeArgs &args, char (&buf)[8], PGM_P text) {
-  strncpy_P(buf, text, sizeof(buf) - 1);
-  buf[sizeof(buf) - 1] = '\0';
-  return args.parse(buf);
-}
 
 void BulgeKit::arc_notice() {
   // A travel or retraction arc is not something either mode would change
@@ -65,60 +62,38 @@ void BulgeKit::arc_notice() {
   #endif
 }
 
-// The report line of M720 / M723 (their first line), as a command without
-// "echo:", the leading blanks and the S word: what M500 stores.
-void BulgeKit::settings_save(const uint16_t code, settings_line_t &line) {
-  char reply[TERN(WIDTH_BY_FEEDRATE, bk::WidthMode::REPLY_MIN, BK_PLAN_REPLY_MAX)];
-  reply[0] = '\0';
-  bk::GcodeArgs args;
-  char cmd[8];
+void BulgeKit::settings_save(const uint16_t code, settings_t &s) {
+  memset(&s, 0, sizeof(s));
   #if ENABLED(BULGE_MAP)
-    if (code == 720 && parse_P(args, cmd, PSTR("M720"))) bulge.m720(args, reply, sizeof(reply));
+    if (code == 720) {
+      s.v[0] = bulge.dwell_ms();
+      s.v[1] = bulge.extra_e();
+      s.v[2] = bulge.tolerance();
+    }
   #endif
   #if ENABLED(WIDTH_BY_FEEDRATE)
-    if (code == 723 && parse_P(args, cmd, PSTR("M723"))) width.command(args, reply, sizeof(reply));
-  #endif
-  const char *r = reply;
-  if (strncmp_P(r, PSTR("echo:"), 5) == 0) r += 5;
-  while (*r == ' ') ++r;
-  uint8_t n = 0;
-  bool ok = true;
-  while (*r && *r != '\n') {
-    if (r[0] == ' ' && r[1] == 'S') {  // skip " S<n>"
-      r += 2;
-      while (*r && *r != ' ' && *r != '\n') ++r;
-      continue;
+    if (code == 723) {
+      s.kind = width.target_kind();
+      s.v[0] = width.target();
+      s.v[1] = width.filament_dia();
+      s.v[2] = width.layer_height();
+      s.v[3] = width.min_speed();
+      s.v[4] = width.max_speed();
     }
-    if (n + 1u >= sizeof(line)) { ok = false; break; }
-    line[n++] = *r++;
-  }
-  if (!ok) {
-    // Cannot happen within the M720/M723 limits; never store half a line
-    SERIAL_ECHOLNPGM("Error:M", code, " settings do not fit the EEPROM line; not saved");
-    n = 0;
-  }
-  memset(line + n, 0, sizeof(line) - n);
+  #endif
 }
 
-void BulgeKit::settings_load(const uint16_t code, settings_line_t &line) {
-  line[sizeof(line) - 1] = '\0';
-  if (!line[0]) return;  // nothing stored (or a line that did not fit)
-  bk::GcodeArgs args;
-  char reply[TERN(WIDTH_BY_FEEDRATE, bk::WidthMode::REPLY_MIN, BK_PLAN_REPLY_MAX)];
-  reply[0] = '\0';
-  bool ok = args.parse(line) && args.code_letter() == 'M' && args.code() == (int16_t)code;
-  if (ok) {
-    #if ENABLED(BULGE_MAP)
-      if (code == 720) ok = bulge.m720(args, reply, sizeof(reply));
-    #endif
-    #if ENABLED(WIDTH_BY_FEEDRATE)
-      if (code == 723) ok = width.command(args, reply, sizeof(reply));
-    #endif
-  }
-  if (!ok) {
-    print_reply(reply);
-    SERIAL_ECHOLNPGM("Error:stored M", code, " settings refused; defaults kept");
-  }
+void BulgeKit::settings_load(const uint16_t code, const settings_t &s) {
+  bk::ReplyText r(nullptr, 0);
+  bool ok = true;
+  #if ENABLED(BULGE_MAP)
+    if (code == 720) ok = bulge.restore(s.v[0], s.v[1], s.v[2], r);
+  #endif
+  #if ENABLED(WIDTH_BY_FEEDRATE)
+    if (code == 723) ok = width.restore(s.kind, s.v, r);
+  #endif
+  end_reply(r);
+  if (!ok) SERIAL_ECHOLNPGM("Error:stored M", code, " settings refused; defaults kept");
 }
 
 void BulgeKit::settings_reset() {
@@ -188,10 +163,10 @@ bool BulgeKit::line_to_destination() {
     if (parser.seen('W')) {
       const float w = parser.value_float();
       const bool has_e = parser.seen('E');
-      char err[bk::WidthMode::ERROR_REPLY_MIN];
+      bk::ReplyText err(nullptr, 0);
       float w_de;
-      if (!width.width_e_xy(w, has_e, dx, dy, w_de, err, sizeof(err))) {
-        print_reply(err);  // the move is not executed
+      if (!width.width_e_xy(w, has_e, dx, dy, w_de, err)) {
+        end_reply(err);  // the move is not executed
         destination = current_position;
         return true;
       }

@@ -20,8 +20,6 @@
 
 #define HAS_BULGEKIT ANY(BULGE_MAP, WIDTH_BY_FEEDRATE)
 
-// Bytes of one stored settings line (EEPROM, see BulgeKit::settings_save)
-#define BK_SETTINGS_LINE 64
 
 #if HAS_BULGEKIT
 
@@ -46,12 +44,9 @@ class BulgeKit {
    */
   static bool line_to_destination();
 
-  // Prints a core reply: zero or more lines separated by '\n'.
-  static void print_reply(const char *text);
-
-  // Parses a fixed command kept in flash ("M720") from a copy in buf, which must
-  // outlive args (its words point into it). A literal would be kept in RAM on AVR.
-  static bool parse_P(bk::GcodeArgs &args, char (&buf)[8], PGM_P text);
+  // Ends a core reply printed through r (see core/reply_text.h): the last
+  // line's newline, if anything was printed.
+  static void end_reply(const bk::ReplyText &r) { if (!r.empty()) SERIAL_EOL(); }
 
   /**
    * G2/G3 hook (G2_G3.cpp, before plan_arc()). Marlin cuts an arc into segments
@@ -72,18 +67,20 @@ class BulgeKit {
   BulgeKit();  // attaches the planner to the store (static members, same translation unit)
 
   /**
-   * Settings in EEPROM (hooks in settings.cpp). M720 and M723 keep their
-   * parameters as the command line M503 prints, without the S switch:
-   * "M720 P100 E0.100 T0.250", "M723 Q3.200 D1.750 H0.200 L5.000 U60.000".
-   * Loading runs that line through the same parser and checks as a typed
-   * command, so a stored value can never bypass a limit (a refused line
-   * prints its Error: and the values stay as they were). The S switches are
-   * not stored: the G-code that needs a mode turns it on (the host's annotate
-   * writes M720 S1), so a normal print after power-on is never retimed or split.
+   * Settings in EEPROM (hooks in settings.cpp): the values of M720 P E T and
+   * M723 Q|R D H L U. Loading checks each one as the typed command would
+   * (the core's restore()), so a stored value can never bypass a limit: a
+   * refused set prints its Error: and the values stay as they were. The S
+   * switches are not stored: the G-code that needs a mode turns it on (the
+   * host's annotate writes M720 S1), so a normal print after power-on is never
+   * retimed or split.
    */
-  typedef char settings_line_t[BK_SETTINGS_LINE];
-  static void settings_save(const uint16_t code, settings_line_t &line);
-  static void settings_load(const uint16_t code, settings_line_t &line);
+  struct settings_t {
+    uint8_t kind;   // M723: 0 no target, 1 Q, 2 R (unused for M720)
+    float v[5];     // M720: P E T; M723: Q|R D H L U
+  };
+  static void settings_save(const uint16_t code, settings_t &s);
+  static void settings_load(const uint16_t code, const settings_t &s);
   static void settings_reset();  // M502 / no valid EEPROM: defaults, switches off; the map stays
 
   #if ENABLED(BULGE_MAP)

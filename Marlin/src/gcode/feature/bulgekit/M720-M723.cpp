@@ -3,8 +3,9 @@
  * marker), M723 (width by feedrate), and their M503 reports.
  *
  * The handlers give the core the raw command text (parser.command_ptr) so the
- * same argument checks run here and in the core's unit tests; the core answers
- * with "echo:" or "Error:" lines, printed as they are. Marlin sends "ok" after.
+ * same argument checks run here and in the core's unit tests; the core prints
+ * "echo:" or "Error:" lines through Marlin's serial port as it decides (see
+ * core/reply_text.h). Marlin sends "ok" after.
  */
 #include "../../../inc/MarlinConfig.h"
 #include "../../../feature/bulgekit/bulgekit.h"
@@ -20,17 +21,6 @@ static bool bk_parse(bk::GcodeArgs &args) {
   return false;
 }
 
-// Prints a report line for M503: with forReplay the "echo:" prefix goes, so the
-// line can be sent back as a command.
-static void bk_report_line(const bool forReplay, const char *line) {
-  const char *nl = strchr(line, '\n');
-  const uint8_t n = nl ? nl - line : strlen(line);
-  uint8_t i = 0;
-  if (forReplay && strncmp_P(line, PSTR("echo:"), 5) == 0) i = 5;
-  for (; i < n; ++i) SERIAL_CHAR(line[i]);
-  SERIAL_EOL();
-}
-
 #if ENABLED(BULGE_MAP)
 
   /**
@@ -40,20 +30,17 @@ static void bk_report_line(const bool forReplay, const char *line) {
   void GcodeSuite::M720() {
     bk::GcodeArgs args;
     if (!bk_parse(args)) return;
-    char reply[BK_PLAN_REPLY_MAX];
-    if (BulgeKit::bulge.m720(args, reply, sizeof(reply)) && !args.none())
+    bk::ReplyText r(nullptr, 0);
+    if (BulgeKit::bulge.m720(args, r) && !args.none())
       BulgeKit::arc_rearm(BulgeKit::ARC_BULGE);  // new settings: a new print may start
-    BulgeKit::print_reply(reply);
+    BulgeKit::end_reply(r);
   }
 
   void GcodeSuite::M720_report(const bool forReplay/*=true*/) {
     report_heading(forReplay, F("Bulge map (M720 S<mode> P<ms> E<mm> T<mm>)"));
-    bk::GcodeArgs args;
-    char cmd[8];
-    BulgeKit::parse_P(args, cmd, PSTR("M720"));
-    char reply[BK_PLAN_REPLY_MAX];
-    BulgeKit::bulge.m720(args, reply, sizeof(reply));
-    bk_report_line(forReplay, reply);
+    bk::ReplyText r(nullptr, 0);
+    BulgeKit::bulge.report(r, !forReplay);
+    BulgeKit::end_reply(r);
   }
 
   /**
@@ -64,13 +51,13 @@ static void bk_report_line(const bool forReplay, const char *line) {
   void GcodeSuite::M721() {
     bk::GcodeArgs args;
     if (!bk_parse(args)) return;
-    char reply[BK_M721_REPLY_BYTES];
-    const bk::UploadStatus st = BulgeKit::upload.handle(args, reply, sizeof(reply));
+    bk::ReplyText r(nullptr, 0);
+    const bk::UploadStatus st = BulgeKit::upload.handle(args, r);
     if (st == bk::UPLOAD_CLEARED || (st == bk::UPLOAD_COMMITTED && !BulgeKit::upload.appending())) {
       BulgeKit::map_replaced();
       BulgeKit::arc_rearm(BulgeKit::ARC_BULGE);  // a new map: a new print
     }
-    BulgeKit::print_reply(reply);
+    BulgeKit::end_reply(r);
   }
 
   /**
@@ -81,9 +68,9 @@ static void bk_report_line(const bool forReplay, const char *line) {
   void GcodeSuite::M722() {
     bk::GcodeArgs args;
     if (!bk_parse(args)) return;
-    char reply[BK_PLAN_REPLY_MAX];
-    BulgeKit::bulge.m722(args, reply, sizeof(reply));
-    BulgeKit::print_reply(reply);
+    bk::ReplyText r(nullptr, 0);
+    BulgeKit::bulge.m722(args, r);
+    BulgeKit::end_reply(r);
   }
 
 #endif // BULGE_MAP
@@ -96,20 +83,17 @@ static void bk_report_line(const bool forReplay, const char *line) {
   void GcodeSuite::M723() {
     bk::GcodeArgs args;
     if (!bk_parse(args)) return;
-    char reply[bk::WidthMode::REPLY_MIN];
-    if (BulgeKit::width.command(args, reply, sizeof(reply)) && !args.none())
+    bk::ReplyText r(nullptr, 0);
+    if (BulgeKit::width.command(args, r) && !args.none())
       BulgeKit::arc_rearm(BulgeKit::ARC_WIDTH);
-    BulgeKit::print_reply(reply);
+    BulgeKit::end_reply(r);
   }
 
   void GcodeSuite::M723_report(const bool forReplay/*=true*/) {
     report_heading(forReplay, F("Width by feedrate (M723)"));
-    bk::GcodeArgs args;
-    char cmd[8];
-    BulgeKit::parse_P(args, cmd, PSTR("M723"));
-    char reply[bk::WidthMode::REPLY_MIN];
-    BulgeKit::width.command(args, reply, sizeof(reply));
-    bk_report_line(forReplay, reply);  // the settings line; the statistics line is for M723 alone
+    bk::ReplyText r(nullptr, 0);
+    BulgeKit::width.report(r, !forReplay, false);  // the statistics line is for M723 alone
+    BulgeKit::end_reply(r);
   }
 
 #endif // WIDTH_BY_FEEDRATE
