@@ -25,7 +25,8 @@ static inline uint8_t next_axis(uint8_t k) {
 
 // ---- setup --------------------------------------------------------------------
 
-void BulgePlanner::reset() {
+// Not inlined: the constructor and a settings reset (M502) share one copy.
+__attribute__((noinline)) void BulgePlanner::reset() {
   // Everything not set below starts at zero: no layer, no miss, no cache, no
   // move in progress, nothing owed, no stats.
   memset((void *)this, 0, sizeof(*this));
@@ -192,7 +193,7 @@ bool BulgePlanner::window(float z) {
 // integer tests, whose products would no longer fit 32 bits. The range check
 // is an integer compare of the float's bits, not a float compare. Not inlined:
 // one copy serves the four conversions.
-static inline int16_t to_q(float mm, float inv_q, bool &far) {
+__attribute__((noinline)) static int16_t to_q(float mm, float inv_q, bool &far) {
   const float v = mm * inv_q;
   const uint32_t u = fbits(v);
   if ((u & 0x7FFFFFFFUL) >= 0x46800000UL) {  // 2^14

@@ -13,6 +13,7 @@
 #define BK_RD32(p) pgm_read_dword(p)
 #define BK_RDPTR(p) ((const char *)pgm_read_word(p))  // a flash pointer stored in flash
 #define BK_RDBLOCK(dst, src, n) memcpy_P((dst), (src), (n))  // n bytes of a flash table
+#define BK_STRNCMP(ram, flash, n) strncmp_P((ram), (flash), (n))
 #else
 #define BK_F(s) (s)
 #define BK_FLASH
@@ -20,6 +21,7 @@
 #define BK_RD32(p) (*(p))
 #define BK_RDPTR(p) (*(p))
 #define BK_RDBLOCK(dst, src, n) memcpy((dst), (src), (n))
+#define BK_STRNCMP(ram, flash, n) strncmp((ram), (flash), (n))
 #endif
 
 #endif  // BK_FLASH_TEXT_H

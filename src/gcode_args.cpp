@@ -1,5 +1,8 @@
 #include "gcode_args.h"
 
+#include <stdlib.h>
+#include <string.h>
+
 #include "reply_text.h"
 
 namespace bk {
@@ -10,8 +13,26 @@ static bool is_space(char c) { return c == ' ' || c == '\t'; }
 static bool is_digit(char c) { return c >= '0' && c <= '9'; }
 static bool is_letter(char c) { c = upper(c); return c >= 'A' && c <= 'Z'; }
 
+// The next word at or after p (blanks skipped); at the line's end, its end.
+static const char *word_at(const char *p) {
+  while (is_space(*p)) p++;
+  return p;
+}
+
+// Past the word that starts at p.
+static const char *word_end(const char *p) {
+  while (!is_end(*p) && !is_space(*p)) p++;
+  return p;
+}
+
+// A word's letter: its first character upper-cased, '?' if not a letter.
+static char letter_of(const char *p) { return is_letter(*p) ? upper(*p) : '?'; }
+
 bool GcodeArgs::parse(const char *p) {
-  count_ = 0;
+  args_ = p;
+  seen_ = 0;
+  any_ = odd_ = false;
+  dup_ = 0;
   code_letter_ = 0;
   code_ = -1;
   while (is_space(*p)) p++;
@@ -32,53 +53,48 @@ bool GcodeArgs::parse(const char *p) {
   }
   code_letter_ = c;
   code_ = (int16_t)code;
-  // Words: a letter, then its text up to the next blank or the end.
-  while (!is_end(*p)) {
-    if (is_space(*p)) {
-      p++;
+  args_ = p;
+  // One pass over the words: which letters appear, and the first one twice.
+  for (p = word_at(p); !is_end(*p); p = word_at(word_end(p))) {
+    any_ = true;
+    if (!is_letter(*p)) {
+      odd_ = true;  // unknown() reports it as '?'
       continue;
     }
-    const char *start = p;
-    while (!is_end(*p) && !is_space(*p)) p++;
-    if (count_ < MAX_WORDS) {
-      Word &w = words_[count_++];
-      w.letter = is_letter(*start) ? upper(*start) : '?';
-      w.text = start + 1;
-      w.len = (uint8_t)((p - start - 1) > 255 ? 255 : (p - start - 1));
-      if (!is_letter(*start)) w.text = start, w.len = (uint8_t)(p - start);
-    } else {
-      // More words than we keep: mark so callers reject the line rather than
-      // silently ignoring parameters.
-      words_[MAX_WORDS - 1].letter = '?';
-    }
+    const uint32_t bit = 1UL << (uint8_t)(upper(*p) - 'A');
+    if ((seen_ & bit) && !dup_) dup_ = upper(*p);
+    seen_ |= bit;
   }
   return true;
 }
 
-const GcodeArgs::Word *GcodeArgs::find(char letter) const {
+const char *GcodeArgs::find(char letter, uint8_t &len) const {
   letter = upper(letter);
-  for (uint8_t i = 0; i < count_; i++)
-    if (words_[i].letter == letter) return &words_[i];
+  for (const char *p = word_at(args_); !is_end(*p); p = word_at(p)) {
+    const char *e = word_end(p);
+    if (letter_of(p) == letter) {
+      len = (uint8_t)(e - p - 1 > 255 ? 255 : e - p - 1);
+      return p + 1;
+    }
+    p = e;
+  }
   return nullptr;
 }
 
-bool GcodeArgs::has(char letter) const { return find(letter) != nullptr; }
-
-char GcodeArgs::unknown(const char *allowed_flash) const {
-  for (uint8_t i = 0; i < count_; i++) {
-    const char l = words_[i].letter;
-    bool ok = false;
-    for (const char *a = allowed_flash; char c = (char)BK_RD8(a); a++) ok |= (upper(c) == l);
-    if (!ok) return l;
-  }
-  return 0;
+bool GcodeArgs::has(char letter) const {
+  letter = upper(letter);
+  return is_letter(letter) && (seen_ >> (uint8_t)(letter - 'A')) & 1;
 }
 
-char GcodeArgs::duplicate() const {
-  for (uint8_t i = 1; i < count_; i++)
-    for (uint8_t j = 0; j < i; j++)
-      if (words_[i].letter == words_[j].letter) return words_[i].letter;
-  return 0;
+char GcodeArgs::unknown(const char *allowed_flash) const {
+  if (odd_) return '?';
+  uint32_t allowed = 0;
+  for (const char *a = allowed_flash; char c = (char)BK_RD8(a); a++) allowed |= 1UL << (uint8_t)(upper(c) - 'A');
+  const uint32_t bad = seen_ & ~allowed;
+  if (!bad) return 0;
+  char l = 'A';
+  while (!((bad >> (uint8_t)(l - 'A')) & 1)) l++;
+  return l;
 }
 
 bool check_words(const GcodeArgs &a, const char *allowed_flash, const char *code_flash, ReplyText &r) {
@@ -136,23 +152,23 @@ int8_t read_limited(const GcodeArgs &a, const Limit &lim, const char *code_flash
 }
 
 bool GcodeArgs::raw(char letter, const char *&text, uint8_t &len) const {
-  const Word *w = find(letter);
-  if (!w) return false;
-  text = w->text;
-  len = w->len;
-  return true;
+  text = find(letter, len);
+  return text != nullptr;
 }
 
 // Strict decimal: [+-]digits[.digits] or [+-].digits; at least one digit.
 ArgStatus GcodeArgs::get_float(char letter, float &out) const {
-  const Word *w = find(letter);
-  if (!w) return ARG_ABSENT;
-  if (w->len == 0) return ARG_EMPTY;
-  const char *s = w->text, *e = w->text + w->len;
+  uint8_t len;
+  const char *s = find(letter, len);
+  if (!s) return ARG_ABSENT;
+  if (len == 0) return ARG_EMPTY;
+  const char *e = s + len;
   bool neg = false;
   if (*s == '+' || *s == '-') neg = (*s++ == '-');
-  // Accumulate as an integer mantissa and a decimal exponent: exact for the
-  // few digits G-code uses, and cheaper on AVR than repeated float multiplies.
+  // An integer mantissa and a decimal exponent, not the C library's strtod:
+  // the same bits on every target (avr-libc's strtod is not correctly
+  // rounded), and trailing zeros change nothing (each is an exact division),
+  // so a reported setting sent back (M503) gives the very same value.
   uint32_t mant = 0;
   int8_t frac_digits = 0;
   uint8_t digits = 0;
@@ -180,39 +196,43 @@ ArgStatus GcodeArgs::get_float(char letter, float &out) const {
   return ARG_OK;
 }
 
-// Whole number up to max, with an optional sign ('-' only where allowed).
-static ArgStatus read_whole(const char *s, const char *e, uint32_t max, bool minus_ok, bool &neg, uint32_t &v) {
+// A whole number within max (its decimal text in flash, max_text), an optional sign
+// ('-' only where allowed): checked as text, converted by strtoul.
+static ArgStatus read_whole(const char *s, const char *e, const char *max_text, bool minus_ok, bool &neg,
+                            uint32_t &v) {
   neg = false;
   if (*s == '+' || (minus_ok && *s == '-')) neg = (*s++ == '-');
-  if (s == e) return ARG_BAD;
-  v = 0;
-  for (; s < e; s++) {
-    if (!is_digit(*s)) return ARG_BAD;
-    const uint32_t d = (uint32_t)(*s - '0');
-    if (v > (max - d) / 10) return ARG_BAD;  // checked before it can wrap
-    v = v * 10 + d;
-  }
+  while (s < e - 1 && *s == '0') s++;  // leading zeros do not count
+  const uint8_t n = (uint8_t)(e - s);
+  if (!n || n > 10) return ARG_BAD;
+  for (const char *p = s; p < e; p++)
+    if (!is_digit(*p)) return ARG_BAD;
+  // ten digits: compared with the largest as text, so nothing wraps
+  if (n == 10 && BK_STRNCMP(s, max_text, 10) > 0) return ARG_BAD;
+  v = (uint32_t)strtoul(s, nullptr, 10);
   return ARG_OK;
 }
 
 ArgStatus GcodeArgs::get_ulong(char letter, uint32_t &out) const {
-  const Word *w = find(letter);
-  if (!w) return ARG_ABSENT;
-  if (w->len == 0) return ARG_EMPTY;
+  uint8_t len;
+  const char *t = find(letter, len);
+  if (!t) return ARG_ABSENT;
+  if (len == 0) return ARG_EMPTY;
   bool neg;
   uint32_t v;
-  if (read_whole(w->text, w->text + w->len, 0xFFFFFFFFu, false, neg, v) != ARG_OK) return ARG_BAD;
+  if (read_whole(t, t + len, BK_F("4294967295"), false, neg, v) != ARG_OK) return ARG_BAD;
   out = v;
   return ARG_OK;
 }
 
 ArgStatus GcodeArgs::get_long(char letter, int32_t &out) const {
-  const Word *w = find(letter);
-  if (!w) return ARG_ABSENT;
-  if (w->len == 0) return ARG_EMPTY;
+  uint8_t len;
+  const char *t = find(letter, len);
+  if (!t) return ARG_ABSENT;
+  if (len == 0) return ARG_EMPTY;
   bool neg;
   uint32_t v;
-  if (read_whole(w->text, w->text + w->len, 0x7FFFFFFFu, true, neg, v) != ARG_OK) return ARG_BAD;
+  if (read_whole(t, t + len, BK_F("2147483647"), true, neg, v) != ARG_OK) return ARG_BAD;
   out = neg ? -(int32_t)v : (int32_t)v;
   return ARG_OK;
 }

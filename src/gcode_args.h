@@ -1,6 +1,8 @@
 // M-code argument logic shared by M720-M723: reads letter/value words from the
 // raw command text (what Marlin's parser.command_ptr points at), so the same
-// checks run in the unit tests and in the firmware. No heap, no STL.
+// checks run in the unit tests and in the firmware. Whole numbers are checked
+// here character by character, then converted by the C library's strtoul,
+// which Marlin's own parser already links. No heap, no STL.
 #ifndef BK_GCODE_ARGS_H
 #define BK_GCODE_ARGS_H
 
@@ -15,9 +17,11 @@ enum ArgStatus : int8_t {
   ARG_BAD = -1,     // present with a malformed value ("P1x", "E.", "S--1")
 };
 
-// A parsed command line: "M720 S1 P100" -> code 720, words S, P. Words are the
-// letters that start a parameter; the text after the code may also hold one
-// raw payload word (M721 D...) that callers read with raw().
+// A parsed command line: "M720 S1 P100" -> code 720, words S, P. A word is a
+// run of non-blank characters and its first one is its letter; the text after
+// the code may also hold one raw payload word (M721 D...) that callers read
+// with raw(). parse() notes which letters appear in one pass; values are found
+// in the text when asked, so the line must outlive this object.
 class GcodeArgs {
  public:
   // Parses text such as "N12 M720 S1 P100*57" (line number and checksum are
@@ -28,29 +32,27 @@ class GcodeArgs {
   char code_letter() const { return code_letter_; }
   int16_t code() const { return code_; }
   bool has(char letter) const;  // letter appears at all (with or without value)
-  bool none() const { return count_ == 0; }  // no parameters at all
+  bool none() const { return !any_; }  // no parameters at all
   // Value accessors. Letters are case-insensitive.
   ArgStatus get_float(char letter, float &out) const;
   ArgStatus get_long(char letter, int32_t &out) const;      // integer only, no '.'
   ArgStatus get_ulong(char letter, uint32_t &out) const;    // 0..4294967295
   // The raw word after letter (up to the next space, ';' or '*'): pointer and length.
   bool raw(char letter, const char *&text, uint8_t &len) const;
-  // The first letter present that is not in allowed (flash text: BK_F("SPET")), or 0.
+  // A letter present that is not in allowed (flash text: BK_F("SPET")), the
+  // first in the alphabet; '?' if a word does not start with a letter; or 0.
   char unknown(const char *allowed_flash) const;
   // The first letter that appears twice ("M720 P100 P3000"), or 0.
-  char duplicate() const;
-
-  static const uint8_t MAX_WORDS = 12;
+  char duplicate() const { return dup_; }
 
  private:
-  struct Word {
-    char letter;
-    const char *text;  // first char after the letter
-    uint8_t len;
-  };
-  const Word *find(char letter) const;
-  Word words_[MAX_WORDS];
-  uint8_t count_ = 0;
+  // The first word of letter: the text after the letter and its length.
+  const char *find(char letter, uint8_t &len) const;
+  const char *args_ = nullptr;  // the text after the code
+  uint32_t seen_ = 0;           // bit n: letter 'A' + n appears
+  bool any_ = false;            // a word of any kind appears
+  bool odd_ = false;            // a word that does not start with a letter
+  char dup_ = 0;
   char code_letter_ = 0;
   int16_t code_ = -1;
 };

@@ -44,7 +44,8 @@ void percent(ReplyText &o, float ratio) {
 
 }  // namespace
 
-void WidthMode::reset() {
+// Not inlined: the constructor and a settings reset (M502) share one copy.
+__attribute__((noinline)) void WidthMode::reset() {
   static const float kPowerOn[SETTINGS] BK_FLASH = {
       0.0f, BK_DEFAULT_FILAMENT_DIA_MM, 0.0f, BK_DEFAULT_WIDTH_MIN_SPEED, BK_DEFAULT_WIDTH_MAX_SPEED};
   on_ = false;
@@ -85,9 +86,9 @@ bool WidthMode::command(const GcodeArgs &a, ReplyText &o) {
     return true;
   }
   if (!check_words(a, BK_F("SQRDHLU"), kCode, o)) return false;
-  int32_t s = -1;
-  const ArgStatus st = a.get_long('S', s);
-  if (st != ARG_ABSENT && (st != ARG_OK || (uint32_t)s > 1)) {
+  uint32_t s = (uint32_t)-1;  // get_ulong, as M721 and M722 use: one reader less in the firmware
+  const ArgStatus st = a.get_ulong('S', s);
+  if (st != ARG_ABSENT && (st != ARG_OK || s > 1)) {
     error(o, BK_F("S must be 0 or 1"));
     return false;
   }
@@ -154,14 +155,17 @@ bool WidthMode::finish(WidthMode &n, int8_t on, ReplyText &o) {
 
 bool WidthMode::restore(uint8_t kind, const float *v, ReplyText &o) {
   WidthMode n = *this;
-  n.target_kind_ = kind > TARGET_RATE ? (uint8_t)TARGET_NONE : kind;
-  for (uint8_t i = 0; i < SETTINGS; i++) {
-    // the target's limit is Q's or R's; none keeps 0
-    const uint8_t w = i ? (uint8_t)(i + 1) : (kind == TARGET_RATE ? 1 : 0);
+  // No target stored (kind 0) keeps the one in force, as an M723 without Q or
+  // R does: the mode may be on, and S1 needs a target.
+  const bool target = kind == TARGET_FLOW || kind == TARGET_RATE;
+  if (target) n.target_kind_ = kind;
+  for (uint8_t i = target ? 0 : 1; i < SETTINGS; i++) {
+    // the target's limit is Q's or R's (words 0, 1), the others' their own
+    const uint8_t w = i ? (uint8_t)(i + 1) : (uint8_t)(kind - 1);
     Limit lim;
     BK_RDBLOCK(&lim, &kLimits[w], sizeof lim);
-    if ((i || n.target_kind_) && !check_limit(lim, v[i], kCode, o)) return false;
-    n.set_[i] = i || n.target_kind_ ? v[i] : 0.0f;
+    if (!check_limit(lim, v[i], kCode, o)) return false;
+    n.set_[i] = v[i];
   }
   return finish(n, -1, o);
 }

@@ -55,8 +55,10 @@ class WidthMode {
   // after "echo:" when echo is set; stats adds the statistics line (M723 alone).
   void report(ReplyText &r, bool echo, bool stats) const;
   // Stored settings (EEPROM) back in force, each value checked as M723 checks
-  // it; the mode (S) is not touched. kind: 0 none, 1 Q (target = flow), 2 R (target =
-  // rate). False with an Error: line, nothing changed, when one is refused.
+  // it; the mode (S) is not touched. kind: 1 Q (target = flow), 2 R (target =
+  // rate), anything else none stored: the target in force stays (as after an
+  // M723 without Q or R). False with an Error: line, nothing changed, when one
+  // is refused.
   bool restore(uint8_t kind, const float *target_d_h_l_u, ReplyText &r);
 #if !BK_REPLY_SERIAL
   // Tests and tools: the reply into a buffer (>= REPLY_MIN), from a parsed or

@@ -410,13 +410,23 @@ static void test_restore_checks_each_value(void) {
     snapshot(m, reply);
     TEST_ASSERT_EQUAL_STRING_MESSAGE(before, reply, "state changed by a refused restore");
   }
-  // no target: the stored target value does not matter
+  // No target stored: the stored target value does not matter, the target in
+  // force stays, so a mode that is on keeps one (S1 needs Q or R).
   const float none[5] = {123.0f, 1.75f, 0.0f, 5.0f, 150.0f};
   WidthMode fresh;
   ReplyText f(reply, sizeof reply);
   TEST_ASSERT_TRUE(fresh.restore(0, none, f));
   TEST_ASSERT_FALSE(fresh.has_target());
   TEST_ASSERT_EQUAL_FLOAT(0.0f, fresh.target());
+  WidthMode on;
+  TEST_ASSERT_TRUE(cmd(on, "M723 S1 R1.5 H0.2"));
+  ReplyText g(reply, sizeof reply);
+  TEST_ASSERT_TRUE(on.restore(0, none, g));
+  TEST_ASSERT_TRUE(on.active());
+  TEST_ASSERT_TRUE(on.has_target());
+  TEST_ASSERT_EQUAL_FLOAT(1.5f, on.target());
+  TEST_ASSERT_EQUAL_FLOAT(0.0f, on.layer_height());  // the stored H came back
+  TEST_ASSERT_EQUAL_FLOAT(15.0f, on.feed(10.0f, 1.0f, 40.0f));  // v = L r / dE = 10 * 1.5 / 1, not L
 }
 
 int main(void) {

@@ -1,7 +1,8 @@
 #!/bin/bash
 # Flash and RAM of the portable core on an ATmega2560, with the flags Marlin's AVR
 # build uses (avr-gcc -Os, LTO, gc-sections). Prints the totals beyond a baseline
-# that already has what Marlin links anyway (float arithmetic, sqrt, UART), then
+# that already has what Marlin links anyway (float arithmetic, sqrt, UART, the
+# strtod/strtoul its G-code parser converts numbers with), then
 # the largest functions with the flash text (BK_F strings) each one owns.
 #   bash tools/size/size.sh [N]          N: how many rows to list (default 40)
 #   NOINLINE=1 bash tools/size/size.sh   every function on its own row (total grows)
@@ -22,8 +23,10 @@ esac
 avr-g++ $FLAGS -x c++ - -o $OUT/base.elf -Wl,--gc-sections -Wl,--relax <<'C'
 #include <avr/io.h>
 #include <math.h>
-volatile float a, b; volatile long l;
-int main() { for (;;) { a = sqrtf(a * b + a / b - b); l = (long)a; a = (float)(unsigned long)l; b = (a < b); UDR0 = UDR0; } }
+#include <stdlib.h>
+volatile float a, b; volatile long l; char *volatile s;
+int main() { for (;;) { a = sqrtf(a * b + a / b - b); l = (long)a; a = (float)(unsigned long)l; b = (a < b); UDR0 = UDR0;
+  a = strtod(s, 0); l = strtoul(s, 0, 10); } }
 C
 avr-g++ $FLAGS $CORE tools/size/size_main.cpp src/*.cpp -o $OUT/core.elf -Wl,--gc-sections -Wl,--relax
 sz() { avr-size -A "$1" | awk '$1==".text"||$1==".data"{f+=$2} $1==".data"||$1==".bss"{r+=$2} END{print f, r}'; }

@@ -189,8 +189,7 @@ bool BulgeKit::line_to_destination() {
     m.x1 = NATIVE_TO_LOGICAL(end.x, X_AXIS);
     m.y1 = NATIVE_TO_LOGICAL(end.y, Y_AXIS);
     m.z1 = NATIVE_TO_LOGICAL(end.z, Z_AXIS);
-    m.e = de;
-    m.f = MMS_TO_MMM(feed_scaled);
+    m.e = de;  // (m.f is not read by the planner: the pieces keep feedrate_mm_s)
     bool more = bulge.plan(m, actions);
     const bool split = more || actions.count != 1 || actions.a[0].kind != bk::Action::LINE || actions.e_added != 0.0f;
   #else
