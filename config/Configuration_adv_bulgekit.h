@@ -25,14 +25,13 @@
 #if ENABLED(BULGE_MAP)
   /**
    * RAM: the arena plus about 560 bytes is taken from what Marlin's stack has
-   * left ("Free Memory" on the boot line). Measured on a simulated RAMPS, free
-   * memory at boot: default configuration 2995 B; with SD card, EEPROM,
-   * BLTouch and bilinear leveling 1441 B (stock: 4048 B). An LCD takes more:
-   * if the boot line shows much under 1500 B, set 1024 here (+1024 B free)
-   * and tell the host (bulgekit annotate --arena 1024), which then streams the
-   * map in smaller pieces.
+   * left ("Free Memory" on the boot line). 1024 always works: the host streams
+   * a larger map in appends while printing, and the arena must only hold two
+   * full layers (910 bytes at 64 points; the sample prints need 208). A larger
+   * arena means fewer appends; give the host the same figure
+   * (bulgekit annotate --arena N; `bulgekit send` checks it).
    */
-  #define BK_MAP_ARENA_BYTES   2048  // (bytes) RAM for the compact map (and the staged upload)
+  #define BK_MAP_ARENA_BYTES   1024  // (bytes) RAM for the compact map (and the staged upload)
   #define BK_LAYER_POINTS_MAX    64  // Bulge points one layer may hold (decoded working set)
   #define BK_DEFAULT_DWELL_MS   100  // (ms) M720 P at power-on
   #define BK_DEFAULT_EXTRA_E_MM 0.1f // (mm) M720 E at power-on: extra filament per stop

@@ -6,11 +6,16 @@
 #define BULGEKIT_CONFIG_H
 
 // ---- sizes (RAM) --------------------------------------------------------------
+// The map arena: layer records held at once (and an upload's staging). The host
+// streams a larger map in appends; that always fits when the arena holds two of
+// the largest records the format allows (the layer in print and the next one:
+// 7 * BK_LAYER_POINTS_MAX + 7 bytes each, 910 B in all for 64 points; checked
+// in bulge_map.h). The sample prints need at most 208 B (tools/arena_window.py).
 #ifndef BK_MAP_ARENA_BYTES
 #if defined(__AVR__)
-#define BK_MAP_ARENA_BYTES 2048  // compact map bytes kept on an ATmega2560
+#define BK_MAP_ARENA_BYTES 1024  // an ATmega2560 has 8 KiB of RAM in all
 #else
-#define BK_MAP_ARENA_BYTES 2048  // host tests use the AVR size so both targets agree
+#define BK_MAP_ARENA_BYTES 2048
 #endif
 #endif
 #ifndef BK_LAYER_POINTS_MAX

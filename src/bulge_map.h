@@ -21,6 +21,11 @@
 #if BK_MAP_ARENA_BYTES > 65000
 #error "BK_MAP_ARENA_BYTES must fit the uint16_t offsets used by MapStore"
 #endif
+// A record of n points is at most 7 n + 7 bytes (z, n, len, 3-byte deltas,
+// weights, CRC); streaming needs the layer in print and the next one.
+#if BK_MAP_ARENA_BYTES < 2 * (7 * BK_LAYER_POINTS_MAX + 7)
+#error "BK_MAP_ARENA_BYTES must hold two full layers: 2 * (7 * BK_LAYER_POINTS_MAX + 7) bytes"
+#endif
 
 namespace bk {
 

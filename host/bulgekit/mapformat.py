@@ -29,7 +29,7 @@ VERSION = 1
 FLAG_WEIGHTS = 0x01
 HEADER_BYTES = 8
 # the firmware's BK_MAP_ARENA_BYTES: layer records it holds at once (header kept beside)
-ARENA_BYTES = 2048
+ARENA_BYTES = 1024
 LAYER_POINTS_MAX = 64  # the firmware's BK_LAYER_POINTS_MAX; the host refuses more
 VARINT_MAX_BYTES = 3
 VARINT_LIMIT = 1 << 21

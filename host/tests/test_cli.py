@@ -144,7 +144,7 @@ def test_mcodes_and_send_refuse_a_map_larger_than_the_arena(tmp_path):
         r = run(*args)
         assert r.exit_code == 1, r.output
         assert f"big.bkm: the map's layer records need {need} bytes" in r.output
-        assert "arena holds 2048" in r.output and "bulgekit annotate" in r.output
+        assert f"arena holds {mapformat.ARENA_BYTES}" in r.output and "bulgekit annotate" in r.output
     assert not out.exists()
     # a larger arena (a firmware built with more) takes it; 0 is refused
     assert run("mcodes", m, "--arena", need, "-o", out).exit_code == 0

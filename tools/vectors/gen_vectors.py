@@ -27,7 +27,7 @@ sys.path.insert(0, str(ROOT / "host"))
 
 from bulgekit import mapformat as mf  # noqa: E402
 
-ARENA_BYTES = 2048  # config/bulgekit_config.h BK_MAP_ARENA_BYTES, for the streaming plan
+ARENA_BYTES = 2048  # the unit tests build the core with a 2 KB arena (platformio.ini), for the streaming plan
 
 # ---- synthetic text on a cylinder ---------------------------------------------------------
 # Stroke font in a 4 x 6 cell (u right, v up); polylines.
