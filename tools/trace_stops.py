@@ -186,13 +186,20 @@ class Run:
                 out.append((c0, c1, x, y))
         return out
 
-    def first_step_after(self, cycle):
-        """Cycle of the first X, Y or E step after this cycle (None if there is none)."""
-        import bisect
-        if not hasattr(self, "_step_cycles"):  # both lists are in time order already
-            self._step_cycles = ([c for c, _ in self.e_steps], [c for c, _, _ in self.xy])
-        cands = [lst[i] for lst in self._step_cycles for i in [bisect.bisect_right(lst, cycle)] if i < len(lst)]
-        return min(cands) if cands else None
+    def stillness(self, c0, c1):
+        """The longest time (cycles) in [c0, c1] with no step of any axis.
+
+        A stop is the gap between two X/Y steps, but the other axes step near
+        its ends: an E step can share the step event of the last X/Y step
+        before it (a few µs later), and a piece whose leading axis is E steps
+        E before its first X/Y step. The hold is the longest step-free stretch
+        in between, not the time to the first step of any axis after c0."""
+        if not hasattr(self, "_all"):  # every step of every axis, in time order
+            self._all = sorted([c for c, _, _ in self.xy] + [c for c, _ in self.e_steps]
+                               + [c for c, _ in self.z])
+        i, j = bisect.bisect_right(self._all, c0), bisect.bisect_left(self._all, c1)
+        marks = [c0] + self._all[i:j] + [c1]
+        return max(b - a for a, b in zip(marks, marks[1:]))
 
     def z_at(self, cycle):
         """Z step count at this cycle (0 before the first Z step)."""
@@ -388,13 +395,11 @@ def stops(args):
     if durs:
         print("added stops: %d, duration min %.4f / mean %.4f / max %.4f ms"
               % (len(durs), min(durs), sum(durs) / len(durs), max(durs)))
-        # A piece whose leading axis is E (a short piece carrying the extra) takes
-        # its first X/Y step one Bresenham event after its first E step: the hold
-        # itself ends at the first step of any axis.
-        firsts = [(c0, run.first_step_after(c0)) for c0, _, _, _ in added]
-        holds = [ms(c1 - c0) for c0, c1 in firsts if c1 is not None]
+        # The hold: every axis still (see Run.stillness; E steps next to the
+        # X/Y gap's ends are not part of it).
+        holds = [ms(run.stillness(c0, c1)) for c0, c1, _, _ in added]
         if holds:
-            print("  hold (last X/Y step to the first step of any axis, E included): "
+            print("  hold (longest time with no step of any axis, E and Z included): "
                   "min %.4f / mean %.4f / max %.4f ms" % (min(holds), sum(holds) / len(holds), max(holds)))
         if args.dwell is not None:
             bad = [d for d in durs if abs(d - args.dwell) > args.dwell_tol]
