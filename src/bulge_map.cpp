@@ -284,43 +284,34 @@ uint16_t MapStore::counts(uint16_t &points) const {
   return layers;
 }
 
-// One walk for the layer questions: at = offset of the first record with
-// z >= z_cmm (used_ if none), below = offset of the one before it, below2 the
-// one before that (used_ if none). Records are in increasing z, so the walk
-// stops there.
-void MapStore::around(int32_t z_cmm, uint16_t &below, uint16_t &at, uint16_t *below2) const {
-  uint16_t b2 = used_;
+// One walk for the three layer questions: at = offset of the first record with
+// z >= z_cmm (used_ if none), below = offset of the one before it (used_ if
+// none). Records are in increasing z, so the walk stops there.
+void MapStore::around(int32_t z_cmm, uint16_t &below, uint16_t &at) const {
   below = used_;
   RecordHead h;
-  for (at = 0; head_at(*this, at, h) && (int32_t)h.z < z_cmm; at = (uint16_t)(at + h.size)) {
-    b2 = below;
-    below = at;
-  }
-  if (below2) *below2 = b2;
+  for (at = 0; head_at(*this, at, h) && (int32_t)h.z < z_cmm; at = (uint16_t)(at + h.size)) below = at;
 }
 
-bool MapStore::find_layer(int32_t z_cmm, MapLayer &out, int32_t *below, int32_t *above) const {
-  uint16_t lo, hi, lo2;
-  around(z_cmm, lo, hi, &lo2);
+bool MapStore::find_layer(int32_t z_cmm, MapLayer &out) const {
+  uint16_t lo, hi;
+  around(z_cmm, lo, hi);
   // The nearer of the two records around z_cmm; the lower one on a tie.
   const int32_t d_lo = lo < used_ ? z_cmm - z_at(lo) : INT32_MAX;
   const int32_t d_hi = hi < used_ ? z_at(hi) - z_cmm : INT32_MAX;
-  const bool low = d_lo <= d_hi;
-  const uint16_t best = low ? lo : hi;
-  const int32_t d = low ? d_lo : d_hi;
-  if (d == INT32_MAX || 2 * d > info_.layer_height_cmm ||
-      !map_decode_record(arena_ + best, (uint16_t)(used_ - best), info_.flags & MAP_FLAG_WEIGHTS, out))
-    return false;
-  if (below) {
-    // the found record's neighbours: (lo2, hi) for lo, (lo, the one after hi) for hi
-    const uint16_t under = low ? lo2 : lo;
-    uint16_t over = hi;
-    RecordHead h;
-    if (!low && head_at(*this, hi, h)) over = (uint16_t)(hi + h.size);
-    *below = under < used_ ? (int32_t)z_at(under) : -1;
-    *above = over < used_ ? (int32_t)z_at(over) : INT32_MAX;
-  }
-  return true;
+  const uint16_t best = d_lo <= d_hi ? lo : hi;
+  const int32_t d = d_lo <= d_hi ? d_lo : d_hi;
+  return d != INT32_MAX && 2 * d <= info_.layer_height_cmm &&
+         map_decode_record(arena_ + best, (uint16_t)(used_ - best), info_.flags & MAP_FLAG_WEIGHTS, out);
+}
+
+void MapStore::neighbors(int32_t z_cmm, int32_t &below, int32_t &above) const {
+  uint16_t lo, hi;
+  around(z_cmm, lo, hi);
+  below = lo < used_ ? (int32_t)z_at(lo) : -1;
+  RecordHead h;
+  if (head_at(*this, hi, h) && h.z == z_cmm) hi = (uint16_t)(hi + h.size);  // above is strictly above
+  above = hi < used_ ? (int32_t)z_at(hi) : INT32_MAX;
 }
 
 void MapStore::release_below(int32_t z_cmm) {

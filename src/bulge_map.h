@@ -154,12 +154,12 @@ class MapStore {
   int32_t z_floor() const { return z_floor_; }
 
   // The layer whose z is within half a layer height of z_cmm (|dz|*2 <= h;
-  // the nearer one if two, the lower one on a tie), decoded into out. With
-  // below and above: the z (cmm) of the records next to the found one, -1 and
-  // INT32_MAX where there is none (set only when a layer is found); the layer
-  // window uses them to hand over to a nearer layer when layers are closer
-  // than a layer height. One walk of the record heads for all of it.
-  bool find_layer(int32_t z_cmm, MapLayer &out, int32_t *below = nullptr, int32_t *above = nullptr) const;
+  // the nearer one if two, the lower one on a tie), decoded into out.
+  bool find_layer(int32_t z_cmm, MapLayer &out) const;
+  // z (cmm) of the records next to z_cmm: the highest below it (-1 if none)
+  // and the lowest above it (INT32_MAX if none). The layer window uses them to
+  // hand over to a nearer layer when layers are closer than a layer height.
+  void neighbors(int32_t z_cmm, int32_t &below, int32_t &above) const;
   // Release every layer with z < z_cmm (consumed while printing): the rest,
   // and any staged upload bytes, move down so appends fit.
   void release_below(int32_t z_cmm);
@@ -182,7 +182,7 @@ class MapStore {
 
  private:
   MapError put(const uint8_t *header, const uint8_t *records, uint16_t len);  // header 0: append
-  void around(int32_t z_cmm, uint16_t &below, uint16_t &at, uint16_t *below2 = nullptr) const;
+  void around(int32_t z_cmm, uint16_t &below, uint16_t &at) const;
   uint16_t z_at(uint16_t off) const { return (uint16_t)(arena_[off] | (uint16_t)arena_[off + 1] << 8); }
 
   // The small fields first: AVR reaches them with a displacement from the

@@ -164,8 +164,7 @@ bool BulgePlanner::window(float z) {
   seen_last_z_ = store_->last_z();
   const uint16_t old_z = layer_.z_cmm;
   const bool had = has_layer_;
-  int32_t below, above;
-  if (!store_->find_layer(z_cmm, layer_, &below, &above)) {
+  if (!store_->find_layer(z_cmm, layer_)) {
     has_miss_ = true;  // find_layer leaves layer_ alone on a miss
     miss_z_ = z_cmm;
     return false;
@@ -173,6 +172,8 @@ bool BulgePlanner::window(float z) {
   has_miss_ = false;
   has_layer_ = true;
   sort_points(layer_);
+  int32_t below, above;
+  store_->neighbors(layer_.z_cmm, below, above);
   set_window(below, above);
   // Only a different layer starts with no point fired: the same one read again
   // (after an append) keeps its marks, so no point dwells twice.
@@ -192,7 +193,7 @@ bool BulgePlanner::window(float z) {
 // integer tests, whose products would no longer fit 32 bits. The range check
 // is an integer compare of the float's bits, not a float compare. Inlined: a
 // call per conversion would cost a wall move about 130 cycles for 36 bytes.
-static inline int16_t to_q(float mm, float inv_q, bool &far) {
+__attribute__((noinline)) static int16_t to_q(float mm, float inv_q, bool &far) {
   const float v = mm * inv_q;
   const uint32_t u = fbits(v);
   if ((u & 0x7FFFFFFFUL) >= 0x46800000UL) {  // 2^14

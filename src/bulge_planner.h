@@ -210,7 +210,7 @@ class BulgePlanner {
   uint8_t q_um_, lh_cmm_;
   // The loaded layer stays in use while a move's z (cmm) is within
   // [win_lo_, win_hi_]: half a layer height around it, narrowed to the
-  // half-way marks towards the records next to it (MapStore::find_layer).
+  // half-way marks towards the records next to it (MapStore::neighbors).
   uint16_t win_lo_, win_hi_;
   int32_t miss_z_;        // z (cmm) known to have no layer
   // The map's last z when the neighbours (or the miss) were read: an append
