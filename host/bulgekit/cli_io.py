@@ -262,7 +262,8 @@ def check_printer_arena(sender, need: int, path) -> None:
     if have < need:
         raise click.ClickException(
             f"{path}: was annotated for a {need}-byte map arena, but the printer's is {have} "
-            f"(BK_MAP_ARENA_BYTES): a map append would be refused mid-print. Annotate again with "
+            f"(BK_MAP_ARENA_BYTES): its map uploads (the first, or an append mid-print) could be "
+            f"refused. Annotate again with "
             f"--arena {have}.")
 
 
