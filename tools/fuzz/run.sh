@@ -17,7 +17,7 @@ SRC="$(echo src/*.cpp)"  # the whole core: a new file cannot be forgotten here
 FLAGS="-std=gnu++11 -g -O1 -fsanitize=fuzzer,address,undefined -fno-sanitize-recover=all -Isrc -Iconfig"
 
 status=0
-for target in fuzz_map_decode fuzz_m721; do
+for target in fuzz_map_decode fuzz_m721 fuzz_planner; do
   if ! $CXX $FLAGS $SRC "tools/fuzz/$target.cpp" -o "$OUT/$target"; then
     echo "$target: BUILD FAILED" >&2
     status=1
@@ -34,11 +34,14 @@ for target in fuzz_map_decode fuzz_m721; do
     for f in test/vectors/*.bkr; do
       { printf '\x01'; cat "$f"; } > "$corpus/seed_$(basename "$f" .bkr)"
     done
-  else
+  elif [ "$target" = fuzz_m721 ]; then
     for f in test/vectors/*.m721; do
       grep -v '^;' "$f" > "$corpus/seed_$(basename "$f" .m721)"
     done
     extra=(-dict=tools/fuzz/m721.dict -max_len=8192)
+  else
+    # fuzz_planner builds its map and print from the bytes themselves: no seeds
+    extra=(-max_len=4096)
   fi
   log="$OUT/$target.log"
   "$OUT/$target" "$corpus" -max_total_time="$SECS" -print_final_stats=1 \
