@@ -167,8 +167,8 @@ ArgStatus GcodeArgs::get_float(char letter, float &out) const {
   if (*s == '+' || *s == '-') neg = (*s++ == '-');
   // An integer mantissa and a decimal exponent, not the C library's strtod:
   // the same bits on every target (avr-libc's strtod is not correctly
-  // rounded), and trailing zeros change nothing (each is an exact division),
-  // so a reported setting sent back (M503) gives the very same value.
+  // rounded), and trailing zeros change nothing (the quotient is the same
+  // number), so a reported setting sent back (M503) gives the very same value.
   uint32_t mant = 0;
   int8_t frac_digits = 0;
   uint8_t digits = 0;
@@ -190,8 +190,13 @@ ArgStatus GcodeArgs::get_float(char letter, float &out) const {
     }
   }
   if (!digits) return ARG_BAD;
-  float v = (float)mant;
-  while (frac_digits--) v /= 10.0f;
+  // One division by 10^k, itself exact as a float up to k = 10: with up to 7
+  // significant digits (mant exact too) the quotient is rounded once, i.e. the
+  // float nearest the decimal, as a correct strtod gives (dividing by 10 k
+  // times was off by an ulp at times: "7.02" gave 7.0199995).
+  float scale = 1.0f;
+  while (frac_digits--) scale *= 10.0f;
+  const float v = (float)mant / scale;
   out = neg ? -v : v;
   return ARG_OK;
 }

@@ -1,4 +1,6 @@
 // M-code argument parsing: values, malformed words, line numbers, checksums.
+#include <string.h>
+
 #include "bktest.h"
 #include "gcode_args.h"
 #include "reply_text.h"
@@ -80,6 +82,26 @@ static void test_duplicate_and_unknown_words(void) {
   TEST_ASSERT_EQUAL_STRING("", reply);
 }
 
+// Decimals come out as the float nearest the number (as a correctly rounded
+// strtod: the host's reference planner reads G-code that way), and trailing
+// zeros change nothing. Dividing by 10 once per decimal was an ulp off.
+static void test_decimals_are_the_nearest_float(void) {
+  static const struct { const char *line; uint32_t bits; } cases[] = {
+      {"M720 T7.02", 0x40e0a3d7UL},  {"M720 T17.44", 0x418b851fUL}, {"M720 T0.01", 0x3c23d70aUL},
+      {"M720 T2.85", 0x40366666UL},  {"M720 T2.850", 0x40366666UL}, {"M720 T3.217", 0x404de354UL},
+      {"M720 T-7.020", 0xc0e0a3d7UL},
+  };
+  GcodeArgs a;
+  for (uint8_t i = 0; i < sizeof cases / sizeof cases[0]; i++) {
+    TEST_ASSERT_TRUE(a.parse(cases[i].line));
+    float f = 0;
+    TEST_ASSERT_EQUAL_INT(bk::ARG_OK, a.get_float('T', f));
+    uint32_t bits;
+    memcpy(&bits, &f, sizeof bits);
+    TEST_ASSERT_EQUAL_HEX32(cases[i].bits, bits);
+  }
+}
+
 static void test_raw_word(void) {
   GcodeArgs a;
   TEST_ASSERT_TRUE(a.parse("N7 M721 O40 DMFRGGZDFMZTWQ2LK*99"));
@@ -128,6 +150,7 @@ int main(void) {
   RUN_TEST(test_malformed_values);
   RUN_TEST(test_ulong_range_and_comment);
   RUN_TEST(test_raw_word);
+  RUN_TEST(test_decimals_are_the_nearest_float);
   RUN_TEST(test_long_overflow_is_rejected_not_wrapped);
   RUN_TEST(test_duplicate_and_unknown_words);
   RUN_TEST(test_read_limited);
