@@ -53,6 +53,7 @@ def cut(args):
            % (args.gcode, lo, hi, ", ".join(sorted(keep))), "G21", "G90", "M82"]
     layer, feature, e, e_out = 0, None, 0.0, 0.0
     absolute_e = True
+    out_absolute_e = True  # the E mode the output is in (its header says M82)
     dropped = False
     with open(args.gcode, encoding="utf-8", errors="replace") as f:
         for raw in f:
@@ -69,6 +70,10 @@ def cut(args):
             elif code.startswith("M83"):
                 absolute_e = False
             if kept:
+                if not code.startswith(("M82", "M83")) and out_absolute_e != absolute_e:
+                    # the source's M82/M83 was dropped with the lines before: say it here
+                    out.append("M82 ; E mode of the source" if absolute_e else "M83 ; E mode of the source")
+                out_absolute_e = absolute_e
                 if dropped and absolute_e and abs(e - e_out) > 1e-9:
                     out.append("G92 E%.5f ; E where the dropped lines left it" % e)
                     e_out = e
@@ -91,12 +96,22 @@ def cut(args):
     return 0
 
 
-def gcode_end_state(path, start, segments=None):
+def _lround(v):
+    """Marlin's LROUND: half away from zero (Python's round() halves to even)."""
+    return int(math.floor(abs(v) + 0.5)) * (1 if v >= 0 else -1)
+
+
+def gcode_end_state(path, start, segments=None, steps=None):
     """Final X Y Z E (host frame) and the filament the moves push (mm, net).
-    If segments is a list, every extruding X/Y move is appended as (z, x0, y0, x1, y1)."""
+    If segments is a list, every extruding X/Y move is appended as (z, x0, y0, x1, y1).
+    If steps is a list, the E steps Marlin makes for them are appended (one
+    number): it holds E in steps rounded from the position in mm at each move,
+    and G92 E sets that position again, so every G92 rounds once more."""
     pos = dict(start)
     absolute, absolute_e = True, True
     e_total = 0.0
+    e_steps = 0
+    at_step = _lround(pos["E"] * STEPS["E"])
     with open(path, encoding="utf-8", errors="replace") as f:
         for line in f:
             w, code = words(line)
@@ -118,6 +133,8 @@ def gcode_end_state(path, start, segments=None):
                 for a in "XYZE":
                     if a in w:
                         pos[a] = w[a]
+                if "E" in w:
+                    at_step = _lround(pos["E"] * STEPS["E"])
             elif c in ("G0", "G1"):
                 x0, y0 = pos["X"], pos["Y"]
                 for a in "XYZ":
@@ -129,6 +146,11 @@ def gcode_end_state(path, start, segments=None):
                         segments.append((pos["Z"], x0, y0, pos["X"], pos["Y"]))
                     e_total += de
                     pos["E"] += de
+                    target = _lround(pos["E"] * STEPS["E"])
+                    e_steps += target - at_step
+                    at_step = target
+    if steps is not None:
+        steps.append(e_steps)
     return pos, e_total
 
 
@@ -461,8 +483,9 @@ def stops(args):
                   "(half a step on X and Y: %.4f mm)" % (worst_foot, lim))
             ok &= worst_foot <= lim
     if args.gcode:
-        end, e_total = gcode_end_state(args.gcode, origin)
-        want_e = round(e_total * STEPS["E"])
+        counted = []
+        end, e_total = gcode_end_state(args.gcode, origin, steps=counted)
+        want_e = counted[0]  # as Marlin rounds: once per move, again at each G92 E
         print("G-code: net E %.5f mm = %d steps; final X%.3f Y%.3f Z%.3f E%.5f"
               % (e_total, want_e, end["X"], end["Y"], end["Z"], end["E"]))
         extra_steps = 0

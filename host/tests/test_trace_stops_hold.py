@@ -66,3 +66,32 @@ def test_hold_is_the_longest_still_stretch(tmp_path, capsys, after, before, expe
     # the old reading, the first step of any axis after the last X/Y step,
     # gave 0.002 ms when an E step shared that step event
     assert lo > 90
+
+
+def test_cut_keeps_the_source_e_mode(tmp_path):
+    """A relative-E file (M83 before the first layer) cut to later layers stays
+    relative: the cut's header says M82, so the dropped M83 is said again."""
+    src = tmp_path / "rel.gcode"
+    src.write_text("M83\nG1 Z0.2\n;LAYER_CHANGE\n;TYPE:External perimeter\nG1 X1 E0.5\n"
+                   ";LAYER_CHANGE\n;TYPE:External perimeter\nG1 X2 E0.5\nG1 X3 E0.25\n")
+    out = tmp_path / "cut.gcode"
+    assert ts.main(["cut", str(src), "--layers", "2-2", "--keep", "External perimeter", "-o", str(out)]) == 0
+    lines = [l.split(";")[0].strip() for l in out.read_text().splitlines()]
+    lines = [l for l in lines if l]
+    assert lines[:3] == ["G21", "G90", "M82"]
+    assert lines[3:] == ["M83", "G1 X2 E0.5", "G1 X3 E0.25"]
+    # the E the cut asks for, read as the firmware would: 0.75 mm, not 0.25 - 0.5
+    pos, e_total = ts.gcode_end_state(str(out), dict(X=0, Y=0, Z=0, E=0))
+    assert e_total == pytest.approx(0.75)
+
+
+def test_e_steps_round_at_each_g92_as_marlin_does(tmp_path):
+    """199 G92 resets in a real file made the E check one rounding short; here a
+    0.0013 mm move (0.65 steps) rounds to 1 step every time, 3 times over."""
+    g = tmp_path / "g92.gcode"
+    g.write_text("M82\n" + "G1 X1 E0.0013\nG92 E0\n" * 3)
+    steps = []
+    pos, e_total = ts.gcode_end_state(str(g), dict(X=0, Y=0, Z=0, E=0), steps=steps)
+    assert e_total == pytest.approx(0.0039)
+    assert round(e_total * ts.STEPS["E"]) == 2   # the old reading
+    assert steps == [3]                          # what the steppers do
