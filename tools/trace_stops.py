@@ -423,7 +423,7 @@ def stops(args):
         if holds:
             print("  hold (longest time with no step of any axis, E and Z included): "
                   "min %.4f / mean %.4f / max %.4f ms" % (min(holds), sum(holds) / len(holds), max(holds)))
-        if args.dwell is not None:
+        if args.dwell is not None and not args.map:
             bad = [d for d in durs if abs(d - args.dwell) > args.dwell_tol]
             ok &= not bad
             print("  requested %d ms +- %.2f: %s" % (args.dwell, args.dwell_tol,
@@ -438,6 +438,7 @@ def stops(args):
     if args.map:
         pts = read_map_points(args.map)
         used = set()
+        stop_weight = {}
         worst = worst_foot = 0.0
         print(" #   stop at X,Y (mm)      z     nearest point (mm)   dist mm  expected at (mm)    off mm  w   duration ms")
         for k, (c0, c1, x, y) in enumerate(added):
@@ -463,6 +464,7 @@ def stops(args):
             worst = max(worst, d)
             used.add(j)
             pz, px, py, w = pts[j]
+            stop_weight[k] = w
             ft = expected_stop(segments, sz, px, py, args.tolerance, args.min_piece) if segments else None
             off = math.hypot(ft[0] - sx, ft[1] - sy) if ft else float("nan")
             if ft:
@@ -476,6 +478,14 @@ def stops(args):
             print("stops with a Z step during the hold: %d" % z_in_hold)
             ok &= z_in_hold == 0
         ok &= len(used) == len(pts) == len(added) and worst <= args.tolerance
+        if args.dwell is not None:
+            # a point's dwell is P * w / 255, rounded, as the firmware computes it
+            want = {k: (args.dwell * w + 127) // 255 for k, w in stop_weight.items()}
+            bad = [k for k, w in want.items() if abs(ms(added[k][1] - added[k][0]) - w) > args.dwell_tol]
+            ok &= not bad
+            print("  requested %d ms x w/255 (%s ms) +- %.2f: %s"
+                  % (args.dwell, ", ".join(str(v) for v in sorted(set(want.values()))), args.dwell_tol,
+                     "all within" if not bad else "%d outside" % len(bad)))
         if segments:
             # The step grid allows half a step on each axis.
             lim = math.hypot(0.5 / STEPS["X"], 0.5 / STEPS["Y"]) + 1e-6
