@@ -193,7 +193,7 @@ bool BulgePlanner::window(float z) {
 // integer tests, whose products would no longer fit 32 bits. The range check
 // is an integer compare of the float's bits, not a float compare. Inlined: a
 // call per conversion would cost a wall move about 130 cycles for 36 bytes.
-__attribute__((noinline)) static int16_t to_q(float mm, float inv_q, bool &far) {
+static inline int16_t to_q(float mm, float inv_q, bool &far) {
   const float v = mm * inv_q;
   const uint32_t u = fbits(v);
   if ((u & 0x7FFFFFFFUL) >= 0x46800000UL) {  // 2^14
