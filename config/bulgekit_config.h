@@ -97,8 +97,9 @@
 #ifndef BK_MOVE_DEFAULT_FEED_MM_MIN
 #define BK_MOVE_DEFAULT_FEED_MM_MIN 1500.0f
 #endif
-// Room for one M720/M722 reply line ("echo:..." or "Error:..."), with the NUL:
-// the longest is "Error:M720 P->=1000000 not in [0.000..2000.000]" (47).
+// Room for one M720/M722 reply line ("echo:..." or "Error:..."), with the NUL,
+// where replies go into a buffer (tests, tools; the firmware prints them as
+// they are written): the longest is "Error:M720 P->=1000000 not in [0.000..2000.000]" (47).
 #ifndef BK_PLAN_REPLY_MAX
 #define BK_PLAN_REPLY_MAX 48
 #endif
@@ -116,7 +117,7 @@
 #ifndef BK_M721_CHUNK_CHARS_MAX
 #define BK_M721_CHUNK_CHARS_MAX 64
 #endif
-// Room for one M721 reply (up to two lines), with the NUL.
+// Room for one M721 reply (up to two lines), with the NUL (a buffer in tests and tools).
 #ifndef BK_M721_REPLY_BYTES
 #define BK_M721_REPLY_BYTES 128
 #endif
