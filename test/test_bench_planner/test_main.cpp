@@ -143,15 +143,16 @@ static void test_common_case(void) {
   uint32_t c64 = common_case(64, true);
   common_case(64, false);
   if (bkt_on_avr()) {
-    // The issue's goal is 2,000 cycles; the figure is printed against it. The
-    // assertion is a regression guard with headroom, so that a change in code
-    // layout of a few cycles does not turn CI red while a real slowdown does.
+    // The goal is 2,000 cycles (issues 6 and 13: keep it); the figure is
+    // printed against it and held to it. simavr counts cycles exactly, so the
+    // check cannot flake; an out-of-line helper once cost 130 cycles (2,039)
+    // and a guard with headroom let it pass.
     TEST_PRINT("goal <= 2000 cycles at 64 points (common case): ");
     if (c64 <= 2000) TEST_PRINT("met, ");
     else TEST_PRINT("MISSED, ");
     bkt_put_uint(c64);
     TEST_PRINT(" cycles\n");
-    TEST_ASSERT_LESS_OR_EQUAL_INT(2500, (int32_t)c64);
+    TEST_ASSERT_LESS_OR_EQUAL_INT(2000, (int32_t)c64);
   }
 }
 
