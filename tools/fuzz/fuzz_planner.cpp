@@ -126,12 +126,15 @@ static float dist_to_segment(float px, float py, const Move &m, float *t_out) {
   return sqrtf(ex * ex + ey * ey);
 }
 
-// The nearest map point (any layer within a layer height of z) to (x, y), mm.
-static float nearest_point(float x, float y, float z) {
+// The nearest map point to (x, y), mm, of any layer within a layer height of
+// z or of z2 (a stop at a move's start may take a point of the layer the move
+// climbs to).
+static float nearest_point(float x, float y, float z, float z2) {
   float best = 1e30f;
   const float q = quantum_um * 0.001f;
   for (uint8_t i = 0; i < n_layers; i++) {
-    if (fabsf(layers[i].z * 0.01f - z) > lh_cmm * 0.01f + 1e-3f) continue;
+    const float lz = layers[i].z * 0.01f, h = lh_cmm * 0.01f + 1e-3f;
+    if (fabsf(lz - z) > h && fabsf(lz - z2) > h) continue;
     for (uint8_t k = 0; k < layers[i].n; k++) {
       const float ex = layers[i].pts[k].x * q - x, ey = layers[i].pts[k].y * q - y;
       const float d = sqrtf(ex * ex + ey * ey);
@@ -171,9 +174,10 @@ static void check_move(const Move &m, bool prev_qualified) {
         CHECK(a.ms <= BK_MAX_DWELL_MS);
         const float tol = planner.tolerance();
 #ifdef FUZZ_DEBUG
-        fprintf(stderr, "  DWELL at %.4f %.4f %.4f nearest %.4f tol %.3f\n", hx, hy, hz, nearest_point(hx, hy, hz), tol);
+        fprintf(stderr, "  DWELL at %.4f %.4f %.4f nearest %.4f tol %.3f\n", hx, hy, hz, nearest_point(hx, hy, hz, m.z1),
+                tol);
 #endif
-        CHECK(nearest_point(hx, hy, hz) <= sqrtf(tol * tol + BK_MIN_PIECE_MM * BK_MIN_PIECE_MM) + 2e-3f);
+        CHECK(nearest_point(hx, hy, hz, m.z1) <= sqrtf(tol * tol + BK_MIN_PIECE_MM * BK_MIN_PIECE_MM) + 2e-3f);
         continue;  // (a stop at the move's end may follow its last line)
       }
       CHECK(a.kind == Action::LINE);

@@ -1,0 +1,99 @@
+"""The invariants tools/fuzz/fuzz_planner.cpp checks on the firmware core, on
+the host's mirror of it (RefPlanner), over random maps and move streams: the
+host-side half of issue 14's property test (the two are compared action for
+action in test_e2e_bkcore.py)."""
+import math
+import random
+
+import numpy as np
+import pytest
+
+from bulgekit import mapformat
+from bulgekit.fallback import MIN_PIECE_MM, RefPlanner, Settings
+from bulgekit.gcode import Move
+
+f32 = np.float32
+
+
+def stream(rng):
+    lh = rng.choice([0.2, 0.25, 0.3])
+    zs = sorted({round(lh * (k + 1) + rng.choice([0.0, 0.0, -0.07, 0.07]), 2) for k in range(rng.randint(1, 4))})
+    layers = [(z, [(round(rng.uniform(-s, s), 1), round(rng.uniform(-s, s), 1)) for _ in range(rng.randint(1, 20))])
+              for z in zs for s in [rng.choice([2.0, 20.0])]]
+    settings = Settings(rng.choice([1, 2, 2]), rng.choice([0, 60, 100, 250]), rng.choice([0.0, 0.05, 0.1, 0.4]),
+                        rng.choice([0.1, 0.25, 0.5]))
+    moves, x, y, z = [], 0.0, 0.0, zs[0]
+    for _ in range(rng.randint(5, 80)):
+        r = rng.random()
+        if r < 0.1:
+            z = rng.choice(zs) + rng.choice([0.0, 0.0, 0.01, -0.01])
+        pts = min(layers, key=lambda l: abs(l[0] - z))[1]
+        px, py = rng.choice(pts)
+        if r < 0.55:
+            x1, y1 = px + rng.uniform(-0.3, 0.3), py + rng.uniform(-0.3, 0.3)
+        elif r < 0.75:
+            x1, y1 = rng.uniform(-25, 25), rng.uniform(-25, 25)
+        elif r < 0.9:
+            x1, y1 = x + rng.uniform(-0.05, 0.05), y + rng.uniform(-0.05, 0.05)
+        else:
+            x1, y1 = x, y  # moves nothing in XY (E only, or nothing)
+        e = -round(rng.uniform(0.5, 2.0), 3) if rng.random() < 0.1 else round(rng.uniform(0.0, 1.0), 4)
+        outer = rng.random() < 0.7
+        moves.append((round(x1, 3), round(y1, 3), round(z, 3), e, outer))
+        x, y = round(x1, 3), round(y1, 3)
+    return layers, settings, moves, lh
+
+
+@pytest.mark.parametrize("seed", range(int(__import__("os").environ.get("BK_PROP_SEEDS", "150"))))
+def test_reference_planner_invariants(seed):
+    layers, settings, moves, lh = stream(random.Random(seed))
+    data = mapformat.encode_map(layers, quantum_um=100, layer_height_mm=lh)
+    bm = mapformat.decode_map(data)
+    ref = RefPlanner(bm, settings)
+    q = bm.quantum_um / 1000
+    pts = [(l.z_cmm / 100, x * q, y * q) for l in bm.layers for x, y in l.points]
+    bound = math.hypot(settings.tolerance, MIN_PIECE_MM) + 2e-3
+    x = y = 0.0
+    z = moves[0][2]
+    prev_qualified = False
+    for k, (x1, y1, z1, e, outer) in enumerate(moves):
+        m = Move(k, k + 1, x, y, z, x1, y1, z1, e, 0.0, 1800.0, True, None)
+        qualifies = ((settings.mode == 2 or (settings.mode == 1 and outer)) and f32(e) > 0
+                     and (f32(x) != f32(x1) or f32(y) != f32(y1)))
+        applied0, fired0 = ref.stats.extra_applied, ref.stats.points_fired
+        acts = ref.plan(m, outer)
+        lines = [a for a in acts if a.kind == "line"]
+        assert lines, acts
+        # the last piece ends where the host said, exactly (in float32)
+        last = lines[-1]
+        assert (f32(last.x), f32(last.y), f32(last.z)) == (f32(x1), f32(y1), f32(z1))
+        # pieces on the segment, in order
+        dx, dy = x1 - x, y1 - y
+        l2 = dx * dx + dy * dy
+        t_prev = -1.0
+        hx, hy, hz = x, y, z
+        for a in acts:
+            if a.kind == "dwell":
+                # the layer of the move's end z (a stop at its start may take
+                # a point of the layer it climbs to), or of where the head is
+                near = min((math.hypot(px - hx, py - hy) for pz, px, py in pts
+                            if min(abs(pz - hz), abs(pz - z1)) <= lh + 1e-3), default=math.inf)
+                assert near <= bound, (seed, k, a, near)
+                continue
+            t = ((a.x - x) * dx + (a.y - y) * dy) / l2 if l2 else 0.0
+            t = min(max(t, 0.0), 1.0)
+            assert math.hypot(x + t * dx - a.x, y + t * dy - a.y) <= 1e-3
+            assert t >= t_prev - 1e-4
+            t_prev = t
+            hx, hy, hz = a.x, a.y, a.z
+        # filament: the host's plus the extra the planner says it added
+        added = ref.stats.extra_applied - applied0
+        assert sum(a.e for a in lines) == pytest.approx(e + added, abs=1e-4 * (1 + abs(e) + added))
+        if not qualifies:
+            # the move itself, after stops deferred from the wall move before it
+            assert len(lines) == 1
+            assert all(a.kind == "line" for a in acts) or prev_qualified
+        assert ref.stats.points_fired <= len(pts)
+        if not (x == x1 and y == y1 and z == z1 and e == 0):
+            prev_qualified = qualifies
+        x, y, z = x1, y1, z1
