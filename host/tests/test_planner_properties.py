@@ -56,6 +56,7 @@ def test_reference_planner_invariants(seed):
     x = y = 0.0
     z = moves[0][2]
     prev_qualified = False
+    must = set()  # (layer z cmm, point) a qualifying move passed well within T of
     for k, (x1, y1, z1, e, outer) in enumerate(moves):
         m = Move(k, k + 1, x, y, z, x1, y1, z1, e, 0.0, 1800.0, True, None)
         qualifies = ((settings.mode == 2 or (settings.mode == 1 and outer)) and f32(e) > 0
@@ -94,6 +95,24 @@ def test_reference_planner_invariants(seed):
             assert len(lines) == 1
             assert all(a.kind == "line" for a in acts) or prev_qualified
         assert ref.stats.points_fired <= len(pts)
+        # Reached => stopped: a qualifying move at a layer's own z (no other
+        # layer as near, and not one released because printing went above it)
+        # passing a point of it with a margin (0.02 mm inside T, its foot away
+        # from the ends, where the corner rule and the minimum piece decide)
+        # makes it stop, on this move or an earlier one.
+        zc = round(z1 * 100)
+        lay = [l for l in bm.layers if l.z_cmm == zc]
+        released = ref.floor is not None and zc < ref.floor  # printing went up past it
+        if qualifies and lay and z == z1 and l2 > 0.25 and not released:
+            others = [abs(l.z_cmm - zc) for l in bm.layers if l.z_cmm != zc]
+            if not others or min(others) * 2 > bm.layer_height_cmm:
+                for px, py in lay[0].points:
+                    t = ((px * q - x) * dx + (py * q - y) * dy) / l2
+                    d = math.hypot(x + t * dx - px * q, y + t * dy - py * q)
+                    if 0.1 < t < 0.9 and d <= settings.tolerance - 0.02:
+                        must.add((zc, (px, py)))
         if not (x == x1 and y == y1 and z == z1 and e == 0):
             prev_qualified = qualifies
         x, y, z = x1, y1, z1
+    fired = {(st.layer_z_cmm, st.point) for st in ref.stops}
+    assert must <= fired, sorted(must - fired)
