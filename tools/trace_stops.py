@@ -96,9 +96,12 @@ def cut(args):
     return 0
 
 
-def _lround(v):
-    """Marlin's LROUND: half away from zero (Python's round() halves to even)."""
-    return int(math.floor(abs(v) + 0.5)) * (1 if v >= 0 else -1)
+def _mapformat():
+    """The host package's map module (bulgekit.mapformat), from this checkout."""
+    import os
+    sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "host"))
+    from bulgekit import mapformat
+    return mapformat
 
 
 def gcode_end_state(path, start, segments=None, steps=None):
@@ -111,7 +114,8 @@ def gcode_end_state(path, start, segments=None, steps=None):
     absolute, absolute_e = True, True
     e_total = 0.0
     e_steps = 0
-    at_step = _lround(pos["E"] * STEPS["E"])
+    lround = _mapformat().round_half_away  # Marlin's LROUND: half away from zero
+    at_step = lround(pos["E"] * STEPS["E"])
     with open(path, encoding="utf-8", errors="replace") as f:
         for line in f:
             w, code = words(line)
@@ -134,7 +138,7 @@ def gcode_end_state(path, start, segments=None, steps=None):
                     if a in w:
                         pos[a] = w[a]
                 if "E" in w:
-                    at_step = _lround(pos["E"] * STEPS["E"])
+                    at_step = lround(pos["E"] * STEPS["E"])
             elif c in ("G0", "G1"):
                 x0, y0 = pos["X"], pos["Y"]
                 for a in "XYZ":
@@ -146,7 +150,7 @@ def gcode_end_state(path, start, segments=None, steps=None):
                         segments.append((pos["Z"], x0, y0, pos["X"], pos["Y"]))
                     e_total += de
                     pos["E"] += de
-                    target = _lround(pos["E"] * STEPS["E"])
+                    target = lround(pos["E"] * STEPS["E"])
                     e_steps += target - at_step
                     at_step = target
     if steps is not None:
@@ -245,9 +249,7 @@ class Run:
 
 def read_map_points(path):
     """(z mm, x mm, y mm, weight) of every point of a .bkm file (host package)."""
-    import os
-    sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "host"))
-    from bulgekit import mapformat
+    mapformat = _mapformat()
     with open(path, "rb") as f:
         m = mapformat.decode_map(f.read(), source=path)
     pts = []
