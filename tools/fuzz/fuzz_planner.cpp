@@ -32,6 +32,7 @@
 
 #include "bulge_map.h"
 #include "bulge_planner.h"
+#include "float_bits.h"
 #include "gcode_args.h"
 #include "move_state.h"
 #include "width_mode.h"
@@ -71,16 +72,14 @@ static GenLayer layers[kMaxLayers];
 static uint8_t n_layers, quantum_um, lh_cmm;
 static bool weights;
 
-static uint16_t put_varint(uint8_t *o, uint32_t v) { return varint_write(o, v); }
-
 // One layer record: z, n, len, zigzag deltas x0 y0 x1 y1 ..., weights, CRC-8.
 static uint16_t encode_record(const GenLayer &l, uint8_t *out) {
   uint8_t body[kMaxPts * 6 + kMaxPts];
   uint16_t b = 0;
   int32_t px = 0, py = 0;  // each coordinate is a step from the point before's
   for (uint8_t i = 0; i < l.n; i++) {
-    b = (uint16_t)(b + put_varint(body + b, zigzag_encode((int32_t)l.pts[i].x - px)));
-    b = (uint16_t)(b + put_varint(body + b, zigzag_encode((int32_t)l.pts[i].y - py)));
+    b = (uint16_t)(b + varint_write(body + b, zigzag_encode((int32_t)l.pts[i].x - px)));
+    b = (uint16_t)(b + varint_write(body + b, zigzag_encode((int32_t)l.pts[i].y - py)));
     px = l.pts[i].x;
     py = l.pts[i].y;
   }
@@ -89,8 +88,8 @@ static uint16_t encode_record(const GenLayer &l, uint8_t *out) {
   uint16_t k = 0;
   out[k++] = (uint8_t)l.z;
   out[k++] = (uint8_t)(l.z >> 8);
-  k = (uint16_t)(k + put_varint(out + k, l.n));
-  k = (uint16_t)(k + put_varint(out + k, b));
+  k = (uint16_t)(k + varint_write(out + k, l.n));
+  k = (uint16_t)(k + varint_write(out + k, b));
   memcpy(out + k, body, b);
   k = (uint16_t)(k + b);
   out[k] = crc8(out, k);
@@ -144,13 +143,18 @@ static float nearest_point(float x, float y, float z, float z2) {
   return best;
 }
 
-static bool same_bits(float a, float b) { return memcmp(&a, &b, sizeof a) == 0; }
+static bool same_bits(float a, float b) { return fbits(a) == fbits(b); }
 
+
+// The planner may split m: its mode and marker allow it, and it extrudes with
+// XY motion (the layer aside).
+static bool splittable(const Move &m) {
+  return (planner.mode() == BULGE_GEOMETRIC || (planner.mode() == BULGE_MARKED && planner.in_outer_wall())) &&
+         m.extruding();
+}
 
 static void check_move(const Move &m, bool prev_qualified) {
-  const bool qualifies = (planner.mode() == BULGE_GEOMETRIC ||
-                          (planner.mode() == BULGE_MARKED && planner.in_outer_wall())) &&
-                         m.e > 0.0f && (m.x0 != m.x1 || m.y0 != m.y1);
+  const bool qualifies = splittable(m);
   const uint32_t fired_before = planner.stats().points_fired;
   const bool had_layer = planner.has_layer();
   const uint16_t z_before = had_layer ? planner.layer().z_cmm : 0xFFFF;
@@ -365,16 +369,13 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size) {
     const float feed = m.f / 60.0f;
     const float dx = m.x1 - m.x0, dy = m.y1 - m.y0;
     const float v = width.feed_xy(dx, dy, m.e, feed);
-    if (!width.active() || !(m.e > 0.0f) || (dx == 0.0f && dy == 0.0f)) CHECK(same_bits(v, feed));
+    if (!width.active() || !m.extruding()) CHECK(same_bits(v, feed));
     else CHECK(v >= width.min_speed() * 0.999f && v <= width.max_speed() * 1.001f);
     check_move(m, prev_qualified);
     // Stops deferred to the next move wait through a move that moves nothing
     // ("G1 F1200"), so only a real move decides what the last one was.
     const bool still = m.x0 == m.x1 && m.y0 == m.y1 && m.z0 == m.z1 && m.e == 0.0f;
-    if (!still)
-      prev_qualified = (planner.mode() == BULGE_GEOMETRIC ||
-                        (planner.mode() == BULGE_MARKED && planner.in_outer_wall())) &&
-                       m.e > 0.0f && (m.x0 != m.x1 || m.y0 != m.y1);
+    if (!still) prev_qualified = splittable(m);
   }
   }
   return 0;
