@@ -25,6 +25,7 @@ from bulgekit.fallback import RewriteResult, Settings, rewrite
 from bulgekit.mapbuild import build
 from bulgekit.strokes import Stroke, text_strokes
 from bulgekit.wall import walls_from_gcode
+from planner_streams import random_stream
 
 REPO = Path(__file__).resolve().parents[2]
 DATA = Path(__file__).parent / "data"
@@ -257,47 +258,12 @@ def test_merged_stop_limits_core_and_mirror_agree(bkcore):
     assert sum(a[4] for a in core if a[0] == "line") == pytest.approx(2.0, abs=1e-4)
 
 
-def _random_stream(rng):
-    """A map of 1-4 layers of points near the origin, and moves that wander
-    through them: wall-like runs aimed at points and corners, short and
-    zero-length moves, retractions, layer changes up and back down."""
-    lh = rng.choice([0.2, 0.25, 0.3])
-    zs = [round(lh * (k + 1) + rng.choice([0.0, 0.0, -0.07, 0.07]), 2) for k in range(rng.randint(1, 4))]
-    zs = sorted(set(zs))
-    layers = []
-    for z in zs:
-        n = rng.randint(1, 20)
-        span = rng.choice([2.0, 20.0])
-        layers.append((z, [(round(rng.uniform(-span, span), 1), round(rng.uniform(-span, span), 1))
-                           for _ in range(n)]))
-    moves = []
-    z = zs[0]
-    for _ in range(rng.randint(5, 60)):
-        r = rng.random()
-        if r < 0.1:
-            z = rng.choice(zs) + rng.choice([0.0, 0.0, 0.01, -0.01])
-        lz, pts = min(layers, key=lambda l: abs(l[0] - z))
-        px, py = rng.choice(pts)
-        if r < 0.6:      # at a point, or just off it
-            x, y = px + rng.uniform(-0.3, 0.3), py + rng.uniform(-0.3, 0.3)
-        elif r < 0.8:    # anywhere around
-            x, y = rng.uniform(-25, 25), rng.uniform(-25, 25)
-        else:            # a very short move from the last end
-            x0, y0 = (moves[-1][0], moves[-1][1]) if moves else (0.0, 0.0)
-            x, y = x0 + rng.uniform(-0.05, 0.05), y0 + rng.uniform(-0.05, 0.05)
-        e = -round(rng.uniform(0.5, 2.0), 3) if rng.random() < 0.1 else round(rng.uniform(0.0, 1.0), 4)
-        moves.append((round(x, 3), round(y, 3), round(z, 3), e))
-    settings = Settings(2, rng.choice([0, 60, 100, 250]), rng.choice([0.0, 0.05, 0.1, 0.4]),
-                        rng.choice([0.1, 0.25, 0.5]))
-    return layers, settings, moves, lh
-
-
 @pytest.mark.parametrize("seed", range(60))
 def test_random_streams_core_and_mirror_agree(bkcore, seed):
     """Differential: random maps and moves through the firmware core (bkcore) and
     the host's RefPlanner give the same stops, dwells and pieces (issue 14)."""
     import random
-    layers, settings, moves, lh = _random_stream(random.Random(seed))
+    layers, settings, moves, lh = random_stream(random.Random(seed))
     core, mirror, ref = _core_and_mirror(bkcore, layers, settings, moves, layer_height_mm=lh)
     _same(core, mirror)
 
@@ -310,7 +276,7 @@ def test_point_at_exactly_the_tolerance_core_and_mirror_agree(bkcore):
     # divided out twice), the host as the float nearest 7.02; now both read the
     # nearest float and decide alike.
     import random
-    layers, settings, moves, lh = _random_stream(random.Random(507))
+    layers, settings, moves, lh = random_stream(random.Random(507))
     assert moves[28][:2] == (-7.02, -17.44) and moves[29][3] < 0 and settings.tolerance == 0.1
     core, mirror, ref = _core_and_mirror(bkcore, layers, settings, moves[:30], layer_height_mm=lh)
     _same(core, mirror)

@@ -11,42 +11,30 @@ import pytest
 from bulgekit import mapformat
 from bulgekit.fallback import MIN_PIECE_MM, RefPlanner, Settings
 from bulgekit.gcode import Move
+from planner_streams import random_stream
 
 f32 = np.float32
 
 
-def stream(rng):
-    lh = rng.choice([0.2, 0.25, 0.3])
-    zs = sorted({round(lh * (k + 1) + rng.choice([0.0, 0.0, -0.07, 0.07]), 2) for k in range(rng.randint(1, 4))})
-    layers = [(z, [(round(rng.uniform(-s, s), 1), round(rng.uniform(-s, s), 1)) for _ in range(rng.randint(1, 20))])
-              for z in zs for s in [rng.choice([2.0, 20.0])]]
-    settings = Settings(rng.choice([1, 2, 2]), rng.choice([0, 60, 100, 250]), rng.choice([0.0, 0.05, 0.1, 0.4]),
-                        rng.choice([0.1, 0.25, 0.5]))
-    moves, x, y, z = [], 0.0, 0.0, zs[0]
-    for _ in range(rng.randint(5, 80)):
-        r = rng.random()
-        if r < 0.1:
-            z = rng.choice(zs) + rng.choice([0.0, 0.0, 0.01, -0.01])
-        pts = min(layers, key=lambda l: abs(l[0] - z))[1]
-        px, py = rng.choice(pts)
-        if r < 0.55:
-            x1, y1 = px + rng.uniform(-0.3, 0.3), py + rng.uniform(-0.3, 0.3)
-        elif r < 0.75:
-            x1, y1 = rng.uniform(-25, 25), rng.uniform(-25, 25)
-        elif r < 0.9:
-            x1, y1 = x + rng.uniform(-0.05, 0.05), y + rng.uniform(-0.05, 0.05)
-        else:
-            x1, y1 = x, y  # moves nothing in XY (E only, or nothing)
-        e = -round(rng.uniform(0.5, 2.0), 3) if rng.random() < 0.1 else round(rng.uniform(0.0, 1.0), 4)
-        outer = rng.random() < 0.7
-        moves.append((round(x1, 3), round(y1, 3), round(z, 3), e, outer))
-        x, y = round(x1, 3), round(y1, 3)
-    return layers, settings, moves, lh
+def stream(seed):
+    """The differential test's stream of this seed (planner_streams), with what
+    only the host side can vary as well: mode 1 or 2, the outer-wall marker per
+    move, and moves that do not move (E only, or nothing)."""
+    layers, settings, moves, lh = random_stream(random.Random(seed))
+    rng = random.Random(-1 - seed)
+    settings = Settings(rng.choice([1, 2, 2]), settings.dwell_ms, settings.extra_e, settings.tolerance)
+    out = []
+    for x1, y1, z1, e in moves:
+        if out and rng.random() < 0.1:  # stand still: E only or nothing
+            px, py, pz = out[-1][:3]
+            out.append((px, py, pz, rng.choice([0.0, 0.2]), rng.random() < 0.7))
+        out.append((x1, y1, z1, e, rng.random() < 0.7))
+    return layers, settings, out, lh
 
 
 @pytest.mark.parametrize("seed", range(int(__import__("os").environ.get("BK_PROP_SEEDS", "150"))))
 def test_reference_planner_invariants(seed):
-    layers, settings, moves, lh = stream(random.Random(seed))
+    layers, settings, moves, lh = stream(seed)
     data = mapformat.encode_map(layers, quantum_um=100, layer_height_mm=lh)
     bm = mapformat.decode_map(data)
     ref = RefPlanner(bm, settings)
