@@ -414,9 +414,33 @@ MACROS = r"""
 """
 
 
+def stub_headers(root):
+    """Marlin's own headers are not in the fake tree: an empty stand-in for
+    every quoted include that is missing, also for what the copied files
+    include (until no include is missing), and the option macros' prelude."""
+    import re
+    new = True
+    while new:
+        new = False
+        for dirpath, _, names in os.walk(root):
+            for name in names:
+                if not name.endswith((".h", ".cpp")):
+                    continue
+                with open(os.path.join(dirpath, name), encoding="utf-8") as f:
+                    incs = re.findall(r'#include "([^"]+)"', f.read())
+                for inc in incs:
+                    path = os.path.normpath(os.path.join(dirpath, inc))
+                    if not os.path.exists(path):
+                        os.makedirs(os.path.dirname(path), exist_ok=True)
+                        open(path, "w").close()
+                        new = True
+    with open(os.path.join(root, "bk_macros.h"), "w") as f:
+        f.write(MACROS)
+
+
 def preprocess(root, rel, defines, hooked=True):
-    """The file as the compiler sees it (gcc -E -P), every quoted include that
-    does not exist in the tree stubbed with an empty file."""
+    """The file as the compiler sees it (gcc -E -P), in a tree stub_headers()
+    has prepared."""
     import re
     import shutil
     import subprocess
@@ -433,26 +457,7 @@ def preprocess(root, rel, defines, hooked=True):
             l = "// anchor " + l
         lines.append(l)
     text = "\n".join(lines)
-    # Marlin's own headers are not in the fake tree: empty stand-ins, also for
-    # what the copied files include (until no include is missing).
-    new = True
-    while new:
-        new = False
-        for dirpath, _, names in os.walk(root):
-            for name in names:
-                if not name.endswith((".h", ".cpp")):
-                    continue
-                with open(os.path.join(dirpath, name), encoding="utf-8") as f:
-                    incs = re.findall(r'#include "([^"]+)"', f.read())
-                for inc in incs:
-                    path = os.path.normpath(os.path.join(dirpath, inc))
-                    if not os.path.exists(path):
-                        os.makedirs(os.path.dirname(path), exist_ok=True)
-                        open(path, "w").close()
-                        new = True
     prelude = os.path.join(root, "bk_macros.h")
-    with open(prelude, "w") as f:
-        f.write(MACROS)
     # a use of the EEPROM version string, so its value shows in the output
     probe = full + ".probe.cpp"
     with open(probe, "w", encoding="utf-8") as f:
@@ -475,6 +480,8 @@ def test_both_features_off_compile_to_the_stock_sources(tree, tmp_path):
     stock = str(tmp_path / "stock")
     shutil.copytree(tree, stock)
     mi.install(tree, out=quiet)
+    stub_headers(tree)
+    stub_headers(stock)
     hooked = sorted({ed.path for ed in mi.EDITS if ed.path.endswith((".cpp", ".h"))})
     assert "Marlin/src/gcode/host/M115.cpp" in hooked
     for rel in hooked:
