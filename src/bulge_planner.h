@@ -112,6 +112,8 @@ class BulgePlanner {
   void load_layer(const MapLayer &layer, uint8_t quantum_um, uint8_t layer_height_cmm);
   bool has_layer() const { return has_layer_; }
   const MapLayer &layer() const { return layer_; }  // sorted by x, then y
+  // Point i of layer() has stopped since the layer was loaded (tests, fuzzer).
+  bool fired(uint8_t i) const { return fired_[i >> 3] & (uint8_t)(1 << (i & 7)); }
 
   // A move in host coordinates. Fills out with the primitive actions; returns
   // true if the move continues in plan_more(). A move that does not qualify

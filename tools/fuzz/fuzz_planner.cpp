@@ -18,11 +18,15 @@
 //     most the stops deferred from the move before it;
 //   - every stop lies within sqrt(T^2 + BK_MIN_PIECE_MM^2) of a map point;
 //   - within one layer no point stops twice (stops <= the layer's points);
+//   - reached => stopped: after a qualifying move at one z that used a layer,
+//     every point of that layer it passes clearly inside the tolerance (0.02
+//     mm margin, foot at 10-90 % of a move over 0.5 mm: the ends are where the
+//     corner rule and the minimum piece decide) has stopped, on this move or
+//     an earlier one of the same layer visit;
 //   - width mode: a move it leaves alone keeps its feed bit for bit, a retimed
 //     one gets a feed within [L, U].
-// Not checked here: that every point a qualifying move reaches stops exactly
-// once (that needs the planner's own geometry: the differential check against
-// the host's RefPlanner, host/bulgekit/fallback.py, is the place for it).
+// The exact place of each stop is the differential check's (against the
+// host's RefPlanner, host/tests/test_e2e_bkcore.py).
 // Build with -DFUZZ_DEBUG to print each move, stop and layer count.
 #include <math.h>
 #include <stdint.h>
@@ -224,6 +228,26 @@ static void check_move(const Move &m, bool prev_qualified) {
             planner.layer().count);
 #endif
     CHECK(fired_in_layer <= planner.layer().count);
+  }
+  // Reached => stopped, for a move at the loaded layer's own z (the planner
+  // keeps a layer at its own z without asking the store; the layer after the
+  // move is then the one it used).
+  const float dx = m.x1 - m.x0, dy = m.y1 - m.y0, l2 = dx * dx + dy * dy;
+  if (qualifies && same_bits(m.z0, m.z1) && l2 > 0.25f && planner.has_layer() &&
+      lroundf(m.z1 * 100.0f) == planner.layer().z_cmm) {
+    const MapLayer &l = planner.layer();
+    const float q = quantum_um * 0.001f, tol = planner.tolerance();
+    for (uint8_t i = 0; i < l.count; i++) {
+      const float px = l.pts[i].x * q, py = l.pts[i].y * q;
+      const float t = ((px - m.x0) * dx + (py - m.y0) * dy) / l2;
+      if (t <= 0.1f || t >= 0.9f) continue;
+      const float ex = m.x0 + t * dx - px, ey = m.y0 + t * dy - py;
+      if (sqrtf(ex * ex + ey * ey) > tol - 0.02f) continue;
+#ifdef FUZZ_DEBUG
+      if (!planner.fired(i)) fprintf(stderr, "  point %d (%.4f %.4f) reached, not stopped\n", i, px, py);
+#endif
+      CHECK(planner.fired(i));
+    }
   }
 }
 
