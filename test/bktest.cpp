@@ -321,6 +321,29 @@ uint32_t bkt_bench_last(void) {
 }
 const char *bkt_bench_unit(void) { return "cycles"; }
 int bkt_on_avr(void) { return 1; }
+#elif defined(__arm__)
+// Bare metal in QEMU (tools/sim/bkqemu): -icount shift=0 makes the virtual
+// clock advance 1 ns per instruction, and SysTick, on the MPS2 boards' 25 MHz
+// CPU clock, counts down one tick per 40 ns: 40 instructions per tick. The
+// count is QEMU's, not a real core's cycles (no wait states, no pipeline).
+#define BKT_SYST_CSR (*(volatile uint32_t *)0xE000E010u)
+#define BKT_SYST_RVR (*(volatile uint32_t *)0xE000E014u)
+#define BKT_SYST_CVR (*(volatile uint32_t *)0xE000E018u)
+static const uint32_t BKT_INSNS_PER_TICK = 40;
+static uint32_t bkt_t0, bkt_dt;
+void bkt_bench_mark(int which) {
+  if (!(BKT_SYST_CSR & 1u)) {
+    BKT_SYST_RVR = 0xFFFFFFu;  // 24 bits: 671 M instructions before it wraps
+    BKT_SYST_CVR = 0;
+    BKT_SYST_CSR = 5u;  // enabled, CPU clock, no interrupt
+  }
+  const uint32_t now = BKT_SYST_CVR;  // counts down
+  if (which == 1) bkt_t0 = now;
+  else bkt_dt = ((bkt_t0 - now) & 0xFFFFFFu) * BKT_INSNS_PER_TICK;
+}
+uint32_t bkt_bench_last(void) { return bkt_dt; }
+const char *bkt_bench_unit(void) { return "insns"; }
+int bkt_on_avr(void) { return 0; }
 #else
 static uint64_t bkt_t0, bkt_dt;
 static uint64_t bkt_now_ns(void) {

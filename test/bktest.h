@@ -57,7 +57,8 @@ void bkt_put_float(double v, int decimals);
 // --- benchmark markers ---------------------------------------------------------
 // On AVR, BEGIN/END write 1/2 to GPIOR0; the simulator harness counts the
 // cycles between them and hands the count back through reads of GPIOR1.
-// On the host they read a monotonic clock and the unit is nanoseconds.
+// On the host they read a monotonic clock and the unit is nanoseconds; on
+// Cortex-M in QEMU they count instructions (bktest.cpp, tools/sim/bkqemu).
 #ifdef __AVR__
 #include <avr/io.h>
 #define BKT_BENCH_BEGIN() do { __asm__ __volatile__("" ::: "memory"); GPIOR0 = 1; } while (0)
@@ -67,8 +68,8 @@ void bkt_bench_mark(int which);
 #define BKT_BENCH_BEGIN() bkt_bench_mark(1)
 #define BKT_BENCH_END()   bkt_bench_mark(2)
 #endif
-uint32_t bkt_bench_last(void);    // cycles (AVR) or ns (host) of the last BEGIN..END
-const char *bkt_bench_unit(void); // "cycles" or "ns" (RAM string)
+uint32_t bkt_bench_last(void);    // cycles (AVR), instructions (Cortex-M in QEMU) or ns (host)
+const char *bkt_bench_unit(void); // "cycles", "insns" or "ns" (RAM string)
 int bkt_on_avr(void);
 
 #ifdef __cplusplus

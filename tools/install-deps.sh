@@ -6,6 +6,7 @@ cd "$(dirname "${BASH_SOURCE[0]}")/.."
 
 APT_PACKAGES=(gcc g++ make pkg-config gcc-avr avr-libc binutils-avr simavr libsimavr-dev libelf-dev
               clang libclang-rt-14-dev
+              gcc-arm-none-eabi libnewlib-arm-none-eabi qemu-system-arm  # the Cortex-M test targets
               python3-dev     # headers for the host package's compiled G-code scanner (host/setup.py)
               prusa-slicer)   # the post-processing test runs the real PrusaSlicer CLI
 # PlatformIO pins SCons (tool-scons ~4.41101.0 = SCons 4.11.1 for PlatformIO 6.2.0);

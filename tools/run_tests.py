@@ -3,10 +3,12 @@
 
   1. C++ suites (test/test_*/) on the host (PlatformIO env `native`),
   2. the same suites on a simulated ATmega2560 (env `avr_sim`, run in bksim),
-  3. extra checks registered in tools/checks.d/ (e.g. a short fuzz run),
-  4. the host package's pytest suite (host/tests).
+  3. the same suites on a Cortex-M3 and a Cortex-M4F in QEMU (envs `cm3_qemu`,
+     `cm4f_qemu`, run by tools/sim/bkqemu),
+  4. extra checks registered in tools/checks.d/ (e.g. a short fuzz run),
+  5. the host package's pytest suite (host/tests).
 
-Usage: tools/run_tests.py [--only native|avr_sim|checks|pytest]... [-f FILTER]
+Usage: tools/run_tests.py [--only native|avr_sim|cm3_qemu|cm4f_qemu|checks|pytest]... [-f FILTER]
 Exit status is non-zero if anything failed or errored, or if no test ran.
 """
 import argparse
@@ -19,6 +21,10 @@ import time
 import xml.etree.ElementTree as ET
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+
+TARGETS = ("native", "avr_sim", "cm3_qemu", "cm4f_qemu")  # PlatformIO envs: the C++ suites
+PARTS = TARGETS + ("checks", "pytest")
 
 
 def run(cmd, **kw):
@@ -93,16 +99,16 @@ def pytest(tmp):
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--only", action="append", choices=["native", "avr_sim", "checks", "pytest"])
+    ap.add_argument("--only", action="append", choices=list(PARTS))
     ap.add_argument("-f", "--filter", action="append", default=[], help="PlatformIO test filter, e.g. 'test_planner'")
     args = ap.parse_args()
-    parts = args.only or ["native", "avr_sim", "checks", "pytest"]
+    parts = args.only or list(PARTS)
     totals = {}
     t0 = time.time()
     with tempfile.TemporaryDirectory() as tmp:
         for part in parts:
             start = time.time()
-            if part in ("native", "avr_sim"):
+            if part in TARGETS:
                 totals[part] = pio_env(part, args.filter, tmp)
             elif part == "checks":
                 totals[part] = checks(tmp)
