@@ -7,6 +7,7 @@
 #include "gcode_args.h"
 
 #include "reply_text.h"
+#include "float_strict.h"  // last: no fused multiply-add below
 
 namespace bk {
 

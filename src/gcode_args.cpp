@@ -4,6 +4,7 @@
 #include <string.h>
 
 #include "reply_text.h"
+#include "float_strict.h"  // last: no fused multiply-add below
 
 namespace bk {
 

@@ -2,6 +2,7 @@
 
 #include "bulgekit_config.h"
 #include "gcode_args.h"
+#include "float_strict.h"  // last: no fused multiply-add below
 
 namespace bk {
 

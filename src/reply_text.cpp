@@ -1,6 +1,7 @@
 // The buffer implementation of ReplyText (tests and host tools). The firmware
 // prints instead: see reply_text.h.
 #include "reply_text.h"
+#include "float_strict.h"  // last: no fused multiply-add below
 
 #if !BK_REPLY_SERIAL
 
