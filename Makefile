@@ -1,11 +1,11 @@
 # bulgekit — the two commands a user needs:
 #   make demo    run the main job on the sample data shipped in the repo
-#   make test    run every test: C++ core on the host and on a simulated ATmega2560, checks, pytest
+#   make test    run every test: C++ core on the host, a simulated ATmega2560 and Cortex-M3/M4F in QEMU, checks, pytest
 # Other targets: make deps (install system + Python packages), make bench, make fuzz, make help
 SHELL := /bin/bash
 ENV := source tools/env.sh &&
 
-.PHONY: help deps bootstrap test test-native test-avr bench fuzz demo clean
+.PHONY: help deps bootstrap test test-native test-avr test-arm bench fuzz demo clean
 
 help:
 	@sed -n 's/^#   //p; s/^# Other/Other/p' Makefile
@@ -25,9 +25,16 @@ test-native: bootstrap
 test-avr: bootstrap
 	$(ENV) python3 tools/run_tests.py --only avr_sim
 
-# Benchmark suites print their tables (cycles on the simulated ATmega2560).
+test-arm: bootstrap
+	$(ENV) python3 tools/run_tests.py --only cm3_qemu --only cm4f_qemu
+
+# Benchmark suites print their tables: cycles on the simulated ATmega2560,
+# instructions on the Cortex-M3/M4F in QEMU; then the core's flash per target.
 bench: bootstrap
-	$(ENV) pio test -e avr_sim -f 'test_bench_*' -v | grep -v '^bksim: marker'
+	$(ENV) set -o pipefail; for e in avr_sim cm3_qemu cm4f_qemu; do \
+	  echo "== $$e"; pio test -e $$e -f 'test_bench_*' -v | grep -v '^bksim: marker' || exit 1; done
+	@for a in avr cm3 cm4f; do echo "== core flash, $$a (tools/size/size.sh)"; \
+	  ARCH=$$a bash tools/size/size.sh 0 | head -1 || exit 1; done
 
 fuzz: bootstrap
 	bash tools/fuzz/run.sh $(FUZZ_SECONDS)

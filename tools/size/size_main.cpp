@@ -1,9 +1,14 @@
-// Flash/RAM probe for the portable core on an ATmega2560: calls every entry point
+// Flash/RAM probe for the portable core on an ATmega2560 (or a Cortex-M): calls every entry point
 // the Marlin adapter calls, with inputs the compiler cannot see, so LTO keeps
 // exactly what the firmware would keep. `make size` builds it and lists symbols.
 // Not a test and never run; the Marlin build gives the real figure
 // (docs/marlin-integration.md), this one is for quick iteration.
+#ifdef __AVR__
 #include <avr/io.h>
+#else
+// Cortex-M (ARCH=cm3|cm4f in size.sh): a UART data register of some board
+#define UDR0 (*(volatile uint8_t *)0x40004000u)
+#endif
 // As in the firmware: replies go to the serial port (the Marlin adapter defines
 // ReplyText there on Marlin's own printing, which the stock build already has;
 // here each piece is one opaque UART write, so only the core's calls count;
