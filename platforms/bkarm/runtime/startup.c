@@ -24,16 +24,26 @@ void bk_reset(void) {
   *(volatile uint32_t *)0xE000ED88u |= 0xFu << 20;
   __asm__ volatile("dsb\n\tisb" ::: "memory");
 #endif
+  /* CCR.UNALIGN_TRP stays off: newlib's memcpy for ARMv7-M reads unaligned
+     words on purpose (legal on M3/M4). Misaligned pointer casts in the core
+     are caught by the native build's UBSan (-fsanitize=undefined). */
   initialise_monitor_handles();
   for (void (**f)(void) = __preinit_array_start; f < __preinit_array_end; f++) (*f)();
   for (void (**f)(void) = __init_array_start; f < __init_array_end; f++) (*f)();
   exit(main());
 }
 
-static void bk_fault(void) {
-  fputs("\nbkarm: fault (hard fault, bus or usage fault, or an unexpected interrupt)\n", stdout);
+/* The fault's stacked frame: r0-r3, r12, lr, pc, xpsr. */
+__attribute__((used)) static void bk_fault_report(const uint32_t *frame) {
+  const uint32_t cfsr = *(volatile uint32_t *)0xE000ED28u, hfsr = *(volatile uint32_t *)0xE000ED2Cu;
+  printf("\nbkarm: fault at pc 0x%08lx (lr 0x%08lx), CFSR 0x%08lx, HFSR 0x%08lx%s\n", (unsigned long)frame[6],
+         (unsigned long)frame[5], (unsigned long)cfsr, (unsigned long)hfsr,
+         (cfsr & (1u << 24)) ? ": unaligned access" : "");
   fflush(stdout);
   exit(70);
+}
+__attribute__((naked)) static void bk_fault(void) {
+  __asm__ volatile("mrs r0, msp\n\tb bk_fault_report");
 }
 
 /* Cortex-M: initial stack pointer, then the handlers (reset, NMI, hard fault,
