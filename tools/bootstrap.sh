@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Prepares the offline PlatformIO rig. Idempotent and quick when already done:
-#  1. checks the system tools (avr-gcc, avr-libc, libsimavr, g++, python packages),
+#  1. checks the system tools (avr-gcc, avr-libc, libsimavr, arm-none-eabi-gcc, newlib,
+#     qemu-system-arm, g++, python packages),
 #  2. installs SCons from PyPI's wheel as PlatformIO's local `tool-scons` package
 #     (the version PlatformIO pins), so PlatformIO never downloads it,
 #  3. builds the simulator harness bksim and the core runner bkcore into .build/bin.
@@ -10,10 +11,11 @@ source "$(dirname "${BASH_SOURCE[0]}")/env.sh"
 cd "$BK_ROOT"
 
 missing=()
-for tool in gcc g++ avr-gcc avr-g++ avr-size pkg-config; do
+for tool in gcc g++ avr-gcc avr-g++ avr-size pkg-config arm-none-eabi-gcc qemu-system-arm; do
   command -v "$tool" >/dev/null || missing+=("$tool")
 done
 [ -f /usr/lib/avr/include/avr/io.h ] || missing+=("avr-libc")
+[ -f /usr/lib/arm-none-eabi/lib/librdimon.a ] || missing+=("libnewlib-arm-none-eabi")
 pkg-config --exists simavr 2>/dev/null || missing+=("libsimavr-dev")
 python3 -c "import platformio, SCons" 2>/dev/null || missing+=("python: platformio scons")
 if [ ${#missing[@]} -gt 0 ]; then
