@@ -47,6 +47,7 @@ SHIM = """\
 #pragma once
 #include "../../../inc/MarlinConfigPre.h"
 #define BK_REPLY_SERIAL 1  // replies go out through Marlin's serial port (bulgekit.cpp)
+#define BK_PLAN_STATS 0    // the firmware never reads the stop statistics (every board, not only AVR)
 #include "bulgekit_config_defaults.h"
 """
 
@@ -174,8 +175,11 @@ EDITS = [
    * instead of one full start interval (8.3ms at MINIMAL_STEP_RATE) later.
    */
   #define BK_DWELL_LEAD ((STEPPER_TIMER_RATE) / 2000UL)  // 500µs: more than loading the next block takes
-  #ifdef __AVR__
-    #define BK_TICK_EXTRA 1UL  // AVR CTC mode: a compare period is OCR + 1 ticks
+  // A compare period is compare + 1 ticks: AVR CTC (reset at OCR1A), STM32
+  // (ARR = compare), STM32F1/maple (ARR = compare), LPC176x (reset on MR0
+  // match). HAL/LINUX's timer waits exactly the compare.
+  #if defined(__AVR__) || defined(HAL_STM32) || defined(__STM32F1__) || defined(TARGET_STM32F1) || defined(TARGET_LPC1768)
+    #define BK_TICK_EXTRA 1UL
   #else
     #define BK_TICK_EXTRA 0UL
   #endif

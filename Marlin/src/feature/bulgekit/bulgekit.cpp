@@ -150,14 +150,14 @@ void BulgeKit::settings_reset() {
  * Otherwise we return false and Marlin queues the move exactly as stock.
  */
 bool BulgeKit::line_to_destination() {
-  const float dx = destination.x - current_position.x,
-              dy = destination.y - current_position.y;
   float de = destination.e - current_position.e;  // host filament, before M221
   bool machine_only_e = false;                     // filament the host's E does not count
   float feed_scaled = MMS_SCALED(feedrate_mm_s);   // what the planner would get, mm/s
   bool retimed = false;
 
   #if ENABLED(WIDTH_BY_FEEDRATE)
+    const float dx = destination.x - current_position.x,
+                dy = destination.y - current_position.y;
     if (feedrate_percentage != width.feed_percent()) width.set_feed_percent(feedrate_percentage);
 
     if (parser.seen('W')) {
