@@ -239,10 +239,8 @@ static void check_move(const Move &m, bool prev_qualified) {
     const float q = quantum_um * 0.001f, tol = planner.tolerance();
     for (uint8_t i = 0; i < l.count; i++) {
       const float px = l.pts[i].x * q, py = l.pts[i].y * q;
-      const float t = ((px - m.x0) * dx + (py - m.y0) * dy) / l2;
-      if (t <= 0.1f || t >= 0.9f) continue;
-      const float ex = m.x0 + t * dx - px, ey = m.y0 + t * dy - py;
-      if (sqrtf(ex * ex + ey * ey) > tol - 0.02f) continue;
+      float t;  // (clamped to [0, 1], which the middle 80 % never needs)
+      if (dist_to_segment(px, py, m, &t) > tol - 0.02f || t <= 0.1f || t >= 0.9f) continue;
 #ifdef FUZZ_DEBUG
       if (!planner.fired(i)) fprintf(stderr, "  point %d (%.4f %.4f) reached, not stopped\n", i, px, py);
 #endif
