@@ -1,7 +1,9 @@
 """Random maps and move streams for the planner tests: the differential check
-(test_e2e_bkcore.py, the firmware core against RefPlanner) and the property
-test (test_planner_properties.py, RefPlanner on its own)."""
+(test_e2e_bkcore.py, the firmware core against RefPlanner), the property
+test (test_planner_properties.py, RefPlanner on its own) and the cross-target
+vectors (tools/vectors/gen_vectors.py, test/test_planner_streams)."""
 from bulgekit.fallback import Settings
+from bulgekit.gcode import Move
 
 
 def random_stream(rng):
@@ -39,3 +41,24 @@ def random_stream(rng):
     settings = Settings(2, rng.choice([0, 60, 100, 250]), rng.choice([0.0, 0.05, 0.1, 0.4]),
                         rng.choice([0.1, 0.25, 0.5]))
     return layers, settings, moves, lh
+
+
+def m720_line(settings):
+    """The M720 line a stream's settings are sent to the firmware core as."""
+    return f"M720 S2 P{settings.dwell_ms} E{settings.extra_e} T{settings.tolerance}"
+
+
+def move_lines(moves):
+    """The moves as the G1 lines the firmware core is sent (M83 in force)."""
+    return [f"G1 X{x1} Y{y1} Z{z1} E{e} F1800" for x1, y1, z1, e in moves]
+
+
+def mirror_plan(ref, moves):
+    """RefPlanner's actions for each move in turn, from the origin: one list
+    per move, all of them on the outer wall."""
+    out = []
+    x = y = z = 0.0
+    for k, (x1, y1, z1, e) in enumerate(moves):
+        out.append(ref.plan(Move(k, k + 1, x, y, z, x1, y1, z1, e, 0.0, 1800.0, True, None), True))
+        x, y, z = x1, y1, z1
+    return out

@@ -25,7 +25,7 @@ from bulgekit.fallback import RewriteResult, Settings, rewrite
 from bulgekit.mapbuild import build
 from bulgekit.strokes import Stroke, text_strokes
 from bulgekit.wall import walls_from_gcode
-from planner_streams import random_stream
+from planner_streams import m720_line, mirror_plan, move_lines, random_stream
 
 REPO = Path(__file__).resolve().parents[2]
 DATA = Path(__file__).parent / "data"
@@ -208,22 +208,13 @@ def _core_and_mirror(bkcore, layers, settings, moves, layer_height_mm=0.3):
     """The same moves through bkcore (M72x + G1) and through RefPlanner."""
     from bulgekit import mapformat
     from bulgekit.fallback import RefPlanner
-    from bulgekit.gcode import Move
     data = mapformat.encode_map(layers, quantum_um=100, layer_height_mm=layer_height_mm)
-    lines = ["M83", f"M720 S2 P{settings.dwell_ms} E{settings.extra_e} T{settings.tolerance}"]
-    lines += mapformat.upload_lines(data)
-    x = y = z = 0.0
-    for (x1, y1, z1, e) in moves:
-        lines.append(f"G1 X{x1} Y{y1} Z{z1} E{e} F1800")
+    lines = ["M83", m720_line(settings)] + mapformat.upload_lines(data) + move_lines(moves)
     core, _, errors = run_core(bkcore, "\n".join(lines) + "\n")
     assert errors == []
     ref = RefPlanner(mapformat.decode_map(data), settings)
-    mirror = []
-    for k, (x1, y1, z1, e) in enumerate(moves):
-        m = Move(k, k + 1, x, y, z, x1, y1, z1, e, 0.0, 1800.0, True, None)
-        for a in ref.plan(m, True):
-            mirror.append(("dwell", a.ms) if a.kind == "dwell" else ("line", a.x, a.y, a.z, a.e))
-        x, y, z = x1, y1, z1
+    mirror = [("dwell", a.ms) if a.kind == "dwell" else ("line", a.x, a.y, a.z, a.e)
+              for acts in mirror_plan(ref, moves) for a in acts]
     return [a[:5] if a[0] == "line" else a for a in core], mirror, ref
 
 

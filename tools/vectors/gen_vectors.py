@@ -403,10 +403,9 @@ def planner_streams():
     import random
 
     sys.path.insert(0, str(ROOT / "host" / "tests"))
-    from planner_streams import random_stream
+    from planner_streams import m720_line, mirror_plan, move_lines, random_stream
 
     from bulgekit.fallback import RefPlanner
-    from bulgekit.gcode import Move
 
     streams = []
     for seed in STREAM_SEEDS:
@@ -414,17 +413,10 @@ def planner_streams():
         if seed == 507:
             moves = moves[:30]
         data = mf.encode_map(layers, quantum_um=100, layer_height_mm=lh)
-        ref = RefPlanner(mf.decode_map(data), settings)
-        x = y = z = 0.0
-        lines, per_move, acts = [], [], []
-        for k, (x1, y1, z1, e) in enumerate(moves):
-            lines.append(f"G1 X{x1} Y{y1} Z{z1} E{e} F1800")  # as the differential test sends them
-            out = ref.plan(Move(k, k + 1, x, y, z, x1, y1, z1, e, 0.0, 1800.0, True, None), True)
-            per_move.append(len(out))
-            acts += out
-            x, y, z = x1, y1, z1
-        m720 = f"M720 S2 P{settings.dwell_ms} E{settings.extra_e} T{settings.tolerance}"
-        streams.append((seed, data, m720, lines, per_move, acts))
+        plans = mirror_plan(RefPlanner(mf.decode_map(data), settings), moves)
+        # the lines exactly as the differential test sends them
+        streams.append((seed, data, m720_line(settings), move_lines(moves), [len(p) for p in plans],
+                        [a for p in plans for a in p]))
     return streams
 
 
