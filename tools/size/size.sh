@@ -59,8 +59,7 @@ else
   python3 - "$OUT/core.map" <<'P'
 import re, sys
 flash = ram = 0
-out = None
-pending = None
+out = None  # the output section the input sections below go to
 in_map = False
 for line in open(sys.argv[1]):
     if line.startswith("Linker script and memory map"):
@@ -72,16 +71,12 @@ for line in open(sys.argv[1]):
     if m:
         out = m.group(1)
         continue
-    m = re.match(r"^ (\S+)\s*$", line)
-    if m:
-        pending = m.group(1)
-        continue
+    # An input section: " .text.name 0xADDR 0xSIZE file", or the name alone on
+    # the line before when it is long.
     m = re.match(r"^ (\S+)?\s+0x[0-9a-f]+\s+0x([0-9a-f]+)\s+(\S+)", line)
-    if not m or (m.group(1) is None and pending is None):
-        pending = None
+    if not m:
         continue
     size, src = int(m.group(2), 16), m.group(3)
-    pending = None
     if "ltrans" not in src:
         continue
     if out in (".text", ".rodata", ".data", ".ARM.exidx", ".init_array"):
