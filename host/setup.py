@@ -1,7 +1,25 @@
 """The package's one compiled part: the G-code move scanner (bulgekit/_scan.c). It is optional:
 without a C compiler the package installs and reads G-code with the pure-Python parser
-(slower; `python3 -m bulgekit.movescan` says which one is in use)."""
-from setuptools import Extension, setup
+(slower; `python3 -m bulgekit.movescan` says which one is in use).
 
-setup(ext_modules=[Extension("bulgekit._scan", ["bulgekit/_scan.c"], optional=True,
+Building the package also puts the studio's front-end libraries in place (web/build.py: three.js
+from npm, pinned by web/package-lock.json), so that a wheel carries them."""
+import subprocess
+import sys
+from pathlib import Path
+
+from setuptools import Extension, setup
+from setuptools.command.build_py import build_py
+
+
+class BuildPy(build_py):
+    def run(self):
+        web = Path(__file__).resolve().parent / "web" / "build.py"
+        if web.is_file():
+            subprocess.run([sys.executable, str(web)], check=True)
+        super().run()
+
+
+setup(cmdclass={"build_py": BuildPy},
+      ext_modules=[Extension("bulgekit._scan", ["bulgekit/_scan.c"], optional=True,
                              extra_compile_args=["-O2"])])

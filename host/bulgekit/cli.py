@@ -117,13 +117,14 @@ def main():
 @click.option("--no-stream", is_flag=True, help="Fail instead of streaming a map larger than the printer's arena.")
 @click.option("--fallback", "write_fallback", is_flag=True, help="Also write <name>.stock.gcode for stock firmware.")
 @click.option("--preview/--no-preview", default=True, show_default=True, help="Write <name>.preview.png.")
+@click.option("--preview-3d", is_flag=True, help="Also write <name>.preview3d.png (the walls in 3D).")
 @_settings_options
 @progress_option
 @friendly
 @click.pass_context
 def build(ctx, gcode, placement, stroke_files, text, text_size, at, font, letter_spacing, scale, image_width,
           curve_tolerance, mirror, outdir, name, spacing, line_width, layer_height, ref_angle, no_stream,
-          write_fallback, preview, dwell, extra, tolerance, geometric):
+          write_fallback, preview, preview_3d, dwell, extra, tolerance, geometric):
     """Place strokes on GCODE's outer wall: map + annotated G-code + stats."""
     from . import api
     from .strokes import text_strokes
@@ -166,6 +167,8 @@ def build(ctx, gcode, placement, stroke_files, text, text_size, at, font, letter
         png = _preview(out, Path(outdir) / f"{name or Path(gcode).stem}.preview.png")
         if png:
             click.echo(f"wrote {png}")
+    if preview_3d:
+        click.echo(f"wrote {_preview_3d(out, Path(outdir) / f'{name or Path(gcode).stem}.preview3d.png')}")
     click.echo(f"done in {time.perf_counter() - t0:.1f} s")
 
 
@@ -225,25 +228,13 @@ def post_process(placement, arena, keep, gcode):
 
 
 def _preview(out, path: Path):
-    """Unrolled-wall preview PNG."""
     from . import preview
-    pts = out.result.points
-    model = out.result.model
-    length = max(w.length for w in model.walls)
-    lo, hi = model.v_range
-    rows = [(p.u, p.z - model.walls[p.layer].height / 2, p.weight) for p in pts]
-    preview.preview_unrolled(rows, length, hi, path,
-                             title=f"{out.gcode_path.name}: bulges on the unrolled outer wall",
-                             layer_height=model.layer_height)
-    return path
+    return preview.build_unrolled(out, path)
 
 
 def _preview_3d(out, path: Path):
     from . import preview
-    walls = [(w.z, w.xy) for w in out.result.model.walls]
-    bumps = [(p.x, p.y, p.z, p.weight) for p in out.result.points]
-    preview.preview_3d(walls, bumps, path, title=f"{out.gcode_path.name}: bulges on the walls")
-    return path
+    return preview.build_3d(out, path)
 
 
 @main.command(short_help="Add M720/M721/M722 for bulgekit firmware (moves untouched).")
@@ -394,12 +385,13 @@ def _examples_dir() -> Path:
     raise BulgekitError("demo data not found: run from a bulgekit checkout (examples/cylinder40x20.gcode)")
 
 
-# preview, send and strokes live in cli_io.py, litho and estimate in their own cli_*.py.
-from . import cli_estimate, cli_io, cli_litho  # noqa: E402  (needs `main` defined above)
+# preview, send and strokes live in cli_io.py; litho, estimate and studio in their own cli_*.py.
+from . import cli_estimate, cli_io, cli_litho, cli_studio  # noqa: E402  (needs `main` defined above)
 
 cli_io.register(main)
 cli_litho.register(main)
 cli_estimate.register(main)
+cli_studio.register(main)
 
 
 if __name__ == "__main__":

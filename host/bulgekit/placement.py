@@ -8,6 +8,7 @@ post-processing step (`bulgekit post-process`) or `bulgekit build --placement` r
     font = "futural"             # Hershey font
     letter_spacing = 0.0
     mirror = false
+    rotate = 0                   # degrees, counter-clockwise about `at`
 
     [[strokes]]                  # SVG, JSON stroke list or an image; path relative to this file
     file = "wave.json"
@@ -15,6 +16,7 @@ post-processing step (`bulgekit post-process`) or `bulgekit build --placement` r
     scale = 1.0
     image_width = 20             # images: width on the wall, mm
     curve_tolerance = 0.05
+    rotate = 0                   # degrees, counter-clockwise about `at`
 
     [bulges]                     # M720 settings and how points are placed; all optional
     dwell = 100                  # ms
@@ -26,20 +28,22 @@ post-processing step (`bulgekit post-process`) or `bulgekit build --placement` r
     fallback = false             # write stock-firmware G-code (G4 + extra E) instead of M720-M722
 
 Unknown tables or keys, wrong types and missing files are errors that name the file and key.
+Every stroke's source starts with its table ("text[0] ...", "strokes[1] ..."), so a message
+about a stroke names the entry it came from. `dump_placement` writes such a file (the studio).
 """
 from __future__ import annotations
 
 import math
 import tomllib
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from .strokes import InputError, Stroke
 
 _TEXT_KEYS = {"text": str, "at": list, "size": (int, float), "font": str, "letter_spacing": (int, float),
-              "mirror": bool}
+              "mirror": bool, "rotate": (int, float)}
 _STROKE_KEYS = {"file": str, "at": list, "scale": (int, float), "image_width": (int, float),
-                "curve_tolerance": (int, float)}
+                "curve_tolerance": (int, float), "rotate": (int, float)}
 _BULGE_KEYS = {"dwell": int, "extra": (int, float), "tolerance": (int, float), "geometric": bool,
                "spacing": (int, float), "line_width": (int, float), "fallback": bool}
 
@@ -53,6 +57,7 @@ class Placement:
     path: Path
     strokes: list[Stroke]
     bulges: dict = field(default_factory=dict)
+    entries: list[tuple[str, int]] = field(default_factory=list)   # ("text[0]", strokes made), in order
 
 
 def _check(table: dict, keys: dict, where: str, src: Path) -> None:
@@ -98,6 +103,7 @@ def load_placement(path) -> Placement:
         if k not in ("text", "strokes", "bulges"):
             raise PlacementError(f"{src}: unknown table {k!r} (known: text, strokes, bulges)")
     strokes: list[Stroke] = []
+    entries: list[tuple[str, int]] = []
     for i, t in enumerate(_tables(doc, "text", src)):
         where = f"text[{i}]"
         _check(t, _TEXT_KEYS, where, src)
@@ -105,10 +111,12 @@ def load_placement(path) -> Placement:
             raise PlacementError(f"{src}: {where}: 'text' is missing")
         u, v = _at(t, where, src)
         try:
-            strokes += text_strokes(t["text"], float(t.get("size", 6.0)), spacing=float(t.get("letter_spacing", 0.0)),
-                                    u0=u, v0=v, mirror=t.get("mirror", False), font=t.get("font", "futural"))
+            made = text_strokes(t["text"], float(t.get("size", 6.0)), spacing=float(t.get("letter_spacing", 0.0)),
+                                u0=u, v0=v, mirror=t.get("mirror", False), font=t.get("font", "futural"))
         except InputError as e:
             raise PlacementError(f"{src}: {where}: {e}") from None
+        strokes += _tagged(_rotated(made, t.get("rotate", 0), (u, v)), where)
+        entries.append((where, len(made)))
     for i, t in enumerate(_tables(doc, "strokes", src)):
         where = f"strokes[{i}]"
         _check(t, _STROKE_KEYS, where, src)
@@ -117,16 +125,65 @@ def load_placement(path) -> Placement:
         f = (src.parent / t["file"]) if not Path(t["file"]).is_absolute() else Path(t["file"])
         if not f.is_file():
             raise PlacementError(f"{src}: {where}.file: {f} not found")
-        strokes += api.load_strokes(f, image_width_mm=t.get("image_width"), offset=_at(t, where, src),
-                                    scale=float(t.get("scale", 1.0)),
-                                    curve_tolerance_mm=float(t.get("curve_tolerance", 0.05)))
+        at = _at(t, where, src)
+        made = api.load_strokes(f, image_width_mm=t.get("image_width"), offset=at,
+                                scale=float(t.get("scale", 1.0)),
+                                curve_tolerance_mm=float(t.get("curve_tolerance", 0.05)))
+        strokes += _tagged(_rotated(made, t.get("rotate", 0), at), where)
+        entries.append((where, len(made)))
     bulges = doc.get("bulges", {})
     if not isinstance(bulges, dict):
         raise PlacementError(f"{src}: 'bulges' must be a table ([bulges])")
     _check(bulges, _BULGE_KEYS, "bulges", src)
     if not strokes:
         raise PlacementError(f"{src}: nothing to draw: add a [[text]] or [[strokes]] table")
-    return Placement(src, strokes, dict(bulges))
+    return Placement(src, strokes, dict(bulges), entries)
+
+
+def _rotated(strokes: list[Stroke], degrees: float, about: tuple[float, float]) -> list[Stroke]:
+    """Strokes turned counter-clockwise (u right, v up) about the entry's `at` point."""
+    if not degrees % 360:
+        return strokes
+    c, s = math.cos(math.radians(degrees)), math.sin(math.radians(degrees))
+    u0, v0 = about
+    return [replace(st, points=tuple((u0 + c * (u - u0) - s * (v - v0), v0 + s * (u - u0) + c * (v - v0))
+                                     for u, v in st.points)) for st in strokes]
+
+
+def _tagged(strokes: list[Stroke], where: str) -> list[Stroke]:
+    return [replace(st, source=f"{where} {st.source}" if st.source else where) for st in strokes]
+
+
+def _toml_value(v) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, int):
+        return str(v)
+    if isinstance(v, float):
+        if not math.isfinite(v):
+            raise PlacementError(f"cannot write {v!r} to a placement file (not a finite number)")
+        return repr(v)
+    if isinstance(v, str):
+        # a TOML basic string: JSON's escapes are TOML's (\", \\, \n, \uXXXX)
+        import json
+        return json.dumps(v, ensure_ascii=False).replace("\x7f", "\\u007f")
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+    raise PlacementError(f"cannot write {v!r} to a placement file")
+
+
+def dump_placement(texts: list[dict], strokes: list[dict], bulges: dict, header: str = "") -> str:
+    """A placement file's text: [[text]] tables, then [[strokes]], then [bulges]. The keys are
+    checked as load_placement checks them, so what this writes reads back the same."""
+    out = [f"# {ln}" if ln else "#" for ln in header.splitlines()]
+    for kind, tables, keys in (("text", texts, _TEXT_KEYS), ("strokes", strokes, _STROKE_KEYS)):
+        for i, t in enumerate(tables):
+            _check(t, keys, f"{kind}[{i}]", Path("placement"))
+            out += ["", f"[[{kind}]]"] + [f"{k} = {_toml_value(v)}" for k, v in t.items()]
+    if bulges:
+        _check(bulges, _BULGE_KEYS, "bulges", Path("placement"))
+        out += ["", "[bulges]"] + [f"{k} = {_toml_value(v)}" for k, v in bulges.items()]
+    return "\n".join(out).lstrip("\n") + "\n"
 
 
 def _tables(doc: dict, key: str, src: Path) -> list[dict]:

@@ -183,6 +183,27 @@ def preview_3d(wall_paths: Sequence, bumps, path, *, title: str | None = None, e
     return {"layers_drawn": len(drawn), "layers": len(layers), "bumps": int(len(b)), "far_side": n_far}
 
 
+def build_unrolled(out, path):
+    """The unrolled-wall preview of an api.build() result (what `bulgekit build` writes)."""
+    pts = out.result.points
+    model = out.result.model
+    length = max(w.length for w in model.walls)
+    lo, hi = model.v_range
+    rows = [(p.u, p.z - model.walls[p.layer].height / 2, p.weight) for p in pts]
+    preview_unrolled(rows, length, hi, path,
+                     title=f"{out.gcode_path.name}: bulges on the unrolled outer wall",
+                     layer_height=model.layer_height)
+    return path
+
+
+def build_3d(out, path):
+    """The 3D preview of an api.build() result (`bulgekit build --preview-3d`)."""
+    walls = [(w.z, w.xy) for w in out.result.model.walls]
+    bumps = [(p.x, p.y, p.z, p.weight) for p in out.result.points]
+    preview_3d(walls, bumps, path, title=f"{out.gcode_path.name}: bulges on the walls")
+    return path
+
+
 def _save(fig, path):
     path = os.fspath(path)
     try:

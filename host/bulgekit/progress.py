@@ -6,6 +6,9 @@ switched the display on (`enable()`: the CLI does when stderr is a terminal and 
 given). One line per pass, redrawn at most 5 times a second:
 
     walls: 45 % (680,000 of 1,512,000 lines), 210,000 lines/s, 4 s left
+
+A program with its own display (the studio) calls `listen(fn)` instead: fn(label, done, total)
+is called at the same moments, and once with done == total when a pass ends.
 """
 from __future__ import annotations
 
@@ -15,6 +18,13 @@ from contextlib import contextmanager
 
 _stream = None          # where to draw, when enabled
 _state = None           # the current pass: [label, total, start time, last draw time]
+_listener = None        # fn(label, done, total), or None
+
+
+def listen(fn) -> None:
+    """Report passes to fn(label, lines_done, lines_total) (None: stop)."""
+    global _listener
+    _listener = fn
 
 
 def enable(stream=None) -> None:
@@ -44,29 +54,38 @@ def count_lines(path) -> int:
 def phase(label: str, total_lines: int | None = None, path=None):
     """A pass over a file: shown while it runs, then closed with its time."""
     global _state
-    if _stream is None:
+    if _stream is None and _listener is None:
         yield
         return
     total = total_lines if total_lines is not None else (count_lines(path) if path else 0)
     _state = [label, max(total, 1), time.perf_counter(), 0.0]
+    if _listener is not None:
+        _listener(label, 0, _state[1])
     try:
         yield
         dt = time.perf_counter() - _state[2]
-        _stream.write(f"\r{label}: done in {dt:.1f} s{' ' * 40}\n")
-        _stream.flush()
+        if _listener is not None:
+            _listener(label, _state[1], _state[1])
+        if _stream is not None:
+            _stream.write(f"\r{label}: done in {dt:.1f} s{' ' * 40}\n")
+            _stream.flush()
     finally:
         _state = None
 
 
 def tick(done: int) -> None:
     """Called by the parser every few thousand lines."""
-    if _state is None or _stream is None:
+    if _state is None:
         return
     now = time.perf_counter()
     if now - _state[3] < 0.2:
         return
     _state[3] = now
     label, total, t0, _ = _state
+    if _listener is not None:
+        _listener(label, min(done, total), total)
+    if _stream is None:
+        return
     rate = done / max(now - t0, 1e-9)
     left = max(total - done, 0) / rate if rate > 0 else 0.0
     _stream.write(f"\r{label}: {min(100, 100 * done // total):3d} % ({done:,} of {total:,} lines), "

@@ -264,7 +264,8 @@ class Sender:
 
     def send(self, lines: Sequence, *, progress: bool = True, continue_on_error: bool = False,
              desc: str | None = None) -> SendStats:
-        """Send lines (Line objects or strings) and return statistics.
+        """Send lines (Line objects or strings) and return statistics. progress: True for a
+        bar on stderr, or a function called with the number of lines taken so far.
 
         Raises SendTimeout, PrinterError or SendError with the line's source
         when the stream cannot go on; lines before it were all acknowledged.
@@ -275,7 +276,9 @@ class Sender:
         self._check_lengths(lines)
         stats = SendStats()
         bar = None
-        if progress:
+        if callable(progress):
+            bar = _Counter(progress)
+        elif progress:
             from tqdm import tqdm
             bar = tqdm(total=len(lines), unit="line", desc=desc or "send", file=sys.stderr,
                        dynamic_ncols=True, mininterval=0.2)
@@ -423,6 +426,26 @@ class Sender:
                                 f"was in flight; stopping — check power and the USB reset")
             stats.messages.append(reply)
             self._message(reply)
+
+
+class _Counter:
+    """Stands in for the progress bar when a program shows progress its own way."""
+
+    def __init__(self, fn):
+        self.fn, self.n = fn, 0
+
+    def update(self, k: int = 1):
+        self.n += k
+        self.fn(self.n)
+
+    def set_postfix(self, **kw):
+        pass
+
+    def write(self, text: str):
+        pass
+
+    def close(self):
+        pass
 
 
 def send_lines(port, lines: Sequence, baud: int = 115200, **kw) -> SendStats:

@@ -1,0 +1,333 @@
+"""What the studio's page edits, and everything computed from it, without the web server.
+
+A design is the page's JSON: items (text, or a drawing file: SVG, JSON strokes or an image)
+with their place on the unrolled wall, and the [bulges] settings. It becomes a placement file
+(placement.dump_placement) and is read back with load_placement, the CLI's own reader, so the
+preview, the export and `bulgekit build --placement` all start from the same file's text.
+
+    design = {"name": "part",
+              "items": [{"id": "t1", "kind": "text", "text": "HI", "at": [5, 3], "size": 6,
+                         "font": "futural", "letter_spacing": 0, "mirror": false, "rotate": 0},
+                        {"id": "d1", "kind": "file", "asset": "logo.svg", "at": [0, 0],
+                         "scale": 1, "rotate": 15, "image_width": 20}],
+              "bulges": {"dwell": 100, "extra": 0.1, "tolerance": 0.25, "geometric": false,
+                         "spacing": 0.9, "line_width": 0.45, "fallback": false}}
+
+Messages go back beside the item at fault: a stroke's source names its placement entry
+("text[0] ..."), map points carry their strokes' sources, and points the reference planner
+never stops at are traced to the points of the map they were.
+"""
+from __future__ import annotations
+
+import math
+import re
+import shutil
+import zipfile
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .. import api, mapformat, stats as _stats
+from ..fallback import (DEFAULT_DWELL_MS, DEFAULT_EXTRA_E_MM, DEFAULT_TOLERANCE_MM, MODE_GEOMETRIC,
+                        MODE_MARKED, Settings)
+from ..mapbuild import DEFAULT_LINE_WIDTH, BuildError
+from ..placement import PlacementError, dump_placement, load_placement
+from ..strokes import BulgekitError, InputError
+
+_ENTRY_RX = re.compile(r"(?:^|: )(text|strokes)\[(\d+)\]")
+# Fields the page may set per item kind, as the placement file names them.
+_TEXT_FIELDS = ("text", "at", "size", "font", "letter_spacing", "mirror", "rotate")
+_FILE_FIELDS = ("at", "scale", "image_width", "curve_tolerance", "rotate")
+_BULGE_FIELDS = ("dwell", "extra", "tolerance", "geometric", "spacing", "line_width", "fallback")
+IMAGE_EXT = {".png", ".jpg", ".jpeg", ".bmp", ".gif", ".tif", ".tiff", ".webp"}
+DRAWING_EXT = {".svg", ".json"} | IMAGE_EXT
+MAX_ITEMS = 64
+
+
+class DesignError(BulgekitError):
+    """A design the page sent that cannot be used (the message says which field)."""
+
+
+@dataclass
+class Asset:
+    """A drawing file the user gave the studio: kept in its working directory under `name`."""
+    name: str
+    path: Path
+
+
+def safe_name(name: str, default: str = "file") -> str:
+    """A file name without folders or odd characters (kept: letters, digits, . _ -)."""
+    base = Path(str(name).replace("\\", "/")).name
+    base = re.sub(r"[^A-Za-z0-9._-]+", "_", base).strip("._") or default
+    return base[:80]
+
+
+def _num(v, where: str) -> float:
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+        raise DesignError(f"{where}: expected a number, got {v!r}")
+    return v
+
+
+def entries(design: dict, assets: dict[str, Asset]) -> tuple[list[dict], list[dict], list[str]]:
+    """([[text]] tables, [[strokes]] tables, item id per entry in file order: texts first)."""
+    items = design.get("items", [])
+    if not isinstance(items, list):
+        raise DesignError("items: expected a list")
+    if len(items) > MAX_ITEMS:
+        raise DesignError(f"items: at most {MAX_ITEMS} items, got {len(items)}")
+    texts, files, tids, fids = [], [], [], []
+    for k, it in enumerate(items):
+        if not isinstance(it, dict):
+            raise DesignError(f"items[{k}]: expected an object")
+        iid = str(it.get("id", k))
+        if it.get("kind") == "text":
+            t = {f: it[f] for f in _TEXT_FIELDS if f in it}
+            texts.append(t)
+            tids.append(iid)
+        elif it.get("kind") == "file":
+            a = assets.get(str(it.get("asset")))
+            if a is None:
+                raise DesignError(f"item {iid}: drawing file {it.get('asset')!r} is not loaded")
+            t = {"file": a.name} | {f: it[f] for f in _FILE_FIELDS if f in it}
+            if Path(a.name).suffix.lower() not in IMAGE_EXT:
+                t.pop("image_width", None)
+            files.append(t)
+            fids.append(iid)
+        else:
+            raise DesignError(f"item {iid}: unknown kind {it.get('kind')!r} (text or file)")
+        for f, v in t.items():
+            if f == "at":
+                if not (isinstance(v, list) and len(v) == 2):
+                    raise DesignError(f"item {iid}: at: expected [u, v]")
+                t["at"] = [_num(x, f"item {iid}: at") for x in v]
+            elif f in ("size", "letter_spacing", "scale", "image_width", "curve_tolerance", "rotate"):
+                t[f] = _num(v, f"item {iid}: {f}")
+    return texts, files, tids + fids
+
+
+def bulges(design: dict) -> dict:
+    b = design.get("bulges", {}) or {}
+    if not isinstance(b, dict):
+        raise DesignError("bulges: expected an object")
+    out = {}
+    for f in _BULGE_FIELDS:
+        if f in b and b[f] is not None:
+            v = b[f]
+            if f == "dwell" and isinstance(v, float) and v.is_integer():
+                v = int(v)
+            out[f] = v
+    return out
+
+
+def placement_text(design: dict, assets: dict[str, Asset], file_ref=lambda a: a.name) -> str:
+    texts, files, _ = entries(design, assets)
+    for t in files:
+        t["file"] = file_ref(assets[t["file"]])
+    try:
+        return dump_placement(texts, files, bulges(design),
+                              header="bulgekit placement, written by `bulgekit studio`.\n"
+                                     "Use: bulgekit build PART.gcode --placement THIS_FILE -o out/\n"
+                                     "or as a slicer post-processing step: bulgekit post-process "
+                                     "--placement THIS_FILE")
+    except PlacementError as e:
+        raise DesignError(str(e).removeprefix("placement: ")) from None
+
+
+def settings_of(b: dict) -> Settings:
+    try:
+        return Settings(MODE_GEOMETRIC if b.get("geometric") else MODE_MARKED,
+                        b.get("dwell", DEFAULT_DWELL_MS), b.get("extra", DEFAULT_EXTRA_E_MM),
+                        b.get("tolerance", DEFAULT_TOLERANCE_MM))
+    except ValueError as e:
+        raise DesignError(f"bulges: {e}") from None
+
+
+def _entry_of(msg: str) -> tuple[str, int] | None:
+    m = _ENTRY_RX.search(msg)
+    return (m.group(1), int(m.group(2))) if m else None
+
+
+@dataclass
+class Preview:
+    items: dict = field(default_factory=dict)     # id -> {"strokes": [[u, v, ...]], "errors": [], "warnings": []}
+    points: list = field(default_factory=list)    # [u, v, x, y, z, weight, [ids], missed]
+    errors: list = field(default_factory=list)    # not tied to an item
+    warnings: list = field(default_factory=list)
+    summary: dict = field(default_factory=dict)
+
+    def json(self) -> dict:
+        return {"items": self.items, "points": self.points, "errors": self.errors,
+                "warnings": self.warnings, "summary": self.summary}
+
+
+def preview(design: dict, assets: dict[str, Asset], model, gcode: Path, scratch: Path,
+            check: bool, arena: int = mapformat.ARENA_BYTES) -> Preview:
+    """Strokes per item, the map's points and every message, for the page. An item that fails
+    is reported beside itself and left out, so the others still show; check runs the G-code
+    through the reference planner to find points no move stops at (slower on large files)."""
+    texts, files, ids = entries(design, assets)
+    b = bulges(design)
+    out = Preview(items={i: {"strokes": [], "errors": [], "warnings": []} for i in ids})
+    try:
+        settings = settings_of(b)
+    except DesignError as e:
+        out.errors.append(str(e))
+        return out
+    scratch.mkdir(parents=True, exist_ok=True)
+    live = list(range(len(ids)))                 # entries still in the file
+    pl = res = None
+    for _ in range(len(ids) + 1):
+        t_live = [texts[k] for k in live if k < len(texts)]
+        f_live = [files[k - len(texts)] for k in live if k >= len(texts)]
+        live_ids = [ids[k] for k in live]
+        if not live_ids:
+            break
+        f_live = [t | {"file": str(assets[t["file"]].path)} for t in f_live]
+        path = scratch / "preview.toml"
+        path.write_text(dump_placement(t_live, f_live, b), encoding="utf-8")
+        try:
+            pl = load_placement(path)
+            res = api.build_map(model, pl.strokes, spacing=b.get("spacing"),
+                                line_width=b.get("line_width", DEFAULT_LINE_WIDTH))
+            break
+        except (PlacementError, InputError, BuildError) as e:
+            pl = res = None
+            msg = str(e).replace(f"{path}: ", "")
+            ent = _entry_of(msg)
+            if ent is None:
+                out.errors.append(msg)
+                break
+            kind, n = ent
+            k = n if kind == "text" else len(t_live) + n
+            if k >= len(live_ids):
+                out.errors.append(msg)
+                break
+            out.items[live_ids[k]]["errors"].append(_ENTRY_RX.sub("", msg, count=1).lstrip(": ").strip()
+                                                    or msg)
+            del live[k]
+    if pl is None:
+        return out
+    # strokes per item, for drawing (entries are in file order, like the strokes)
+    live_ids = [ids[k] for k in live]
+    by_entry = {}
+    for where, _ in pl.entries:
+        by_entry[where] = live_ids[len(by_entry)]
+    for st in pl.strokes:
+        ent = _entry_of(st.source)
+        iid = by_entry[f"{ent[0]}[{ent[1]}]"]
+        out.items[iid]["strokes"].append([round(c, 3) for p in st.points for c in p])
+    if res is None:
+        return out
+    out.warnings += res.notes
+    walls = model.walls
+    for p in res.points:
+        owners = sorted({by_entry[f"{e[0]}[{e[1]}]"] for s in p.sources if (e := _entry_of(s))})
+        out.points.append([round(p.u, 3), round(p.z - walls[p.layer].height / 2, 3), round(p.x, 3),
+                           round(p.y, 3), round(p.z, 3), p.weight, owners, False])
+    bm = mapformat.decode_map(res.map_bytes)
+    out.summary = {"points": bm.point_count, "layers": len(bm.layers), "map_bytes": len(res.map_bytes),
+                   "spacing": res.spacing, "arena": arena, "checked": False,
+                   "largest_layer_points": max(len(l.points) for l in bm.layers)}
+    if res.overflow(arena):
+        out.warnings.append(
+            f"the map's layers need {res.records_bytes} bytes, more than the printer's {arena}-byte "
+            f"arena: the annotated file sends {len(res.overflow(arena))} of them while printing "
+            "(fine with `bulgekit send`, OctoPrint or SD; an upload from a terminal alone would not do)")
+    if check:
+        st = _stats.print_stats(gcode, res.map_bytes, settings, arena)
+        out.summary.update(checked=True, stops=st.stops, dwell_s=round(st.dwell_s, 1),
+                           added_s=round(st.added_s, 1), missed=len(st.missed))
+        _blame_missed(out, st.missed, res, settings)
+    return out
+
+
+def _blame_missed(out: Preview, missed, res, settings) -> None:
+    """Points the planner never stopped at, counted beside the items they belong to."""
+    if not missed:
+        return
+    q = res.quantum_um / 1000
+    per_item: dict[str, int] = {}
+    loose = 0
+    for z, x, y in missed:
+        best = min((pt for pt in out.points if abs(pt[4] - z) < 0.005),
+                   key=lambda pt: (pt[2] - x) ** 2 + (pt[3] - y) ** 2, default=None)
+        if best is None or math.hypot(best[2] - x, best[3] - y) > q:
+            loose += 1
+            continue
+        best[7] = True
+        for iid in best[6]:
+            per_item[iid] = per_item.get(iid, 0) + 1
+    where = "outer-wall" if settings.mode == MODE_MARKED else "extruding"
+    for iid, n in per_item.items():
+        out.items[iid]["warnings"].append(
+            f"{n} point(s) not within {settings.tolerance:.2f} mm of any {where} move: "
+            "they will not bulge")
+    if loose:
+        out.warnings.append(f"{loose} map point(s) not reached by any move")
+
+
+@dataclass
+class Export:
+    folder: Path
+    files: list[Path]
+    zip_path: Path
+    build: object
+
+
+def export(design: dict, assets: dict[str, Asset], gcode: Path, folder: Path) -> Export:
+    """Everything a design makes, in `folder` (created here; all or nothing): placement.toml and
+    its drawing files, then exactly what `bulgekit build GCODE --placement placement.toml
+    --fallback --preview-3d --name NAME -o folder` writes, made by the same calls."""
+    from .. import preview as pv
+    name = safe_name(design.get("name") or gcode.stem, "part")
+    text = placement_text(design, assets)
+    folder.mkdir(parents=True, exist_ok=False)
+    try:
+        _, files, _ = entries(design, assets)
+        used = {t["file"] for t in files}
+        for a in assets.values():
+            if a.name in used:
+                shutil.copyfile(a.path, folder / a.name)
+        ppath = folder / "placement.toml"
+        ppath.write_text(text, encoding="utf-8")
+        pl = load_placement(ppath)
+        b = pl.bulges
+        out = api.build(gcode, pl.strokes, folder, name=name, spacing=b.get("spacing"),
+                        line_width=b.get("line_width", DEFAULT_LINE_WIDTH),
+                        settings=settings_of(b), write_fallback=True)
+        pv.build_unrolled(out, folder / f"{name}.preview.png")
+        pv.build_3d(out, folder / f"{name}.preview3d.png")
+        made = sorted(p for p in folder.iterdir() if p.is_file())
+        zpath = folder.with_suffix(".zip")
+        tmp = zpath.with_suffix(".zip.part")
+        with zipfile.ZipFile(tmp, "w", zipfile.ZIP_DEFLATED) as z:
+            for p in made:
+                z.write(p, f"{folder.name}/{p.name}")
+        tmp.replace(zpath)
+    except BaseException:
+        shutil.rmtree(folder, ignore_errors=True)
+        raise
+    return Export(folder, made, zpath, out)
+
+
+def wall_view(model, max_vertices: int = 250_000) -> dict:
+    """The outer walls for the page: per layer its z, bead height, length and u extent, and
+    (every k-th layer, within a vertex budget) its path in 3D."""
+    total = sum(len(w.xy) for w in model.walls)
+    stride = max(1, math.ceil(total / max_vertices))
+    layers = []
+    for i, w in enumerate(model.walls):
+        a, b = w.u_covered()
+        row = {"z": round(w.z, 3), "h": round(w.height, 3), "length": round(w.length, 3),
+               "closed": bool(w.closed), "u": [round(a, 3) if math.isfinite(a) else None,
+                                                round(b, 3) if math.isfinite(b) else None]}
+        if i % stride == 0 or i == len(model.walls) - 1:
+            row["xy"] = np.round(w.xy, 3).ravel().tolist()
+        layers.append(row)
+    xy = np.concatenate([w.xy for w in model.walls])
+    lo, hi = model.v_range
+    return {"layers": layers, "layer_height": model.layer_height, "v_range": [lo, hi],
+            "bounds": [float(xy[:, 0].min()), float(xy[:, 1].min()), float(xy[:, 0].max()),
+                       float(xy[:, 1].max())], "stride": stride, "geometric": model.geometric,
+            "notes": list(model.notes)}

@@ -1,0 +1,566 @@
+"""The studio's web server: one local user, one browser page, the toolkit's own API behind it.
+
+It listens on 127.0.0.1 only and answers only its own page: every request must name this
+server in Host (no DNS rebinding), a browser's Origin / Sec-Fetch-Site must be this server,
+and /api and /files need the token that came with the page. It reads the G-code given on the
+command line and what the page uploads, and writes only inside its working directory:
+
+    WORKDIR/gcode/      uploaded G-code          WORKDIR/exports/N-NAME/  + N-NAME.zip
+    WORKDIR/assets/     drawing files, pictures  WORKDIR/litho/N-NAME/
+    WORKDIR/scratch/    the preview's placement file
+
+Long work runs as a job in a worker thread (one at a time: the toolkit's passes are CPU-bound
+and report through progress.listen); the page polls /api/job/ID. Sending to a printer has its
+own thread, so the page stays usable while a print streams.
+"""
+from __future__ import annotations
+
+import asyncio
+import base64
+import hashlib
+import json
+import re
+import secrets
+import shutil
+import threading
+import time
+import traceback
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from aiohttp import web
+
+from .. import progress
+from ..strokes import BulgekitError
+from . import design as dz
+
+STATIC = Path(__file__).resolve().parent / "static"
+VENDOR_FILES = ("three.module.min.js", "OrbitControls.js")
+MB = 1 << 20
+
+
+class AssetsMissing(BulgekitError):
+    pass
+
+
+def check_assets() -> None:
+    missing = [f for f in VENDOR_FILES if not (STATIC / "vendor" / f).is_file()]
+    if missing:
+        raise AssetsMissing(
+            f"the studio's front-end files are missing ({', '.join(missing)} in {STATIC / 'vendor'}): "
+            "run `python3 host/web/build.py` (it takes three.js from npm) and install the package again")
+
+
+@dataclass
+class Job:
+    id: str
+    kind: str
+    state: str = "running"          # running, done, error
+    label: str = ""
+    done: int = 0
+    total: int = 0
+    result: dict | None = None
+    error: str | None = None
+    log: list = field(default_factory=list)
+    started: float = field(default_factory=time.monotonic)
+
+    def json(self) -> dict:
+        return {"id": self.id, "kind": self.kind, "state": self.state, "label": self.label,
+                "done": self.done, "total": self.total, "result": self.result, "error": self.error,
+                "log": self.log[-200:], "elapsed": round(time.monotonic() - self.started, 1)}
+
+
+@dataclass
+class Limits:
+    gcode_bytes: int = 256 * MB
+    asset_bytes: int = 25 * MB
+    image_pixels: int = 40_000_000
+    arena: int = 1024
+
+
+class Studio:
+    """State of the one design being edited, and the jobs working on it."""
+
+    def __init__(self, workdir: Path, limits: Limits = Limits()):
+        self.workdir = Path(workdir)
+        for d in ("gcode", "assets", "exports", "litho", "scratch"):
+            (self.workdir / d).mkdir(parents=True, exist_ok=True)
+        self.limits = limits
+        self.token = secrets.token_urlsafe(24)
+        self.gcode: Path | None = None
+        self.gcode_name = ""
+        self.model = None
+        self.view: dict | None = None
+        self.assets: dict[str, dz.Asset] = {}
+        self.exports: dict[str, dz.Export] = {}
+        self.jobs: dict[str, Job] = {}
+        self.worker = ThreadPoolExecutor(1, thread_name_prefix="studio-work")
+        self.sending = threading.Lock()
+        self._n = 0
+        self._lock = threading.Lock()
+
+    def next_id(self) -> int:
+        with self._lock:
+            self._n += 1
+            return self._n
+
+    # -- jobs
+
+    def start(self, kind: str, fn, *args, thread: bool = False) -> Job:
+        job = Job(str(self.next_id()), kind)
+        self.jobs[job.id] = job
+
+        def run():
+            def tick(label, done, total):
+                job.label, job.done, job.total = label, done, total
+            progress.listen(tick)
+            try:
+                job.result = fn(job, *args)
+                job.state = "done"
+            except (BulgekitError, ValueError, OSError) as e:
+                job.error, job.state = _message(e), "error"
+            except Exception as e:                  # a bug: said in the page, kept in the log
+                traceback.print_exc()
+                job.error, job.state = f"internal error: {type(e).__name__}: {e}", "error"
+            finally:
+                progress.listen(None)
+        if thread:
+            threading.Thread(target=run, name=f"studio-{kind}", daemon=True).start()
+        else:
+            self.worker.submit(run)
+        return job
+
+    # -- G-code
+
+    def open_gcode(self, job: Job, path: Path, name: str) -> dict:
+        from ..gcode import check_not_processed, check_text
+        from .. import api
+        job.label = "checking the file"
+        with open(path, "rb") as f:
+            head = f.read(1 << 20)
+        check_text(head, name)
+        check_not_processed(path.read_bytes(), name)
+        from ..wall import WallError
+        try:
+            model = api.walls(path)
+        except WallError as e:
+            if "no outer-wall feature comments" not in str(e):
+                raise WallError(str(e).replace(str(path), name)) from None
+            # no comments to find the outer wall by: its outermost closed loop per layer is
+            # the wall in geometric mode (M720 S2), which the page then selects
+            job.log.append(f"{name}: no outer-wall feature comments; using geometric mode")
+            try:
+                model = api.walls(path, geometric=True)
+            except WallError as e2:
+                raise WallError(f"{name}: no outer wall found: the file has no outer-wall feature "
+                                "comments (;TYPE:External perimeter, ;TYPE:Outer wall, ...) and no "
+                                "closed extruded loops to take as the wall instead "
+                                f"({str(e2).replace(str(path), name)}). Is it a sliced print?") from None
+        view = dz.wall_view(model)
+        self.gcode, self.gcode_name, self.model, self.view = path, name, model, view
+        return self.gcode_state()
+
+    def gcode_state(self) -> dict | None:
+        if self.model is None:
+            return None
+        m = self.model
+        return {"name": self.gcode_name, "layers": len(m.walls), "geometric": m.geometric,
+                "length_max": round(max(w.length for w in m.walls), 2), "walls": self.view,
+                "bytes": self.gcode.stat().st_size}
+
+    # -- drawing files
+
+    def add_asset(self, name: str, data: bytes) -> dict:
+        from ..strokes import load_json, load_svg
+        ext = Path(name).suffix.lower()
+        if ext not in dz.DRAWING_EXT:
+            raise dz.DesignError(f"{name}: not a drawing file this studio reads "
+                                 f"(SVG, JSON strokes or a picture: {', '.join(sorted(dz.DRAWING_EXT))})")
+        base = dz.safe_name(name)
+        stem, suf = Path(base).stem, Path(base).suffix.lower()
+        final, k = f"{stem}{suf}", 1
+        while final in self.assets or final == "placement.toml":
+            k += 1
+            final = f"{stem}-{k}{suf}"
+        path = self.workdir / "assets" / final
+        path.write_bytes(data)
+        try:
+            info = {"name": final, "original": name, "kind": "image" if suf in dz.IMAGE_EXT else suf[1:]}
+            if suf in dz.IMAGE_EXT:
+                info.update(self._check_image(path, name))
+            elif suf == ".svg":
+                info["strokes"] = len(load_svg(str(path)))
+            else:
+                info["strokes"] = len(load_json(str(path)))
+        except BaseException:
+            path.unlink(missing_ok=True)
+            raise
+        self.assets[final] = dz.Asset(final, path)
+        return info
+
+    def _check_image(self, path: Path, name: str) -> dict:
+        from PIL import Image
+        try:
+            with Image.open(path) as im:
+                w, h = im.size
+        except Exception as e:
+            raise dz.DesignError(f"{name}: not a picture Pillow can read ({e})") from None
+        if w * h > self.limits.image_pixels:
+            raise dz.DesignError(
+                f"{name}: {w} x {h} pixels ({w * h / 1e6:.0f} megapixels) is more than this studio takes "
+                f"({self.limits.image_pixels / 1e6:.0f}); scale it down first (a bulge is about 1 mm)")
+        return {"width_px": w, "height_px": h}
+
+    # -- design
+
+    def preview(self, d: dict, check: bool) -> dict:
+        if self.model is None:
+            raise dz.DesignError("open a sliced G-code first")
+        return dz.preview(d, self.assets, self.model, self.gcode, self.workdir / "scratch", check,
+                          self.limits.arena).json()
+
+    def export(self, job: Job, d: dict) -> dict:
+        if self.model is None:
+            raise dz.DesignError("open a sliced G-code first")
+        name = dz.safe_name(d.get("name") or Path(self.gcode_name).stem, "part")
+        key = f"{self.next_id()}-{name}"
+        ex = dz.export(d, self.assets, self.gcode, self.workdir / "exports" / key)
+        self.exports[key] = ex
+        files = [{"name": p.name, "bytes": p.stat().st_size, "url": f"/files/exports/{key}/{p.name}"}
+                 for p in ex.files]
+        st = ex.build.stats
+        return {"key": key, "folder": str(ex.folder), "files": files,
+                "zip": f"/files/exports/{key}.zip", "stats": st.text(per_layer=False),
+                "notes": list(ex.build.result.notes) + list(ex.build.annotate.notes)}
+
+    # -- printer
+
+    def send(self, job: Job, key: str, which: str, port: str, baud: int) -> dict:
+        from ..cli_io import annotated_arena, check_printer_arena
+        from ..sender import Sender, read_gcode
+        import click
+        ex = self.exports.get(key)
+        if ex is None:
+            raise dz.DesignError(f"export {key!r} is not there: export first")
+        suffix = {"bulge": ".bulge.gcode", "stock": ".stock.gcode"}.get(which)
+        if suffix is None:
+            raise dz.DesignError(f"which: 'bulge' or 'stock', got {which!r}")
+        path = next((p for p in ex.files if p.name.endswith(suffix)), None)
+        lines = read_gcode(path)
+        if not self.sending.acquire(blocking=False):
+            raise dz.DesignError("a file is being sent already")
+        try:
+            job.label, job.total = f"sending {path.name}", len(lines)
+            with Sender(port, baud, on_message=job.log.append) as s:
+                need = annotated_arena(path)
+                if need is not None:
+                    try:
+                        check_printer_arena(s, need, path.name)
+                    except click.ClickException as e:
+                        raise dz.DesignError(e.message) from None
+                st = s.send(lines, progress=lambda n: setattr(job, "done", n), desc=path.name)
+            return {"summary": st.summary(), "file": path.name, "errors": [list(e) for e in st.errors]}
+        finally:
+            self.sending.release()
+
+    # -- lithophanes
+
+    def litho(self, job: Job, asset: str, opts: dict, name: str | None) -> dict:
+        from .. import litho as lt
+        from ..cli_litho import summary
+        a = self.assets.get(asset)
+        if a is None or Path(a.name).suffix.lower() not in dz.IMAGE_EXT:
+            raise dz.DesignError("choose a picture for the lithophane first")
+        known = set(lt.LithoOptions.__dataclass_fields__) - {"start_gcode", "end_gcode"}
+        bad = sorted(set(opts) - known)
+        if bad:
+            raise dz.DesignError(f"lithophane: unknown option(s) {', '.join(bad)}")
+        if "bed" in opts:
+            opts["bed"] = tuple(opts["bed"])
+        try:
+            o = lt.LithoOptions(**opts)
+        except TypeError as e:
+            raise dz.DesignError(f"lithophane: {e}") from None
+        name = dz.safe_name(name or Path(a.name).stem, "lithophane")
+        key = f"{self.next_id()}-{name}"
+        folder = self.workdir / "litho" / key
+
+        def show(done, total):
+            job.label, job.done, job.total = "planning layers", done, total
+        try:
+            res = lt.make(a.path, folder, name=name, progress=show, options=o)
+        except lt.LithoError as e:
+            shutil.rmtree(folder, ignore_errors=True)
+            # the toolkit names its CLI options; the page has fields with labels
+            msg = re.sub(r"--[a-z-]+", lambda m: f"'{_LITHO_FIELDS.get(m.group(0), m.group(0))}'", str(e))
+            raise lt.LithoError(msg.replace(str(a.path), a.name)) from None
+        except BaseException:
+            shutil.rmtree(folder, ignore_errors=True)
+            raise
+        files = [{"name": p.name, "bytes": p.stat().st_size, "url": f"/files/litho/{key}/{p.name}"}
+                 for p in sorted(folder.iterdir())]
+        return {"key": key, "folder": str(folder), "files": files, "summary": summary(res.stats),
+                "look": f"/files/litho/{key}/{res.paths['png'].name}"}
+
+
+_LITHO_FIELDS = {"--max": "Thickest (black)", "--min": "Thinnest (white)", "--foot": "Foot depth",
+                 "--line-width": "Line width", "--max-speed": "Max speed", "--width": "Width",
+                 "--diameter": "Diameter", "--height": "Height", "--frame": "Frame",
+                 "--layer-height": "Layer height", "--infill-flow": "Mid-line flow", "--gamma": "Gamma",
+                 "--attenuation": "Attenuation", "--temp": "Nozzle", "--bed-temp": "Bed"}
+
+
+def _message(e: BaseException) -> str:
+    if isinstance(e, OSError) and not isinstance(e, BulgekitError):
+        return f"{e.filename or ''}: {e.strerror or e}"
+    return str(e)
+
+
+# -- HTTP
+
+def _error(status: int, text: str) -> web.Response:
+    return web.json_response({"error": text}, status=status)
+
+
+def make_app(st: Studio, port_ref: dict) -> web.Application:
+    """port_ref["port"] is the port the server ended up on (known after binding)."""
+
+    @web.middleware
+    async def guard(request: web.Request, handler):
+        port = port_ref.get("port")
+        allowed = {f"127.0.0.1:{port}", f"localhost:{port}"}
+        if request.host not in allowed:
+            return _error(403, f"refused: Host {request.host!r} is not this studio")
+        origin = request.headers.get("Origin")
+        if origin is not None and origin not in {f"http://{h}" for h in allowed}:
+            return _error(403, f"refused: request from another origin ({origin})")
+        if request.headers.get("Sec-Fetch-Site") in ("cross-site", "same-site"):
+            return _error(403, "refused: request from another site")
+        if request.path.startswith(("/api/", "/files/")):
+            tok = request.headers.get("X-Studio-Token") or request.query.get("t")
+            if not tok or not secrets.compare_digest(tok, st.token):
+                return _error(403, "refused: no valid studio token (reload the page)")
+        resp = await handler(request)
+        resp.headers["X-Content-Type-Options"] = "nosniff"
+        resp.headers["Cache-Control"] = "no-store"
+        return resp
+
+    app = web.Application(middlewares=[guard], client_max_size=4 * MB)
+    loop_run = asyncio.get_event_loop
+
+    page = (STATIC / "index.html").read_text(encoding="utf-8")
+    # the one inline script, the import map, is allowed by its hash; nothing else inline runs
+    imap = re.search(r'<script type="importmap">(.*?)</script>', page, re.S).group(1)
+    imap_hash = base64.b64encode(hashlib.sha256(imap.encode()).digest()).decode()
+    csp = (f"default-src 'self'; script-src 'self' 'sha256-{imap_hash}'; img-src 'self' data: blob:; "
+           "style-src 'self' 'unsafe-inline'; connect-src 'self'; frame-ancestors 'none'")
+
+    async def index(request):
+        return web.Response(text=page.replace("__STUDIO_TOKEN__", st.token), content_type="text/html",
+                            headers={"Content-Security-Policy": csp})
+
+    async def state(request):
+        from ..strokes import font_names
+        return web.json_response({
+            "gcode": st.gcode_state(), "assets": sorted(st.assets), "fonts": font_names(),
+            "limits": {"gcode_mb": st.limits.gcode_bytes / MB, "asset_mb": st.limits.asset_bytes / MB,
+                       "image_megapixels": st.limits.image_pixels / 1e6, "arena": st.limits.arena},
+            "jobs": [j.json() for j in st.jobs.values() if j.state == "running"],
+            "workdir": str(st.workdir)})
+
+    async def receive(request, limit: int, what: str) -> tuple[bytes | Path, str] | web.Response:
+        name = request.query.get("name", "")
+        if not name:
+            return _error(400, "the upload has no file name")
+        size = request.content_length
+        if size is not None and size > limit:
+            return _error(413, f"{name}: {size / MB:.1f} MB is more than the studio takes for {what} "
+                               f"({limit / MB:.0f} MB; start it with a larger --max-upload)"
+                               if what == "G-code" else
+                               f"{name}: {size / MB:.1f} MB is more than the studio takes for {what} "
+                               f"({limit / MB:.0f} MB)")
+        return name, size
+
+    async def upload_gcode(request):
+        r = await receive(request, st.limits.gcode_bytes, "G-code")
+        if isinstance(r, web.Response):
+            return r
+        name, _ = r
+        base = dz.safe_name(name, "part.gcode")
+        dest = st.workdir / "gcode" / f"{st.next_id()}-{base}"
+        got = 0
+        with open(dest, "wb") as f:
+            async for chunk in request.content.iter_chunked(1 << 20):
+                got += len(chunk)
+                if got > st.limits.gcode_bytes:
+                    f.close()
+                    dest.unlink(missing_ok=True)
+                    return _error(413, f"{name}: more than the studio takes for G-code "
+                                       f"({st.limits.gcode_bytes / MB:.0f} MB)")
+                f.write(chunk)
+        job = st.start("open", st.open_gcode, dest, name)
+        return web.json_response(job.json())
+
+    async def upload_asset(request):
+        r = await receive(request, st.limits.asset_bytes, "a drawing or picture")
+        if isinstance(r, web.Response):
+            return r
+        name, _ = r
+        data = bytearray()
+        async for chunk in request.content.iter_chunked(1 << 20):
+            data += chunk
+            if len(data) > st.limits.asset_bytes:
+                return _error(413, f"{name}: more than the studio takes for a drawing or picture "
+                                   f"({st.limits.asset_bytes / MB:.0f} MB)")
+        try:
+            info = await loop_run().run_in_executor(st.worker, st.add_asset, name, bytes(data))
+        except (BulgekitError, ValueError, OSError) as e:
+            return _error(400, _message(e))
+        return web.json_response(info)
+
+    async def body(request) -> dict:
+        try:
+            d = await request.json()
+        except (json.JSONDecodeError, UnicodeDecodeError):
+            raise web.HTTPBadRequest(text=json.dumps({"error": "the request is not JSON"}),
+                                     content_type="application/json")
+        if not isinstance(d, dict):
+            raise web.HTTPBadRequest(text=json.dumps({"error": "expected a JSON object"}),
+                                     content_type="application/json")
+        return d
+
+    async def preview(request):
+        d = await body(request)
+        try:
+            res = await loop_run().run_in_executor(st.worker, st.preview, d.get("design") or {},
+                                                   bool(d.get("check")))
+        except (BulgekitError, ValueError, OSError) as e:
+            return _error(400, _message(e))
+        return web.json_response(res)
+
+    async def export(request):
+        d = await body(request)
+        return web.json_response(st.start("export", st.export, d.get("design") or {}).json())
+
+    async def placement(request):
+        d = await body(request)
+        try:
+            text = dz.placement_text(d.get("design") or {}, st.assets)
+        except (BulgekitError, ValueError) as e:
+            return _error(400, _message(e))
+        return web.Response(text=text, content_type="application/toml",
+                            headers={"Content-Disposition": 'attachment; filename="placement.toml"'})
+
+    async def job(request):
+        j = st.jobs.get(request.match_info["id"])
+        if j is None:
+            return _error(404, "no such job")
+        return web.json_response(j.json())
+
+    async def ports(request):
+        try:
+            from serial.tools import list_ports
+            found = [{"device": p.device, "description": p.description} for p in list_ports.comports()]
+        except Exception as e:                      # no serial support on this system
+            return web.json_response({"ports": [], "note": str(e)})
+        return web.json_response({"ports": found})
+
+    async def send(request):
+        d = await body(request)
+        port = str(d.get("port") or "").strip()
+        if not port:
+            return _error(400, "choose the printer's port (e.g. /dev/ttyUSB0)")
+        try:
+            baud = int(d.get("baud", 115200))
+        except (TypeError, ValueError):
+            return _error(400, f"baud: expected a whole number, got {d.get('baud')!r}")
+        if st.sending.locked():
+            return _error(409, "a file is being sent already")
+        j = st.start("send", st.send, str(d.get("export", "")), str(d.get("which", "bulge")), port, baud,
+                     thread=True)
+        return web.json_response(j.json())
+
+    async def litho(request):
+        d = await body(request)
+        opts = d.get("options") or {}
+        if not isinstance(opts, dict):
+            return _error(400, "options: expected an object")
+        j = st.start("litho", st.litho, str(d.get("asset", "")), dict(opts), d.get("name"))
+        return web.json_response(j.json())
+
+    async def files(request):
+        area, rest = request.match_info["area"], request.match_info["rest"]
+        if area not in ("exports", "litho"):
+            raise web.HTTPNotFound()
+        base = (st.workdir / area).resolve()
+        path = (base / rest).resolve()
+        if base not in path.parents or not path.is_file():
+            raise web.HTTPNotFound()
+        return web.FileResponse(path, headers={"Content-Disposition": f'attachment; filename="{path.name}"'}
+                                if request.query.get("download") else None)
+
+    app.router.add_get("/", index)
+    app.router.add_static("/static/", STATIC, follow_symlinks=False)
+    app.router.add_get("/api/state", state)
+    app.router.add_post("/api/gcode", upload_gcode)
+    app.router.add_post("/api/asset", upload_asset)
+    app.router.add_post("/api/preview", preview)
+    app.router.add_post("/api/export", export)
+    app.router.add_post("/api/placement", placement)
+    app.router.add_get("/api/job/{id}", job)
+    app.router.add_get("/api/ports", ports)
+    app.router.add_post("/api/send", send)
+    app.router.add_post("/api/litho", litho)
+    app.router.add_get("/files/{area}/{rest:.+}", files)
+    return app
+
+
+class Running:
+    """A started server (serve()): its address, and stop()."""
+
+    def __init__(self, st: Studio, url: str, loop, runner, thread):
+        self.studio, self.url, self._loop, self._runner, self._thread = st, url, loop, runner, thread
+
+    def stop(self):
+        fut = asyncio.run_coroutine_threadsafe(self._runner.cleanup(), self._loop)
+        fut.result(10)
+        self._loop.call_soon_threadsafe(self._loop.stop)
+        self._thread.join(10)
+        self.studio.worker.shutdown(wait=False, cancel_futures=True)
+
+
+def serve(st: Studio, port: int = 0) -> Running:
+    """Start the server in a thread on 127.0.0.1:port (0: any free port)."""
+    check_assets()
+    loop = asyncio.new_event_loop()
+    port_ref: dict = {}
+    app = make_app(st, port_ref)
+    runner = web.AppRunner(app, access_log=None)
+    ready = threading.Event()
+    err: list = []
+
+    def run():
+        asyncio.set_event_loop(loop)
+        try:
+            loop.run_until_complete(runner.setup())
+            site = web.TCPSite(runner, "127.0.0.1", port)
+            loop.run_until_complete(site.start())
+            port_ref["port"] = site._server.sockets[0].getsockname()[1]
+        except BaseException as e:
+            err.append(e)
+            ready.set()
+            return
+        ready.set()
+        loop.run_forever()
+
+    th = threading.Thread(target=run, name="studio-http", daemon=True)
+    th.start()
+    ready.wait(30)
+    if err:
+        e = err[0]
+        if isinstance(e, OSError):
+            raise BulgekitError(f"cannot listen on 127.0.0.1:{port}: {e.strerror or e} "
+                                "(another program on that port? use --port N)") from None
+        raise e
+    return Running(st, f"http://127.0.0.1:{port_ref['port']}/", loop, runner, th)

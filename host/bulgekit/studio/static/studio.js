@@ -1,0 +1,803 @@
+// bulgekit studio: the page. Everything it shows comes from the local server (server.py), which
+// runs the toolkit: this file only keeps the design, draws it and sends it back.
+//
+// The design is the placement file as JSON (design.py): items with their place on the unrolled
+// wall (u along the wall, v up, mm) and the [bulges] settings. Each edit asks for a preview
+// (strokes per item, the map's points, messages); when edits pause, one more preview runs the
+// G-code through the reference planner to find points no move stops at.
+import * as THREE from "three";
+import { OrbitControls } from "/static/vendor/OrbitControls.js";
+
+const TOKEN = document.querySelector('meta[name="studio-token"]').content;
+const $ = (id) => document.getElementById(id);
+
+const S = {                 // the page's state
+  gcode: null,              // server's gcode state: walls, layers ...
+  fonts: [],
+  limits: {},
+  items: [],                // design items (+ label, assetKind: page only)
+  selected: null,           // item id
+  preview: null,            // last preview answer
+  strokesAt: {},            // id -> the item's geometry when its strokes were computed
+  exportKey: null,
+  nextId: 1,
+  busy: false,
+};
+
+// ---------------------------------------------------------------- server calls
+
+async function api(path, opts = {}) {
+  const r = await fetch(path, { ...opts, headers: { "X-Studio-Token": TOKEN, ...(opts.headers || {}) } });
+  let body = null;
+  const text = await r.text();
+  try { body = JSON.parse(text); } catch { body = { error: text || r.statusText }; }
+  if (!r.ok) throw new Error(body.error || `${r.status} ${r.statusText}`);
+  return body;
+}
+
+const postJSON = (path, obj) => api(path, { method: "POST", body: JSON.stringify(obj),
+  headers: { "Content-Type": "application/json" } });
+
+// Upload a File with a progress callback (fetch has no upload progress).
+function upload(path, file, onProgress) {
+  return new Promise((resolve, reject) => {
+    const x = new XMLHttpRequest();
+    x.open("POST", `${path}?name=${encodeURIComponent(file.name)}`);
+    x.setRequestHeader("X-Studio-Token", TOKEN);
+    x.upload.onprogress = (e) => e.lengthComputable && onProgress(e.loaded, e.total);
+    x.onload = () => {
+      let b; try { b = JSON.parse(x.responseText); } catch { b = { error: x.responseText || x.statusText }; }
+      x.status >= 200 && x.status < 300 ? resolve(b) : reject(new Error(b.error || x.statusText));
+    };
+    x.onerror = () => reject(new Error("the studio server did not answer (is it still running?)"));
+    x.send(file);
+  });
+}
+
+async function pollJob(job, onUpdate) {
+  for (;;) {
+    if (onUpdate) onUpdate(job);
+    if (job.state === "done") return job.result;
+    if (job.state === "error") throw new Error(job.error);
+    await new Promise((r) => setTimeout(r, 200));
+    job = await api(`/api/job/${job.id}`);
+  }
+}
+
+function status(text, frac) {
+  $("status-text").textContent = text;
+  const bar = $("status-bar");
+  bar.hidden = frac === undefined || frac === null;
+  if (!bar.hidden) bar.value = Math.max(0, Math.min(1, frac));
+}
+
+function showError(id, err) {
+  const el = $(id);
+  el.hidden = !err;
+  el.textContent = err ? String(err.message || err) : "";
+}
+
+const fileUrl = (u, download) => `${u}?t=${encodeURIComponent(TOKEN)}${download ? "&download=1" : ""}`;
+
+// ---------------------------------------------------------------- G-code
+
+async function openGcode(file) {
+  showError("gcode-error", null);
+  const mb = file.size / 1048576;
+  if (S.limits.gcode_mb && mb > S.limits.gcode_mb) {
+    showError("gcode-error", `${file.name}: ${mb.toFixed(1)} MB is more than the studio takes for G-code ` +
+      `(${S.limits.gcode_mb} MB; start it with a larger --max-upload)`);
+    return;
+  }
+  try {
+    const job = await upload("/api/gcode", file, (a, b) => status(`uploading ${file.name}: ${Math.round(100 * a / b)} %`, a / b));
+    const res = await pollJob(job, (j) => j.total ? status(`${file.name}: ${j.label} ${Math.round(100 * j.done / j.total)} %`, j.done / j.total)
+      : status(`${file.name}: ${j.label || "reading"}…`, 0));
+    setGcode(res);
+    status(`${res.name}: ${res.layers} layers of outer wall`);
+  } catch (e) {
+    showError("gcode-error", e);
+    status(S.gcode ? `${S.gcode.name} stays open` : "Open a sliced G-code to start.");
+  }
+}
+
+function setGcode(g) {
+  S.gcode = g;
+  const w = g.walls;
+  $("gcode-info").textContent = `${g.name}\n${g.layers} layers, z ${w.v_range[0].toFixed(2)}–${w.v_range[1].toFixed(2)} mm, ` +
+    `wall up to ${g.length_max.toFixed(1)} mm around` + (g.geometric ? "\nno outer-wall comments: geometric mode" : "");
+  for (const id of ["add-text", "add-file", "export", "placement"]) $(id).disabled = false;
+  $("bulge-form").geometric.value = g.geometric ? "true" : "false";
+  for (const it of S.items) clampItem(it);
+  view2d.fit();
+  view3d.setWalls(w);
+  requestPreview();
+}
+
+// ---------------------------------------------------------------- items
+
+function itemName(it) {
+  if (it.kind === "text") return `Text “${it.text.replace(/\n/g, " ").slice(0, 24)}”`;
+  return `${it.assetKind === "image" ? "Picture" : "Drawing"} ${it.asset}`;
+}
+
+function clampItem(it) {
+  if (!S.gcode) return;
+  const [lo, hi] = S.gcode.walls.v_range;
+  it.at[1] = Math.min(Math.max(it.at[1], lo), hi);
+}
+
+function addText() {
+  const [lo, hi] = S.gcode.walls.v_range;
+  const size = Math.max(1, Math.min(6, (hi - lo) / 3));
+  const it = { id: `i${S.nextId++}`, kind: "text", text: "TEXT", font: "futural", size, letter_spacing: 0,
+    mirror: false, rotate: 0, at: [5, +(lo + (hi - lo - size) / 2).toFixed(2)] };
+  S.items.push(it);
+  select(it.id);
+  requestPreview();
+}
+
+async function addFile(file) {
+  showError("asset-error", null);
+  if (S.limits.asset_mb && file.size > S.limits.asset_mb * 1048576) {
+    showError("asset-error", `${file.name}: ${(file.size / 1048576).toFixed(1)} MB is more than the studio takes for a drawing or picture (${S.limits.asset_mb} MB)`);
+    return null;
+  }
+  try {
+    const info = await upload("/api/asset", file, (a, b) => status(`uploading ${file.name}: ${Math.round(100 * a / b)} %`, a / b));
+    status(`${info.name} loaded`);
+    return info;
+  } catch (e) {
+    showError("asset-error", e);
+    status(S.gcode ? `${S.gcode.name}` : "");
+    return null;
+  }
+}
+
+async function addDrawing(file) {
+  const info = await addFile(file);
+  if (!info) return;
+  const [lo, hi] = S.gcode.walls.v_range;
+  const it = { id: `i${S.nextId++}`, kind: "file", asset: info.name, assetKind: info.kind,
+    at: [5, +(lo + 0.5).toFixed(2)], scale: 1, rotate: 0 };
+  if (info.kind === "image") {
+    it.image_width = Math.min(20, Math.max(5, S.gcode.length_max / 4));
+    delete it.scale;
+  }
+  S.items.push(it);
+  select(it.id);
+  requestPreview();
+}
+
+function select(id) {
+  S.selected = id;
+  const it = S.items.find((i) => i.id === id);
+  $("sec-item").hidden = !it;
+  if (it) {
+    const f = $("item-form");
+    for (const el of f.querySelectorAll(".for-text")) el.hidden = it.kind !== "text";
+    for (const el of f.querySelectorAll(".for-drawing")) el.hidden = !(it.kind === "file" && it.assetKind !== "image");
+    for (const el of f.querySelectorAll(".for-image")) el.hidden = !(it.kind === "file" && it.assetKind === "image");
+    fillItemForm(it);
+  }
+  renderItems();
+  view2d.draw();
+}
+
+function fillItemForm(it) {
+  const f = $("item-form");
+  if (it.kind === "text") {
+    if (document.activeElement !== f.text) f.text.value = it.text;
+    f.font.value = it.font; f.size.value = +it.size.toFixed(2);
+    f.letter_spacing.value = it.letter_spacing; f.mirror.checked = it.mirror;
+  } else if (it.assetKind === "image") f.image_width.value = +it.image_width.toFixed(2);
+  else f.scale.value = +it.scale.toFixed(3);
+  f.u.value = +it.at[0].toFixed(2); f.v.value = +it.at[1].toFixed(2); f.rotate.value = +it.rotate.toFixed(1);
+}
+
+function readItemForm() {
+  const it = S.items.find((i) => i.id === S.selected);
+  if (!it) return;
+  const f = $("item-form");
+  const num = (el, dflt) => (el.value === "" || !isFinite(+el.value) ? dflt : +el.value);
+  if (it.kind === "text") {
+    it.text = f.text.value; it.font = f.font.value; it.size = num(f.size, it.size);
+    it.letter_spacing = num(f.letter_spacing, 0); it.mirror = f.mirror.checked;
+  } else if (it.assetKind === "image") it.image_width = num(f.image_width, it.image_width);
+  else it.scale = num(f.scale, it.scale);
+  it.at = [num(f.u, it.at[0]), num(f.v, it.at[1])];
+  it.rotate = num(f.rotate, 0);
+  renderItems();
+  requestPreview();
+}
+
+function renderItems() {
+  const ul = $("items");
+  ul.textContent = "";
+  const p = S.preview;
+  for (const it of S.items) {
+    const li = document.createElement("li");
+    li.dataset.id = it.id;
+    li.className = it.id === S.selected ? "selected" : "";
+    const name = document.createElement("div");
+    name.className = "name";
+    name.textContent = itemName(it);
+    li.append(name);
+    const info = p && p.items[it.id];
+    const n = p ? p.points.filter((q) => q[6].includes(it.id)).length : 0;
+    const sub = document.createElement("div");
+    sub.className = "info";
+    sub.textContent = info ? `${n} bump${n === 1 ? "" : "s"}` : "";
+    li.append(sub);
+    if (info && (info.errors.length || info.warnings.length)) {
+      const m = document.createElement("ul");
+      for (const e of info.errors) { const x = document.createElement("li"); x.className = "error"; x.textContent = e; m.append(x); }
+      for (const w of info.warnings) { const x = document.createElement("li"); x.className = "warning"; x.textContent = w; m.append(x); }
+      li.append(m);
+    }
+    li.onclick = () => select(it.id);
+    ul.append(li);
+  }
+}
+
+// ---------------------------------------------------------------- design and preview
+
+function bulgeSettings() {
+  const f = $("bulge-form");
+  const out = {};
+  const n = (el) => (el.value === "" ? null : +el.value);
+  if (n(f.dwell) !== null) out.dwell = Math.round(n(f.dwell));
+  for (const k of ["extra", "tolerance", "spacing", "line_width"]) if (n(f[k]) !== null) out[k] = n(f[k]);
+  out.geometric = f.geometric.value === "true";
+  out.fallback = f.fallback.value === "true";
+  return out;
+}
+
+function design() {
+  const items = S.items.map((it) => {
+    const o = { id: it.id, kind: it.kind, at: it.at.map((v) => +v.toFixed(3)), rotate: +it.rotate.toFixed(2) };
+    if (it.kind === "text") Object.assign(o, { text: it.text, font: it.font, size: +it.size.toFixed(3),
+      letter_spacing: it.letter_spacing, mirror: it.mirror });
+    else { o.asset = it.asset; if (it.assetKind === "image") o.image_width = +it.image_width.toFixed(3); else o.scale = +it.scale.toFixed(4); }
+    return o;
+  });
+  const name = $("export-name").value.trim();
+  return { name: name || (S.gcode ? S.gcode.name.replace(/\.[^.]*$/, "") : "part"), items, bulges: bulgeSettings() };
+}
+
+let inFlight = false, pending = false, checkTimer = null, checkedFor = null;
+
+function requestPreview() {
+  if (!S.gcode) return;
+  pending = true;
+  clearTimeout(checkTimer);
+  pump();
+}
+
+async function pump(check = false) {
+  if (inFlight || !pending) return;
+  pending = false;
+  inFlight = true;
+  const d = design();
+  const key = JSON.stringify(d);
+  const geom = Object.fromEntries(S.items.map((it) => [it.id, geomOf(it)]));
+  if (check) status(`checking against ${S.gcode.name}…`, null);
+  try {
+    const p = await postJSON("/api/preview", { design: d, check });
+    S.preview = p;
+    S.strokesAt = geom;
+    if (check) checkedFor = key;
+    showPreview(p);
+    if (check) status(`${S.gcode.name}: checked`);
+  } catch (e) {
+    S.preview = { items: {}, points: [], errors: [String(e.message || e)], warnings: [], summary: {} };
+    showPreview(S.preview);
+  } finally {
+    inFlight = false;
+  }
+  if (pending) { pump(); return; }
+  if (!check && checkedFor !== key) {
+    clearTimeout(checkTimer);
+    checkTimer = setTimeout(() => { if (!pending && !inFlight) { pending = true; pump(true); } }, 700);
+  }
+}
+
+function showPreview(p) {
+  const s = p.summary || {};
+  let line = s.points !== undefined ? `${s.points} bumps on ${s.layers} layers, map ${s.map_bytes} bytes ` +
+    `(printer arena ${s.arena})` : "no bumps";
+  if (s.checked) line += `; when printed: ${s.stops} stops, ${s.dwell_s} s dwell, about ${s.added_s} s added` +
+    (s.missed ? `, ${s.missed} not reached` : "");
+  else if (s.points !== undefined) line += "; checking the G-code…";
+  $("summary").textContent = line;
+  const ul = $("global-msgs");
+  ul.textContent = "";
+  for (const e of p.errors) { const li = document.createElement("li"); li.className = "error"; li.textContent = e; ul.append(li); }
+  for (const w of p.warnings) { const li = document.createElement("li"); li.className = "warning"; li.textContent = w; ul.append(li); }
+  renderItems();
+  view2d.draw();
+  view3d.setBumps(p.points);
+}
+
+// ---------------------------------------------------------------- geometry of an item on the wall
+
+// What a drag changes: place, turn and size; strokes computed for one geometry are shown for
+// another by the affine map between them (exact for moves and turns, near enough for sizes).
+function geomOf(it) {
+  const size = it.kind === "text" ? it.size : it.assetKind === "image" ? it.image_width : it.scale;
+  return { u: it.at[0], v: it.at[1], rot: it.rotate, size };
+}
+
+function mapPoint(g0, g1, u, v) {
+  const k = g1.size / g0.size;
+  const a = ((g1.rot - g0.rot) * Math.PI) / 180;
+  const du = (u - g0.u) * k, dv = (v - g0.v) * k;
+  return [g1.u + du * Math.cos(a) - dv * Math.sin(a), g1.v + du * Math.sin(a) + dv * Math.cos(a)];
+}
+
+function itemStrokes(it) {
+  const info = S.preview && S.preview.items[it.id];
+  const g0 = S.strokesAt[it.id];
+  if (!info || !g0) return [];
+  const g1 = geomOf(it);
+  const same = g0.u === g1.u && g0.v === g1.v && g0.rot === g1.rot && g0.size === g1.size;
+  return info.strokes.map((flat) => {
+    const pts = [];
+    for (let i = 0; i < flat.length; i += 2) pts.push(same ? [flat[i], flat[i + 1]] : mapPoint(g0, g1, flat[i], flat[i + 1]));
+    return pts;
+  });
+}
+
+function itemBox(it) {
+  let u0 = Infinity, v0 = Infinity, u1 = -Infinity, v1 = -Infinity;
+  for (const st of itemStrokes(it)) for (const [u, v] of st) {
+    u0 = Math.min(u0, u); v0 = Math.min(v0, v); u1 = Math.max(u1, u); v1 = Math.max(v1, v);
+  }
+  if (!isFinite(u0)) { u0 = it.at[0]; v0 = it.at[1]; u1 = u0 + 5; v1 = v0 + 5; }
+  return { u0, v0, u1, v1 };
+}
+
+// ---------------------------------------------------------------- the unrolled wall (2D canvas)
+
+const view2d = (() => {
+  const cv = $("unrolled");
+  const ctx = cv.getContext("2d");
+  let k = 4, ou = -5, ov = 0;            // px per mm; wall point at the canvas's left/bottom edge
+  let drag = null;
+
+  const toPx = (u, v) => [(u - ou) * k, cv.height - (v - ov) * k];
+  const toMm = (x, y) => [x / k + ou, (cv.height - y) / k + ov];
+
+  function resize() {
+    const r = cv.getBoundingClientRect();
+    cv.width = Math.max(50, r.width | 0); cv.height = Math.max(50, r.height | 0);
+    draw();
+  }
+
+  function fit() {
+    if (!S.gcode) return;
+    resize();
+    const w = S.gcode.walls, L = S.gcode.length_max;
+    const [lo, hi] = w.v_range;
+    k = Math.min((cv.width - 40) / (L + 10), (cv.height - 40) / (hi - lo + 4));
+    ou = -5 - (cv.width / k - (L + 10)) / 2;
+    ov = lo - 2 - (cv.height / k - (hi - lo + 4)) / 2;
+    draw();
+  }
+
+  function handles(it) {
+    const b = itemBox(it);
+    const [x0, y0] = toPx(b.u0, b.v1), [x1, y1] = toPx(b.u1, b.v0);
+    return { box: [x0 - 4, y0 - 4, x1 + 4, y1 + 4], scale: [x1 + 4, y1 + 4], rotate: [(x0 + x1) / 2, y0 - 22] };
+  }
+
+  function draw() {
+    ctx.clearRect(0, 0, cv.width, cv.height);
+    if (!S.gcode) {
+      ctx.fillStyle = "#90a4ae"; ctx.font = "14px system-ui";
+      ctx.fillText("Open a sliced G-code: its outer wall appears here, unrolled.", 20, 30);
+      return;
+    }
+    // the wall: one band per layer, as long as that layer's outer wall
+    ctx.fillStyle = "#dfe5e8";
+    for (const l of S.gcode.walls.layers) {
+      const a = l.closed ? 0 : l.u[0], b = l.closed ? l.length : l.u[1];
+      const [x0, y0] = toPx(a, l.z), [x1, y1] = toPx(b, l.z - l.h);
+      ctx.fillRect(x0, y0, Math.max(1, x1 - x0), Math.max(0.5, y1 - y0 - (k * l.h > 3 ? 0.5 : 0)));
+    }
+    // axes
+    ctx.strokeStyle = "#b0bec5"; ctx.fillStyle = "#78909c"; ctx.font = "11px system-ui"; ctx.lineWidth = 1;
+    const step = [1, 2, 5, 10, 20, 50, 100].find((s) => s * k >= 45) || 200;
+    const [umin] = toMm(0, 0), [umax] = toMm(cv.width, 0);
+    for (let u = Math.ceil(umin / step) * step; u <= umax; u += step) {
+      const [x] = toPx(u, 0);
+      ctx.fillText(`${u}`, x + 2, cv.height - 4);
+    }
+    const [, vtop] = toMm(0, 0), [, vbot] = toMm(0, cv.height);
+    for (let v = Math.ceil(vbot / step) * step; v <= vtop; v += step) {
+      const [, y] = toPx(0, v);
+      ctx.fillText(`${v}`, 2, y - 2);
+    }
+    const [xL] = toPx(S.gcode.length_max, 0);
+    ctx.setLineDash([4, 4]); ctx.beginPath(); ctx.moveTo(xL, 0); ctx.lineTo(xL, cv.height); ctx.stroke(); ctx.setLineDash([]);
+    // items: their strokes
+    for (const it of S.items) {
+      const info = S.preview && S.preview.items[it.id];
+      const bad = info && info.errors.length;
+      ctx.strokeStyle = bad ? "#e53935" : it.id === S.selected ? "#ef6c00" : "#546e7a";
+      ctx.fillStyle = ctx.strokeStyle;
+      ctx.lineWidth = 1.2;
+      for (const st of itemStrokes(it)) {
+        if (st.length === 1) { const [x, y] = toPx(...st[0]); ctx.fillRect(x - 1, y - 1, 2, 2); continue; }
+        ctx.beginPath();
+        st.forEach(([u, v], i) => { const [x, y] = toPx(u, v); i ? ctx.lineTo(x, y) : ctx.moveTo(x, y); });
+        ctx.stroke();
+      }
+    }
+    // bumps (only while the strokes shown are the ones they were made from)
+    const moving = drag && drag.mode !== "pan";
+    if (S.preview && !moving) {
+      const r = Math.max(1.5, Math.min(6, 0.45 * k));
+      for (const p of S.preview.points) {
+        const [x, y] = toPx(p[0], p[1]);
+        ctx.beginPath(); ctx.arc(x, y, r * (0.5 + p[5] / 510), 0, 2 * Math.PI);
+        ctx.fillStyle = p[7] ? "rgba(229,57,53,.85)" : p[6].includes(S.selected) ? "rgba(239,108,0,.8)" : "rgba(38,50,56,.55)";
+        ctx.fill();
+      }
+    }
+    // the selected item's frame and handles
+    const it = S.items.find((i) => i.id === S.selected);
+    if (it) {
+      const h = handles(it);
+      ctx.strokeStyle = "#ef6c00"; ctx.setLineDash([3, 3]); ctx.lineWidth = 1;
+      ctx.strokeRect(h.box[0], h.box[1], h.box[2] - h.box[0], h.box[3] - h.box[1]);
+      ctx.setLineDash([]);
+      ctx.beginPath(); ctx.moveTo((h.box[0] + h.box[2]) / 2, h.box[1]); ctx.lineTo(...h.rotate); ctx.stroke();
+      ctx.fillStyle = "#fff";
+      ctx.fillRect(h.scale[0] - 5, h.scale[1] - 5, 10, 10); ctx.strokeRect(h.scale[0] - 5, h.scale[1] - 5, 10, 10);
+      ctx.beginPath(); ctx.arc(h.rotate[0], h.rotate[1], 6, 0, 2 * Math.PI); ctx.fill(); ctx.stroke();
+      const [ax, ay] = toPx(...it.at);
+      ctx.fillStyle = "#ef6c00"; ctx.fillRect(ax - 2, ay - 2, 4, 4);
+    }
+  }
+
+  function hit(x, y) {
+    const sel = S.items.find((i) => i.id === S.selected);
+    if (sel) {
+      const h = handles(sel);
+      if (Math.hypot(x - h.scale[0], y - h.scale[1]) < 9) return { it: sel, mode: "scale" };
+      if (Math.hypot(x - h.rotate[0], y - h.rotate[1]) < 9) return { it: sel, mode: "rotate" };
+    }
+    for (const it of [...S.items].reverse()) {
+      const b = handles(it).box;
+      if (x >= b[0] && x <= b[2] && y >= b[1] && y <= b[3]) return { it, mode: "move" };
+    }
+    return null;
+  }
+
+  cv.addEventListener("pointerdown", (e) => {
+    const r = cv.getBoundingClientRect();
+    const x = e.clientX - r.left, y = e.clientY - r.top;
+    const h = hit(x, y);
+    cv.setPointerCapture(e.pointerId);
+    if (!h) { drag = { mode: "pan", x, y, ou, ov }; return; }
+    if (h.it.id !== S.selected) select(h.it.id);
+    const [u, v] = toMm(x, y);
+    drag = { mode: h.mode, it: h.it, u, v, g: geomOf(h.it), at: [...h.it.at] };
+  });
+  cv.addEventListener("pointermove", (e) => {
+    const r = cv.getBoundingClientRect();
+    const x = e.clientX - r.left, y = e.clientY - r.top;
+    if (!drag) { const h = hit(x, y); cv.style.cursor = h ? (h.mode === "move" ? "move" : h.mode === "scale" ? "nwse-resize" : "crosshair") : "grab"; return; }
+    if (drag.mode === "pan") { ou = drag.ou - (x - drag.x) / k; ov = drag.ov + (y - drag.y) / k; draw(); return; }
+    const [u, v] = toMm(x, y), it = drag.it;
+    if (drag.mode === "move") it.at = [drag.at[0] + u - drag.u, drag.at[1] + v - drag.v];
+    else if (drag.mode === "rotate") {
+      const a0 = Math.atan2(drag.v - drag.at[1], drag.u - drag.at[0]), a1 = Math.atan2(v - drag.at[1], u - drag.at[0]);
+      let deg = drag.g.rot + ((a1 - a0) * 180) / Math.PI;
+      if (e.shiftKey) deg = Math.round(deg / 15) * 15;
+      it.rotate = ((deg % 360) + 540) % 360 - 180;
+    } else {
+      const d0 = Math.hypot(drag.u - drag.at[0], drag.v - drag.at[1]), d1 = Math.hypot(u - drag.at[0], v - drag.at[1]);
+      const f = Math.max(0.05, d1 / Math.max(d0, 1e-6));
+      if (it.kind === "text") it.size = Math.max(0.5, drag.g.size * f);
+      else if (it.assetKind === "image") it.image_width = Math.max(1, drag.g.size * f);
+      else it.scale = Math.max(0.01, drag.g.size * f);
+    }
+    fillItemForm(it);
+    draw();
+  });
+  cv.addEventListener("pointerup", () => {
+    const was = drag;
+    drag = null;
+    if (was && was.mode !== "pan") { clampItem(was.it); fillItemForm(was.it); requestPreview(); }
+    draw();
+  });
+  cv.addEventListener("wheel", (e) => {
+    e.preventDefault();
+    const r = cv.getBoundingClientRect();
+    const [u, v] = toMm(e.clientX - r.left, e.clientY - r.top);
+    k = Math.min(200, Math.max(0.2, k * Math.exp(-e.deltaY * 0.0015)));
+    ou = u - (e.clientX - r.left) / k; ov = v - (cv.height - (e.clientY - r.top)) / k;
+    draw();
+  }, { passive: false });
+  new ResizeObserver(resize).observe(cv);
+  return { draw, fit, toPx, toMm };
+})();
+
+// ---------------------------------------------------------------- the 3D view
+
+const view3d = (() => {
+  const host = $("view3d");
+  let renderer = null, scene, camera, controls, wallGroup, bumps = null;
+  try {
+    renderer = new THREE.WebGLRenderer({ antialias: true, preserveDrawingBuffer: true });
+  } catch (e) {
+    const p = document.createElement("p");
+    p.className = "msg warning";
+    p.textContent = `No 3D view: this browser gave no WebGL (${e.message}). The unrolled view above shows the same bumps.`;
+    host.append(p);
+    return { setWalls() {}, setBumps() {} };
+  }
+  renderer.setPixelRatio(window.devicePixelRatio || 1);
+  host.prepend(renderer.domElement);
+  scene = new THREE.Scene();
+  scene.background = new THREE.Color(0xeef1f3);
+  camera = new THREE.PerspectiveCamera(40, 1, 0.1, 5000);
+  camera.up.set(0, 0, 1);
+  controls = new OrbitControls(camera, renderer.domElement);
+  scene.add(new THREE.AmbientLight(0xffffff, 0.6));
+  const sun = new THREE.DirectionalLight(0xffffff, 1.6);
+  sun.position.set(1, -1, 2);
+  scene.add(sun);
+  wallGroup = new THREE.Group();
+  scene.add(wallGroup);
+
+  function size() {
+    const r = host.getBoundingClientRect();
+    renderer.setSize(Math.max(10, r.width), Math.max(10, r.height));
+    camera.aspect = Math.max(10, r.width) / Math.max(10, r.height);
+    camera.updateProjectionMatrix();
+    render();
+  }
+  const render = () => renderer.render(scene, camera);
+  controls.addEventListener("change", render);
+  new ResizeObserver(size).observe(host);
+
+  function setWalls(w) {
+    wallGroup.clear();
+    const mat = new THREE.LineBasicMaterial({ color: 0x90a4ae });
+    for (const l of w.layers) {
+      if (!l.xy) continue;
+      const pos = new Float32Array((l.xy.length / 2) * 3);
+      for (let i = 0, j = 0; i < l.xy.length; i += 2, j += 3) { pos[j] = l.xy[i]; pos[j + 1] = l.xy[i + 1]; pos[j + 2] = l.z; }
+      const g = new THREE.BufferGeometry();
+      g.setAttribute("position", new THREE.BufferAttribute(pos, 3));
+      wallGroup.add(new THREE.Line(g, mat));
+    }
+    const [x0, y0, x1, y1] = w.bounds, [z0, z1] = w.v_range;
+    const c = new THREE.Vector3((x0 + x1) / 2, (y0 + y1) / 2, (z0 + z1) / 2);
+    const R = Math.max(x1 - x0, y1 - y0, z1 - z0);
+    controls.target.copy(c);
+    camera.position.set(c.x + 1.1 * R, c.y - 1.6 * R, c.z + 0.9 * R);
+    camera.far = 20 * R + 100; camera.near = R / 1000 + 0.01;
+    camera.updateProjectionMatrix();
+    controls.update();
+    size();
+  }
+
+  function setBumps(points) {
+    if (bumps) { scene.remove(bumps); bumps.geometry.dispose(); bumps.material.dispose(); bumps = null; }
+    if (points && points.length) {
+      const geo = new THREE.SphereGeometry(0.45, 10, 8);
+      const mat = new THREE.MeshStandardMaterial({ color: 0xffffff, roughness: 0.6 });   // tinted per bump
+      bumps = new THREE.InstancedMesh(geo, mat, points.length);
+      const m = new THREE.Matrix4(), red = new THREE.Color(0xe53935), orange = new THREE.Color(0xef6c00);
+      points.forEach((p, i) => {
+        const s = 0.5 + p[5] / 510;
+        m.makeScale(s, s, s).setPosition(p[2], p[3], p[4] - 0.1);
+        bumps.setMatrixAt(i, m);
+        bumps.setColorAt(i, p[7] ? red : orange);
+      });
+      scene.add(bumps);
+    }
+    render();
+  }
+  return { setWalls, setBumps };
+})();
+
+// ---------------------------------------------------------------- export and printer
+
+async function doExport() {
+  showError("export-error", null);
+  $("export").disabled = true;
+  const out = $("export-out");
+  out.textContent = "";
+  try {
+    const job = await postJSON("/api/export", { design: design() });
+    const res = await pollJob(job, (j) => status(`exporting: ${j.label || "…"}${j.total ? ` ${Math.round(100 * j.done / j.total)} %` : ""}`, j.total ? j.done / j.total : 0));
+    S.exportKey = res.key;
+    const zip = document.createElement("a");
+    zip.href = fileUrl(res.zip, true); zip.textContent = `Download all (${res.key}.zip)`; zip.id = "export-zip";
+    out.append(zip);
+    for (const f of res.files) {
+      const a = document.createElement("a");
+      a.href = fileUrl(f.url, true); a.textContent = `${f.name} (${(f.bytes / 1024).toFixed(1)} KB)`;
+      a.className = "export-file";
+      out.append(a);
+    }
+    const where = document.createElement("div");
+    where.className = "info"; where.textContent = `saved in ${res.folder}`;
+    const pre = document.createElement("pre");
+    pre.textContent = res.stats + (res.notes.length ? "\n" + res.notes.map((n) => `note: ${n}`).join("\n") : "");
+    out.append(where, pre);
+    $("send").disabled = false;
+    status(`exported ${res.key}`);
+  } catch (e) {
+    showError("export-error", e);
+    status("export failed");
+  } finally {
+    $("export").disabled = false;
+  }
+}
+
+async function downloadPlacement() {
+  showError("export-error", null);
+  try {
+    const r = await fetch("/api/placement", { method: "POST", body: JSON.stringify({ design: design() }),
+      headers: { "X-Studio-Token": TOKEN, "Content-Type": "application/json" } });
+    if (!r.ok) throw new Error((await r.json()).error);
+    const a = document.createElement("a");
+    a.href = URL.createObjectURL(await r.blob()); a.download = "placement.toml";
+    a.click();
+  } catch (e) { showError("export-error", e); }
+}
+
+async function doSend() {
+  showError("send-error", null);
+  const bar = $("send-bar"), log = $("send-log");
+  log.textContent = "";
+  $("send").disabled = true;
+  try {
+    const job = await postJSON("/api/send", { export: S.exportKey, which: $("send-which").value,
+      port: $("port").value, baud: +$("baud").value });
+    bar.hidden = false;
+    const res = await pollJob(job, (j) => {
+      bar.value = j.total ? j.done / j.total : 0;
+      log.textContent = j.log.join("\n");
+      status(`${j.label || "connecting"}${j.total ? `: ${j.done} of ${j.total} lines` : "…"}`, j.total ? j.done / j.total : 0);
+    });
+    log.textContent += `\n${res.file}: ${res.summary}`;
+    status(`sent ${res.file}`);
+  } catch (e) {
+    showError("send-error", e);
+    status("sending stopped");
+  } finally {
+    $("send").disabled = !S.exportKey;
+  }
+}
+
+async function loadPorts() {
+  try {
+    const r = await api("/api/ports");
+    const dl = $("ports");
+    dl.textContent = "";
+    for (const p of r.ports) { const o = document.createElement("option"); o.value = p.device; o.label = p.description; dl.append(o); }
+  } catch { /* no list: the field still takes a typed port */ }
+}
+
+// ---------------------------------------------------------------- lithophane tab
+
+const L = { asset: null };
+
+async function lithoPicture(file) {
+  showError("litho-error", null);
+  const info = await (async () => {
+    if (S.limits.asset_mb && file.size > S.limits.asset_mb * 1048576) {
+      showError("litho-error", `${file.name}: ${(file.size / 1048576).toFixed(1)} MB is more than the studio takes for a picture (${S.limits.asset_mb} MB)`);
+      return null;
+    }
+    try { return await upload("/api/asset", file, (a, b) => status(`uploading ${file.name}`, a / b)); }
+    catch (e) { showError("litho-error", e); return null; }
+  })();
+  if (!info) return;
+  if (info.kind !== "image") { showError("litho-error", `${file.name}: a lithophane needs a picture`); return; }
+  L.asset = info.name;
+  $("litho-pic").textContent = `${info.name}: ${info.width_px} × ${info.height_px} pixels`;
+  $("litho-make").disabled = false;
+  status(`${info.name} loaded`);
+}
+
+function lithoOptions() {
+  const f = $("litho-form"), o = {};
+  for (const el of f.elements) {
+    if (!el.name) continue;
+    if (el.type === "checkbox") o[el.name] = el.checked;
+    else if (el.tagName === "SELECT") o[el.name] = el.value;
+    else if (el.value !== "") o[el.name] = ["temp", "bed_temp"].includes(el.name) ? Math.round(+el.value) : +el.value;
+  }
+  return o;
+}
+
+async function makeLitho() {
+  showError("litho-error", null);
+  $("litho-make").disabled = true;
+  const bar = $("litho-bar"), out = $("litho-out");
+  bar.hidden = false;
+  try {
+    const job = await postJSON("/api/litho", { asset: L.asset, options: lithoOptions() });
+    const res = await pollJob(job, (j) => {
+      bar.value = j.total ? j.done / j.total : 0;
+      status(`lithophane: ${j.label || "…"}${j.total ? ` ${j.done}/${j.total}` : ""}`, j.total ? j.done / j.total : 0);
+    });
+    out.textContent = "";
+    const h = document.createElement("h2"); h.textContent = "Predicted backlit look (left: the picture)";
+    const img = document.createElement("img"); img.src = fileUrl(res.look); img.id = "litho-look"; img.alt = "predicted look";
+    const pre = document.createElement("pre"); pre.textContent = res.summary;
+    const files = document.createElement("div"); files.className = "files";
+    for (const f of res.files) { const a = document.createElement("a"); a.href = fileUrl(f.url, true); a.textContent = `${f.name} (${(f.bytes / 1024).toFixed(1)} KB)`; files.append(a); }
+    const where = document.createElement("div"); where.className = "info"; where.textContent = `saved in ${res.folder}`;
+    out.append(h, img, pre, files, where);
+    status(`lithophane ${res.key} made`);
+  } catch (e) {
+    showError("litho-error", e);
+    status("lithophane failed");
+  } finally {
+    bar.hidden = true;
+    $("litho-make").disabled = !L.asset;
+  }
+}
+
+// ---------------------------------------------------------------- wiring
+
+function dropTarget(el, onFile) {
+  el.addEventListener("dragover", (e) => { e.preventDefault(); el.classList.add("over"); });
+  el.addEventListener("dragleave", () => el.classList.remove("over"));
+  el.addEventListener("drop", (e) => {
+    e.preventDefault(); el.classList.remove("over");
+    const f = e.dataTransfer.files[0];
+    if (f) onFile(f);
+  });
+}
+
+async function init() {
+  const st = await api("/api/state");
+  S.fonts = st.fonts; S.limits = st.limits;
+  const fs = $("item-form").font;
+  for (const f of st.fonts) { const o = document.createElement("option"); o.value = o.textContent = f; fs.append(o); }
+  for (const t of document.querySelectorAll(".tab")) t.onclick = () => {
+    for (const x of document.querySelectorAll(".tab")) x.classList.toggle("active", x === t);
+    $("page-wall").hidden = t.dataset.tab !== "wall";
+    $("page-litho").hidden = t.dataset.tab !== "litho";
+  };
+  $("gcode-file").onchange = (e) => e.target.files[0] && openGcode(e.target.files[0]);
+  dropTarget($("drop"), openGcode);
+  dropTarget($("unrolled-wrap"), (f) => (/\.(gcode|gco|g)$/i.test(f.name) || !S.gcode ? openGcode(f) : addDrawing(f)));
+  $("add-text").onclick = addText;
+  $("add-file").onchange = (e) => { const f = e.target.files[0]; e.target.value = ""; if (f) addDrawing(f); };
+  $("item-form").addEventListener("input", readItemForm);
+  $("bulge-form").addEventListener("input", requestPreview);
+  $("bulge-form").addEventListener("change", requestPreview);
+  $("delete-item").onclick = () => { S.items = S.items.filter((i) => i.id !== S.selected); select(null); requestPreview(); };
+  $("export").onclick = doExport;
+  $("placement").onclick = downloadPlacement;
+  $("send").onclick = doSend;
+  $("port").addEventListener("focus", loadPorts, { once: true });
+  $("litho-file").onchange = (e) => e.target.files[0] && lithoPicture(e.target.files[0]);
+  dropTarget(document.querySelector('#page-litho .drop'), lithoPicture);
+  $("litho-make").onclick = makeLitho;
+  window.addEventListener("dragover", (e) => e.preventDefault());
+  window.addEventListener("drop", (e) => e.preventDefault());
+  for (const j of st.jobs) if (j.kind === "open") {     // a G-code given on the command line
+    try {
+      const res = await pollJob(j, (x) => status(`${x.label || "reading"}${x.total ? ` ${Math.round(100 * x.done / x.total)} %` : ""}`, x.total ? x.done / x.total : 0));
+      setGcode(res);
+      status(`${res.name}: ${res.layers} layers of outer wall`);
+    } catch (e) { showError("gcode-error", e); status("Open a sliced G-code to start."); }
+  }
+  if (st.gcode && !S.gcode) { setGcode(st.gcode); status(`${st.gcode.name}: ${st.gcode.layers} layers of outer wall`); }
+  document.body.dataset.ready = "1";
+}
+
+init().catch((e) => status(`the studio did not start: ${e.message}`));
+window.studio = { S, design, view2d };   // for the browser tests and the curious

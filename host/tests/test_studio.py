@@ -1,0 +1,315 @@
+"""`bulgekit studio` without a browser: its HTTP API, its guard, its handling of bad input, the
+placement file it writes, per-item messages, sending through the existing sender, and the
+byte-for-byte match of its export with `bulgekit build --placement` (the browser tests are in
+test_studio_browser.py)."""
+import hashlib
+import os
+import tty
+import urllib.request
+from pathlib import Path
+
+import pytest
+from PIL import Image
+
+from bulgekit.placement import dump_placement, load_placement
+from studio_util import GCODE, call, cli_build, open_gcode, start, wait_job
+
+SVG = """<svg xmlns="http://www.w3.org/2000/svg" width="20mm" height="10mm" viewBox="0 0 20 10">
+<path d="M 1 1 L 19 9 M 1 9 L 19 1" fill="none" stroke="black"/></svg>"""
+
+
+@pytest.fixture(scope="module")
+def studio(tmp_path_factory):
+    run = start(tmp_path_factory.mktemp("studio"), image_pixels=4_000_000)
+    job = open_gcode(run)
+    assert job["state"] == "done", job
+    yield run
+    run.stop()
+
+
+def text_item(iid="t1", **kw):
+    return {"id": iid, "kind": "text", "text": "HELLO", "at": [4, 7], "size": 6, "font": "futural",
+            "letter_spacing": 0, "mirror": False, "rotate": 0} | kw
+
+
+def design(*items, **bulges):
+    return {"name": "part", "items": list(items),
+            "bulges": {"dwell": 100, "extra": 0.1, "tolerance": 0.25, "line_width": 0.45,
+                       "geometric": False, "fallback": False} | bulges}
+
+
+# -- the guard
+
+def test_page_has_token_and_csp(studio):
+    status, html = call(studio, "/", token=False, raw=True)
+    assert status == 200 and studio.studio.token.encode() in html
+    with urllib.request.urlopen(studio.url) as r:
+        csp = r.headers["Content-Security-Policy"]
+    assert "default-src 'self'" in csp and "'unsafe-eval'" not in csp and "sha256-" in csp
+
+
+@pytest.mark.parametrize("headers,token,why", [
+    ({}, False, "token"),
+    ({"Origin": "http://evil.example"}, True, "another origin"),
+    ({"Sec-Fetch-Site": "cross-site"}, True, "another site"),
+    ({"Host": "attacker.example:80"}, True, "Host"),
+    ({"Host": "192.168.1.5"}, True, "Host"),
+])
+def test_guard_refuses_other_origins_and_missing_token(studio, headers, token, why):
+    status, body = call(studio, "/api/state", headers=headers, token=token)
+    assert status == 403 and why in body["error"]
+    status, body = call(studio, "/api/preview", {"design": design(text_item())}, headers=headers,
+                        token=token)
+    assert status == 403
+
+
+def test_guard_lets_the_page_in(studio):
+    port = studio.url.split(":")[2].rstrip("/")
+    for origin in (f"http://127.0.0.1:{port}", f"http://localhost:{port}"):
+        status, body = call(studio, "/api/state", headers={"Origin": origin,
+                                                           "Sec-Fetch-Site": "same-origin"})
+        assert status == 200 and body["gcode"]["layers"] == 67
+
+
+def test_files_stay_inside_the_working_folder(studio, tmp_path):
+    secret = studio.studio.workdir.parent / "secret.txt"
+    secret.write_text("no")
+    for path in ("/files/exports/../../secret.txt", "/files/exports/%2e%2e/%2e%2e/secret.txt",
+                 "/files/gcode/1-cylinder40x20.gcode", "/files/litho/../exports"):
+        status, body = call(studio, path, raw=True)
+        assert status == 404, path
+    assert call(studio, "/files/exports/x", token=False)[0] == 403
+
+
+# -- bad input: clear messages, the server keeps running, the open G-code stays
+
+@pytest.mark.parametrize("name,data,message", [
+    ("photo.gcode", b"\x89PNG\r\n\x1a\n\0\0\0", "not a text G-code file"),
+    ("empty.gcode", b"G28\nM104 S200\nG1 X10 Y10 F3000\n", "outer wall"),
+    ("notes.txt", b"shopping list\nmilk\n", "outer wall"),
+])
+def test_bad_gcode_is_refused_clearly(studio, name, data, message):
+    status, job = call(studio, f"/api/gcode?name={name}", data)
+    job = wait_job(studio, job)
+    assert job["state"] == "error" and message in job["error"] and name in job["error"]
+    st = call(studio, "/api/state")[1]
+    assert st["gcode"]["name"] == "cylinder40x20.gcode"      # what was open stays open
+
+
+def test_gcode_over_the_limit_is_refused_before_reading(tmp_path):
+    run = start(tmp_path, gcode_bytes=1 << 20)
+    try:
+        status, body = call(run, "/api/gcode?name=huge.gcode", b";" * ((1 << 20) + 10))
+        assert status == 413 and "huge.gcode" in body["error"] and "--max-upload" in body["error"]
+        assert not list((tmp_path / "gcode").iterdir())          # nothing kept
+        assert open_gcode(run)["state"] == "done"                # and the server still works
+    finally:
+        run.stop()
+
+
+def test_already_annotated_gcode_is_refused(studio, tmp_path):
+    data = GCODE.read_bytes().replace(b";LAYER_CHANGE", b"M720 S1\n;LAYER_CHANGE", 1)
+    job = wait_job(studio, call(studio, "/api/gcode?name=twice.gcode", data)[1])
+    assert job["state"] == "error" and "bulge twice" in job["error"]
+
+
+def test_oversized_and_broken_pictures_are_refused(studio, tmp_path):
+    big = tmp_path / "big.png"
+    Image.new("L", (2100, 2000), 128).save(big)          # 4.2 MP, over this studio's 4 MP
+    status, body = call(studio, "/api/asset?name=big.png", big.read_bytes())
+    assert status == 400 and "2100 x 2000 pixels" in body["error"] and "scale it down" in body["error"]
+    status, body = call(studio, "/api/asset?name=fake.png", b"not a picture")
+    assert status == 400 and "fake.png" in body["error"] and "Pillow" in body["error"]
+    status, body = call(studio, "/api/asset?name=run.exe", b"MZ")
+    assert status == 400 and "not a drawing file" in body["error"]
+    status, body = call(studio, "/api/asset?name=bad.svg", b"<svg><path d='M 1 1 L'/></svg>")
+    assert status == 400 and "bad.svg" in body["error"]
+    assert "big.png" not in call(studio, "/api/state")[1]["assets"]
+
+
+def test_asset_names_cannot_leave_the_folder(studio):
+    status, info = call(studio, "/api/asset?name=../../evil.svg", SVG.encode())
+    assert status == 200 and info["name"] == "evil.svg"
+    assert (studio.studio.workdir / "assets" / "evil.svg").is_file()
+
+
+def test_bad_requests_get_json_errors(studio):
+    assert call(studio, "/api/preview", b"{nope", headers={"Content-Type": "application/json"})[0] == 400
+    status, body = call(studio, "/api/preview", {"design": {"items": [{"kind": "circle"}]}})
+    assert status == 400 and "unknown kind" in body["error"]
+    status, body = call(studio, "/api/preview", {"design": design(text_item(at=[1, "x"]))})
+    assert status == 400 and "at" in body["error"]
+
+
+# -- preview: strokes and messages per item
+
+def test_preview_places_points_and_names_items(studio):
+    status, p = call(studio, "/api/preview", {"design": design(text_item("a"), text_item("b", text="X", at=[60, 3])),
+                                              "check": True})
+    assert status == 200 and not p["errors"]
+    owners = {o for pt in p["points"] for o in pt[6]}
+    assert owners == {"a", "b"} and p["items"]["a"]["strokes"] and p["items"]["b"]["strokes"]
+    assert p["summary"]["checked"] and p["summary"]["stops"] == p["summary"]["points"] > 0
+
+
+def test_messages_go_beside_the_item_at_fault(studio):
+    d = design(text_item("ok"), text_item("euro", text="5 €", at=[60, 5]),
+               text_item("high", text="UP", at=[80, 19]))
+    status, p = call(studio, "/api/preview", {"design": d})
+    assert status == 200 and not p["errors"]
+    assert "'€'" in p["items"]["euro"]["errors"][0] and "not in font" in p["items"]["euro"]["errors"][0]
+    assert "outside the outer wall's height" in p["items"]["high"]["errors"][0]
+    assert not p["items"]["ok"]["errors"] and p["points"]          # the good one still builds
+    assert {o for pt in p["points"] for o in pt[6]} == {"ok"}
+
+
+def test_unreached_points_are_counted_beside_their_item(studio):
+    # a tolerance under the map's 0.1 mm quantum: some points fall off their moves
+    status, p = call(studio, "/api/preview", {"design": design(text_item("t"), tolerance=0.01), "check": True})
+    assert status == 200
+    missed = p["summary"]["missed"]
+    assert missed > 0 and sum(pt[7] for pt in p["points"]) == missed
+    assert f"{missed} point(s) not within 0.01 mm" in p["items"]["t"]["warnings"][0]
+
+
+def test_arena_warning(tmp_path):
+    run = start(tmp_path, arena=64)
+    try:
+        open_gcode(run)
+        status, p = call(run, "/api/preview", {"design": design(text_item())})
+        assert status == 200 and any("64-byte arena" in w for w in p["warnings"])
+    finally:
+        run.stop()
+
+
+def test_bad_settings_are_reported(studio):
+    status, p = call(studio, "/api/preview", {"design": design(text_item(), dwell=-5)})
+    assert status == 200 and p["errors"] and "dwell" in p["errors"][0]
+
+
+# -- placement files
+
+def test_dump_placement_reads_back(tmp_path):
+    (tmp_path / "w.svg").write_text(SVG)
+    text = dump_placement([{"text": 'say "hi"\\ \u00e9\n2', "at": [1.5, 2], "size": 5, "rotate": 30.0}],
+                          [{"file": "w.svg", "at": [10, 3], "scale": 0.5, "rotate": -90}],
+                          {"dwell": 80, "extra": 0.05, "geometric": False})
+    p = tmp_path / "p.toml"
+    p.write_text(text)
+    pl = load_placement(p)
+    assert pl.bulges == {"dwell": 80, "extra": 0.05, "geometric": False}
+    assert [w for w, _ in pl.entries] == ["text[0]", "strokes[0]"]
+    assert all(s.source.startswith(("text[0]", "strokes[0]")) for s in pl.strokes)
+
+
+def test_rotate_turns_strokes_about_at(tmp_path):
+    (tmp_path / "w.svg").write_text(SVG)
+    base = [{"file": "w.svg", "at": [10, 3]}]
+    p0, p90 = tmp_path / "a.toml", tmp_path / "b.toml"
+    p0.write_text(dump_placement([], base, {}))
+    p90.write_text(dump_placement([], [base[0] | {"rotate": 90}], {}))
+    a, b = load_placement(p0).strokes, load_placement(p90).strokes
+    for sa, sb in zip(a, b):
+        for (u, v), (ru, rv) in zip(sa.points, sb.points):
+            assert ru == pytest.approx(10 - (v - 3)) and rv == pytest.approx(3 + (u - 10))
+
+
+# -- export = CLI, byte for byte
+
+def _sha(p: Path) -> str:
+    return hashlib.sha256(p.read_bytes()).hexdigest()
+
+
+def test_export_is_byte_identical_to_the_cli(studio, tmp_path):
+    status, svg = call(studio, "/api/asset?name=cross.svg", SVG.encode())
+    img = tmp_path / "dot.png"
+    Image.new("L", (8, 4), 0).save(img)
+    status, pic = call(studio, "/api/asset?name=dot.png", img.read_bytes())
+    d = design(text_item("t", text="Hi!", at=[3.25, 6.5], rotate=12.5, letter_spacing=0.3),
+               {"id": "s", "kind": "file", "asset": svg["name"], "at": [45, 5], "scale": 0.6, "rotate": -20},
+               {"id": "p", "kind": "file", "asset": pic["name"], "at": [80, 8], "image_width": 6},
+               dwell=120, extra=0.08, spacing=1.0)
+    d["name"] = "mine"
+    job = wait_job(studio, call(studio, "/api/export", {"design": d})[1])
+    assert job["state"] == "done", job["error"]
+    folder = Path(job["result"]["folder"])
+    names = {f["name"] for f in job["result"]["files"]}
+    made = {"mine.bkm", "mine.bulge.gcode", "mine.stock.gcode", "mine.stats.txt", "mine.preview.png",
+            "mine.preview3d.png"}
+    assert names == made | {"placement.toml", svg["name"], pic["name"]}
+    cli = cli_build(GCODE, folder / "placement.toml", tmp_path / "cli", "mine")
+    assert {p.name for p in cli} == made
+    for p in cli:
+        assert _sha(p) == _sha(folder / p.name), p.name
+    # the downloads are those files, and the zip holds them all
+    status, body = call(studio, f"/files/exports/{job['result']['key']}/mine.bkm", raw=True)
+    assert status == 200 and body == (folder / "mine.bkm").read_bytes()
+    status, body = call(studio, job["result"]["zip"], raw=True)
+    assert status == 200 and body[:2] == b"PK"
+    # and the placement endpoint writes the same file text
+    status, text = call(studio, "/api/placement", {"design": d}, raw=True)
+    assert text == (folder / "placement.toml").read_bytes()
+
+
+def test_export_failure_leaves_nothing(studio):
+    before = set((studio.studio.workdir / "exports").iterdir())
+    job = wait_job(studio, call(studio, "/api/export", {"design": design(text_item(text="€"))})[1])
+    assert job["state"] == "error" and "not in font" in job["error"]
+    assert set((studio.studio.workdir / "exports").iterdir()) == before
+
+
+# -- sending through the existing sender
+
+def test_send_streams_the_export_with_progress(studio, tmp_path):
+    from test_sender import FakeMarlin
+    job = wait_job(studio, call(studio, "/api/export", {"design": design(text_item())})[1])
+    key = job["result"]["key"]
+    master, slave = os.openpty()
+    tty.setraw(slave)
+    printer = FakeMarlin(master, arena=1024)
+    printer.start()
+    try:
+        status, j = call(studio, "/api/send", {"export": key, "which": "bulge", "port": os.ttyname(slave),
+                                               "baud": 115200})
+        assert status == 200
+        j = wait_job(studio, j, timeout=120)
+        assert j["state"] == "done", j["error"]
+        sent = [ln for ln in (Path(job["result"]["folder"]) / "part.bulge.gcode").read_text().splitlines()
+                if ln.split(";")[0].strip()]
+        assert j["done"] == j["total"] == len(sent)
+        assert printer.executed[-len(sent):] == [ln.split(";")[0].strip() for ln in sent]
+        assert any("Marlin" in m for m in j["log"])
+    finally:
+        printer.stop.set()
+        printer.join(2)
+        os.close(slave)
+        os.close(master)
+
+
+def test_send_errors_are_clear(studio):
+    status, body = call(studio, "/api/send", {"export": "nope", "port": "", "which": "bulge"})
+    assert status == 400 and "port" in body["error"]
+    status, j = call(studio, "/api/send", {"export": "nope", "port": "/dev/null-none", "which": "bulge"})
+    j = wait_job(studio, j)
+    assert j["state"] == "error" and "export first" in j["error"]
+
+
+# -- lithophanes
+
+def test_litho_job_makes_the_cli_files(studio, tmp_path):
+    img = tmp_path / "grad.png"
+    Image.linear_gradient("L").resize((40, 30)).save(img)
+    status, info = call(studio, "/api/asset?name=grad.png", img.read_bytes())
+    job = wait_job(studio, call(studio, "/api/litho", {"asset": info["name"], "options": {"width": 20}})[1])
+    assert job["state"] == "done", job["error"]
+    names = {f["name"] for f in job["result"]["files"]}
+    assert names == {"grad.litho.gcode", "grad.stock.gcode", "grad.stl", "grad.transmission.png",
+                     "grad.litho.json"}
+    assert "SSIM" in job["result"]["summary"]
+    status, body = call(studio, job["result"]["look"], raw=True)
+    assert status == 200 and body[:4] == b"\x89PNG"
+    bad = wait_job(studio, call(studio, "/api/litho", {"asset": info["name"],
+                                                       "options": {"min_thickness": 3, "max_thickness": 1}})[1])
+    assert bad["state"] == "error" and "'Thickest (black)'" in bad["error"] and "--" not in bad["error"]
+    bad = wait_job(studio, call(studio, "/api/litho", {"asset": info["name"], "options": {"colour": 1}})[1])
+    assert bad["state"] == "error" and "colour" in bad["error"]
