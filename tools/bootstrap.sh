@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Prepares the offline PlatformIO rig. Idempotent and quick when already done:
 #  1. checks the system tools (avr-gcc, avr-libc, libsimavr, arm-none-eabi-gcc, newlib,
-#     qemu-system-arm, g++, python packages),
+#     qemu-system-arm, g++, python packages, chromium and the studio's three.js),
 #  2. installs SCons from PyPI's wheel as PlatformIO's local `tool-scons` package
 #     (the version PlatformIO pins), so PlatformIO never downloads it,
 #  3. builds the simulator harness bksim and the core runner bkcore into .build/bin.
@@ -18,6 +18,9 @@ done
 [ -f /usr/lib/arm-none-eabi/lib/librdimon.a ] || missing+=("libnewlib-arm-none-eabi")
 pkg-config --exists simavr 2>/dev/null || missing+=("libsimavr-dev")
 python3 -c "import platformio, SCons" 2>/dev/null || missing+=("python: platformio scons")
+command -v chromium >/dev/null || missing+=("chromium")
+python3 -c "import aiohttp, playwright" 2>/dev/null || missing+=("python: aiohttp playwright (pip install -e 'host[test]')")
+python3 host/web/build.py --check >/dev/null || missing+=("studio front-end files (python3 host/web/build.py)")
 if [ ${#missing[@]} -gt 0 ]; then
   echo "bootstrap: missing: ${missing[*]}" >&2
   echo "bootstrap: run 'bash tools/install-deps.sh' (apt-get + pip) first" >&2

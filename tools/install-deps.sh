@@ -8,10 +8,14 @@ APT_PACKAGES=(gcc g++ make pkg-config gcc-avr avr-libc binutils-avr simavr libsi
               clang libclang-rt-14-dev
               gcc-arm-none-eabi libnewlib-arm-none-eabi qemu-system-arm  # the Cortex-M test targets
               python3-dev     # headers for the host package's compiled G-code scanner (host/setup.py)
-              prusa-slicer)   # the post-processing test runs the real PrusaSlicer CLI
+              prusa-slicer    # the post-processing test runs the real PrusaSlicer CLI
+              chromium)       # the studio's browser tests (driven by Playwright from PyPI)
 # PlatformIO pins SCons (tool-scons ~4.41101.0 = SCons 4.11.1 for PlatformIO 6.2.0);
 # tools/pio_offline.py checks the pair and installs SCons as PlatformIO's package.
 PIP_PACKAGES=("platformio==6.2.0" "scons==4.11.1")
+
+# npm fetches three.js for the studio (host/web/build.py); Debian's package unless one is there
+command -v npm >/dev/null || APT_PACKAGES+=(npm)
 
 missing=()
 for p in "${APT_PACKAGES[@]}"; do
@@ -41,6 +45,7 @@ if [ $need_pip = 1 ]; then
   python3 -m pip install -q "${PIP_PACKAGES[@]}"
 fi
 if [ -f host/pyproject.toml ]; then
+  python3 host/web/build.py       # the studio's front-end files, from npm (pinned by package-lock.json)
   python3 -m pip install -q -e "host[test]"
 fi
 echo "install-deps: done"

@@ -43,7 +43,7 @@ def register(main):
             while workdir.exists():
                 k += 1
                 workdir = base / f"{time.strftime('%Y%m%d-%H%M%S')}-{k}"
-        st = Studio(Path(workdir), Limits(gcode_bytes=int(max_upload * (1 << 20)), arena=arena))
+        st = Studio(Path(workdir), Limits(gcode_bytes=int(max_upload * 1_000_000), arena=arena))
         run = serve(st, port)
         if gcode:
             st.start("open", st.open_gcode, Path(gcode), Path(gcode).name)

@@ -313,3 +313,29 @@ def test_litho_job_makes_the_cli_files(studio, tmp_path):
     assert bad["state"] == "error" and "'Thickest (black)'" in bad["error"] and "--" not in bad["error"]
     bad = wait_job(studio, call(studio, "/api/litho", {"asset": info["name"], "options": {"colour": 1}})[1])
     assert bad["state"] == "error" and "colour" in bad["error"]
+
+
+# -- the command
+
+def test_studio_command_prints_its_address_and_stops_on_ctrl_c(tmp_path):
+    import signal
+    import subprocess
+    import sys
+    p = subprocess.Popen([sys.executable, "-m", "bulgekit.cli", "studio", str(GCODE), "--no-browser",
+                          "--port", "0", "--workdir", str(tmp_path / "w")], stdout=subprocess.PIPE,
+                         stderr=subprocess.PIPE, text=True)
+    try:
+        line = p.stdout.readline()
+        assert line.startswith("bulgekit studio: http://127.0.0.1:"), line
+        url = line.split()[2]
+        with urllib.request.urlopen(url) as r:
+            assert r.status == 200 and b"bulgekit studio" in r.read()
+        # taken: the same port again is a one-line error
+        port = url.rstrip("/").rsplit(":", 1)[1]
+        r2 = subprocess.run([sys.executable, "-m", "bulgekit.cli", "studio", "--no-browser", "--port", port,
+                             "--workdir", str(tmp_path / "w2")], capture_output=True, text=True, timeout=60)
+        assert r2.returncode == 1 and f"cannot listen on 127.0.0.1:{port}" in r2.stderr
+    finally:
+        p.send_signal(signal.SIGINT)
+        out, err = p.communicate(timeout=30)
+    assert p.returncode == 0 and "stopped" in out, err

@@ -37,7 +37,7 @@ from . import design as dz
 
 STATIC = Path(__file__).resolve().parent / "static"
 VENDOR_FILES = ("three.module.min.js", "OrbitControls.js")
-MB = 1 << 20
+MB = 1_000_000           # decimal, as file managers and browsers show sizes
 
 
 class AssetsMissing(BulgekitError):

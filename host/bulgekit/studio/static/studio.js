@@ -83,7 +83,7 @@ const fileUrl = (u, download) => `${u}?t=${encodeURIComponent(TOKEN)}${download 
 
 async function openGcode(file) {
   showError("gcode-error", null);
-  const mb = file.size / 1048576;
+  const mb = file.size / 1e6;
   if (S.limits.gcode_mb && mb > S.limits.gcode_mb) {
     showError("gcode-error", `${file.name}: ${mb.toFixed(1)} MB is more than the studio takes for G-code ` +
       `(${S.limits.gcode_mb} MB; start it with a larger --max-upload)`);
@@ -139,8 +139,8 @@ function addText() {
 
 async function addFile(file) {
   showError("asset-error", null);
-  if (S.limits.asset_mb && file.size > S.limits.asset_mb * 1048576) {
-    showError("asset-error", `${file.name}: ${(file.size / 1048576).toFixed(1)} MB is more than the studio takes for a drawing or picture (${S.limits.asset_mb} MB)`);
+  if (S.limits.asset_mb && file.size > S.limits.asset_mb * 1e6) {
+    showError("asset-error", `${file.name}: ${(file.size / 1e6).toFixed(1)} MB is more than the studio takes for a drawing or picture (${S.limits.asset_mb} MB)`);
     return null;
   }
   try {
@@ -288,7 +288,7 @@ async function pump(check = false) {
     S.strokesAt = geom;
     if (check) checkedFor = key;
     showPreview(p);
-    if (check) status(`${S.gcode.name}: checked`);
+    if (check) status(p.points.length ? `${S.gcode.name}: checked, ${p.summary.stops} stops` : `${S.gcode.name}: ${S.gcode.layers} layers of outer wall`);
   } catch (e) {
     S.preview = { items: {}, points: [], errors: [String(e.message || e)], warnings: [], summary: {} };
     showPreview(S.preview);
@@ -407,16 +407,18 @@ const view2d = (() => {
     }
     // axes
     ctx.strokeStyle = "#b0bec5"; ctx.fillStyle = "#78909c"; ctx.font = "11px system-ui"; ctx.lineWidth = 1;
-    const step = [1, 2, 5, 10, 20, 50, 100].find((s) => s * k >= 45) || 200;
+    const steps = [0.5, 1, 2, 5, 10, 20, 50, 100, 200, 500, 1000, 2000, 5000];
+    const ustep = steps.find((s) => s * k >= 28 + 7 * String(Math.round(S.gcode.length_max)).length) || 10000;
+    const vstep = steps.find((s) => s * k >= 24) || 10000;
     const [umin] = toMm(0, 0), [umax] = toMm(cv.width, 0);
-    for (let u = Math.ceil(umin / step) * step; u <= umax; u += step) {
+    for (let u = Math.max(0, Math.ceil(umin / ustep) * ustep); u <= Math.min(umax, S.gcode.length_max + ustep); u += ustep) {
       const [x] = toPx(u, 0);
-      ctx.fillText(`${u}`, x + 2, cv.height - 4);
+      ctx.fillText(`${+u.toFixed(1)}`, x + 2, cv.height - 4);
     }
     const [, vtop] = toMm(0, 0), [, vbot] = toMm(0, cv.height);
-    for (let v = Math.ceil(vbot / step) * step; v <= vtop; v += step) {
+    for (let v = Math.ceil(vbot / vstep) * vstep; v <= vtop; v += vstep) {
       const [, y] = toPx(0, v);
-      ctx.fillText(`${v}`, 2, y - 2);
+      ctx.fillText(`${+v.toFixed(1)}`, 2, y - 2);
     }
     const [xL] = toPx(S.gcode.length_max, 0);
     ctx.setLineDash([4, 4]); ctx.beginPath(); ctx.moveTo(xL, 0); ctx.lineTo(xL, cv.height); ctx.stroke(); ctx.setLineDash([]);
@@ -693,8 +695,8 @@ const L = { asset: null };
 async function lithoPicture(file) {
   showError("litho-error", null);
   const info = await (async () => {
-    if (S.limits.asset_mb && file.size > S.limits.asset_mb * 1048576) {
-      showError("litho-error", `${file.name}: ${(file.size / 1048576).toFixed(1)} MB is more than the studio takes for a picture (${S.limits.asset_mb} MB)`);
+    if (S.limits.asset_mb && file.size > S.limits.asset_mb * 1e6) {
+      showError("litho-error", `${file.name}: ${(file.size / 1e6).toFixed(1)} MB is more than the studio takes for a picture (${S.limits.asset_mb} MB)`);
       return null;
     }
     try { return await upload("/api/asset", file, (a, b) => status(`uploading ${file.name}`, a / b)); }
@@ -800,4 +802,7 @@ async function init() {
 }
 
 init().catch((e) => status(`the studio did not start: ${e.message}`));
-window.studio = { S, design, view2d };   // for the browser tests and the curious
+// For the browser tests and the curious: idle() is true once the page's design has been
+// previewed and checked against the G-code, with no edit waiting.
+const idle = () => !inFlight && !pending && checkedFor === JSON.stringify(design());
+window.studio = { S, design, view2d, idle };

@@ -1,0 +1,305 @@
+"""`bulgekit studio` in a real browser: Debian's chromium, headless, driven by Playwright.
+
+The page is used as a user would: a G-code dropped on it, text added, typed, moved, turned and
+scaled with the mouse, a drawing added, exported; the exported files are compared byte for
+byte with `bulgekit build --placement` run on the placement file the page exported. Bad input
+shows its message in the page and the server keeps working. With BULGEKIT_STUDIO_SHOTS=DIR the
+main states are saved as screenshots there (docs/studio.md's pictures come from that).
+"""
+import hashlib
+import os
+import shutil
+import time
+from pathlib import Path
+
+import pytest
+from PIL import Image
+from playwright.sync_api import sync_playwright
+
+from studio_util import GCODE, big_gcode, cli_build, start
+
+CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
+SHOTS = os.environ.get("BULGEKIT_STUDIO_SHOTS")
+SVG = """<svg xmlns="http://www.w3.org/2000/svg" width="16mm" height="8mm" viewBox="0 0 16 8">
+<path d="M 1 1 L 15 7 M 1 7 L 15 1" fill="none" stroke="black"/><circle cx="8" cy="4" r="3" fill="none" stroke="black"/></svg>"""
+
+
+@pytest.fixture(scope="module")
+def browser():
+    assert CHROMIUM, "Debian's chromium is needed (apt-get install chromium; tools/install-deps.sh does)"
+    with sync_playwright() as p:
+        # SwiftShader gives headless chromium WebGL without a GPU (the 3D view)
+        b = p.chromium.launch(executable_path=CHROMIUM, args=[
+            "--no-sandbox", "--use-angle=swiftshader", "--enable-unsafe-swiftshader"])
+        yield b
+        b.close()
+
+
+def page_for(browser, run):
+    # Playwright's waits evaluate strings, which the page's CSP forbids: bypassed for the test
+    # driver only (test_studio.py checks the header itself)
+    ctx = browser.new_context(viewport={"width": 1400, "height": 900}, bypass_csp=True,
+                              accept_downloads=True)
+    pg = ctx.new_page()
+    errors = []
+    pg.on("pageerror", lambda e: errors.append(str(e)))
+    pg.goto(run.url)
+    pg.wait_for_selector("body[data-ready='1']")
+    return pg, errors
+
+
+def shot(pg, name):
+    if SHOTS:
+        Path(SHOTS).mkdir(parents=True, exist_ok=True)
+        pg.screenshot(path=str(Path(SHOTS) / f"{name}.png"))
+
+
+def drop_file(pg, selector, path, name=None):
+    data = Path(path).read_bytes()
+    dt = pg.evaluate_handle("""([bytes, name]) => { const dt = new DataTransfer();
+        dt.items.add(new File([new Uint8Array(bytes)], name)); return dt; }""", [list(data), name or Path(path).name])
+    pg.dispatch_event(selector, "drop", {"dataTransfer": dt})
+
+
+def settled(pg, timeout=120_000):
+    """Wait until the last edit's preview, and its check against the G-code, are back."""
+    pg.wait_for_function("() => window.studio.idle()", timeout=timeout)
+    return pg.inner_text("#summary")
+
+
+def item(pg, k=-1):
+    return pg.evaluate(f"() => window.studio.S.items.at({k})")
+
+
+def px(pg, u, v):
+    x, y = pg.evaluate(f"() => window.studio.view2d.toPx({u}, {v})")
+    box = pg.locator("#unrolled").bounding_box()
+    return box["x"] + x, box["y"] + y
+
+
+def drag(pg, a, b, steps=8):
+    pg.mouse.move(*a)
+    pg.mouse.down()
+    pg.mouse.move(*b, steps=steps)
+    pg.mouse.up()
+
+
+@pytest.fixture
+def studio(tmp_path):
+    run = start(tmp_path / "work", image_pixels=2_000_000)
+    yield run
+    run.stop()
+
+
+def test_place_move_export_matches_cli(browser, studio, tmp_path):
+    pg, errors = page_for(browser, studio)
+    shot(pg, "0-start")
+    drop_file(pg, "#drop", GCODE)
+    pg.wait_for_function("() => window.studio.S.gcode !== null", timeout=60_000)
+    assert "67 layers" in pg.inner_text("#gcode-info")
+    assert pg.locator("#view3d canvas").count() == 1, "no WebGL canvas: the 3D view did not start"
+
+    pg.click("#add-text")
+    pg.fill("#item-form textarea[name=text]", "HELLO")
+    settled(pg)
+    it = item(pg)
+    assert it["text"] == "HELLO"
+    n_hello = pg.evaluate("() => window.studio.S.preview.points.length")
+    assert n_hello > 50 and "bumps" in pg.inner_text("#items")
+
+    # move: drag the text 20 mm along the wall and 2 mm up
+    u0, v0 = it["at"]
+    a = px(pg, u0 + 3, v0 + 3)
+    b = px(pg, u0 + 23, v0 + 5)
+    drag(pg, a, b)
+    moved = item(pg)
+    assert moved["at"][0] == pytest.approx(u0 + 20, abs=0.6)
+    assert moved["at"][1] == pytest.approx(v0 + 2, abs=0.6)
+    assert float(pg.input_value("#item-form input[name=u]")) == pytest.approx(moved["at"][0], abs=0.01)
+    settled(pg)
+    shot(pg, "1-text-placed")
+
+    # turn with the round handle (shift: 15 degree steps), then scale with the square one
+    box = pg.locator("#unrolled").bounding_box()
+    frame = pg.evaluate("""() => { const s = window.studio.S, it = s.items.at(-1);
+        let u0=1e9,v0=1e9,u1=-1e9,v1=-1e9; for (const f of s.preview.items[it.id].strokes)
+        for (let i=0;i<f.length;i+=2){u0=Math.min(u0,f[i]);u1=Math.max(u1,f[i]);v0=Math.min(v0,f[i+1]);v1=Math.max(v1,f[i+1]);}
+        const a = window.studio.view2d.toPx(u0, v1), b = window.studio.view2d.toPx(u1, v0);
+        return [a[0], a[1], b[0], b[1]]; }""")
+    rot = (box["x"] + (frame[0] + frame[2]) / 2, box["y"] + frame[1] - 4 - 22)
+    at = px(pg, *moved["at"])
+    pg.keyboard.down("Shift")
+    drag(pg, rot, (at[0] - 60, at[1] - 40))
+    pg.keyboard.up("Shift")
+    turned = item(pg)
+    assert turned["rotate"] != 0 and turned["rotate"] % 15 == 0
+    settled(pg)
+    pg.fill("#item-form input[name=rotate]", "10")
+    settled(pg)
+    size0 = item(pg)["size"]
+    frame = pg.evaluate("""() => { const s = window.studio.S, it = s.items.at(-1);
+        let u0=1e9,v0=1e9,u1=-1e9,v1=-1e9; for (const f of s.preview.items[it.id].strokes)
+        for (let i=0;i<f.length;i+=2){u0=Math.min(u0,f[i]);u1=Math.max(u1,f[i]);v0=Math.min(v0,f[i+1]);v1=Math.max(v1,f[i+1]);}
+        const b = window.studio.view2d.toPx(u1, v0); return b; }""")
+    corner = (box["x"] + frame[0] + 4, box["y"] + frame[1] + 4)
+    drag(pg, corner, (corner[0] - (corner[0] - at[0]) * 0.25, corner[1] - (corner[1] - at[1]) * 0.25))
+    scaled = item(pg)
+    assert scaled["size"] < size0 * 0.95
+    settled(pg)
+
+    # a drawing from the file picker
+    svg = tmp_path / "mark.svg"
+    svg.write_text(SVG)
+    pg.set_input_files("#add-file", str(svg))
+    pg.wait_for_function("() => window.studio.S.items.length === 2")
+    pg.fill("#item-form input[name=u]", "70")
+    pg.fill("#item-form input[name=v]", "6")
+    txt = settled(pg)
+    owners = pg.evaluate("() => [...new Set(window.studio.S.preview.points.flatMap(p => p[6]))].sort()")
+    assert owners == sorted(i["id"] for i in pg.evaluate("() => window.studio.S.items"))
+    assert "stops" in txt
+    pg.fill("#bulge-form input[name=dwell]", "120")
+    pg.fill("#export-name", "studio-test")
+    settled(pg)
+    shot(pg, "2-text-and-drawing")
+
+    pg.click("#export")
+    pg.wait_for_selector("#export-zip", timeout=120_000)
+    shot(pg, "3-exported")
+    key = pg.evaluate("() => window.studio.S.exportKey")
+    folder = studio.studio.workdir / "exports" / key
+    placement = (folder / "placement.toml").read_text()
+    assert "dwell = 120" in placement and 'text = "HELLO"' in placement and "rotate = 10" in placement
+    cli = cli_build(GCODE, folder / "placement.toml", tmp_path / "cli", "studio-test")
+    assert len(cli) == 6
+    for p in cli:
+        assert hashlib.sha256(p.read_bytes()).digest() == hashlib.sha256((folder / p.name).read_bytes()).digest(), p.name
+    # a download link hands over the same bytes
+    with pg.expect_download() as dl:
+        pg.click("#export-out a.export-file >> text=studio-test.bkm")
+    assert Path(dl.value.path()).read_bytes() == (folder / "studio-test.bkm").read_bytes()
+    assert not errors, errors
+
+
+def test_bad_input_shows_messages_and_keeps_working(browser, studio, tmp_path):
+    pg, errors = page_for(browser, studio)
+    junk = tmp_path / "picture.gcode"
+    junk.write_bytes(b"\x89PNG\r\n\x1a\n\0\0\0\rIHDR")
+    pg.set_input_files("#gcode-file", str(junk))
+    pg.wait_for_selector("#gcode-error:not([hidden])")
+    assert "not a text G-code file" in pg.inner_text("#gcode-error")
+    nowall = tmp_path / "travel-only.gcode"
+    nowall.write_text("G28\nG1 X10 Y10 F3000\nG1 X20 Y10\n")
+    pg.set_input_files("#gcode-file", str(nowall))
+    pg.wait_for_function("() => document.querySelector('#gcode-error').textContent.includes('travel-only')")
+    assert "no outer wall found" in pg.inner_text("#gcode-error")
+    shot(pg, "5-not-gcode")
+
+    # the server still works: a real G-code opens, the error goes
+    pg.set_input_files("#gcode-file", str(GCODE))
+    pg.wait_for_function("() => window.studio.S.gcode !== null", timeout=60_000)
+    assert pg.is_hidden("#gcode-error")
+    # a character the font lacks: the message sits beside the text item
+    pg.click("#add-text")
+    pg.fill("#item-form textarea[name=text]", "A€B")
+    pg.wait_for_function("() => document.querySelector('#items li.error') !== null", timeout=60_000)
+    assert "'€'" in pg.inner_text("#items li.error") and "not in font" in pg.inner_text("#items li.error")
+    shot(pg, "6-item-error")
+    pg.fill("#item-form textarea[name=text]", "AB")
+    pg.wait_for_function("() => document.querySelector('#items li.error') === null", timeout=60_000)
+
+    # a picture over the pixel limit
+    big = tmp_path / "huge.png"
+    Image.new("L", (1600, 1400), 200).save(big)
+    pg.set_input_files("#add-file", str(big))
+    pg.wait_for_selector("#asset-error:not([hidden])")
+    assert "1600 x 1400 pixels" in pg.inner_text("#asset-error")
+    assert pg.evaluate("() => window.studio.S.items.length") == 1
+    assert not errors, errors
+
+
+def test_large_gcode_shows_progress_and_the_page_stays_responsive(browser, tmp_path):
+    big = big_gcode(tmp_path / "tall.gcode", 100_000_000)
+    assert big.stat().st_size >= 100_000_000
+    # over the limit the page says so before uploading anything
+    small = start(tmp_path / "w1", gcode_bytes=64_000_000)
+    try:
+        pg, _ = page_for(browser, small)
+        pg.set_input_files("#gcode-file", str(big))
+        pg.wait_for_selector("#gcode-error:not([hidden])")
+        assert "100.2 MB is more than the studio takes" in pg.inner_text("#gcode-error")
+        assert not list((tmp_path / "w1" / "gcode").iterdir())
+        pg.context.close()
+    finally:
+        small.stop()
+    # within it, the file loads while the page shows progress and answers
+    run = start(tmp_path / "w2")
+    try:
+        pg, errors = page_for(browser, run)
+        pg.set_input_files("#gcode-file", str(big))
+        seen, slowest = set(), 0.0
+        t0 = time.monotonic()
+        while not pg.evaluate("() => window.studio.S.gcode !== null"):
+            t = time.monotonic()
+            seen.add(pg.inner_text("#status-text"))
+            slowest = max(slowest, time.monotonic() - t)
+            assert time.monotonic() - t0 < 240, "the 100 MB file did not load in 4 min"
+            time.sleep(0.05)
+        shot(pg, "4-large-file")
+        assert any("%" in s and ("uploading" in s or "walls" in s) for s in seen), seen
+        assert slowest < 1.0, f"the page took {slowest:.2f} s to answer while loading"
+        assert "10586 layers" in pg.inner_text("#gcode-info")
+        assert not errors, errors
+    finally:
+        run.stop()
+
+
+def test_send_to_printer_and_lithophane_tab(browser, studio, tmp_path):
+    import tty
+    from test_sender import FakeMarlin
+    pg, errors = page_for(browser, studio)
+    pg.set_input_files("#gcode-file", str(GCODE))
+    pg.wait_for_function("() => window.studio.S.gcode !== null", timeout=60_000)
+    pg.click("#add-text")
+    settled(pg)
+    pg.click("#export")
+    pg.wait_for_selector("#export-zip", timeout=120_000)
+    master, slave = os.openpty()
+    tty.setraw(slave)
+    printer = FakeMarlin(master, arena=1024)
+    printer.start()
+    try:
+        pg.fill("#port", os.ttyname(slave))
+        pg.click("#send")
+        pg.wait_for_function("() => document.querySelector('#status-text').textContent.startsWith('sent ')",
+                             timeout=120_000)
+        log = pg.inner_text("#send-log")
+        assert "Marlin bulgekit-fake" in log and "lines" in log
+        assert pg.evaluate("() => document.querySelector('#send-bar').value") == 1
+        assert any(c.startswith("M721") for c in printer.executed) and printer.executed[-1] == "M721 X"
+        shot(pg, "7-sent")
+    finally:
+        printer.stop.set()
+        printer.join(2)
+        os.close(slave)
+        os.close(master)
+
+    pg.click("#tab-litho")
+    pic = tmp_path / "face.png"
+    Image.radial_gradient("L").resize((60, 45)).save(pic)
+    pg.set_input_files("#litho-file", str(pic))
+    pg.wait_for_function("() => !document.querySelector('#litho-make').disabled")
+    assert "60 × 45 pixels" in pg.inner_text("#litho-pic")
+    pg.fill("#litho-form input[name=width]", "40")
+    pg.click("#litho-make")
+    pg.wait_for_function("() => { const i = document.querySelector('#litho-look'); return i && i.complete && i.naturalWidth > 0; }",
+                         timeout=240_000)
+    out = pg.inner_text("#litho-out")
+    assert "SSIM" in out and "face.litho.gcode" in out and "face.stl" in out
+    shot(pg, "8-lithophane")
+    # a bad setting is said in the page's own words
+    pg.fill("#litho-form input[name=min_thickness]", "3")
+    pg.click("#litho-make")
+    pg.wait_for_selector("#litho-error:not([hidden])", timeout=60_000)
+    assert "'Thickest (black)'" in pg.inner_text("#litho-error")
+    assert not errors, errors
