@@ -94,6 +94,17 @@ def test_bad_gcode_is_refused_clearly(studio, name, data, message):
     assert job["state"] == "error" and message in job["error"] and name in job["error"]
     st = call(studio, "/api/state")[1]
     assert st["gcode"]["name"] == "cylinder40x20.gcode"      # what was open stays open
+    assert [p.name for p in (studio.studio.workdir / "gcode").iterdir()] == ["1-cylinder40x20.gcode"]
+
+
+def test_only_the_open_upload_is_kept(tmp_path):
+    run = start(tmp_path)
+    try:
+        open_gcode(run)
+        open_gcode(run, name="again.gcode")
+        assert [p.name for p in (tmp_path / "gcode").iterdir()] == ["3-again.gcode"]
+    finally:
+        run.stop()
 
 
 def test_gcode_over_the_limit_is_refused_before_reading(tmp_path):

@@ -249,9 +249,12 @@ def _blame_missed(out: Preview, missed, res, settings) -> None:
     q = res.quantum_um / 1000
     per_item: dict[str, int] = {}
     loose = 0
+    by_z: dict[int, list] = {}
+    for pt in out.points:
+        by_z.setdefault(round(pt[4] * 100), []).append(pt)
     for z, x, y in missed:
-        best = min((pt for pt in out.points if abs(pt[4] - z) < 0.005),
-                   key=lambda pt: (pt[2] - x) ** 2 + (pt[3] - y) ** 2, default=None)
+        best = min(by_z.get(round(z * 100), ()), key=lambda pt: (pt[2] - x) ** 2 + (pt[3] - y) ** 2,
+                   default=None)
         if best is None or math.hypot(best[2] - x, best[3] - y) > q:
             loose += 1
             continue

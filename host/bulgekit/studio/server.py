@@ -158,8 +158,22 @@ class Studio:
                                 "closed extruded loops to take as the wall instead "
                                 f"({str(e2).replace(str(path), name)}). Is it a sliced print?") from None
         view = dz.wall_view(model)
+        old = self.gcode
         self.gcode, self.gcode_name, self.model, self.view = path, name, model, view
+        if old is not None and old != path and self._uploaded(old):
+            old.unlink(missing_ok=True)            # exports made from it keep their own files
         return self.gcode_state()
+
+    def _uploaded(self, path: Path) -> bool:
+        return path.parent == self.workdir / "gcode"
+
+    def open_upload(self, job: Job, path: Path, name: str) -> dict:
+        """open_gcode for a file the page uploaded: kept only while it is the open one."""
+        try:
+            return self.open_gcode(job, path, name)
+        except BaseException:
+            path.unlink(missing_ok=True)
+            raise
 
     def gcode_state(self) -> dict | None:
         if self.model is None:
@@ -208,8 +222,8 @@ class Studio:
             raise dz.DesignError(f"{name}: not a picture Pillow can read ({e})") from None
         if w * h > self.limits.image_pixels:
             raise dz.DesignError(
-                f"{name}: {w} x {h} pixels ({w * h / 1e6:.0f} megapixels) is more than this studio takes "
-                f"({self.limits.image_pixels / 1e6:.0f}); scale it down first (a bulge is about 1 mm)")
+                f"{name}: {w} x {h} pixels ({w * h / 1e6:.1f} megapixels) is more than this studio takes "
+                f"({self.limits.image_pixels / 1e6:g}); scale it down first (a bulge is about 1 mm)")
         return {"width_px": w, "height_px": h}
 
     # -- design
@@ -399,7 +413,7 @@ def make_app(st: Studio, port_ref: dict) -> web.Application:
                     return _error(413, f"{name}: more than the studio takes for G-code "
                                        f"({st.limits.gcode_bytes / MB:.0f} MB)")
                 f.write(chunk)
-        job = st.start("open", st.open_gcode, dest, name)
+        job = st.start("open", st.open_upload, dest, name)
         return web.json_response(job.json())
 
     async def upload_asset(request):
