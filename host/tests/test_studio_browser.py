@@ -80,6 +80,18 @@ def px(pg, u, v):
     return box["x"] + x, box["y"] + y
 
 
+def frame(pg):
+    """Page coordinates (left, top, right, bottom) of the last item's strokes, as last computed."""
+    u0, v0, u1, v1 = pg.evaluate("""() => { const s = window.studio.S, it = s.items.at(-1);
+        const b = [1e9, 1e9, -1e9, -1e9];
+        for (const f of s.preview.items[it.id].strokes) for (let i = 0; i < f.length; i += 2) {
+          b[0] = Math.min(b[0], f[i]); b[2] = Math.max(b[2], f[i]);
+          b[1] = Math.min(b[1], f[i + 1]); b[3] = Math.max(b[3], f[i + 1]); }
+        return b; }""")
+    (x0, y0), (x1, y1) = px(pg, u0, v1), px(pg, u1, v0)
+    return x0, y0, x1, y1
+
+
 def drag(pg, a, b, steps=8):
     pg.mouse.move(*a)
     pg.mouse.down()
@@ -122,13 +134,8 @@ def test_place_move_export_matches_cli(browser, studio, tmp_path):
     shot(pg, "1-text-placed")
 
     # turn with the round handle (shift: 15 degree steps), then scale with the square one
-    box = pg.locator("#unrolled").bounding_box()
-    frame = pg.evaluate("""() => { const s = window.studio.S, it = s.items.at(-1);
-        let u0=1e9,v0=1e9,u1=-1e9,v1=-1e9; for (const f of s.preview.items[it.id].strokes)
-        for (let i=0;i<f.length;i+=2){u0=Math.min(u0,f[i]);u1=Math.max(u1,f[i]);v0=Math.min(v0,f[i+1]);v1=Math.max(v1,f[i+1]);}
-        const a = window.studio.view2d.toPx(u0, v1), b = window.studio.view2d.toPx(u1, v0);
-        return [a[0], a[1], b[0], b[1]]; }""")
-    rot = (box["x"] + (frame[0] + frame[2]) / 2, box["y"] + frame[1] - 4 - 22)
+    x0, y0, x1, y1 = frame(pg)
+    rot = ((x0 + x1) / 2, y0 - 22)              # the round handle, above the frame's middle
     at = px(pg, *moved["at"])
     pg.keyboard.down("Shift")
     drag(pg, rot, (at[0] - 60, at[1] - 40))
@@ -139,11 +146,7 @@ def test_place_move_export_matches_cli(browser, studio, tmp_path):
     pg.fill("#item-form input[name=rotate]", "10")
     settled(pg)
     size0 = item(pg)["size"]
-    frame = pg.evaluate("""() => { const s = window.studio.S, it = s.items.at(-1);
-        let u0=1e9,v0=1e9,u1=-1e9,v1=-1e9; for (const f of s.preview.items[it.id].strokes)
-        for (let i=0;i<f.length;i+=2){u0=Math.min(u0,f[i]);u1=Math.max(u1,f[i]);v0=Math.min(v0,f[i+1]);v1=Math.max(v1,f[i+1]);}
-        const b = window.studio.view2d.toPx(u1, v0); return b; }""")
-    corner = (box["x"] + frame[0] + 4, box["y"] + frame[1] + 4)
+    corner = tuple(c + 4 for c in frame(pg)[2:])   # the square handle, at the lower right
     drag(pg, corner, (corner[0] - (corner[0] - at[0]) * 0.25, corner[1] - (corner[1] - at[1]) * 0.25))
     scaled = item(pg)
     assert scaled["size"] < size0 * 0.95

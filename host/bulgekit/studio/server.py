@@ -361,7 +361,7 @@ def make_app(st: Studio, port_ref: dict) -> web.Application:
         return resp
 
     app = web.Application(middlewares=[guard], client_max_size=4 * MB)
-    loop_run = asyncio.get_event_loop
+    loop_run = asyncio.get_running_loop
 
     page = (STATIC / "index.html").read_text(encoding="utf-8")
     # the one inline script, the import map, is allowed by its hash; nothing else inline runs
