@@ -350,3 +350,12 @@ def test_studio_command_prints_its_address_and_stops_on_ctrl_c(tmp_path):
         p.send_signal(signal.SIGINT)
         out, err = p.communicate(timeout=30)
     assert p.returncode == 0 and "stopped" in out, err
+
+
+def test_missing_front_end_files_are_a_clear_error(tmp_path, monkeypatch):
+    from bulgekit.studio import server
+    from bulgekit.strokes import BulgekitError
+    (tmp_path / "static" / "vendor").mkdir(parents=True)
+    monkeypatch.setattr(server, "STATIC", tmp_path / "static")
+    with pytest.raises(BulgekitError, match=r"three\.module\.min\.js.*host/web/build\.py"):
+        server.serve(server.Studio(tmp_path / "w"), 0)
