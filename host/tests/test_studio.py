@@ -359,3 +359,39 @@ def test_missing_front_end_files_are_a_clear_error(tmp_path, monkeypatch):
     monkeypatch.setattr(server, "STATIC", tmp_path / "static")
     with pytest.raises(BulgekitError, match=r"three\.module\.min\.js.*host/web/build\.py"):
         server.serve(server.Studio(tmp_path / "w"), 0)
+
+
+# -- opening a placement file
+
+def _upload(run, path):
+    status, info = call(run, f"/api/asset?name={Path(path).name}", Path(path).read_bytes())
+    assert status == 200, info
+    return info["name"]
+
+
+def test_import_of_the_example_placement_exports_the_same_files(studio, tmp_path):
+    ex = GCODE.parent
+    wave = _upload(studio, ex / "wave.json")
+    status, d = call(studio, "/api/import", {"toml": (ex / "placement.toml").read_text(),
+                                             "files": {"wave.json": wave}})
+    assert status == 200, d
+    assert [i["kind"] for i in d["items"]] == ["text", "file"] and d["items"][0]["text"] == "HELLO"
+    d["name"] = "ex"
+    job = wait_job(studio, call(studio, "/api/export", {"design": d})[1])
+    assert job["state"] == "done", job["error"]
+    folder = Path(job["result"]["folder"])
+    original = cli_build(GCODE, ex / "placement.toml", tmp_path / "orig", "ex")
+    assert original and all(_sha(p) == _sha(folder / p.name) for p in original)
+
+
+@pytest.mark.parametrize("toml,files,message", [
+    ("[[strokes]]\nfile = 'art/wave.json'\n", {}, "strokes[0].file: art/wave.json was not chosen with it"),
+    ("[[text]\ntext = 'x'\n", {}, "not valid TOML"),
+    ("[[text]]\ntext = 'x'\ncolour = 'red'\n", {}, "text[0]: unknown key 'colour'"),
+    ("[[text]]\ntext = 'x'\nfont = 'nope'\n", {}, "unknown font 'nope'"),
+    ("[[text]]\ntext = 'x'\n[extras]\n", {}, "unknown table 'extras'"),
+    ("[bulges]\ndwell = 'long'\n", {}, "bulges.dwell: expected a whole number"),
+])
+def test_import_errors_name_the_entry(studio, toml, files, message):
+    status, body = call(studio, "/api/import", {"toml": toml, "files": files})
+    assert status == 400 and message in body["error"] and body["error"].startswith("placement file")

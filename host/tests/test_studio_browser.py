@@ -308,3 +308,32 @@ def test_send_to_printer_and_lithophane_tab(browser, studio, tmp_path):
     pg.wait_for_selector("#litho-error:not([hidden])", timeout=60_000)
     assert "'Thickest (black)'" in pg.inner_text("#litho-error")
     assert not errors, errors
+
+
+def test_open_placement_file_and_nudge_with_keys(browser, studio):
+    pg, errors = page_for(browser, studio)
+    pg.set_input_files("#gcode-file", str(GCODE))
+    pg.wait_for_function("() => window.studio.S.gcode !== null", timeout=60_000)
+    ex = GCODE.parent
+    pg.set_input_files("#open-placement", [str(ex / "placement.toml"), str(ex / "wave.json")])
+    pg.wait_for_function("() => window.studio.S.items.length === 2")
+    settled(pg)
+    items = pg.evaluate("() => window.studio.S.items")
+    assert items[0]["text"] == "HELLO" and items[0]["letter_spacing"] == 0.5 and items[1]["asset"] == "wave.json"
+    assert pg.input_value("#bulge-form input[name=dwell]") == "100"
+    owners = pg.evaluate("() => [...new Set(window.studio.S.preview.points.flatMap(p => p[6]))].length")
+    assert owners == 2
+    # arrows nudge the selected item (not while typing in a field); Delete removes it
+    pg.click("#unrolled", position={"x": 5, "y": 5})          # the background: focus leaves the form
+    at = items[0]["at"]
+    pg.keyboard.press("ArrowRight")
+    pg.keyboard.press("Shift+ArrowUp")
+    assert item(pg, 0)["at"] == pytest.approx([at[0] + 0.5, at[1] + 5])
+    pg.keyboard.press("Delete")
+    assert pg.evaluate("() => window.studio.S.items.length") == 1
+    # a placement naming a file that was not chosen with it
+    pg.set_input_files("#open-placement", [str(ex / "placement.toml")])
+    pg.wait_for_selector("#asset-error:not([hidden])")
+    assert "wave.json was not chosen with it" in pg.inner_text("#asset-error")
+    assert pg.evaluate("() => window.studio.S.items.length") == 1     # the design is kept
+    assert not errors, errors

@@ -134,6 +134,51 @@ def placement_text(design: dict, assets: dict[str, Asset], file_ref=lambda a: a.
         raise DesignError(str(e).removeprefix("placement: ")) from None
 
 
+def from_placement(text: str, files: dict[str, str], assets: dict[str, Asset], scratch: Path) -> dict:
+    """A design from a placement file's text (the inverse of placement_text). `files` maps the
+    base name of each drawing file it names to the asset the page uploaded for it. The result
+    is checked by load_placement, so what the CLI would refuse is refused with its message."""
+    import tomllib
+    try:
+        doc = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as e:
+        raise DesignError(f"placement file: not valid TOML: {e}") from None
+    unknown = sorted(set(doc) - {"text", "strokes", "bulges"})
+    if unknown:
+        raise DesignError(f"placement file: unknown table {unknown[0]!r} (known: text, strokes, bulges)")
+    tables = {}
+    for kind in ("text", "strokes"):
+        v = doc.get(kind, [])
+        v = [v] if isinstance(v, dict) else v
+        if not isinstance(v, list) or not all(isinstance(t, dict) for t in v):
+            raise DesignError(f"placement file: '{kind}' must be one or more tables ([[{kind}]])")
+        tables[kind] = v
+    bulges = doc.get("bulges", {})
+    if not isinstance(bulges, dict):
+        raise DesignError("placement file: 'bulges' must be a table ([bulges])")
+    items = [{"kind": "text"} | t for t in tables["text"]]
+    for i, t in enumerate(tables["strokes"]):
+        ref = t.get("file")
+        if not isinstance(ref, str):
+            raise DesignError(f"placement file: strokes[{i}]: 'file' is missing")
+        a = assets.get(files.get(Path(ref.replace("\\", "/")).name, ""))
+        if a is None:
+            raise DesignError(f"placement file: strokes[{i}].file: {ref} was not chosen with it "
+                              "(choose the placement file and its drawing files together)")
+        items.append({"kind": "file", "asset": a.name} | {k: v for k, v in t.items() if k != "file"})
+    scratch.mkdir(parents=True, exist_ok=True)
+    check = scratch / "import.toml"
+    try:
+        check.write_text(dump_placement(tables["text"], [t | {"file": str(assets[it["asset"]].path)}
+                                                         for t, it in zip(tables["strokes"], items[len(tables["text"]):])],
+                                        bulges), encoding="utf-8")
+        load_placement(check)
+    except PlacementError as e:
+        raise DesignError("placement file: " + str(e).removeprefix("placement: ")
+                          .removeprefix(f"{check}: ")) from None
+    return {"items": items, "bulges": dict(bulges)}
+
+
 def settings_of(b: dict) -> Settings:
     try:
         return Settings(MODE_GEOMETRIC if b.get("geometric") else MODE_MARKED,

@@ -466,6 +466,18 @@ def make_app(st: Studio, port_ref: dict) -> web.Application:
         return web.Response(text=text, content_type="application/toml",
                             headers={"Content-Disposition": 'attachment; filename="placement.toml"'})
 
+    async def import_placement(request):
+        d = await body(request)
+        text, files = d.get("toml"), d.get("files") or {}
+        if not isinstance(text, str) or not isinstance(files, dict):
+            return _error(400, "expected {toml: text, files: {name: asset}}")
+        try:
+            res = await loop_run().run_in_executor(st.worker, dz.from_placement, text, files, st.assets,
+                                                   st.workdir / "scratch")
+        except (BulgekitError, ValueError, OSError) as e:
+            return _error(400, _message(e))
+        return web.json_response(res)
+
     async def job(request):
         j = st.jobs.get(request.match_info["id"])
         if j is None:
@@ -522,6 +534,7 @@ def make_app(st: Studio, port_ref: dict) -> web.Application:
     app.router.add_post("/api/preview", preview)
     app.router.add_post("/api/export", export)
     app.router.add_post("/api/placement", placement)
+    app.router.add_post("/api/import", import_placement)
     app.router.add_get("/api/job/{id}", job)
     app.router.add_get("/api/ports", ports)
     app.router.add_post("/api/send", send)

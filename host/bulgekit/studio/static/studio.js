@@ -106,7 +106,7 @@ function setGcode(g) {
   const w = g.walls;
   $("gcode-info").textContent = `${g.name}\n${g.layers} layers, z ${w.v_range[0].toFixed(2)}–${w.v_range[1].toFixed(2)} mm, ` +
     `wall up to ${g.length_max.toFixed(1)} mm around` + (g.geometric ? "\nno outer-wall comments: geometric mode" : "");
-  for (const id of ["add-text", "add-file", "export", "placement"]) $(id).disabled = false;
+  for (const id of ["add-text", "add-file", "open-placement", "export", "placement"]) $(id).disabled = false;
   $("bulge-form").geometric.value = g.geometric ? "true" : "false";
   for (const it of S.items) clampItem(it);
   view2d.fit();
@@ -167,6 +167,42 @@ async function addDrawing(file) {
   S.items.push(it);
   select(it.id);
   requestPreview();
+}
+
+// A placement file (and the drawing files it names, chosen with it) replaces the design: the
+// server checks it as `bulgekit build --placement` would and hands back the items.
+const BULGE_DEFAULTS = { dwell: 100, extra: 0.1, tolerance: 0.25, spacing: "", line_width: 0.45,
+  geometric: false, fallback: false };
+
+async function openPlacement(list) {
+  showError("asset-error", null);
+  const files = [...list];
+  const toml = files.filter((f) => /\.toml$/i.test(f.name));
+  if (toml.length !== 1) {
+    showError("asset-error", "choose one placement file (.toml), together with the drawing files it names");
+    return;
+  }
+  const names = {}, kinds = {};
+  for (const f of files) {
+    if (f === toml[0]) continue;
+    const info = await addFile(f);
+    if (!info) return;
+    names[f.name] = info.name; kinds[info.name] = info.kind;
+  }
+  try {
+    const d = await postJSON("/api/import", { toml: await toml[0].text(), files: names });
+    S.items = d.items.map((it) => it.kind === "text"
+      ? { size: 6, font: "futural", letter_spacing: 0, mirror: false, rotate: 0, at: [0, 0], ...it, id: `i${S.nextId++}` }
+      : { scale: 1, rotate: 0, at: [0, 0], ...it, assetKind: kinds[it.asset], id: `i${S.nextId++}` });
+    const f = $("bulge-form");
+    for (const [k, v] of Object.entries(BULGE_DEFAULTS)) {
+      const val = d.bulges[k] ?? v;
+      f[k].value = typeof val === "boolean" ? String(val) : val;
+    }
+    status(`${toml[0].name}: ${S.items.length} item(s)`);
+    select(S.items.length ? S.items[0].id : null);
+    requestPreview();
+  } catch (e) { showError("asset-error", e); }
 }
 
 function select(id) {
@@ -258,7 +294,11 @@ function design() {
     const o = { id: it.id, kind: it.kind, at: it.at.map((v) => +v.toFixed(3)), rotate: +it.rotate.toFixed(2) };
     if (it.kind === "text") Object.assign(o, { text: it.text, font: it.font, size: +it.size.toFixed(3),
       letter_spacing: it.letter_spacing, mirror: it.mirror });
-    else { o.asset = it.asset; if (it.assetKind === "image") o.image_width = +it.image_width.toFixed(3); else o.scale = +it.scale.toFixed(4); }
+    else {
+      o.asset = it.asset;
+      if (it.assetKind === "image") o.image_width = +it.image_width.toFixed(3); else o.scale = +it.scale.toFixed(4);
+      if (it.curve_tolerance !== undefined) o.curve_tolerance = it.curve_tolerance;
+    }
     return o;
   });
   const name = $("export-name").value.trim();
@@ -777,10 +817,25 @@ async function init() {
   dropTarget($("unrolled-wrap"), (f) => (/\.(gcode|gco|g)$/i.test(f.name) || !S.gcode ? openGcode(f) : addDrawing(f)));
   $("add-text").onclick = addText;
   $("add-file").onchange = (e) => { const f = e.target.files[0]; e.target.value = ""; if (f) addDrawing(f); };
+  $("open-placement").onchange = (e) => { const l = [...e.target.files]; e.target.value = ""; if (l.length) openPlacement(l); };
   $("item-form").addEventListener("input", readItemForm);
   $("bulge-form").addEventListener("input", requestPreview);
   $("bulge-form").addEventListener("change", requestPreview);
-  $("delete-item").onclick = () => { S.items = S.items.filter((i) => i.id !== S.selected); select(null); requestPreview(); };
+  const deleteItem = () => { S.items = S.items.filter((i) => i.id !== S.selected); select(null); requestPreview(); };
+  $("delete-item").onclick = deleteItem;
+  // keys, when no field has the focus: Delete removes the selected item, arrows nudge it
+  // 0.5 mm (with Shift 5 mm)
+  window.addEventListener("keydown", (e) => {
+    const it = S.items.find((i) => i.id === S.selected);
+    if (!it || e.target.closest("input, textarea, select") || $("page-wall").hidden) return;
+    if (e.key === "Delete" || e.key === "Backspace") { e.preventDefault(); deleteItem(); return; }
+    const d = { ArrowLeft: [-1, 0], ArrowRight: [1, 0], ArrowUp: [0, 1], ArrowDown: [0, -1] }[e.key];
+    if (!d) return;
+    e.preventDefault();
+    const k = e.shiftKey ? 5 : 0.5;
+    it.at = [it.at[0] + d[0] * k, it.at[1] + d[1] * k];
+    clampItem(it); fillItemForm(it); view2d.draw(); requestPreview();
+  });
   $("export").onclick = doExport;
   $("placement").onclick = downloadPlacement;
   $("send").onclick = doSend;
