@@ -338,3 +338,40 @@ def test_open_placement_file_and_nudge_with_keys(browser, studio):
     assert "wave.json was not chosen with it" in pg.inner_text("#asset-error")
     assert pg.evaluate("() => window.studio.S.items.length") == 1     # the design is kept
     assert not errors, errors
+
+
+def test_undo_redo_and_a_reload_keeps_the_design(browser, studio):
+    pg, errors = page_for(browser, studio)
+    pg.set_input_files("#gcode-file", str(GCODE))
+    pg.wait_for_function("() => window.studio.S.gcode !== null", timeout=60_000)
+    pg.click("#add-text")
+    settled(pg)
+    pg.wait_for_timeout(500)                     # each state resting 400 ms is kept
+    pg.fill("#item-form textarea[name=text]", "AB")
+    settled(pg)
+    at0 = item(pg)["at"]
+    pg.click("#unrolled", position={"x": 5, "y": 5})
+    pg.keyboard.press("Shift+ArrowRight")
+    settled(pg)
+    assert item(pg)["at"][0] == pytest.approx(at0[0] + 5)
+    pg.keyboard.press("Control+z")
+    assert item(pg)["at"][0] == pytest.approx(at0[0])
+    pg.keyboard.press("Control+z")
+    assert item(pg)["text"] == "TEXT"            # before the typing
+    pg.click("#undo")
+    assert pg.evaluate("() => window.studio.S.items.length") == 0 and pg.is_disabled("#undo")
+    for _ in range(3):
+        pg.click("#redo")
+    assert item(pg)["text"] == "AB" and item(pg)["at"][0] == pytest.approx(at0[0] + 5)
+    assert pg.is_disabled("#redo")
+    settled(pg)
+    pg.fill("#bulge-form input[name=dwell]", "150")
+    settled(pg)
+    n = pg.evaluate("() => window.studio.S.preview.points.length")
+    pg.reload()
+    pg.wait_for_selector("body[data-ready='1']")
+    settled(pg)
+    assert item(pg)["text"] == "AB" and item(pg)["at"][0] == pytest.approx(at0[0] + 5)
+    assert pg.input_value("#bulge-form input[name=dwell]") == "150"
+    assert pg.evaluate("() => window.studio.S.preview.points.length") == n
+    assert not errors, errors

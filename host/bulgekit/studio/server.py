@@ -93,6 +93,8 @@ class Studio:
         self.model = None
         self.view: dict | None = None
         self.assets: dict[str, dz.Asset] = {}
+        self.asset_kinds: dict[str, str] = {}
+        self.design: dict | None = None
         self.exports: dict[str, dz.Export] = {}
         self.jobs: dict[str, Job] = {}
         self.worker = ThreadPoolExecutor(1, thread_name_prefix="studio-work")
@@ -211,6 +213,7 @@ class Studio:
             path.unlink(missing_ok=True)
             raise
         self.assets[final] = dz.Asset(final, path)
+        self.asset_kinds[final] = info["kind"]
         return info
 
     def _check_image(self, path: Path, name: str) -> dict:
@@ -231,6 +234,7 @@ class Studio:
     def preview(self, d: dict, check: bool) -> dict:
         if self.model is None:
             raise dz.DesignError("open a sliced G-code first")
+        self.design = d                  # a reloaded page picks up where it was
         return dz.preview(d, self.assets, self.model, self.gcode, self.workdir / "scratch", check,
                           self.limits.arena).json()
 
@@ -377,7 +381,7 @@ def make_app(st: Studio, port_ref: dict) -> web.Application:
     async def state(request):
         from ..strokes import font_names
         return web.json_response({
-            "gcode": st.gcode_state(), "assets": sorted(st.assets), "fonts": font_names(),
+            "gcode": st.gcode_state(), "assets": st.asset_kinds, "design": st.design, "fonts": font_names(),
             "limits": {"gcode_mb": st.limits.gcode_bytes / MB, "asset_mb": st.limits.asset_bytes / MB,
                        "image_megapixels": st.limits.image_pixels / 1e6, "arena": st.limits.arena},
             "jobs": [j.json() for j in st.jobs.values() if j.state == "running"],

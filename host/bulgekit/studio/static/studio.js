@@ -112,6 +112,7 @@ function setGcode(g) {
   view2d.fit();
   view3d.setWalls(w);
   requestPreview();
+  flushHistory();
 }
 
 // ---------------------------------------------------------------- items
@@ -128,6 +129,7 @@ function clampItem(it) {
 }
 
 function addText() {
+  flushHistory();
   const [lo, hi] = S.gcode.walls.v_range;
   const size = Math.max(1, Math.min(6, (hi - lo) / 3));
   const it = { id: `i${S.nextId++}`, kind: "text", text: "TEXT", font: "futural", size, letter_spacing: 0,
@@ -157,6 +159,7 @@ async function addFile(file) {
 async function addDrawing(file) {
   const info = await addFile(file);
   if (!info) return;
+  flushHistory();
   const [lo, hi] = S.gcode.walls.v_range;
   const it = { id: `i${S.nextId++}`, kind: "file", asset: info.name, assetKind: info.kind,
     at: [5, +(lo + 0.5).toFixed(2)], scale: 1, rotate: 0 };
@@ -191,14 +194,11 @@ async function openPlacement(list) {
   }
   try {
     const d = await postJSON("/api/import", { toml: await toml[0].text(), files: names });
+    flushHistory();
     S.items = d.items.map((it) => it.kind === "text"
       ? { size: 6, font: "futural", letter_spacing: 0, mirror: false, rotate: 0, at: [0, 0], ...it, id: `i${S.nextId++}` }
       : { scale: 1, rotate: 0, at: [0, 0], ...it, assetKind: kinds[it.asset], id: `i${S.nextId++}` });
-    const f = $("bulge-form");
-    for (const [k, v] of Object.entries(BULGE_DEFAULTS)) {
-      const val = d.bulges[k] ?? v;
-      f[k].value = typeof val === "boolean" ? String(val) : val;
-    }
+    setBulgeForm(d.bulges);
     status(`${toml[0].name}: ${S.items.length} item(s)`);
     select(S.items.length ? S.items[0].id : null);
     requestPreview();
@@ -312,6 +312,63 @@ function requestPreview() {
   pending = true;
   clearTimeout(checkTimer);
   pump();
+  clearTimeout(historyTimer);
+  historyTimer = setTimeout(remember, 400);
+}
+
+// ---------------------------------------------------------------- undo
+
+// Each state the design rests in for 400 ms is kept; Ctrl+Z / Ctrl+Shift+Z (or Ctrl+Y) and the
+// buttons step through them (a focused text field keeps its own undo).
+const history = [], redo = [];
+let historyTimer = null;
+const snapshot = () => JSON.stringify({ items: S.items, bulges: bulgeSettings(), name: $("export-name").value });
+
+function flushHistory() {        // before a discrete edit: the state it starts from is kept
+  clearTimeout(historyTimer);
+  remember();
+}
+
+function remember() {
+  const now = snapshot();
+  if (history.at(-1) === now) return;
+  history.push(now);
+  if (history.length > 200) history.shift();
+  redo.length = 0;
+  undoButtons();
+}
+
+function restore(state) {
+  const d = JSON.parse(state);
+  S.items = d.items;
+  setBulgeForm(d.bulges);
+  $("export-name").value = d.name;
+  select(S.items.some((i) => i.id === S.selected) ? S.selected : null);
+  requestPreview();
+}
+
+function step(back) {
+  clearTimeout(historyTimer);
+  remember();                                   // an edit still waiting counts first
+  const from = back ? history : redo, to = back ? redo : history;
+  if (back ? history.length < 2 : !redo.length) return;
+  to.push(from.pop());
+  restore(history.at(-1));
+  clearTimeout(historyTimer);
+  undoButtons();
+}
+
+function undoButtons() {
+  $("undo").disabled = history.length < 2;
+  $("redo").disabled = !redo.length;
+}
+
+function setBulgeForm(b) {
+  const f = $("bulge-form");
+  for (const [k, v] of Object.entries(BULGE_DEFAULTS)) {
+    const val = b[k] ?? v;
+    f[k].value = typeof val === "boolean" ? String(val) : val;
+  }
 }
 
 async function pump(check = false) {
@@ -524,6 +581,7 @@ const view2d = (() => {
     cv.setPointerCapture(e.pointerId);
     if (!h) { drag = { mode: "pan", x, y, ou, ov }; return; }
     if (h.it.id !== S.selected) select(h.it.id);
+    flushHistory();
     const [u, v] = toMm(x, y);
     drag = { mode: h.mode, it: h.it, u, v, g: geomOf(h.it), at: [...h.it.at] };
   });
@@ -821,21 +879,28 @@ async function init() {
   $("item-form").addEventListener("input", readItemForm);
   $("bulge-form").addEventListener("input", requestPreview);
   $("bulge-form").addEventListener("change", requestPreview);
-  const deleteItem = () => { S.items = S.items.filter((i) => i.id !== S.selected); select(null); requestPreview(); };
+  const deleteItem = () => { flushHistory(); S.items = S.items.filter((i) => i.id !== S.selected); select(null); requestPreview(); };
   $("delete-item").onclick = deleteItem;
   // keys, when no field has the focus: Delete removes the selected item, arrows nudge it
   // 0.5 mm (with Shift 5 mm)
   window.addEventListener("keydown", (e) => {
+    if ((e.ctrlKey || e.metaKey) && !e.target.closest("input, textarea") && !$("page-wall").hidden) {
+      const k = e.key.toLowerCase();
+      if (k === "z" || k === "y") { e.preventDefault(); step(k === "z" && !e.shiftKey); return; }
+    }
     const it = S.items.find((i) => i.id === S.selected);
     if (!it || e.target.closest("input, textarea, select") || $("page-wall").hidden) return;
     if (e.key === "Delete" || e.key === "Backspace") { e.preventDefault(); deleteItem(); return; }
     const d = { ArrowLeft: [-1, 0], ArrowRight: [1, 0], ArrowUp: [0, 1], ArrowDown: [0, -1] }[e.key];
     if (!d) return;
     e.preventDefault();
+    flushHistory();
     const k = e.shiftKey ? 5 : 0.5;
     it.at = [it.at[0] + d[0] * k, it.at[1] + d[1] * k];
     clampItem(it); fillItemForm(it); view2d.draw(); requestPreview();
   });
+  $("undo").onclick = () => step(true);
+  $("redo").onclick = () => step(false);
   $("export").onclick = doExport;
   $("placement").onclick = downloadPlacement;
   $("send").onclick = doSend;
@@ -853,6 +918,14 @@ async function init() {
     } catch (e) { showError("gcode-error", e); status("Open a sliced G-code to start."); }
   }
   if (st.gcode && !S.gcode) { setGcode(st.gcode); status(`${st.gcode.name}: ${st.gcode.layers} layers of outer wall`); }
+  if (st.design && S.gcode) {              // the page was reloaded: the design comes back
+    S.items = (st.design.items || []).map((it) => it.kind === "file" ? { ...it, assetKind: st.assets[it.asset] } : { ...it });
+    S.nextId = 1 + Math.max(0, ...S.items.map((i) => +String(i.id).replace(/\D/g, "") || 0));
+    setBulgeForm(st.design.bulges || {});
+    if (st.design.name && st.design.name !== S.gcode.name.replace(/\.[^.]*$/, "")) $("export-name").value = st.design.name;
+    select(null);
+    requestPreview();
+  }
   document.body.dataset.ready = "1";
 }
 
