@@ -126,9 +126,15 @@ def load_placement(path) -> Placement:
         if not f.is_file():
             raise PlacementError(f"{src}: {where}.file: {f} not found")
         at = _at(t, where, src)
-        made = api.load_strokes(f, image_width_mm=t.get("image_width"), offset=at,
-                                scale=float(t.get("scale", 1.0)),
-                                curve_tolerance_mm=float(t.get("curve_tolerance", 0.05)))
+        if f.suffix.lower() in api._IMAGE_EXT and "image_width" not in t:
+            raise PlacementError(f"{src}: {where}: {t['file']} is a picture: give image_width "
+                                 "(its width on the wall, mm)")
+        try:
+            made = api.load_strokes(f, image_width_mm=t.get("image_width"), offset=at,
+                                    scale=float(t.get("scale", 1.0)),
+                                    curve_tolerance_mm=float(t.get("curve_tolerance", 0.05)))
+        except InputError as e:
+            raise PlacementError(f"{src}: {where}: {e}") from None
         strokes += _tagged(_rotated(made, t.get("rotate", 0), at), where)
         entries.append((where, len(made)))
     bulges = doc.get("bulges", {})

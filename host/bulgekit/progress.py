@@ -8,23 +8,28 @@ given). One line per pass, redrawn at most 5 times a second:
     walls: 45 % (680,000 of 1,512,000 lines), 210,000 lines/s, 4 s left
 
 A program with its own display (the studio) calls `listen(fn)` instead: fn(label, done, total)
-is called at the same moments, and once with done == total when a pass ends.
+is called at the same moments, and once with done == total when a pass ends. A listener hears
+only the passes of the thread that set it (the studio's worker, not its sending thread).
 """
 from __future__ import annotations
 
 import sys
+import threading
 import time
 from contextlib import contextmanager
 
 _stream = None          # where to draw, when enabled
 _state = None           # the current pass: [label, total, start time, last draw time]
-_listener = None        # fn(label, done, total), or None
+_local = threading.local()   # .listener: fn(label, done, total) of this thread, or None
 
 
 def listen(fn) -> None:
-    """Report passes to fn(label, lines_done, lines_total) (None: stop)."""
-    global _listener
-    _listener = fn
+    """Report this thread's passes to fn(label, lines_done, lines_total) (None: stop)."""
+    _local.listener = fn
+
+
+def _listener():
+    return getattr(_local, "listener", None)
 
 
 def enable(stream=None) -> None:
@@ -54,18 +59,19 @@ def count_lines(path) -> int:
 def phase(label: str, total_lines: int | None = None, path=None):
     """A pass over a file: shown while it runs, then closed with its time."""
     global _state
-    if _stream is None and _listener is None:
+    heard = _listener()
+    if _stream is None and heard is None:
         yield
         return
     total = total_lines if total_lines is not None else (count_lines(path) if path else 0)
     _state = [label, max(total, 1), time.perf_counter(), 0.0]
-    if _listener is not None:
-        _listener(label, 0, _state[1])
+    if heard is not None:
+        heard(label, 0, _state[1])
     try:
         yield
         dt = time.perf_counter() - _state[2]
-        if _listener is not None:
-            _listener(label, _state[1], _state[1])
+        if heard is not None:
+            heard(label, _state[1], _state[1])
         if _stream is not None:
             _stream.write(f"\r{label}: done in {dt:.1f} s{' ' * 40}\n")
             _stream.flush()
@@ -82,8 +88,9 @@ def tick(done: int) -> None:
         return
     _state[3] = now
     label, total, t0, _ = _state
-    if _listener is not None:
-        _listener(label, min(done, total), total)
+    heard = _listener()
+    if heard is not None:
+        heard(label, min(done, total), total)
     if _stream is None:
         return
     rate = done / max(now - t0, 1e-9)

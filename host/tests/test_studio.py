@@ -4,6 +4,7 @@ byte-for-byte match of its export with `bulgekit build --placement` (the browser
 test_studio_browser.py)."""
 import hashlib
 import os
+import time
 import tty
 import urllib.request
 from pathlib import Path
@@ -134,7 +135,11 @@ def test_oversized_and_broken_pictures_are_refused(studio, tmp_path):
     status, body = call(studio, "/api/asset?name=run.exe", b"MZ")
     assert status == 400 and "not a drawing file" in body["error"]
     status, body = call(studio, "/api/asset?name=bad.svg", b"<svg><path d='M 1 1 L'/></svg>")
-    assert status == 400 and "bad.svg" in body["error"]
+    assert status == 400 and body["error"].startswith("bad.svg")
+    status, body = call(studio, "/api/asset?name=deep.json", b"[" * 100_000 + b"]" * 100_000)
+    assert status == 400 and body["error"].startswith("deep.json")
+    for msg in (call(studio, "/api/asset?name=x.svg", b"<svg")[1]["error"],):
+        assert str(studio.studio.workdir) not in msg and msg.startswith("x.svg")
     assert "big.png" not in call(studio, "/api/state")[1]["assets"]
 
 
@@ -149,7 +154,7 @@ def test_bad_requests_get_json_errors(studio):
     status, body = call(studio, "/api/preview", {"design": {"items": [{"kind": "circle"}]}})
     assert status == 400 and "unknown kind" in body["error"]
     status, body = call(studio, "/api/preview", {"design": design(text_item(at=[1, "x"]))})
-    assert status == 400 and "at" in body["error"]
+    assert status == 400 and body["error"] == "item t1: at: expected a number, got 'x'"
 
 
 # -- preview: strokes and messages per item
@@ -395,3 +400,95 @@ def test_import_of_the_example_placement_exports_the_same_files(studio, tmp_path
 def test_import_errors_name_the_entry(studio, toml, files, message):
     status, body = call(studio, "/api/import", {"toml": toml, "files": files})
     assert status == 400 and message in body["error"] and body["error"].startswith("placement file")
+
+
+# -- found in review: names, paths, modes, partial files
+
+def test_names_with_dots_and_drawings_named_like_outputs(studio, tmp_path):
+    clash = _upload(studio, _png(tmp_path / "bracket.v2.preview.png"))
+    d = design(text_item(), {"id": "p", "kind": "file", "asset": clash, "at": [60, 5], "image_width": 6})
+    d["name"] = "bracket.v2"
+    job = wait_job(studio, call(studio, "/api/export", {"design": d})[1])
+    assert job["state"] == "done", job["error"]
+    assert call(studio, job["result"]["zip"], raw=True)[0] == 200
+    folder = Path(job["result"]["folder"])
+    assert (folder / "drawing-bracket.v2.preview.png").read_bytes() == (tmp_path / "bracket.v2.preview.png").read_bytes()
+    cli = cli_build(GCODE, folder / "placement.toml", tmp_path / "cli", "bracket.v2")
+    assert all(_sha(p) == _sha(folder / p.name) for p in cli)
+
+
+def _png(path, size=(8, 4)):
+    Image.new("L", size, 0).save(path)
+    return path
+
+
+def test_item_messages_name_the_users_files_and_fields(studio, tmp_path):
+    pic = _upload(studio, _png(tmp_path / "dot.png"))
+    d = design(text_item(), {"id": "p", "kind": "file", "asset": pic, "at": [60, 5]})
+    status, p = call(studio, "/api/preview", {"design": d})
+    assert status == 200 and not p["errors"]
+    msg = p["items"]["p"]["errors"][0]
+    assert msg == f"{pic} is a picture: give image_width (its width on the wall, mm)"
+
+
+def test_preview_follows_the_mode_setting(studio):
+    marked = call(studio, "/api/preview", {"design": design(text_item()), "check": True})[1]
+    geo = call(studio, "/api/preview", {"design": design(text_item(), geometric=True), "check": True})[1]
+    assert marked["summary"]["stops"] == marked["summary"]["points"] > 0
+    assert geo["summary"]["stops"] == geo["summary"]["points"] > 0 and not geo["errors"]
+
+
+def test_a_file_without_outer_wall_comments_asks_for_geometric_mode(tmp_path):
+    data = b"\n".join(l for l in GCODE.read_bytes().split(b"\n") if not l.startswith(b";TYPE:"))
+    src = tmp_path / "plain.gcode"
+    src.write_bytes(data)
+    run = start(tmp_path / "w")
+    try:
+        job = open_gcode(run, src)
+        assert job["state"] == "done" and job["result"]["geometric"]
+        assert any("geometric" in m for m in job["log"])
+        p = call(run, "/api/preview", {"design": design(text_item())})[1]       # marked mode asked
+        assert "plain.gcode: no outer-wall feature comments" in p["errors"][0]
+        assert "choose Mode: geometric" in p["errors"][0] and str(tmp_path) not in p["errors"][0]
+        p = call(run, "/api/preview", {"design": design(text_item(), geometric=True), "check": True})[1]
+        assert not p["errors"] and p["summary"]["stops"] == p["summary"]["points"] > 0
+    finally:
+        run.stop()
+
+
+def test_an_upload_cut_off_leaves_nothing(studio):
+    import socket
+    host, port = studio.url.split("//")[1].rstrip("/").split(":")
+    s = socket.create_connection((host, int(port)))
+    s.sendall((f"POST /api/gcode?name=cut.gcode HTTP/1.1\r\nHost: {host}:{port}\r\n"
+               f"X-Studio-Token: {studio.studio.token}\r\nContent-Length: 1200000\r\n\r\n").encode()
+              + b";" * 600_000)
+    time.sleep(0.5)
+    s.close()
+    time.sleep(0.5)
+    assert not [p.name for p in (studio.studio.workdir / "gcode").iterdir() if "cut" in p.name]
+    assert call(studio, "/api/state")[0] == 200
+
+
+def test_progress_listeners_hear_only_their_own_thread():
+    import threading
+    from bulgekit import progress
+    heard_a, heard_b = [], []
+
+    def a():
+        progress.listen(lambda *x: heard_a.append(x))
+        with progress.phase("walls A", 10):
+            progress.tick(5)
+        progress.listen(None)
+
+    def b():
+        progress.listen(lambda *x: heard_b.append(x))
+        time.sleep(0.2)
+        progress.listen(None)
+    tb = threading.Thread(target=b)
+    tb.start()
+    ta = threading.Thread(target=a)
+    ta.start()
+    ta.join()
+    tb.join()
+    assert heard_a and all(x[0] == "walls A" for x in heard_a) and not heard_b

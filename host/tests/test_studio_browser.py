@@ -251,7 +251,9 @@ def test_large_gcode_shows_progress_and_the_page_stays_responsive(browser, tmp_p
             assert time.monotonic() - t0 < 240, "the 100 MB file did not load in 4 min"
             time.sleep(0.05)
         shot(pg, "4-large-file")
-        assert any("%" in s and ("uploading" in s or "walls" in s) for s in seen), seen
+        assert any(s.startswith("uploading tall.gcode") and "%" in s for s in seen), seen
+        walls = [int(s.split()[-2]) for s in seen if s.startswith("tall.gcode: reading the walls") and s.endswith(" %")]
+        assert any(0 < w < 100 for w in walls), seen          # the job's own progress, mid-way
         assert slowest < 2.0, f"the page took {slowest:.2f} s to answer while loading"
         assert "10586 layers" in pg.inner_text("#gcode-info")
         assert not errors, errors
@@ -311,7 +313,7 @@ def test_send_to_printer_and_lithophane_tab(browser, studio, tmp_path):
     assert not errors, errors
 
 
-def test_open_placement_file_and_nudge_with_keys(browser, studio):
+def test_open_placement_file_and_nudge_with_keys(browser, studio, tmp_path):
     pg, errors = page_for(browser, studio)
     pg.set_input_files("#gcode-file", str(GCODE))
     pg.wait_for_function("() => window.studio.S.gcode !== null", timeout=60_000)
@@ -332,11 +334,27 @@ def test_open_placement_file_and_nudge_with_keys(browser, studio):
     assert item(pg, 0)["at"] == pytest.approx([at[0] + 0.5, at[1] + 5])
     pg.keyboard.press("Delete")
     assert pg.evaluate("() => window.studio.S.items.length") == 1
+    # values the page would never make come back unchanged: export = the CLI on the original
+    odd = tmp_path / "odd.toml"
+    odd.write_text('[[text]]\ntext = "Odd"\nat = [3.14159, 6.0004]\nsize = 5.12345\nrotate = 7.77\n'
+                   '[[strokes]]\nfile = "wave.json"\nat = [0.333, 0.1]\ncurve_tolerance = 0.02\n'
+                   '[bulges]\ndwell = 90\nextra = 0.0725\n')
+    pg.set_input_files("#open-placement", [str(odd), str(ex / "wave.json")])
+    pg.wait_for_function("() => window.studio.S.items.length === 2 && window.studio.S.items[0].text === 'Odd'")
+    settled(pg)
+    pg.fill("#export-name", "odd")
+    pg.click("#export")
+    pg.wait_for_selector("#export-zip", timeout=120_000)
+    folder = studio.studio.workdir / "exports" / pg.evaluate("() => window.studio.S.exportKey")
+    (tmp_path / "wave.json").write_bytes((ex / "wave.json").read_bytes())
+    cli = cli_build(GCODE, odd, tmp_path / "cli", "odd")
+    for p in cli:
+        assert p.read_bytes() == (folder / p.name).read_bytes(), p.name
     # a placement naming a file that was not chosen with it
     pg.set_input_files("#open-placement", [str(ex / "placement.toml")])
     pg.wait_for_selector("#asset-error:not([hidden])")
     assert "wave.json was not chosen with it" in pg.inner_text("#asset-error")
-    assert pg.evaluate("() => window.studio.S.items.length") == 1     # the design is kept
+    assert pg.evaluate("() => window.studio.S.items.length") == 2     # the design is kept
     assert not errors, errors
 
 

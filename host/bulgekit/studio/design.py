@@ -323,20 +323,32 @@ class Export:
     build: object
 
 
-def export(design: dict, assets: dict[str, Asset], gcode: Path, folder: Path) -> Export:
-    """Everything a design makes, in `folder` (created here; all or nothing): placement.toml and
-    its drawing files, then exactly what `bulgekit build GCODE --placement placement.toml
-    --fallback --preview-3d --name NAME -o folder` writes, made by the same calls."""
+def export(design: dict, assets: dict[str, Asset], gcode: Path, folder: Path, name: str) -> Export:
+    """Everything a design makes, in `folder` (created here; all or nothing) and beside it as
+    folder.zip: placement.toml and its drawing files, then exactly what `bulgekit build GCODE
+    --placement placement.toml --fallback --preview-3d --name NAME -o folder` writes, made by
+    the same calls."""
     from .. import preview as pv
-    name = safe_name(design.get("name") or gcode.stem, "part")
-    text = placement_text(design, assets)
+    # a drawing file keeps its name unless an output would take it
+    taken = {"placement.toml"} | {f"{name}{ext}" for ext in (".bkm", ".bulge.gcode", ".stock.gcode",
+                                                           ".stats.txt", ".preview.png", ".preview3d.png")}
+    _, files, _ = entries(design, assets)
+    as_named = {}
+    for a in (assets[t["file"]] for t in files):
+        if a.name not in as_named:
+            n, k = a.name, 1
+            while n in taken:
+                k += 1
+                n = f"drawing-{k}-{a.name}" if k > 2 else f"drawing-{a.name}"
+            taken.add(n)
+            as_named[a.name] = n
+    text = placement_text(design, assets, lambda a: as_named[a.name])
     folder.mkdir(parents=True, exist_ok=False)
+    zpath = folder.parent / f"{folder.name}.zip"
+    tmp = folder.parent / f"{folder.name}.zip.part"
     try:
-        _, files, _ = entries(design, assets)
-        used = {t["file"] for t in files}
-        for a in assets.values():
-            if a.name in used:
-                shutil.copyfile(a.path, folder / a.name)
+        for a, n in ((assets[k], n) for k, n in as_named.items()):
+            shutil.copyfile(a.path, folder / n)
         ppath = folder / "placement.toml"
         ppath.write_text(text, encoding="utf-8")
         pl = load_placement(ppath)
@@ -347,14 +359,13 @@ def export(design: dict, assets: dict[str, Asset], gcode: Path, folder: Path) ->
         pv.build_unrolled(out, folder / f"{name}.preview.png")
         pv.build_3d(out, folder / f"{name}.preview3d.png")
         made = sorted(p for p in folder.iterdir() if p.is_file())
-        zpath = folder.with_suffix(".zip")
-        tmp = zpath.with_suffix(".zip.part")
         with zipfile.ZipFile(tmp, "w", zipfile.ZIP_DEFLATED) as z:
             for p in made:
                 z.write(p, f"{folder.name}/{p.name}")
         tmp.replace(zpath)
     except BaseException:
         shutil.rmtree(folder, ignore_errors=True)
+        tmp.unlink(missing_ok=True)
         raise
     return Export(folder, made, zpath, out)
 

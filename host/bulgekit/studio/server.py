@@ -25,6 +25,7 @@ import shutil
 import threading
 import time
 import traceback
+from collections import deque
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -62,13 +63,13 @@ class Job:
     total: int = 0
     result: dict | None = None
     error: str | None = None
-    log: list = field(default_factory=list)
+    log: deque = field(default_factory=lambda: deque(maxlen=1000))   # printer messages: the latest
     started: float = field(default_factory=time.monotonic)
 
     def json(self) -> dict:
         return {"id": self.id, "kind": self.kind, "state": self.state, "label": self.label,
                 "done": self.done, "total": self.total, "result": self.result, "error": self.error,
-                "log": self.log[-200:], "elapsed": round(time.monotonic() - self.started, 1)}
+                "log": list(self.log)[-200:], "elapsed": round(time.monotonic() - self.started, 1)}
 
 
 @dataclass
@@ -90,7 +91,8 @@ class Studio:
         self.token = secrets.token_urlsafe(24)
         self.gcode: Path | None = None
         self.gcode_name = ""
-        self.model = None
+        self.model = None                  # the walls as found when the file was opened
+        self.models: dict[bool, object] = {}   # per mode (geometric or not), read when asked
         self.view: dict | None = None
         self.assets: dict[str, dz.Asset] = {}
         self.asset_kinds: dict[str, str] = {}
@@ -116,7 +118,8 @@ class Studio:
         def run():
             def tick(label, done, total):
                 job.label, job.done, job.total = label, done, total
-            progress.listen(tick)
+            if not thread:
+                progress.listen(tick)               # this thread's passes only (progress.py)
             try:
                 job.result = fn(job, *args)
                 job.state = "done"
@@ -162,6 +165,7 @@ class Studio:
         view = dz.wall_view(model)
         old = self.gcode
         self.gcode, self.gcode_name, self.model, self.view = path, name, model, view
+        self.models = {model.geometric: model}
         if old is not None and old != path and self._uploaded(old):
             old.unlink(missing_ok=True)            # exports made from it keep their own files
         return self.gcode_state()
@@ -196,7 +200,7 @@ class Studio:
         base = dz.safe_name(name)
         stem, suf = Path(base).stem, Path(base).suffix.lower()
         final, k = f"{stem}{suf}", 1
-        while final in self.assets or final == "placement.toml":
+        while final in self.assets:
             k += 1
             final = f"{stem}-{k}{suf}"
         path = self.workdir / "assets" / final
@@ -209,9 +213,12 @@ class Studio:
                 info["strokes"] = len(load_svg(str(path)))
             else:
                 info["strokes"] = len(load_json(str(path)))
-        except BaseException:
+        except BulgekitError as e:
             path.unlink(missing_ok=True)
-            raise
+            raise dz.DesignError(str(e).replace(str(path), name)) from None
+        except Exception as e:          # e.g. RecursionError from a JSON nested too deep
+            path.unlink(missing_ok=True)
+            raise dz.DesignError(f"{name}: cannot be read ({type(e).__name__}: {e})") from None
         self.assets[final] = dz.Asset(final, path)
         self.asset_kinds[final] = info["kind"]
         return info
@@ -231,19 +238,59 @@ class Studio:
 
     # -- design
 
+    def model_for(self, d: dict):
+        """The walls in the design's mode (the export reads them that way too)."""
+        from .. import api
+        from ..wall import WallError
+        geometric = bool(dz.bulges(d).get("geometric", False))
+        if geometric not in self.models:
+            try:
+                self.models[geometric] = api.walls(self.gcode, geometric=geometric)
+            except WallError as e:
+                raise dz.DesignError(self.user_words(str(e))) from None
+        return self.models[geometric]
+
+    def user_words(self, msg: str) -> str:
+        """A toolkit message as the page's user knows things: the file names they chose (not
+        the working folder's copies) and the page's settings (not the CLI's options)."""
+        if self.gcode is not None:
+            msg = msg.replace(str(self.gcode), self.gcode_name)
+        for a in self.assets.values():
+            msg = msg.replace(str(a.path), a.name)
+        msg = msg.replace(str(self.workdir) + "/", "")
+        for cli, page in (("pass --geometric", "choose Mode: geometric (M720 S2)"),
+                          ("--geometric", "Mode: geometric"), ("Use --allow-unreached to write the file anyway.", ""),
+                          ("--image-width MM", "Width on the wall")):
+            msg = msg.replace(cli, page)
+        return msg.strip()
+
     def preview(self, d: dict, check: bool) -> dict:
         if self.model is None:
             raise dz.DesignError("open a sliced G-code first")
         self.design = d                  # a reloaded page picks up where it was
-        return dz.preview(d, self.assets, self.model, self.gcode, self.workdir / "scratch", check,
-                          self.limits.arena).json()
+        try:
+            model = self.model_for(d)
+        except dz.DesignError as e:
+            return dz.Preview(errors=[str(e)]).json()
+        out = dz.preview(d, self.assets, model, self.gcode, self.workdir / "scratch", check,
+                         self.limits.arena)
+        words = self.user_words
+        out.errors = [words(m) for m in out.errors]
+        out.warnings = [words(m) for m in out.warnings]
+        for it in out.items.values():
+            it["errors"] = [words(m) for m in it["errors"]]
+            it["warnings"] = [words(m) for m in it["warnings"]]
+        return out.json()
 
     def export(self, job: Job, d: dict) -> dict:
         if self.model is None:
             raise dz.DesignError("open a sliced G-code first")
         name = dz.safe_name(d.get("name") or Path(self.gcode_name).stem, "part")
         key = f"{self.next_id()}-{name}"
-        ex = dz.export(d, self.assets, self.gcode, self.workdir / "exports" / key)
+        try:
+            ex = dz.export(d, self.assets, self.gcode, self.workdir / "exports" / key, name)
+        except BulgekitError as e:
+            raise dz.DesignError(self.user_words(str(e))) from None
         self.exports[key] = ex
         files = [{"name": p.name, "bytes": p.stat().st_size, "url": f"/files/exports/{key}/{p.name}"}
                  for p in ex.files]
@@ -407,16 +454,19 @@ def make_app(st: Studio, port_ref: dict) -> web.Application:
         name, _ = r
         base = dz.safe_name(name, "part.gcode")
         dest = st.workdir / "gcode" / f"{st.next_id()}-{base}"
+        part = dest.with_name(dest.name + ".part")
         got = 0
-        with open(dest, "wb") as f:
-            async for chunk in request.content.iter_chunked(1 << 20):
-                got += len(chunk)
-                if got > st.limits.gcode_bytes:
-                    f.close()
-                    dest.unlink(missing_ok=True)
-                    return _error(413, f"{name}: more than the studio takes for G-code "
-                                       f"({st.limits.gcode_bytes / MB:.0f} MB)")
-                f.write(chunk)
+        try:
+            with open(part, "wb") as f:
+                async for chunk in request.content.iter_chunked(1 << 20):
+                    got += len(chunk)
+                    if got > st.limits.gcode_bytes:
+                        return _error(413, f"{name}: more than the studio takes for G-code "
+                                           f"({st.limits.gcode_bytes / MB:.0f} MB)")
+                    f.write(chunk)
+            part.replace(dest)
+        finally:
+            part.unlink(missing_ok=True)        # an upload cut off or refused leaves nothing
         job = st.start("open", st.open_upload, dest, name)
         return web.json_response(job.json())
 
@@ -434,7 +484,7 @@ def make_app(st: Studio, port_ref: dict) -> web.Application:
         try:
             info = await loop_run().run_in_executor(st.worker, st.add_asset, name, bytes(data))
         except (BulgekitError, ValueError, OSError) as e:
-            return _error(400, _message(e))
+            return _error(400, _message(e).replace(str(st.workdir) + "/", ""))
         return web.json_response(info)
 
     async def body(request) -> dict:
@@ -527,8 +577,10 @@ def make_app(st: Studio, port_ref: dict) -> web.Application:
         path = (base / rest).resolve()
         if base not in path.parents or not path.is_file():
             raise web.HTTPNotFound()
-        return web.FileResponse(path, headers={"Content-Disposition": f'attachment; filename="{path.name}"'}
-                                if request.query.get("download") else None)
+        # always an attachment, sandboxed: an uploaded SVG must never run as a page of this origin
+        # (an <img> still shows the lithophane's look)
+        return web.FileResponse(path, headers={"Content-Disposition": f'attachment; filename="{path.name}"',
+                                               "Content-Security-Policy": "sandbox; default-src 'none'"})
 
     app.router.add_get("/", index)
     app.router.add_static("/static/", STATIC, follow_symlinks=False)

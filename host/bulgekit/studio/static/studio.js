@@ -77,6 +77,7 @@ function showError(id, err) {
   el.textContent = err ? String(err.message || err) : "";
 }
 
+const round2 = (x) => Math.round(x * 100) / 100;     // what a drag makes: 0.01 mm
 const fileUrl = (u, download) => `${u}?t=${encodeURIComponent(TOKEN)}${download ? "&download=1" : ""}`;
 
 // ---------------------------------------------------------------- G-code
@@ -131,7 +132,7 @@ function clampItem(it) {
 function addText() {
   flushHistory();
   const [lo, hi] = S.gcode.walls.v_range;
-  const size = Math.max(1, Math.min(6, (hi - lo) / 3));
+  const size = round2(Math.max(1, Math.min(6, (hi - lo) / 3)));
   const it = { id: `i${S.nextId++}`, kind: "text", text: "TEXT", font: "futural", size, letter_spacing: 0,
     mirror: false, rotate: 0, at: [5, +(lo + (hi - lo - size) / 2).toFixed(2)] };
   S.items.push(it);
@@ -164,7 +165,7 @@ async function addDrawing(file) {
   const it = { id: `i${S.nextId++}`, kind: "file", asset: info.name, assetKind: info.kind,
     at: [5, +(lo + 0.5).toFixed(2)], scale: 1, rotate: 0 };
   if (info.kind === "image") {
-    it.image_width = Math.min(20, Math.max(5, S.gcode.length_max / 4));
+    it.image_width = round2(Math.min(20, Math.max(5, S.gcode.length_max / 4)));
     delete it.scale;
   }
   S.items.push(it);
@@ -291,12 +292,14 @@ function bulgeSettings() {
 
 function design() {
   const items = S.items.map((it) => {
-    const o = { id: it.id, kind: it.kind, at: it.at.map((v) => +v.toFixed(3)), rotate: +it.rotate.toFixed(2) };
-    if (it.kind === "text") Object.assign(o, { text: it.text, font: it.font, size: +it.size.toFixed(3),
+    // sent as they are (an imported file's values must come back unchanged); a drag rounds
+    // what it makes (round2 below)
+    const o = { id: it.id, kind: it.kind, at: [...it.at], rotate: it.rotate };
+    if (it.kind === "text") Object.assign(o, { text: it.text, font: it.font, size: it.size,
       letter_spacing: it.letter_spacing, mirror: it.mirror });
     else {
       o.asset = it.asset;
-      if (it.assetKind === "image") o.image_width = +it.image_width.toFixed(3); else o.scale = +it.scale.toFixed(4);
+      if (it.assetKind === "image") o.image_width = it.image_width; else o.scale = it.scale;
       if (it.curve_tolerance !== undefined) o.curve_tolerance = it.curve_tolerance;
     }
     return o;
@@ -365,7 +368,9 @@ function undoButtons() {
 
 function setBulgeForm(b) {
   const f = $("bulge-form");
-  for (const [k, v] of Object.entries(BULGE_DEFAULTS)) {
+  // a file without `geometric` is read the way the open G-code's walls were found
+  const dflt = { ...BULGE_DEFAULTS, geometric: !!(S.gcode && S.gcode.geometric) };
+  for (const [k, v] of Object.entries(dflt)) {
     const val = b[k] ?? v;
     f[k].value = typeof val === "boolean" ? String(val) : val;
   }
@@ -591,18 +596,18 @@ const view2d = (() => {
     if (!drag) { const h = hit(x, y); cv.style.cursor = h ? (h.mode === "move" ? "move" : h.mode === "scale" ? "nwse-resize" : "crosshair") : "grab"; return; }
     if (drag.mode === "pan") { ou = drag.ou - (x - drag.x) / k; ov = drag.ov + (y - drag.y) / k; draw(); return; }
     const [u, v] = toMm(x, y), it = drag.it;
-    if (drag.mode === "move") it.at = [drag.at[0] + u - drag.u, drag.at[1] + v - drag.v];
+    if (drag.mode === "move") it.at = [round2(drag.at[0] + u - drag.u), round2(drag.at[1] + v - drag.v)];
     else if (drag.mode === "rotate") {
       const a0 = Math.atan2(drag.v - drag.at[1], drag.u - drag.at[0]), a1 = Math.atan2(v - drag.at[1], u - drag.at[0]);
       let deg = drag.g.rot + ((a1 - a0) * 180) / Math.PI;
       if (e.shiftKey) deg = Math.round(deg / 15) * 15;
-      it.rotate = ((deg % 360) + 540) % 360 - 180;
+      it.rotate = Math.round((((deg % 360) + 540) % 360 - 180) * 10) / 10;
     } else {
       const d0 = Math.hypot(drag.u - drag.at[0], drag.v - drag.at[1]), d1 = Math.hypot(u - drag.at[0], v - drag.at[1]);
       const f = Math.max(0.05, d1 / Math.max(d0, 1e-6));
-      if (it.kind === "text") it.size = Math.max(0.5, drag.g.size * f);
-      else if (it.assetKind === "image") it.image_width = Math.max(1, drag.g.size * f);
-      else it.scale = Math.max(0.01, drag.g.size * f);
+      if (it.kind === "text") it.size = round2(Math.max(0.5, drag.g.size * f));
+      else if (it.assetKind === "image") it.image_width = round2(Math.max(1, drag.g.size * f));
+      else it.scale = Math.round(Math.max(0.01, drag.g.size * f) * 1000) / 1000;
     }
     fillItemForm(it);
     draw();
@@ -896,7 +901,7 @@ async function init() {
     e.preventDefault();
     flushHistory();
     const k = e.shiftKey ? 5 : 0.5;
-    it.at = [it.at[0] + d[0] * k, it.at[1] + d[1] * k];
+    it.at = [round2(it.at[0] + d[0] * k), round2(it.at[1] + d[1] * k)];
     clampItem(it); fillItemForm(it); view2d.draw(); requestPreview();
   });
   $("undo").onclick = () => step(true);
