@@ -272,7 +272,10 @@ function renderItems() {
       for (const w of info.warnings) { const x = document.createElement("li"); x.className = "warning"; x.textContent = w; m.append(x); }
       li.append(m);
     }
-    li.onclick = () => select(it.id);
+    li.onclick = () => {
+      select(it.id);
+      if (S.preview) view3d.look(S.preview.points.filter((q) => q[6].includes(it.id)));
+    };
     ul.append(li);
   }
 }
@@ -642,7 +645,7 @@ const view3d = (() => {
     p.className = "msg warning";
     p.textContent = `No 3D view: this browser gave no WebGL (${e.message}). The unrolled view above shows the same bumps.`;
     host.append(p);
-    return { setWalls() {}, setBumps() {} };
+    return { setWalls() {}, setBumps() {}, look() {} };
   }
   renderer.setPixelRatio(window.devicePixelRatio || 1);
   host.prepend(renderer.domElement);
@@ -708,7 +711,21 @@ const view3d = (() => {
     }
     render();
   }
-  return { setWalls, setBumps };
+  // turn the camera to face a group of bumps from outside the wall
+  function look(points) {
+    if (!points.length) return;
+    const c = new THREE.Vector3();
+    for (const p of points) c.add(new THREE.Vector3(p[2], p[3], p[4]));
+    c.divideScalar(points.length);
+    const t = controls.target, out = new THREE.Vector3(c.x - t.x, c.y - t.y, 0);
+    if (out.lengthSq() < 1e-6) return;
+    const dist = camera.position.distanceTo(t);
+    out.normalize();
+    camera.position.set(t.x + out.x * dist * 0.85, t.y + out.y * dist * 0.85, t.z + dist * 0.5);
+    controls.update();
+    render();
+  }
+  return { setWalls, setBumps, look };
 })();
 
 // ---------------------------------------------------------------- export and printer
