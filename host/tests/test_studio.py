@@ -434,8 +434,12 @@ def test_item_messages_name_the_users_files_and_fields(studio, tmp_path):
 def test_preview_follows_the_mode_setting(studio):
     marked = call(studio, "/api/preview", {"design": design(text_item()), "check": True})[1]
     geo = call(studio, "/api/preview", {"design": design(text_item(), geometric=True), "check": True})[1]
-    assert marked["summary"]["stops"] == marked["summary"]["points"] > 0
+    assert marked["summary"]["stops"] == marked["summary"]["points"] > 0 and "walls" not in marked
     assert geo["summary"]["stops"] == geo["summary"]["points"] > 0 and not geo["errors"]
+    assert geo["walls"]["geometric"] is True                   # the page redraws the walls it uses
+    back = call(studio, "/api/preview", {"design": design(text_item())})[1]
+    assert back["walls"]["geometric"] is False
+    assert call(studio, "/api/state")[1]["gcode"]["walls"]["geometric"] is False
 
 
 def test_a_file_without_outer_wall_comments_asks_for_geometric_mode(tmp_path):
@@ -492,3 +496,37 @@ def test_progress_listeners_hear_only_their_own_thread():
     ta.join()
     tb.join()
     assert heard_a and all(x[0] == "walls A" for x in heard_a) and not heard_b
+
+
+def test_file_names_keep_their_extension_and_differ_beyond_case(studio):
+    from bulgekit.studio.design import safe_name
+    assert safe_name("логотип.svg") == "file.svg" and safe_name("../a b.v2.json") == "a_b.v2.json"
+    assert safe_name("my part.v2 \u00fcn\u00ef", "part") == "my_part.v2_n"
+    assert _upload_bytes(studio, "логотип.svg", SVG.encode()) == "file.svg"
+    assert _upload_bytes(studio, "Sign.svg", SVG.encode()) == "Sign.svg"
+    assert _upload_bytes(studio, "sign.svg", SVG.encode()) == "sign-2.svg"
+
+
+def _upload_bytes(run, name, data):
+    import urllib.parse
+    status, info = call(run, f"/api/asset?name={urllib.parse.quote(name)}", data)
+    assert status == 200, info
+    return info["name"]
+
+
+def test_downloads_are_sandboxed_attachments(studio):
+    job = wait_job(studio, call(studio, "/api/export", {"design": design(text_item())})[1])
+    url = studio.url.rstrip("/") + job["result"]["files"][0]["url"] + "?t=" + studio.studio.token
+    with urllib.request.urlopen(url) as r:
+        assert r.headers["Content-Disposition"].startswith("attachment;")
+        assert r.headers["Content-Security-Policy"].startswith("sandbox")
+
+
+def test_import_messages_name_the_users_files(studio, tmp_path):
+    pic = _upload(studio, _png(tmp_path / "spot.png"))
+    status, body = call(studio, "/api/import", {"toml": "[[strokes]]\nfile = 'spot.png'\n", "files": {"spot.png": pic}})
+    assert status == 400 and str(studio.studio.workdir) not in body["error"]
+    assert body["error"] == f"placement file: strokes[0]: spot.png is a picture: give image_width (its width on the wall, mm)"
+    status, body = call(studio, "/api/import", {"toml": "[[strokes]]\nfile = 'spot.png'\nimage_width = -2\n",
+                                                "files": {"spot.png": pic}})
+    assert status == 400 and str(studio.studio.workdir) not in body["error"] and "--" not in body["error"]

@@ -350,6 +350,12 @@ def test_open_placement_file_and_nudge_with_keys(browser, studio, tmp_path):
     cli = cli_build(GCODE, odd, tmp_path / "cli", "odd")
     for p in cli:
         assert p.read_bytes() == (folder / p.name).read_bytes(), p.name
+    # editing one field leaves the others' exact values alone (the form shows them rounded)
+    pg.click("#items li >> nth=0")
+    pg.fill("#item-form textarea[name=text]", "Odd!")
+    odd_item = item(pg, 0)
+    assert odd_item["text"] == "Odd!" and odd_item["at"] == [3.14159, 6.0004] and odd_item["size"] == 5.12345
+    assert odd_item["rotate"] == 7.77
     # a placement naming a file that was not chosen with it
     pg.set_input_files("#open-placement", [str(ex / "placement.toml")])
     pg.wait_for_selector("#asset-error:not([hidden])")
@@ -363,6 +369,8 @@ def test_undo_redo_and_a_reload_keeps_the_design(browser, studio):
     pg.set_input_files("#gcode-file", str(GCODE))
     pg.wait_for_function("() => window.studio.S.gcode !== null", timeout=60_000)
     pg.click("#add-text")
+    pg.keyboard.press("Delete")                  # the button has the focus: no item is deleted
+    assert pg.evaluate("() => window.studio.S.items.length") == 1
     settled(pg)
     pg.wait_for_timeout(500)                     # each state resting 400 ms is kept
     pg.fill("#item-form textarea[name=text]", "AB")
@@ -392,4 +400,6 @@ def test_undo_redo_and_a_reload_keeps_the_design(browser, studio):
     assert item(pg)["text"] == "AB" and item(pg)["at"][0] == pytest.approx(at0[0] + 5)
     assert pg.input_value("#bulge-form input[name=dwell]") == "150"
     assert pg.evaluate("() => window.studio.S.preview.points.length") == n
+    pg.wait_for_timeout(500)
+    assert pg.is_disabled("#undo")                # nothing to undo into: not an empty design
     assert not errors, errors

@@ -57,10 +57,14 @@ class Asset:
 
 
 def safe_name(name: str, default: str = "file") -> str:
-    """A file name without folders or odd characters (kept: letters, digits, . _ -)."""
+    """A file name without folders or odd characters (kept: ASCII letters, digits, . _ -) and
+    with its extension, which says how it is read (логотип.svg -> file.svg)."""
     base = Path(str(name).replace("\\", "/")).name
-    base = re.sub(r"[^A-Za-z0-9._-]+", "_", base).strip("._") or default
-    return base[:80]
+    stem, ext = Path(base).stem, Path(base).suffix
+    if not re.fullmatch(r"\.[A-Za-z0-9]{1,8}", ext):
+        stem, ext = base, ""
+    stem = re.sub(r"[^A-Za-z0-9._-]+", "_", stem).strip("._") or Path(default).stem
+    return stem[:72] + ext
 
 
 def _num(v, where: str) -> float:
@@ -200,10 +204,14 @@ class Preview:
     errors: list = field(default_factory=list)    # not tied to an item
     warnings: list = field(default_factory=list)
     summary: dict = field(default_factory=dict)
+    walls: dict | None = None                     # set when the page must redraw the walls
 
     def json(self) -> dict:
-        return {"items": self.items, "points": self.points, "errors": self.errors,
-                "warnings": self.warnings, "summary": self.summary}
+        out = {"items": self.items, "points": self.points, "errors": self.errors,
+               "warnings": self.warnings, "summary": self.summary}
+        if self.walls is not None:
+            out["walls"] = self.walls
+        return out
 
 
 def preview(design: dict, assets: dict[str, Asset], model, gcode: Path, scratch: Path,
@@ -337,7 +345,7 @@ def export(design: dict, assets: dict[str, Asset], gcode: Path, folder: Path, na
     for a in (assets[t["file"]] for t in files):
         if a.name not in as_named:
             n, k = a.name, 1
-            while n in taken:
+            while n.lower() in {t.lower() for t in taken}:
                 k += 1
                 n = f"drawing-{k}-{a.name}" if k > 2 else f"drawing-{a.name}"
             taken.add(n)

@@ -200,7 +200,8 @@ class Studio:
         base = dz.safe_name(name)
         stem, suf = Path(base).stem, Path(base).suffix.lower()
         final, k = f"{stem}{suf}", 1
-        while final in self.assets:
+        # unique also where case does not count (macOS, Windows)
+        while final.lower() in {n.lower() for n in self.assets}:
             k += 1
             final = f"{stem}-{k}{suf}"
         path = self.workdir / "assets" / final
@@ -274,6 +275,9 @@ class Studio:
             return dz.Preview(errors=[str(e)]).json()
         out = dz.preview(d, self.assets, model, self.gcode, self.workdir / "scratch", check,
                          self.limits.arena)
+        if model.geometric != self.view.get("geometric"):
+            self.view = dz.wall_view(model)           # the page draws the walls it places on
+            out.walls = self.view
         words = self.user_words
         out.errors = [words(m) for m in out.errors]
         out.warnings = [words(m) for m in out.warnings]
@@ -287,10 +291,11 @@ class Studio:
             raise dz.DesignError("open a sliced G-code first")
         name = dz.safe_name(d.get("name") or Path(self.gcode_name).stem, "part")
         key = f"{self.next_id()}-{name}"
+        folder = self.workdir / "exports" / key
         try:
-            ex = dz.export(d, self.assets, self.gcode, self.workdir / "exports" / key, name)
+            ex = dz.export(d, self.assets, self.gcode, folder, name)
         except BulgekitError as e:
-            raise dz.DesignError(self.user_words(str(e))) from None
+            raise dz.DesignError(self.user_words(str(e).replace(f"{folder}/", ""))) from None
         self.exports[key] = ex
         files = [{"name": p.name, "bytes": p.stat().st_size, "url": f"/files/exports/{key}/{p.name}"}
                  for p in ex.files]
@@ -529,7 +534,7 @@ def make_app(st: Studio, port_ref: dict) -> web.Application:
             res = await loop_run().run_in_executor(st.worker, dz.from_placement, text, files, st.assets,
                                                    st.workdir / "scratch")
         except (BulgekitError, ValueError, OSError) as e:
-            return _error(400, _message(e))
+            return _error(400, st.user_words(_message(e)))
         return web.json_response(res)
 
     async def job(request):

@@ -102,13 +102,13 @@ async function openGcode(file) {
   }
 }
 
-function setGcode(g) {
+function setGcode(g, keepSettings = false) {
   S.gcode = g;
   const w = g.walls;
   $("gcode-info").textContent = `${g.name}\n${g.layers} layers, z ${w.v_range[0].toFixed(2)}–${w.v_range[1].toFixed(2)} mm, ` +
     `wall up to ${g.length_max.toFixed(1)} mm around` + (g.geometric ? "\nno outer-wall comments: geometric mode" : "");
   for (const id of ["add-text", "add-file", "open-placement", "export", "placement"]) $(id).disabled = false;
-  $("bulge-form").geometric.value = g.geometric ? "true" : "false";
+  if (!keepSettings) $("bulge-form").geometric.value = g.geometric ? "true" : "false";
   for (const it of S.items) clampItem(it);
   view2d.fit();
   view3d.setWalls(w);
@@ -232,18 +232,21 @@ function fillItemForm(it) {
   f.u.value = +it.at[0].toFixed(2); f.v.value = +it.at[1].toFixed(2); f.rotate.value = +it.rotate.toFixed(1);
 }
 
-function readItemForm() {
+// Only the field edited changes: the others show rounded values, and an imported file's exact
+// ones must survive an edit elsewhere.
+function readItemForm(e) {
   const it = S.items.find((i) => i.id === S.selected);
-  if (!it) return;
-  const f = $("item-form");
-  const num = (el, dflt) => (el.value === "" || !isFinite(+el.value) ? dflt : +el.value);
-  if (it.kind === "text") {
-    it.text = f.text.value; it.font = f.font.value; it.size = num(f.size, it.size);
-    it.letter_spacing = num(f.letter_spacing, 0); it.mirror = f.mirror.checked;
-  } else if (it.assetKind === "image") it.image_width = num(f.image_width, it.image_width);
-  else it.scale = num(f.scale, it.scale);
-  it.at = [num(f.u, it.at[0]), num(f.v, it.at[1])];
-  it.rotate = num(f.rotate, 0);
+  const el = e.target;
+  if (!it || !el.name) return;
+  const num = (dflt) => (el.value === "" || !isFinite(+el.value) ? dflt : +el.value);
+  switch (el.name) {
+    case "text": it.text = el.value; break;
+    case "font": it.font = el.value; break;
+    case "mirror": it.mirror = el.checked; break;
+    case "u": it.at = [num(it.at[0]), it.at[1]]; break;
+    case "v": it.at = [it.at[0], num(it.at[1])]; break;
+    default: it[el.name] = num(it[el.name]);      // size, letter_spacing, scale, image_width, rotate
+  }
   renderItems();
   requestPreview();
 }
@@ -328,7 +331,8 @@ function requestPreview() {
 // buttons step through them (a focused text field keeps its own undo).
 const history = [], redo = [];
 let historyTimer = null;
-const snapshot = () => JSON.stringify({ items: S.items, bulges: bulgeSettings(), name: $("export-name").value });
+const formValues = () => Object.fromEntries([...$("bulge-form").elements].filter((e) => e.name).map((e) => [e.name, e.value]));
+const snapshot = () => JSON.stringify({ items: S.items, form: formValues(), name: $("export-name").value });
 
 function flushHistory() {        // before a discrete edit: the state it starts from is kept
   clearTimeout(historyTimer);
@@ -347,7 +351,7 @@ function remember() {
 function restore(state) {
   const d = JSON.parse(state);
   S.items = d.items;
-  setBulgeForm(d.bulges);
+  for (const [k, v] of Object.entries(d.form)) $("bulge-form")[k].value = v;
   $("export-name").value = d.name;
   select(S.items.some((i) => i.id === S.selected) ? S.selected : null);
   requestPreview();
@@ -391,6 +395,7 @@ async function pump(check = false) {
     const p = await postJSON("/api/preview", { design: d, check });
     S.preview = p;
     S.strokesAt = geom;
+    if (p.walls) { S.gcode.walls = p.walls; view3d.setWalls(p.walls); }   // the mode's own walls
     if (check) checkedFor = key;
     showPreview(p);
     if (check) status(p.points.length ? `${S.gcode.name}: checked, ${p.summary.stops} stops` : `${S.gcode.name}: ${S.gcode.layers} layers of outer wall`);
@@ -906,17 +911,18 @@ async function init() {
   // keys, when no field has the focus: Delete removes the selected item, arrows nudge it
   // 0.5 mm (with Shift 5 mm)
   window.addEventListener("keydown", (e) => {
-    if ((e.ctrlKey || e.metaKey) && !e.target.closest("input, textarea") && !$("page-wall").hidden) {
+    const free = document.activeElement === document.body || document.activeElement === null;
+    if ((e.ctrlKey || e.metaKey) && free && !$("page-wall").hidden) {
       const k = e.key.toLowerCase();
       if (k === "z" || k === "y") { e.preventDefault(); step(k === "z" && !e.shiftKey); return; }
     }
     const it = S.items.find((i) => i.id === S.selected);
-    if (!it || e.target.closest("input, textarea, select") || $("page-wall").hidden) return;
-    if (e.key === "Delete" || e.key === "Backspace") { e.preventDefault(); deleteItem(); return; }
+    if (!it || !free || $("page-wall").hidden) return;
+    if (e.key === "Delete") { e.preventDefault(); deleteItem(); return; }
     const d = { ArrowLeft: [-1, 0], ArrowRight: [1, 0], ArrowUp: [0, 1], ArrowDown: [0, -1] }[e.key];
     if (!d) return;
     e.preventDefault();
-    flushHistory();
+    if (!e.repeat) flushHistory();              // a held key is one step
     const k = e.shiftKey ? 5 : 0.5;
     it.at = [round2(it.at[0] + d[0] * k), round2(it.at[1] + d[1] * k)];
     clampItem(it); fillItemForm(it); view2d.draw(); requestPreview();
@@ -939,14 +945,17 @@ async function init() {
       status(`${res.name}: ${res.layers} layers of outer wall`);
     } catch (e) { showError("gcode-error", e); status("Open a sliced G-code to start."); }
   }
-  if (st.gcode && !S.gcode) { setGcode(st.gcode); status(`${st.gcode.name}: ${st.gcode.layers} layers of outer wall`); }
-  if (st.design && S.gcode) {              // the page was reloaded: the design comes back
-    S.items = (st.design.items || []).map((it) => it.kind === "file" ? { ...it, assetKind: st.assets[it.asset] } : { ...it });
-    S.nextId = 1 + Math.max(0, ...S.items.map((i) => +String(i.id).replace(/\D/g, "") || 0));
-    setBulgeForm(st.design.bulges || {});
-    if (st.design.name && st.design.name !== S.gcode.name.replace(/\.[^.]*$/, "")) $("export-name").value = st.design.name;
-    select(null);
-    requestPreview();
+  if (st.gcode && !S.gcode) {
+    const d = st.design;                      // the page was reloaded: the design comes back
+    if (d) {
+      S.items = (d.items || []).map((it) => it.kind === "file" ? { ...it, assetKind: st.assets[it.asset] } : { ...it });
+      S.nextId = 1 + Math.max(0, ...S.items.map((i) => +String(i.id).replace(/\D/g, "") || 0));
+      S.gcode = st.gcode;                     // for setBulgeForm's default mode
+      setBulgeForm(d.bulges || {});
+      if (d.name && d.name !== st.gcode.name.replace(/\.[^.]*$/, "")) $("export-name").value = d.name;
+    }
+    setGcode(st.gcode, !!d);
+    status(`${st.gcode.name}: ${st.gcode.layers} layers of outer wall`);
   }
   document.body.dataset.ready = "1";
 }
