@@ -78,7 +78,7 @@ function showError(id, err) {
 }
 
 const round2 = (x) => Math.round(x * 100) / 100;     // what a drag makes: 0.01 mm
-const fileUrl = (u, download) => `${u}?t=${encodeURIComponent(TOKEN)}${download ? "&download=1" : ""}`;
+const fileUrl = (u) => `${u}?t=${encodeURIComponent(TOKEN)}`;     // served as attachments
 
 // ---------------------------------------------------------------- G-code
 
@@ -745,11 +745,11 @@ async function doExport() {
     const res = await pollJob(job, (j) => status(`exporting: ${j.label || "…"}${j.total ? ` ${Math.round(100 * j.done / j.total)} %` : ""}`, j.total ? j.done / j.total : 0));
     S.exportKey = res.key;
     const zip = document.createElement("a");
-    zip.href = fileUrl(res.zip, true); zip.textContent = `Download all (${res.key}.zip)`; zip.id = "export-zip";
+    zip.href = fileUrl(res.zip); zip.textContent = `Download all (${res.key}.zip)`; zip.id = "export-zip";
     out.append(zip);
     for (const f of res.files) {
       const a = document.createElement("a");
-      a.href = fileUrl(f.url, true); a.textContent = `${f.name} (${(f.bytes / 1024).toFixed(1)} KB)`;
+      a.href = fileUrl(f.url); a.textContent = `${f.name} (${(f.bytes / 1024).toFixed(1)} KB)`;
       a.className = "export-file";
       out.append(a);
     }
@@ -862,7 +862,7 @@ async function makeLitho() {
     const img = document.createElement("img"); img.src = fileUrl(res.look); img.id = "litho-look"; img.alt = "predicted look";
     const pre = document.createElement("pre"); pre.textContent = res.summary;
     const files = document.createElement("div"); files.className = "files";
-    for (const f of res.files) { const a = document.createElement("a"); a.href = fileUrl(f.url, true); a.textContent = `${f.name} (${(f.bytes / 1024).toFixed(1)} KB)`; files.append(a); }
+    for (const f of res.files) { const a = document.createElement("a"); a.href = fileUrl(f.url); a.textContent = `${f.name} (${(f.bytes / 1024).toFixed(1)} KB)`; files.append(a); }
     const where = document.createElement("div"); where.className = "info"; where.textContent = `saved in ${res.folder}`;
     out.append(h, img, pre, files, where);
     status(`lithophane ${res.key} made`);
