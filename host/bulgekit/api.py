@@ -107,11 +107,8 @@ def build(gcode, strokes: Sequence[Stroke], outdir, *, name: str | None = None,
     """Strokes + sliced G-code -> <name>.bkm, <name>.bulge.gcode, <name>.stats.txt
     (and <name>.stock.gcode with write_fallback) in outdir."""
     gcode = Path(gcode)
-    from .gcode import check_not_processed, check_text
-    data = gcode.read_bytes()
-    check_text(data, str(gcode))
-    check_not_processed(data, str(gcode))
-    del data                                    # each pass below reads the file itself
+    from .gcode import check_input_file
+    check_input_file(gcode, str(gcode))         # each pass below reads the file itself
     outdir = Path(outdir)
     name = name or gcode.stem
     if settings is None:

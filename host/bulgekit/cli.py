@@ -163,12 +163,12 @@ def build(ctx, gcode, placement, stroke_files, text, text_size, at, font, letter
                    f"{len(out.annotate.appends)} appends while printing")
     click.echo(f"wrote {out.map_path}, {out.gcode_path}, {out.stats_path}"
                + (f", {out.fallback_path}" if out.fallback_path else ""))
+    from .preview import build_3d, build_unrolled
+    stem = name or Path(gcode).stem
     if preview:
-        png = _preview(out, Path(outdir) / f"{name or Path(gcode).stem}.preview.png")
-        if png:
-            click.echo(f"wrote {png}")
+        click.echo(f"wrote {build_unrolled(out, Path(outdir) / f'{stem}.preview.png')}")
     if preview_3d:
-        click.echo(f"wrote {_preview_3d(out, Path(outdir) / f'{name or Path(gcode).stem}.preview3d.png')}")
+        click.echo(f"wrote {build_3d(out, Path(outdir) / f'{stem}.preview3d.png')}")
     click.echo(f"done in {time.perf_counter() - t0:.1f} s")
 
 
@@ -225,16 +225,6 @@ def post_process(placement, arena, keep, gcode):
     s = out.stats
     click.echo(f"bulgekit: {s.points} points on {len(s.layers)} layers "
                f"{'rewritten for stock firmware' if b.get('fallback') else 'annotated'} into {src}")
-
-
-def _preview(out, path: Path):
-    from . import preview
-    return preview.build_unrolled(out, path)
-
-
-def _preview_3d(out, path: Path):
-    from . import preview
-    return preview.build_3d(out, path)
 
 
 @main.command(short_help="Add M720/M721/M722 for bulgekit firmware (moves untouched).")
@@ -369,8 +359,9 @@ def demo(outdir, text):
         strokes += load_json(str(extra))
     out = api.build(gcode, strokes, outdir, name="demo", write_fallback=True)
     click.echo(out.stats.text(per_layer=False))
-    png = _preview(out, Path(outdir) / "demo.preview.png")
-    png3 = _preview_3d(out, Path(outdir) / "demo.preview3d.png")
+    from .preview import build_3d, build_unrolled
+    png = build_unrolled(out, Path(outdir) / "demo.preview.png")
+    png3 = build_3d(out, Path(outdir) / "demo.preview3d.png")
     for p in (out.map_path, out.gcode_path, out.fallback_path, out.stats_path, png, png3):
         if p:
             click.echo(f"wrote {p}")

@@ -367,6 +367,15 @@ def check_not_processed(data, source: str = "<gcode>") -> None:
         "Start from the slicer's original G-code (or remove the M720/M721/M722 lines).")
 
 
+def check_input_file(path, source: str) -> None:
+    """The checks every pass over a slicer's file starts with: text (check_text), and not
+    already processed by bulgekit (check_not_processed). Reads the file once."""
+    with open(path, "rb") as f:
+        data = f.read()
+    check_text(data, source)
+    check_not_processed(data, source)
+
+
 def open_checked(path, ends: int = 1 << 21, checks=()) -> tuple[str, "Iterator[str]"]:
     """Check a G-code file (check_complete: text, not cut off; and `checks`, each called with
     the bytes and the name), then stream it: returns the text of its two ends (`ends` bytes each,

@@ -57,7 +57,7 @@ class Placement:
     path: Path
     strokes: list[Stroke]
     bulges: dict = field(default_factory=dict)
-    entries: list[tuple[str, int]] = field(default_factory=list)   # ("text[0]", strokes made), in order
+    entries: list[str] = field(default_factory=list)   # "text[0]", "strokes[0]" ...: those that drew, in order
 
 
 def _check(table: dict, keys: dict, where: str, src: Path) -> None:
@@ -103,7 +103,7 @@ def load_placement(path) -> Placement:
         if k not in ("text", "strokes", "bulges"):
             raise PlacementError(f"{src}: unknown table {k!r} (known: text, strokes, bulges)")
     strokes: list[Stroke] = []
-    entries: list[tuple[str, int]] = []
+    entries: list[str] = []
     for i, t in enumerate(_tables(doc, "text", src)):
         where = f"text[{i}]"
         _check(t, _TEXT_KEYS, where, src)
@@ -116,7 +116,7 @@ def load_placement(path) -> Placement:
         except InputError as e:
             raise PlacementError(f"{src}: {where}: {e}") from None
         strokes += _tagged(_rotated(made, t.get("rotate", 0), (u, v)), where)
-        entries.append((where, len(made)))
+        entries.append(where)
     for i, t in enumerate(_tables(doc, "strokes", src)):
         where = f"strokes[{i}]"
         _check(t, _STROKE_KEYS, where, src)
@@ -136,7 +136,7 @@ def load_placement(path) -> Placement:
         except InputError as e:
             raise PlacementError(f"{src}: {where}: {e}") from None
         strokes += _tagged(_rotated(made, t.get("rotate", 0), at), where)
-        entries.append((where, len(made)))
+        entries.append(where)
     bulges = doc.get("bulges", {})
     if not isinstance(bulges, dict):
         raise PlacementError(f"{src}: 'bulges' must be a table ([bulges])")

@@ -3,12 +3,14 @@ its token, a big G-code, and the CLI's own build of a placement file to compare 
 from __future__ import annotations
 
 import json
+import os
 import re
 import subprocess
 import sys
 import time
 import urllib.error
 import urllib.request
+from contextlib import contextmanager
 from pathlib import Path
 
 from bulgekit.studio.server import Limits, Studio, serve
@@ -55,6 +57,24 @@ def open_gcode(run, path=GCODE, name=None):
     status, job = call(run, f"/api/gcode?name={name or Path(path).name}", Path(path).read_bytes())
     assert status == 200, job
     return wait_job(run, job)
+
+
+@contextmanager
+def fake_printer(**kw):
+    """test_sender's fake Marlin on a pseudo-terminal: yields (port name, printer)."""
+    import tty
+    from test_sender import FakeMarlin
+    master, slave = os.openpty()
+    tty.setraw(slave)
+    printer = FakeMarlin(master, **kw)
+    printer.start()
+    try:
+        yield os.ttyname(slave), printer
+    finally:
+        printer.stop.set()
+        printer.join(2)
+        os.close(slave)
+        os.close(master)
 
 
 def cli_build(gcode, placement, outdir, name):

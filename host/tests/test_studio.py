@@ -3,9 +3,7 @@ placement file it writes, per-item messages, sending through the existing sender
 byte-for-byte match of its export with `bulgekit build --placement` (the browser tests are in
 test_studio_browser.py)."""
 import hashlib
-import os
 import time
-import tty
 import urllib.request
 from pathlib import Path
 
@@ -13,7 +11,7 @@ import pytest
 from PIL import Image
 
 from bulgekit.placement import dump_placement, load_placement
-from studio_util import GCODE, call, cli_build, open_gcode, start, wait_job
+from studio_util import GCODE, call, cli_build, fake_printer, open_gcode, start, wait_job
 
 SVG = """<svg xmlns="http://www.w3.org/2000/svg" width="20mm" height="10mm" viewBox="0 0 20 10">
 <path d="M 1 1 L 19 9 M 1 9 L 19 1" fill="none" stroke="black"/></svg>"""
@@ -214,7 +212,7 @@ def test_dump_placement_reads_back(tmp_path):
     p.write_text(text)
     pl = load_placement(p)
     assert pl.bulges == {"dwell": 80, "extra": 0.05, "geometric": False}
-    assert [w for w, _ in pl.entries] == ["text[0]", "strokes[0]"]
+    assert pl.entries == ["text[0]", "strokes[0]"]
     assert all(s.source.startswith(("text[0]", "strokes[0]")) for s in pl.strokes)
 
 
@@ -277,15 +275,10 @@ def test_export_failure_leaves_nothing(studio):
 # -- sending through the existing sender
 
 def test_send_streams_the_export_with_progress(studio, tmp_path):
-    from test_sender import FakeMarlin
     job = wait_job(studio, call(studio, "/api/export", {"design": design(text_item())})[1])
     key = job["result"]["key"]
-    master, slave = os.openpty()
-    tty.setraw(slave)
-    printer = FakeMarlin(master, arena=1024)
-    printer.start()
-    try:
-        status, j = call(studio, "/api/send", {"export": key, "which": "bulge", "port": os.ttyname(slave),
+    with fake_printer(arena=1024) as (port, printer):
+        status, j = call(studio, "/api/send", {"export": key, "which": "bulge", "port": port,
                                                "baud": 115200})
         assert status == 200
         j = wait_job(studio, j, timeout=120)
@@ -295,11 +288,6 @@ def test_send_streams_the_export_with_progress(studio, tmp_path):
         assert j["done"] == j["total"] == len(sent)
         assert printer.executed[-len(sent):] == [ln.split(";")[0].strip() for ln in sent]
         assert any(m.startswith("echo:BulgeMap") for m in j["log"])       # the arena check (M721)
-    finally:
-        printer.stop.set()
-        printer.join(2)
-        os.close(slave)
-        os.close(master)
 
 
 def test_send_errors_are_clear(studio):
@@ -526,7 +514,7 @@ def test_import_messages_name_the_users_files(studio, tmp_path):
     pic = _upload(studio, _png(tmp_path / "spot.png"))
     status, body = call(studio, "/api/import", {"toml": "[[strokes]]\nfile = 'spot.png'\n", "files": {"spot.png": pic}})
     assert status == 400 and str(studio.studio.workdir) not in body["error"]
-    assert body["error"] == f"placement file: strokes[0]: spot.png is a picture: give image_width (its width on the wall, mm)"
+    assert body["error"] == "placement file: strokes[0]: spot.png is a picture: give image_width (its width on the wall, mm)"
     status, body = call(studio, "/api/import", {"toml": "[[strokes]]\nfile = 'spot.png'\nimage_width = -2\n",
                                                 "files": {"spot.png": pic}})
     assert status == 400 and str(studio.studio.workdir) not in body["error"] and "--" not in body["error"]

@@ -16,7 +16,7 @@ import pytest
 from PIL import Image
 from playwright.sync_api import sync_playwright
 
-from studio_util import GCODE, big_gcode, cli_build, start
+from studio_util import GCODE, big_gcode, cli_build, fake_printer, start
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 SHOTS = os.environ.get("BULGEKIT_STUDIO_SHOTS")
@@ -78,6 +78,12 @@ def px(pg, u, v):
     x, y = pg.evaluate(f"() => window.studio.view2d.toPx({u}, {v})")
     box = pg.locator("#unrolled").bounding_box()
     return box["x"] + x, box["y"] + y
+
+
+def open_sample(pg):
+    """Open the sample G-code from the file picker and wait until its walls are in."""
+    pg.set_input_files("#gcode-file", str(GCODE))
+    pg.wait_for_function("() => window.studio.S.gcode !== null", timeout=60_000)
 
 
 def frame(pg):
@@ -201,8 +207,7 @@ def test_bad_input_shows_messages_and_keeps_working(browser, studio, tmp_path):
     shot(pg, "5-not-gcode")
 
     # the server still works: a real G-code opens, the error goes
-    pg.set_input_files("#gcode-file", str(GCODE))
-    pg.wait_for_function("() => window.studio.S.gcode !== null", timeout=60_000)
+    open_sample(pg)
     assert pg.is_hidden("#gcode-error")
     # a character the font lacks: the message sits beside the text item
     pg.click("#add-text")
@@ -262,21 +267,14 @@ def test_large_gcode_shows_progress_and_the_page_stays_responsive(browser, tmp_p
 
 
 def test_send_to_printer_and_lithophane_tab(browser, studio, tmp_path):
-    import tty
-    from test_sender import FakeMarlin
     pg, errors = page_for(browser, studio)
-    pg.set_input_files("#gcode-file", str(GCODE))
-    pg.wait_for_function("() => window.studio.S.gcode !== null", timeout=60_000)
+    open_sample(pg)
     pg.click("#add-text")
     settled(pg)
     pg.click("#export")
     pg.wait_for_selector("#export-zip", timeout=120_000)
-    master, slave = os.openpty()
-    tty.setraw(slave)
-    printer = FakeMarlin(master, arena=1024)
-    printer.start()
-    try:
-        pg.fill("#port", os.ttyname(slave))
+    with fake_printer(arena=1024) as (port, printer):
+        pg.fill("#port", port)
         pg.click("#send")
         pg.wait_for_function("() => document.querySelector('#status-text').textContent.startsWith('sent ')",
                              timeout=120_000)
@@ -286,11 +284,6 @@ def test_send_to_printer_and_lithophane_tab(browser, studio, tmp_path):
         assert pg.evaluate("() => document.querySelector('#send-bar').value") == 1
         assert any(c.startswith("M721") for c in printer.executed) and printer.executed[-1] == "M721 X"
         shot(pg, "7-sent")
-    finally:
-        printer.stop.set()
-        printer.join(2)
-        os.close(slave)
-        os.close(master)
 
     pg.click("#tab-litho")
     pic = tmp_path / "face.png"
@@ -315,8 +308,7 @@ def test_send_to_printer_and_lithophane_tab(browser, studio, tmp_path):
 
 def test_open_placement_file_and_nudge_with_keys(browser, studio, tmp_path):
     pg, errors = page_for(browser, studio)
-    pg.set_input_files("#gcode-file", str(GCODE))
-    pg.wait_for_function("() => window.studio.S.gcode !== null", timeout=60_000)
+    open_sample(pg)
     ex = GCODE.parent
     pg.set_input_files("#open-placement", [str(ex / "placement.toml"), str(ex / "wave.json")])
     pg.wait_for_function("() => window.studio.S.items.length === 2")
@@ -366,8 +358,7 @@ def test_open_placement_file_and_nudge_with_keys(browser, studio, tmp_path):
 
 def test_undo_redo_and_a_reload_keeps_the_design(browser, studio):
     pg, errors = page_for(browser, studio)
-    pg.set_input_files("#gcode-file", str(GCODE))
-    pg.wait_for_function("() => window.studio.S.gcode !== null", timeout=60_000)
+    open_sample(pg)
     pg.click("#add-text")
     pg.keyboard.press("Delete")                  # the button has the focus: no item is deleted
     assert pg.evaluate("() => window.studio.S.items.length") == 1

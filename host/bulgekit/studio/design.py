@@ -35,7 +35,7 @@ from ..mapbuild import DEFAULT_LINE_WIDTH, BuildError
 from ..placement import PlacementError, dump_placement, load_placement
 from ..strokes import BulgekitError, InputError
 
-_ENTRY_RX = re.compile(r"(?:^|: )(text|strokes)\[(\d+)\]")
+_ENTRY_RX = re.compile(r"(?:^|: )((text|strokes)\[(\d+)\])")   # a placement entry, "text[0]"
 # Fields the page may set per item kind, as the placement file names them.
 _TEXT_FIELDS = ("text", "at", "size", "font", "letter_spacing", "mirror", "rotate")
 _FILE_FIELDS = ("at", "scale", "image_width", "curve_tolerance", "rotate")
@@ -194,7 +194,12 @@ def settings_of(b: dict) -> Settings:
 
 def _entry_of(msg: str) -> tuple[str, int] | None:
     m = _ENTRY_RX.search(msg)
-    return (m.group(1), int(m.group(2))) if m else None
+    return (m.group(2), int(m.group(3))) if m else None
+
+
+def _entry_name(msg: str) -> str | None:
+    m = _ENTRY_RX.search(msg)
+    return m.group(1) if m else None
 
 
 @dataclass
@@ -261,31 +266,24 @@ def preview(design: dict, assets: dict[str, Asset], model, gcode: Path, scratch:
             del live[k]
     if pl is None:
         return out
-    # strokes per item, for drawing (entries are in file order, like the strokes)
-    live_ids = [ids[k] for k in live]
-    by_entry = {}
-    for where, _ in pl.entries:
-        by_entry[where] = live_ids[len(by_entry)]
+    # strokes per item, for drawing (the entries that drew are the live items, in file order)
+    by_entry = dict(zip(pl.entries, (ids[k] for k in live)))
     for st in pl.strokes:
-        ent = _entry_of(st.source)
-        iid = by_entry[f"{ent[0]}[{ent[1]}]"]
-        out.items[iid]["strokes"].append([round(c, 3) for p in st.points for c in p])
-    if res is None:
-        return out
+        out.items[by_entry[_entry_name(st.source)]]["strokes"].append(
+            [round(c, 3) for p in st.points for c in p])
     out.warnings += res.notes
     walls = model.walls
     for p in res.points:
-        owners = sorted({by_entry[f"{e[0]}[{e[1]}]"] for s in p.sources if (e := _entry_of(s))})
+        owners = sorted({by_entry[e] for s in p.sources if (e := _entry_name(s))})
         out.points.append([round(p.u, 3), round(p.z - walls[p.layer].height / 2, 3), round(p.x, 3),
                            round(p.y, 3), round(p.z, 3), p.weight, owners, False])
-    bm = mapformat.decode_map(res.map_bytes)
-    out.summary = {"points": bm.point_count, "layers": len(bm.layers), "map_bytes": len(res.map_bytes),
-                   "spacing": res.spacing, "arena": arena, "checked": False,
-                   "largest_layer_points": max(len(l.points) for l in bm.layers)}
-    if res.overflow(arena):
+    out.summary = {"points": len(res.points), "layers": len(res.layers), "map_bytes": len(res.map_bytes),
+                   "spacing": res.spacing, "arena": arena, "checked": False}
+    over = res.overflow(arena)
+    if over:
         out.warnings.append(
             f"the map's layers need {res.records_bytes} bytes, more than the printer's {arena}-byte "
-            f"arena: the annotated file sends {len(res.overflow(arena))} of them while printing "
+            f"arena: the annotated file sends {len(over)} of them while printing "
             "(fine with `bulgekit send`, OctoPrint or SD; an upload from a terminal alone would not do)")
     if check:
         st = _stats.print_stats(gcode, res.map_bytes, settings, arena)
@@ -338,17 +336,18 @@ def export(design: dict, assets: dict[str, Asset], gcode: Path, folder: Path, na
     the same calls."""
     from .. import preview as pv
     # a drawing file keeps its name unless an output would take it
-    taken = {"placement.toml"} | {f"{name}{ext}" for ext in (".bkm", ".bulge.gcode", ".stock.gcode",
-                                                           ".stats.txt", ".preview.png", ".preview3d.png")}
+    # (compared without case: macOS and Windows file systems)
+    taken = {"placement.toml"} | {f"{name}{ext}".lower() for ext in (".bkm", ".bulge.gcode", ".stock.gcode",
+                                                                   ".stats.txt", ".preview.png", ".preview3d.png")}
     _, files, _ = entries(design, assets)
     as_named = {}
     for a in (assets[t["file"]] for t in files):
         if a.name not in as_named:
             n, k = a.name, 1
-            while n.lower() in {t.lower() for t in taken}:
+            while n.lower() in taken:
                 k += 1
                 n = f"drawing-{k}-{a.name}" if k > 2 else f"drawing-{a.name}"
-            taken.add(n)
+            taken.add(n.lower())
             as_named[a.name] = n
     text = placement_text(design, assets, lambda a: as_named[a.name])
     folder.mkdir(parents=True, exist_ok=False)
@@ -394,7 +393,6 @@ def wall_view(model, max_vertices: int = 250_000) -> dict:
         layers.append(row)
     xy = np.concatenate([w.xy for w in model.walls])
     lo, hi = model.v_range
-    return {"layers": layers, "layer_height": model.layer_height, "v_range": [lo, hi],
+    return {"layers": layers, "v_range": [lo, hi], "geometric": model.geometric,
             "bounds": [float(xy[:, 0].min()), float(xy[:, 1].min()), float(xy[:, 0].max()),
-                       float(xy[:, 1].max())], "stride": stride, "geometric": model.geometric,
-            "notes": list(model.notes)}
+                       float(xy[:, 1].max())]}

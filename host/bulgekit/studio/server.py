@@ -91,9 +91,8 @@ class Studio:
         self.token = secrets.token_urlsafe(24)
         self.gcode: Path | None = None
         self.gcode_name = ""
-        self.model = None                  # the walls as found when the file was opened
-        self.models: dict[bool, object] = {}   # per mode (geometric or not), read when asked
-        self.view: dict | None = None
+        self.models: dict[bool, object] = {}   # the walls per mode (geometric or not), read when asked
+        self.view: dict | None = None          # the walls the page draws (wall_view of one of them)
         self.assets: dict[str, dz.Asset] = {}
         self.asset_kinds: dict[str, str] = {}
         self.design: dict | None = None
@@ -139,13 +138,10 @@ class Studio:
     # -- G-code
 
     def open_gcode(self, job: Job, path: Path, name: str) -> dict:
-        from ..gcode import check_not_processed, check_text
+        from ..gcode import check_input_file
         from .. import api
         job.label = "checking the file"
-        with open(path, "rb") as f:
-            head = f.read(1 << 20)
-        check_text(head, name)
-        check_not_processed(path.read_bytes(), name)
+        check_input_file(path, name)
         from ..wall import WallError
         try:
             model = api.walls(path)
@@ -164,7 +160,7 @@ class Studio:
                                 f"({str(e2).replace(str(path), name)}). Is it a sliced print?") from None
         view = dz.wall_view(model)
         old = self.gcode
-        self.gcode, self.gcode_name, self.model, self.view = path, name, model, view
+        self.gcode, self.gcode_name, self.view = path, name, view
         self.models = {model.geometric: model}
         if old is not None and old != path and self._uploaded(old):
             old.unlink(missing_ok=True)            # exports made from it keep their own files
@@ -182,11 +178,12 @@ class Studio:
             raise
 
     def gcode_state(self) -> dict | None:
-        if self.model is None:
+        """The open file as the page shows it (its walls in the mode last drawn)."""
+        if self.gcode is None:
             return None
-        m = self.model
-        return {"name": self.gcode_name, "layers": len(m.walls), "geometric": m.geometric,
-                "length_max": round(max(w.length for w in m.walls), 2), "walls": self.view,
+        v = self.view
+        return {"name": self.gcode_name, "layers": len(v["layers"]), "geometric": v["geometric"],
+                "length_max": round(max(l["length"] for l in v["layers"]), 2), "walls": v,
                 "bytes": self.gcode.stat().st_size}
 
     # -- drawing files
@@ -266,7 +263,7 @@ class Studio:
         return msg.strip()
 
     def preview(self, d: dict, check: bool) -> dict:
-        if self.model is None:
+        if self.gcode is None:
             raise dz.DesignError("open a sliced G-code first")
         self.design = d                  # a reloaded page picks up where it was
         try:
@@ -275,7 +272,7 @@ class Studio:
             return dz.Preview(errors=[str(e)]).json()
         out = dz.preview(d, self.assets, model, self.gcode, self.workdir / "scratch", check,
                          self.limits.arena)
-        if model.geometric != self.view.get("geometric"):
+        if model.geometric != self.view["geometric"]:
             self.view = dz.wall_view(model)           # the page draws the walls it places on
             out.walls = self.view
         words = self.user_words
@@ -287,7 +284,7 @@ class Studio:
         return out.json()
 
     def export(self, job: Job, d: dict) -> dict:
-        if self.model is None:
+        if self.gcode is None:
             raise dz.DesignError("open a sliced G-code first")
         name = dz.safe_name(d.get("name") or Path(self.gcode_name).stem, "part")
         key = f"{self.next_id()}-{name}"
@@ -301,7 +298,7 @@ class Studio:
                  for p in ex.files]
         st = ex.build.stats
         return {"key": key, "folder": str(ex.folder), "files": files,
-                "zip": f"/files/exports/{key}.zip", "stats": st.text(per_layer=False),
+                "zip": f"/files/exports/{ex.zip_path.name}", "stats": st.text(per_layer=False),
                 "notes": list(ex.build.result.notes) + list(ex.build.annotate.notes)}
 
     # -- printer
@@ -439,24 +436,25 @@ def make_app(st: Studio, port_ref: dict) -> web.Application:
             "jobs": [j.json() for j in st.jobs.values() if j.state == "running"],
             "workdir": str(st.workdir)})
 
-    async def receive(request, limit: int, what: str) -> tuple[bytes | Path, str] | web.Response:
+    def too_big(name: str, limit: int, what: str, size: int | None = None) -> web.Response:
+        hint = "; start it with a larger --max-upload" if what == "G-code" else ""
+        told = f"{size / MB:.1f} MB is " if size is not None else ""
+        return _error(413, f"{name}: {told}more than the studio takes for {what} ({limit / MB:.0f} MB{hint})")
+
+    def upload_name(request, limit: int, what: str) -> str | web.Response:
+        """The uploaded file's name, or the refusal when it has none or says it is too big."""
         name = request.query.get("name", "")
         if not name:
             return _error(400, "the upload has no file name")
         size = request.content_length
         if size is not None and size > limit:
-            return _error(413, f"{name}: {size / MB:.1f} MB is more than the studio takes for {what} "
-                               f"({limit / MB:.0f} MB; start it with a larger --max-upload)"
-                               if what == "G-code" else
-                               f"{name}: {size / MB:.1f} MB is more than the studio takes for {what} "
-                               f"({limit / MB:.0f} MB)")
-        return name, size
+            return too_big(name, limit, what, size)
+        return name
 
     async def upload_gcode(request):
-        r = await receive(request, st.limits.gcode_bytes, "G-code")
-        if isinstance(r, web.Response):
-            return r
-        name, _ = r
+        name = upload_name(request, st.limits.gcode_bytes, "G-code")
+        if isinstance(name, web.Response):
+            return name
         base = dz.safe_name(name, "part.gcode")
         dest = st.workdir / "gcode" / f"{st.next_id()}-{base}"
         part = dest.with_name(dest.name + ".part")
@@ -466,8 +464,7 @@ def make_app(st: Studio, port_ref: dict) -> web.Application:
                 async for chunk in request.content.iter_chunked(1 << 20):
                     got += len(chunk)
                     if got > st.limits.gcode_bytes:
-                        return _error(413, f"{name}: more than the studio takes for G-code "
-                                           f"({st.limits.gcode_bytes / MB:.0f} MB)")
+                        return too_big(name, st.limits.gcode_bytes, "G-code")
                     f.write(chunk)
             part.replace(dest)
         finally:
@@ -476,20 +473,18 @@ def make_app(st: Studio, port_ref: dict) -> web.Application:
         return web.json_response(job.json())
 
     async def upload_asset(request):
-        r = await receive(request, st.limits.asset_bytes, "a drawing or picture")
-        if isinstance(r, web.Response):
-            return r
-        name, _ = r
+        name = upload_name(request, st.limits.asset_bytes, "a drawing or picture")
+        if isinstance(name, web.Response):
+            return name
         data = bytearray()
         async for chunk in request.content.iter_chunked(1 << 20):
             data += chunk
             if len(data) > st.limits.asset_bytes:
-                return _error(413, f"{name}: more than the studio takes for a drawing or picture "
-                                   f"({st.limits.asset_bytes / MB:.0f} MB)")
+                return too_big(name, st.limits.asset_bytes, "a drawing or picture")
         try:
             info = await loop_run().run_in_executor(st.worker, st.add_asset, name, bytes(data))
         except (BulgekitError, ValueError, OSError) as e:
-            return _error(400, _message(e).replace(str(st.workdir) + "/", ""))
+            return _error(400, st.user_words(_message(e)))
         return web.json_response(info)
 
     async def body(request) -> dict:

@@ -140,10 +140,11 @@ function addText() {
   requestPreview();
 }
 
-async function addFile(file) {
-  showError("asset-error", null);
+// Upload a drawing or picture; a refusal is shown in the element errId.
+async function addFile(file, errId = "asset-error") {
+  showError(errId, null);
   if (S.limits.asset_mb && file.size > S.limits.asset_mb * 1e6) {
-    showError("asset-error", `${file.name}: ${(file.size / 1e6).toFixed(1)} MB is more than the studio takes for a drawing or picture (${S.limits.asset_mb} MB)`);
+    showError(errId, `${file.name}: ${(file.size / 1e6).toFixed(1)} MB is more than the studio takes for a drawing or picture (${S.limits.asset_mb} MB)`);
     return null;
   }
   try {
@@ -151,7 +152,7 @@ async function addFile(file) {
     status(`${info.name} loaded`);
     return info;
   } catch (e) {
-    showError("asset-error", e);
+    showError(errId, e);
     status(S.gcode ? `${S.gcode.name}` : "");
     return null;
   }
@@ -818,21 +819,12 @@ async function loadPorts() {
 const L = { asset: null };
 
 async function lithoPicture(file) {
-  showError("litho-error", null);
-  const info = await (async () => {
-    if (S.limits.asset_mb && file.size > S.limits.asset_mb * 1e6) {
-      showError("litho-error", `${file.name}: ${(file.size / 1e6).toFixed(1)} MB is more than the studio takes for a picture (${S.limits.asset_mb} MB)`);
-      return null;
-    }
-    try { return await upload("/api/asset", file, (a, b) => status(`uploading ${file.name}`, a / b)); }
-    catch (e) { showError("litho-error", e); return null; }
-  })();
+  const info = await addFile(file, "litho-error");
   if (!info) return;
   if (info.kind !== "image") { showError("litho-error", `${file.name}: a lithophane needs a picture`); return; }
   L.asset = info.name;
   $("litho-pic").textContent = `${info.name}: ${info.width_px} × ${info.height_px} pixels`;
   $("litho-make").disabled = false;
-  status(`${info.name} loaded`);
 }
 
 function lithoOptions() {
