@@ -148,5 +148,6 @@ def summary(s: dict) -> str:
         f"{100 * ml['capped_time_share']:.1f} % of its time; layers with 2+ mid-lines: "
         f"{ml['layers_with_two_or_more']}",
         f"  gaps snapped (narrower than --min-line): {100 * gp['snapped_share']:.2f} % of samples",
-        f"  predicted look vs picture: correlation {lk['correlation']:.3f}, SSIM {lk['ssim']:.3f}",
+        f"  predicted look vs picture (L*, the plate shows {lk['plate_L_range'][0]:.0f}-100): "
+        f"mean |dL*| {lk['mean_abs_dL']:.1f}, SSIM {lk['ssim_L']:.3f} ({lk['curve']} curve)",
     ])

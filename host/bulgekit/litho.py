@@ -35,10 +35,11 @@ from pathlib import Path
 
 import numpy as np
 
-from .strokes import BulgekitError, read_gray
+from . import litho_tone as tone
+from .strokes import BulgekitError
 
 SHAPES = ("planar", "cylinder")
-CURVES = ("linear", "transmission")
+CURVES = tone.CURVES
 WORDS = ("e", "w")
 
 
@@ -55,7 +56,7 @@ class LithoOptions:
     min_thickness: float = 0.8      # mm, white (paper: 2.4 mm plate)
     max_thickness: float = 2.4      # mm, black
     invert: bool = False            # light = thick
-    curve: str = "linear"           # thickness linear in darkness, or transmission linear in brightness
+    curve: str = "perceptual"       # tone curve (litho_tone): perceptual, linear, transmission
     gamma: float = 1.0              # darkness ** gamma before the curve (contrast)
     attenuation: float = 1.5        # Beer-Lambert attenuation of the filament, 1/mm
     frame: float = 0.0              # border at full thickness, mm (0: none)
@@ -165,7 +166,8 @@ def check_options(o: LithoOptions) -> None:
 class Field:
     """Thickness per layer and sample, and how the picture maps onto the part."""
     t: np.ndarray            # (layers, samples) mm, after snapping; foot layers hold the foot depth
-    bright: np.ndarray       # (image layers, samples) source brightness 0..1 on the same grid
+    bright: np.ndarray       # (image layers, samples) the picture's lightness L*/100 (0 black, 1 white;
+                             # area average in linear light, before --invert) on the same grid
     s: np.ndarray            # sample positions: x mm (planar) or angle rad (cylinder)
     n_foot: int              # layers of foot at the bottom (planar)
     lines: np.ndarray        # mid-lines per layer
@@ -180,11 +182,9 @@ class Field:
 
 
 def thickness_field(image, o: LithoOptions) -> Field:
-    from PIL import Image
-
     check_options(o)
-    gray = read_gray(image)
-    w_px, h_px = gray.size
+    Y_px = tone.read_luminance(image)
+    h_px, w_px = Y_px.shape
     if w_px < 8 or h_px < 8:
         raise LithoError(f"{image}: picture is {w_px} x {h_px} px; a lithophane needs at least 8 x 8")
     if o.shape == "planar":
@@ -203,18 +203,16 @@ def thickness_field(image, o: LithoOptions) -> Field:
     if n > 8 * w_px and rows > 8 * h_px:
         raise LithoError(f"{image}: picture is {w_px} x {h_px} px, too small for {n} x {rows} samples "
                          "(use a larger picture or a larger --pitch)")
-    # BOX resampling averages the pixels under each sample; row 0 is the picture's top.
-    cells = np.asarray(gray.resize((n, rows), Image.Resampling.BOX), dtype=float) / 255.0
-    bright = cells[::-1].copy()                         # layer order: bottom of the picture first
-    dark = bright if o.invert else 1.0 - bright
-    dark = np.clip(dark, 0.0, 1.0) ** o.gamma
-    tmin, tmax = o.min_thickness, o.max_thickness
-    if o.curve == "linear":
-        t = tmin + dark * (tmax - tmin)
-    else:
-        # Transmission linear in brightness: T = exp(-mu t) from T(tmin) (white) to T(tmax) (black).
-        T_hi, T_lo = math.exp(-o.attenuation * tmin), math.exp(-o.attenuation * tmax)
-        t = -np.log(T_hi - dark * (T_hi - T_lo)) / o.attenuation
+    # the pixels under each sample averaged in linear light; row 0 is the picture's top
+    Y = tone.resample(Y_px, (n, rows))[::-1].copy()     # layer order: bottom of the picture first
+    t = tone.thickness(Y, o.curve, o.min_thickness, o.max_thickness, o.attenuation, o.gamma, o.invert)
+    return _field(t, tone.lightness(Y) / 100.0, s, o, pic_w)
+
+
+def _field(t: np.ndarray, bright: np.ndarray, s: np.ndarray, o: LithoOptions, pic_w: float) -> Field:
+    """The field from the picture's thickness (rows, samples): frame, gaps, foot."""
+    rows, n = t.shape
+    tmax = o.max_thickness
     inside = (slice(0, rows), slice(0, n))
     if o.frame > 0:
         fr = int(math.ceil(o.frame / o.layer_height))
@@ -299,8 +297,11 @@ def _probes(o: LithoOptions, fld: Field, k: int):
     if o.shape == "planar":
         reach = max(o.max_thickness, o.foot)                # the foot is centred on the plate
         lo, hi = -reach - 1.0, 2 * reach + 1.0
-        x = fld.s.copy()
-        x[0], x[-1] = o.line_width, fld.s[-1] - o.line_width   # the ends touch the end walls
+        # samples nearer the ends than a line width are the end walls; their probes run just
+        # inside R (on R's edge at x = line width, shapely's answer hangs on the last bit of x:
+        # empty or the whole edge, which printed white specks and lines at the plate's ends)
+        eps = 1e-4
+        x = np.clip(fld.s, o.line_width + eps, fld.s[-1] - o.line_width - eps)
         return np.column_stack([x, np.full_like(x, lo)]), np.column_stack([x, np.full_like(x, hi)])
     r_in = o.diameter / 2 - o.max_thickness
     c, sn = np.cos(fld.s), np.sin(fld.s)
@@ -877,57 +878,51 @@ def write_stl(V: np.ndarray, F: np.ndarray, path, name="bulgekit lithophane") ->
 
 def printed_thickness(plan: Plan) -> np.ndarray:
     """Thickness as laid down, per image layer and sample: two walls plus the mid-line's probe
-    extent where a mid-line was laid (0 where the walls merge)."""
+    extent where a mid-line was laid (0 where the walls merge). A planar plate's end columns,
+    closer to the end than a line width, are the end walls: solid through the plate's thickness."""
     o, fld = plan.options, plan.field
-    return np.array([2 * o.line_width + L.gap for L in plan.layers[fld.n_foot:]])
-
-
-def transmission(t: np.ndarray, mu: float) -> np.ndarray:
-    """Beer-Lambert: share of the backlight that passes t mm."""
-    return np.exp(-mu * t)
-
-
-def _ssim(a: np.ndarray, b: np.ndarray) -> float:
-    """Mean structural similarity over 7 x 7 windows (Wang et al. 2004, constants for range 1)."""
-    from numpy.lib.stride_tricks import sliding_window_view as win
-
-    if min(a.shape) < 7:
-        return float("nan")
-    c1, c2 = 0.01 ** 2, 0.03 ** 2
-    wa, wb = win(a, (7, 7)), win(b, (7, 7))
-    ma, mb = wa.mean(axis=(-1, -2)), wb.mean(axis=(-1, -2))
-    va, vb = wa.var(axis=(-1, -2)), wb.var(axis=(-1, -2))
-    cov = (wa * wb).mean(axis=(-1, -2)) - ma * mb
-    s = ((2 * ma * mb + c1) * (2 * cov + c2)) / ((ma ** 2 + mb ** 2 + c1) * (va + vb + c2))
-    return float(s.mean())
+    t = np.array([2 * o.line_width + L.gap for L in plan.layers[fld.n_foot:]])
+    if o.shape == "planar":
+        ends = (fld.s < o.line_width - 1e-9) | (fld.s > fld.s[-1] - o.line_width + 1e-9)
+        t[:, ends] = fld.t[fld.n_foot:, ends]
+    return t
 
 
 def look(plan: Plan):
-    """(intended brightness, predicted brightness), both 0..1 on the layer x sample grid: the
-    picture (its negative with invert), and the transmission scaled so that the thinnest allowed
-    plate shows white and the thickest black."""
+    """(target L*, predicted L*) on the layer x sample grid, 0..100. Predicted: the printed
+    plate's luminance relative to the thinnest plate, exp(-mu (t - t_min)), as L*. Target: the
+    picture's L* (its negative with --invert) scaled onto what the plate can show (L* of the
+    thickest plate .. 100); the perceptual curve at gamma 1 aims at exactly this."""
     o = plan.options
-    T = transmission(printed_thickness(plan), o.attenuation)
-    t_lo, t_hi = transmission(o.min_thickness, o.attenuation), transmission(o.max_thickness, o.attenuation)
-    pred = np.clip((T - t_hi) / (t_lo - t_hi), 0.0, 1.0)
-    return (1.0 - plan.field.bright if o.invert else plan.field.bright), pred
+    L_lo, _ = tone.plate_range(o.attenuation, o.min_thickness, o.max_thickness)
+    pred = tone.lightness(tone.plate_luminance(printed_thickness(plan), o.attenuation, o.min_thickness))
+    return tone.target_lightness(100.0 * plan.field.bright, L_lo, o.invert), pred
 
 
 def write_transmission_png(plan: Plan, path) -> None:
+    """Three panels, sRGB: the picture as it is; the predicted backlit look (the thinnest plate
+    white, every other tone as bright as the plate will be: what the print shows); the same
+    stretched so that the thickest plate is black (labelled: contrast the print does not have)."""
     from PIL import Image, ImageDraw
 
     o = plan.options
-    src, pred = look(plan)
+    _, pred = look(plan)
+    L_lo, _ = tone.plate_range(o.attenuation, o.min_thickness, o.max_thickness)
+    picture = 100.0 * plan.field.bright
+    stretched = np.clip((pred - L_lo) / (100.0 - L_lo), 0.0, 1.0) * 100.0
     # one sample is `pitch` wide and one layer high: resize to the physical aspect
     scale = 4.0                                   # px per mm
     pw, ph = plan.field.picture_mm
     size = (max(8, int(pw * scale)), max(8, int(ph * scale)))
-    ims = [Image.fromarray((a[::-1] * 255).astype(np.uint8)).resize(size, Image.Resampling.BILINEAR)
-           for a in (src, pred)]
+    panels = [(picture, "picture"),
+              (pred, f"predicted, backlit (mu {o.attenuation:g}/mm, L* {L_lo:.0f}-100)"),
+              (stretched, "predicted, STRETCHED (thickest = black)")]
+    ims = [Image.fromarray(np.round(tone.to_srgb(tone.luminance(a[::-1])) * 255).astype(np.uint8))
+           .resize(size, Image.Resampling.BILINEAR) for a, _ in panels]
     pad, top = 10, 22
-    canvas = Image.new("L", (2 * size[0] + 3 * pad, size[1] + top + pad), 128)
+    canvas = Image.new("L", (3 * size[0] + 4 * pad, size[1] + top + pad), 128)
     d = ImageDraw.Draw(canvas)
-    for i, (im, label) in enumerate(zip(ims, ("source", f"predicted, backlit (mu {o.attenuation:g}/mm)"))):
+    for i, (im, (_, label)) in enumerate(zip(ims, panels)):
         x = pad + i * (size[0] + pad)
         canvas.paste(im, (x, top))
         d.text((x, 5), label, fill=255)
@@ -962,6 +957,8 @@ def plan_stats(plan: Plan, stl_volume: float) -> dict:
     filament = sum(d["filament_mm"] for d in by_kind.values())
     src, pred = (a[fld.inside] for a in look(plan))               # the frame is not the picture
     r = float(np.corrcoef(src.ravel(), pred.ravel())[0, 1]) if src.std() > 0 and pred.std() > 0 else float("nan")
+    sim = tone.similarity(src, pred)
+    L_lo, L_hi = tone.plate_range(o.attenuation, o.min_thickness, o.max_thickness)
     t_print = printed_thickness(plan)
     pic = fld.t[fld.n_foot:]
     samples = pic.size
@@ -997,7 +994,9 @@ def plan_stats(plan: Plan, stl_volume: float) -> dict:
             "printed_vs_planned_thickness_max_mm": round(float(np.abs(t_print - pic).max()), 3),
         },
         "look": {"attenuation_per_mm": o.attenuation, "curve": o.curve,
-                 "correlation": round(r, 4), "ssim": round(_ssim(src, pred), 4)},
+                 "plate_L_range": [round(L_lo, 2), round(L_hi, 2)],
+                 "mean_abs_dL": round(sim["mean_abs_dL"], 3), "ssim_L": round(sim["ssim_L"], 4),
+                 "correlation": round(r, 4)},
     }
 
 
