@@ -25,7 +25,10 @@ def _bed(ctx, param, value):
 
 def register(main):
     @main.command(short_help="A picture -> lithophane G-code (width mode + stock), STL, look, stats.")
-    @click.argument("image", type=click.Path(dir_okay=False))
+    @click.argument("image", type=click.Path(dir_okay=False), required=False)
+    @click.option("--calibration", is_flag=True,
+                  help="No picture: a calibration plate, ten steps from --min to --max with their "
+                       "thickness written under them, to choose --attenuation for a filament.")
     @click.option("--shape", type=click.Choice(["planar", "cylinder"]), default="planar", show_default=True,
                   help="Flat plate (flat back) or a cylinder (round back, picture around it).")
     @click.option("-o", "--out", "outdir", type=click.Path(file_okay=False), default=".", show_default=True,
@@ -41,13 +44,17 @@ def register(main):
     @click.option("--max", "max_thickness", type=POSITIVE, default=2.4, show_default=True,
                   help="Thickness for black, mm.")
     @click.option("--invert", is_flag=True, help="Light areas thick (a negative).")
-    @click.option("--curve", type=click.Choice(["linear", "transmission"]), default="linear", show_default=True,
-                  help="Thickness linear in darkness, or predicted transmission linear in brightness.")
+    @click.option("--curve", type=click.Choice(["perceptual", "linear", "transmission"]), default="perceptual",
+                  show_default=True,
+                  help="Tone curve: perceptual = backlit lightness (L*) linear in the picture's L*; "
+                       "linear = thickness linear in 1 - sRGB value (the paper's); transmission = "
+                       "backlit luminance linear in the picture's luminance.")
     @click.option("--gamma", type=POSITIVE, default=1.0, show_default=True,
-                  help="Contrast: darkness ** gamma before the curve (> 1 lightens mid-tones).")
+                  help="Contrast: darkness ** gamma before the curve, darkness on the curve's own "
+                       "scale (1 - L*/100, 1 - value, 1 - luminance); > 1 lightens mid-tones.")
     @click.option("--attenuation", type=POSITIVE, default=1.5, show_default=True,
-                  help="Light attenuation of the filament, 1/mm (Beer-Lambert), for --curve "
-                       "transmission and the predicted look.")
+                  help="Light attenuation of the filament, 1/mm (Beer-Lambert), for the perceptual "
+                       "and transmission curves and the predicted look; measure it with --calibration.")
     @click.option("--frame", type=NONNEG, default=0.0, show_default=True,
                   help="Border at full thickness, mm (planar: all four sides; cylinder: top and bottom).")
     @click.option("--foot", type=NONNEG, default=0.0, show_default=True,
@@ -94,8 +101,9 @@ def register(main):
     @click.option("--no-purge", is_flag=True, help="No purge line before the part.")
     @progress_option
     @friendly
-    def litho(image, shape, outdir, name, no_purge, **kw):
-        """Make a lithophane from IMAGE (any picture Pillow reads; turned grayscale).
+    def litho(image, calibration, shape, outdir, name, no_purge, **kw):
+        """Make a lithophane from IMAGE (any picture Pillow reads; sRGB, taken as its luminance),
+        or with --calibration a step wedge to measure the filament's --attenuation.
 
         Printed standing, one picture row per layer: per layer a wall inside the back face, a wall
         inside the relief face, and ONE mid-line whose width is the gap between them at every
@@ -114,11 +122,15 @@ def register(main):
         Examples:
           bulgekit litho photo.jpg -o out/
           bulgekit litho photo.jpg --shape cylinder --diameter 80 --height 60 -o out/
-          bulgekit litho photo.jpg --curve transmission --frame 3 --foot 8 -o out/
+          bulgekit litho photo.jpg --curve linear --frame 3 --foot 8 -o out/
+          bulgekit litho --calibration -o out/       # out/calibration.*: print it, look through it
         """
         from . import litho as lt
         from . import progress
 
+        if calibration == (image is not None):
+            raise click.UsageError("give a picture (IMAGE) or --calibration, not both" if calibration
+                                   else "missing IMAGE (a picture), or --calibration for a step wedge")
         kw["bed"] = tuple(kw["bed"])
         opts = lt.LithoOptions(shape=shape, purge=not no_purge, **kw)
 
@@ -129,6 +141,8 @@ def register(main):
         res = lt.make(image, outdir, name=name, progress=show, options=opts)
         s = res.stats
         click.echo(summary(s))
+        if "calibration" in s:
+            click.echo(calibration_table(s))
         for key in ("gcode", "stock", "stl", "png", "json"):
             click.echo(f"wrote {res.paths[key]}")
 
@@ -151,3 +165,13 @@ def summary(s: dict) -> str:
         f"  predicted look vs picture (L*, the plate shows {lk['plate_L_range'][0]:.0f}-100): "
         f"mean |dL*| {lk['mean_abs_dL']:.1f}, SSIM {lk['ssim_L']:.3f} ({lk['curve']} curve)",
     ])
+
+
+def calibration_table(s: dict) -> str:
+    """The calibration plate's steps and how bright each should look at this --attenuation."""
+    c = s["calibration"]
+    rows = [f"  step  thickness mm  luminance (thinnest = 1)  L* at --attenuation {c['attenuation_per_mm']:g}"]
+    for st in c["steps"]:
+        rows.append(f"  {st['step']:>4}  {st['planned_mm']:>12.2f}  {st['relative_luminance']:>24.3f}  "
+                    f"{st['predicted_L']:>6.1f}")
+    return "\n".join(rows)

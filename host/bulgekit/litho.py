@@ -30,7 +30,7 @@ import json
 import math
 import os
 import tempfile
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -243,6 +243,42 @@ def _field(t: np.ndarray, bright: np.ndarray, s: np.ndarray, o: LithoOptions, pi
         lines = np.concatenate([np.full(n_foot, foot_lines), lines])
     return Field(t=t, bright=bright, s=s, n_foot=n_foot, lines=lines, snapped_down=int(down.sum()),
                  snapped_up=int(up.sum()), picture_mm=(pic_w, rows * o.layer_height), inside=inside)
+
+
+def calibration_field(o: LithoOptions) -> tuple[Field, dict]:
+    """The calibration plate (`--calibration`): a planar step wedge from --min to --max, each
+    step's planned thickness written under it in raised digits (litho_tone.calibration_map), and
+    the steps' figures for the JSON. The labels give the thickness as planned, after the gap
+    handling, so they are what is printed."""
+    check_options(o)
+    if o.shape != "planar":
+        raise LithoError("--calibration: the calibration plate is planar; leave out --shape cylinder")
+    pic_w, pic_h = tone.calibration_size()
+    n = int(round(pic_w / o.pitch)) + 1
+    s = np.linspace(0.0, pic_w, n)
+    rows = int(round(pic_h / o.layer_height))
+    z = (np.arange(rows) + 0.5) * o.layer_height            # field row 0 is the bottom layer
+    steps = tone.calibration_steps(o.min_thickness, o.max_thickness)
+    centres = [((a0 + a1) / 2, (b0 + b1) / 2) for (a0, a1, b0, b1), _ in tone.calibration_layout()]
+    ij = [(int(np.argmin(np.abs(z - zc))), int(np.argmin(np.abs(s - xc)))) for xc, zc in centres]
+
+    def field(labels):
+        t = tone.calibration_map(s, z, steps, o.min_thickness, o.max_thickness, labels)
+        # the picture each thickness stands for: what the plate shows, on the look's scale
+        L_lo, _ = tone.plate_range(o.attenuation, o.min_thickness, o.max_thickness)
+        L = tone.lightness(tone.plate_luminance(t, o.attenuation, o.min_thickness))
+        return _field(t, (L - L_lo) / (100.0 - L_lo), s, replace(o, frame=0.0), pic_w)   # its own frame
+
+    planned = [float(field(None).t[i, j]) for i, j in ij]
+    fld = field([f"{t:.2f}" for t in planned])
+    assert [float(fld.t[i, j]) for i, j in ij] == planned
+    y = tone.plate_luminance(np.array(planned), o.attenuation, o.min_thickness)
+    info = {"steps": [{"step": k + 1, "thickness_mm": float(steps[k]), "planned_mm": round(planned[k], 3),
+                       "relative_luminance": round(float(y[k]), 4),
+                       "predicted_L": round(float(tone.lightness(y[k])), 2)} for k in range(len(steps))],
+            "attenuation_per_mm": o.attenuation,
+            "size_mm": [pic_w, rows * o.layer_height]}
+    return fld, info
 
 
 # --- per-layer paths -----------------------------------------------------------------------
@@ -511,7 +547,7 @@ def plan_lithophane(image, o: LithoOptions | None = None, progress=None) -> Plan
     from shapely.geometry.polygon import orient
 
     o = o or LithoOptions()
-    fld = thickness_field(image, o)
+    fld = image if isinstance(image, Field) else thickness_field(image, o)
     _check_fits(o, fld)
     plan = Plan(o, fld)
     plan.counts.update(sliver_added_mm3=0.0, sliver_left_mm3=0.0)
@@ -1009,9 +1045,13 @@ class LithoResult:
 
 def make(image, outdir, name: str | None = None, progress=None, **opts) -> LithoResult:
     """Everything `bulgekit litho` writes, from a picture: NAME.litho.gcode, NAME.stock.gcode,
-    NAME.stl, NAME.transmission.png, NAME.litho.json. Options: the fields of LithoOptions."""
+    NAME.stl, NAME.transmission.png, NAME.litho.json. Options: the fields of LithoOptions.
+    image None: the calibration plate (calibration_field), NAME "calibration" by default."""
     o = opts.pop("options", None) or LithoOptions(**opts)
-    name = name or Path(os.fspath(image)).stem
+    calibration = None
+    if image is None:                                   # the calibration plate
+        image, calibration = calibration_field(o)
+    name = name or ("calibration" if calibration else Path(os.fspath(image)).stem)
     out = Path(outdir)
     plan = plan_lithophane(image, o, progress=progress)
     out.mkdir(parents=True, exist_ok=True)
@@ -1025,7 +1065,9 @@ def make(image, outdir, name: str | None = None, progress=None, **opts) -> Litho
     write_transmission_png(plan, paths["png"])
     stats = plan_stats(plan, mesh_volume(V, F))
     stats["name"] = name
-    stats["image"] = os.fspath(image)
+    stats["image"] = None if calibration else os.fspath(image)
+    if calibration:
+        stats["calibration"] = calibration
     stats["options"] = _options_dict(o)
     stats.update(_estimated(paths))
     _write_atomic(paths["json"], json.dumps(stats, indent=2) + "\n")

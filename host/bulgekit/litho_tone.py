@@ -196,3 +196,72 @@ def similarity(target: np.ndarray, predicted: np.ndarray) -> dict:
     ssim = (float(structural_similarity(target, predicted, data_range=100.0))
             if min(target.shape) >= 7 else float("nan"))
     return {"mean_abs_dL": d, "ssim_L": ssim}
+
+
+# --- calibration plate ---------------------------------------------------------------------------
+
+CAL_STEPS = 10                  # steps of the calibration wedge, --min .. --max
+CAL_COLS = 5                    # steps per row
+CAL_STEP = (18.0, 10.0)         # one step, width x height, mm
+CAL_LABEL = 7.0                 # the label strip under each row of steps, mm
+CAL_TEXT = 5.0                  # digit height, mm
+CAL_STROKE = 1.2                # digit stroke width, mm (three samples, six layers: solid when printed)
+CAL_FRAME = 3.0                 # border, mm
+
+
+def calibration_size() -> tuple[float, float]:
+    """(width, height) of the calibration plate, mm."""
+    rows = math.ceil(CAL_STEPS / CAL_COLS)
+    return (CAL_COLS * CAL_STEP[0] + 2 * CAL_FRAME, rows * (CAL_STEP[1] + CAL_LABEL) + 2 * CAL_FRAME)
+
+
+def calibration_steps(t_min: float, t_max: float) -> np.ndarray:
+    """The wedge's thicknesses: CAL_STEPS from t_min to t_max, to 0.01 mm."""
+    return np.round(np.linspace(t_min, t_max, CAL_STEPS), 2)
+
+
+def calibration_layout():
+    """Per step: (x0, x1, y0, y1) of the step and of its label strip, mm from the plate's
+    bottom-left; the thinnest step top left, thicker to the right and in the next row down."""
+    W, Hh = calibration_size()
+    rows = math.ceil(CAL_STEPS / CAL_COLS)
+    out = []
+    for i in range(CAL_STEPS):
+        r, c = divmod(i, CAL_COLS)
+        x0 = CAL_FRAME + c * CAL_STEP[0]
+        top = Hh - CAL_FRAME - r * (CAL_STEP[1] + CAL_LABEL)
+        out.append(((x0, x0 + CAL_STEP[0], top - CAL_STEP[1], top),
+                    (x0, x0 + CAL_STEP[0], top - CAL_STEP[1] - CAL_LABEL, top - CAL_STEP[1])))
+    assert rows * (CAL_STEP[1] + CAL_LABEL) + 2 * CAL_FRAME == Hh
+    return out
+
+
+def calibration_map(s: np.ndarray, z: np.ndarray, steps, t_min: float, t_max: float,
+                    labels=None) -> np.ndarray:
+    """Thickness (len(z), len(s)) of the calibration plate at x = s and height z (mm): frame at
+    t_max, each step at its thickness, label strips at t_min with the labels' digits raised to
+    t_max (dark when backlit, raised when lit from the front)."""
+    import shapely
+    from shapely.geometry import MultiLineString, Point
+
+    from .strokes import text_strokes
+
+    X, Z = np.meshgrid(s, z)
+    t = np.full(X.shape, t_max)
+    for i, ((a0, a1, b0, b1), (c0, c1, d0, d1)) in enumerate(calibration_layout()):
+        t[(X >= a0) & (X < a1) & (Z >= b0) & (Z < b1)] = steps[i]
+        t[(X >= c0) & (X < c1) & (Z >= d0) & (Z < d1)] = t_min
+        if labels is None:
+            continue
+        strokes = text_strokes(labels[i], CAL_TEXT)
+        pts = np.array([p for st in strokes for p in st.points])
+        dx = (c0 + c1) / 2 - (pts[:, 0].min() + pts[:, 0].max()) / 2
+        dy = (d0 + d1) / 2 - CAL_TEXT / 2
+        geoms = [Point(st.points[0]) if st.is_dot else None for st in strokes]
+        lines = MultiLineString([[(u + dx, v + dy) for u, v in st.points] for st in strokes if not st.is_dot])
+        ink = lines.buffer(CAL_STROKE / 2, cap_style="round")
+        for g in geoms:
+            if g is not None:
+                ink = ink.union(Point(g.x + dx, g.y + dy).buffer(CAL_STROKE / 2))
+        t[shapely.contains_xy(ink, X, Z)] = t_max
+    return t
