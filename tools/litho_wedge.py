@@ -1,0 +1,106 @@
+#!/usr/bin/env python3
+"""How far each tone curve's predicted backlit lightness is from its target, on a 16-step grey
+wedge (sRGB values 0, 17, ..., 255, black on the left), planar, the given options otherwise at
+`bulgekit litho`'s defaults.
+
+For every step (its middle sample, middle layer): the target L* (the grey's L* scaled onto what the
+plate shows, L* of the thickest plate .. 100) and the predicted L* of
+  - the curve's thickness (what the tone curve asks for; the field with --min-line 0.001, which
+    snaps nothing on this wedge),
+  - the planned thickness at the defaults (after narrow gaps are snapped, litho.thickness_field),
+  - the printed thickness (two walls + the mid-line's gap, litho.printed_thickness).
+
+    python3 tools/litho_wedge.py                       # markdown tables on stdout
+    python3 tools/litho_wedge.py --attenuation 2.0 --max 3.0
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "host"))
+
+from bulgekit import litho as lt  # noqa: E402
+from bulgekit import litho_tone as tone  # noqa: E402
+
+STEPS = 16
+STEP_PX = 20
+
+
+def wedge_png(path) -> np.ndarray:
+    """The wedge picture (black left), and its steps' sRGB values."""
+    from PIL import Image
+
+    codes = np.round(np.arange(STEPS) * 255 / (STEPS - 1)).astype(np.uint8)
+    a = np.repeat(np.repeat(codes[None, :], STEP_PX, axis=0), STEP_PX, axis=1)
+    Image.fromarray(a).save(path)
+    return codes
+
+
+def step_errors(o: lt.LithoOptions, picture, printed: bool = True) -> dict:
+    """Per step: target, and the predicted L* of the curve's, the planned and the printed thickness."""
+    from dataclasses import replace
+
+    codes = wedge_png(picture)
+    fld = lt.thickness_field(picture, o)
+    curve = lt.thickness_field(picture, replace(o, min_line=1e-3))
+    n = len(fld.s)
+    cols = [int(round((i + 0.5) * (n - 1) / STEPS)) for i in range(STEPS)]
+    k = fld.t.shape[0] // 2
+    L_lo, _ = tone.plate_range(o.attenuation, o.min_thickness, o.max_thickness)
+    grey_L = tone.lightness(tone.grey_to_luminance(codes / 255.0))
+    target = tone.target_lightness(grey_L, L_lo, o.invert)
+    to_L = lambda t: tone.lightness(tone.plate_luminance(t, o.attenuation, o.min_thickness))
+    out = {"codes": codes.tolist(), "target": target, "t_curve": curve.t[k, cols],
+           "curve": to_L(curve.t[k, cols]), "t_planned": fld.t[k, cols], "planned": to_L(fld.t[k, cols])}
+    if printed:
+        plan = lt.plan_lithophane(picture, o)
+        pt = lt.printed_thickness(plan)
+        out["t_printed"] = pt[k, cols]
+        out["printed"] = to_L(pt[k, cols])
+    return out
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--attenuation", type=float, default=1.5)
+    ap.add_argument("--min", dest="min_thickness", type=float, default=0.8)
+    ap.add_argument("--max", dest="max_thickness", type=float, default=2.4)
+    ap.add_argument("--gamma", type=float, default=1.0)
+    ap.add_argument("--steps-table", action="store_true", help="also every step of every curve")
+    a = ap.parse_args(argv)
+    print(f"16-step grey wedge, planar 100 x 2 mm, --attenuation {a.attenuation:g}, --min {a.min_thickness:g}, "
+          f"--max {a.max_thickness:g}, --gamma {a.gamma:g}")
+    print()
+    print("| curve | max abs dL*, curve's thickness | mean | max abs dL*, planned (snapped) | mean | "
+          "max abs dL*, printed | mean |")
+    print("|---|---:|---:|---:|---:|---:|---:|")
+    rows = {}
+    with tempfile.TemporaryDirectory() as d:
+        for c in tone.CURVES:
+            o = lt.LithoOptions(curve=c, height=2.0, attenuation=a.attenuation, min_thickness=a.min_thickness,
+                                max_thickness=a.max_thickness, gamma=a.gamma)
+            r = step_errors(o, Path(d) / "wedge.png")
+            rows[c] = r
+            e = {key: np.abs(r[key] - r["target"]) for key in ("curve", "planned", "printed")}
+            print(f"| {c} | " + " | ".join(f"{e[key].max():.2f} | {e[key].mean():.2f}"
+                                           for key in ("curve", "planned", "printed")) + " |")
+    if a.steps_table:
+        for c, r in rows.items():
+            print()
+            print(f"{c}: step, sRGB value, target L*, curve's thickness mm / L*, planned mm / L*, printed mm / L*")
+            print()
+            print("| step | value | target L* | curve mm | L* | planned mm | L* | printed mm | L* |")
+            print("|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
+            for i in range(STEPS):
+                print(f"| {i + 1} | {r['codes'][i]} | {r['target'][i]:.1f} | {r['t_curve'][i]:.3f} | "
+                      f"{r['curve'][i]:.1f} | {r['t_planned'][i]:.3f} | {r['planned'][i]:.1f} | "
+                      f"{r['t_printed'][i]:.3f} | {r['printed'][i]:.1f} |")
+
+
+if __name__ == "__main__":
+    main()
