@@ -30,8 +30,11 @@ _ROWS = 256                     # picture rows converted at a time (bounded memo
 
 
 def _white():
-    from skimage.color import xyz_tristimulus_values
-    return np.asarray(xyz_tristimulus_values(illuminant="D65", observer="2"), dtype=float)
+    """XYZ of sRGB white (1, 1, 1): a grey of luminance Y is Y times it, and comes back from
+    xyz2rgb as R = G = B (the D65 tristimulus table differs from the sRGB matrix's white in the
+    fifth digit, which would make white 0.99999)."""
+    from skimage.color import rgb2xyz
+    return rgb2xyz(np.ones((1, 1, 3)))[0, 0]
 
 
 def srgb_to_luminance(rgb) -> np.ndarray:
@@ -49,7 +52,7 @@ def grey_to_luminance(v) -> np.ndarray:
 
 
 def grey_xyz(Y: np.ndarray) -> np.ndarray:
-    """XYZ of a neutral (D65) grey of luminance Y."""
+    """XYZ of a neutral grey of luminance Y."""
     return np.asarray(Y, dtype=float)[..., None] * _white()
 
 
