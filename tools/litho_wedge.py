@@ -12,6 +12,10 @@ plate shows, L* of the thickest plate .. 100) and the predicted L* of
 
     python3 tools/litho_wedge.py                       # markdown tables on stdout
     python3 tools/litho_wedge.py --attenuation 2.0 --max 3.0
+
+With --look PICTURE... (or `astronaut`, `camera`: scikit-image's bundled photographs, nothing
+downloaded), also each curve's predicted look against its target on those pictures, planned at
+the defaults (planar 100 mm wide): mean |dL*| and SSIM on L*, as the JSON's `look` block.
 """
 from __future__ import annotations
 
@@ -65,6 +69,31 @@ def step_errors(o: lt.LithoOptions, picture, printed: bool = True) -> dict:
     return out
 
 
+def look_table(a) -> None:
+    from PIL import Image
+    from skimage import data
+
+    print()
+    print("| picture | curve | mean abs dL* | SSIM on L* | time s |")
+    print("|---|---|---:|---:|---:|")
+    with tempfile.TemporaryDirectory() as d:
+        for pic in a.look:
+            path = pic
+            if pic in ("astronaut", "camera"):
+                path = Path(d) / f"{pic}.png"
+                Image.fromarray(getattr(data, pic)()).save(path)
+            for c in tone.CURVES:
+                import time
+                t0 = time.time()
+                o = lt.LithoOptions(curve=c, attenuation=a.attenuation, min_thickness=a.min_thickness,
+                                    max_thickness=a.max_thickness, gamma=a.gamma)
+                plan = lt.plan_lithophane(path, o)
+                target, pred = (x[plan.field.inside] for x in lt.look(plan))
+                sim = tone.similarity(target, pred)
+                print(f"| {Path(pic).name} | {c} | {sim['mean_abs_dL']:.2f} | {sim['ssim_L']:.3f} | "
+                      f"{time.time() - t0:.0f} |", flush=True)
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--attenuation", type=float, default=1.5)
@@ -72,6 +101,8 @@ def main(argv=None):
     ap.add_argument("--max", dest="max_thickness", type=float, default=2.4)
     ap.add_argument("--gamma", type=float, default=1.0)
     ap.add_argument("--steps-table", action="store_true", help="also every step of every curve")
+    ap.add_argument("--look", nargs="*", default=[], metavar="PICTURE",
+                    help="pictures (or astronaut, camera from skimage.data) for the look table")
     a = ap.parse_args(argv)
     print(f"16-step grey wedge, planar 100 x 2 mm, --attenuation {a.attenuation:g}, --min {a.min_thickness:g}, "
           f"--max {a.max_thickness:g}, --gamma {a.gamma:g}")
@@ -89,6 +120,8 @@ def main(argv=None):
             e = {key: np.abs(r[key] - r["target"]) for key in ("curve", "planned", "printed")}
             print(f"| {c} | " + " | ".join(f"{e[key].max():.2f} | {e[key].mean():.2f}"
                                            for key in ("curve", "planned", "printed")) + " |")
+    if a.look:
+        look_table(a)
     if a.steps_table:
         for c, r in rows.items():
             print()
