@@ -115,8 +115,8 @@ def register(main):
           NAME.litho.gcode        for bulgekit firmware (M723 width mode)
           NAME.stock.gcode        for stock firmware (eq. 2: E and F per piece, same motion)
           NAME.stl                the same body, watertight (for slicer comparisons)
-          NAME.transmission.png   predicted backlit look beside the source
-          NAME.litho.json         layers, moves, filament, time, fill, caps, similarity
+          NAME.transmission.png   the picture, its predicted backlit look, the same stretched
+          NAME.litho.json         layers, moves, filament, time, fill, caps, the look in L*
 
         \b
         Examples:
