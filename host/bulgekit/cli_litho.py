@@ -131,6 +131,13 @@ def register(main):
         if calibration == (image is not None):
             raise click.UsageError("give a picture (IMAGE) or --calibration, not both" if calibration
                                    else "missing IMAGE (a picture), or --calibration for a step wedge")
+        if calibration:
+            # the plate has its own size, steps and border: say so rather than ignore these
+            ctx = click.get_current_context()
+            for p in ("width", "height", "diameter", "curve", "gamma", "invert", "frame"):
+                if ctx.get_parameter_source(p) == click.core.ParameterSource.COMMANDLINE:
+                    why = "its size and border are fixed" if p in ("width", "height", "frame") else "no picture"
+                    raise click.UsageError(f"--{p} does not apply to --calibration ({why})")
         kw["bed"] = tuple(kw["bed"])
         opts = lt.LithoOptions(shape=shape, purge=not no_purge, **kw)
 

@@ -225,6 +225,8 @@ def test_calibration_plate(tmp_path):
     (["--calibration", "x.png"], "not both"),
     ([], "missing IMAGE"),
     (["--calibration", "--shape", "cylinder"], "--calibration: the calibration plate is planar"),
+    (["--calibration", "--width", "50"], "--width does not apply to --calibration"),
+    (["--calibration", "--curve", "linear"], "--curve does not apply to --calibration"),
 ])
 def test_calibration_usage(tmp_path, args, message):
     Image.fromarray(np.full((10, 10), 128, np.uint8)).save(tmp_path / "x.png")
