@@ -95,35 +95,37 @@ def read_luminance(path) -> np.ndarray:
     try:
         with Image.open(path) as im:
             im.load()
+            alpha = None
             if im.mode.startswith("I;16") or im.mode == "I":
                 # 16-bit grey (I;16 from PNG, I from some TIFFs): full scale is 65535
-                a = np.asarray(im.convert("I") if im.mode == "I" else im, dtype=np.float32) / 65535.0
-                alpha = None
+                raw, scale = np.asarray(im), 65535.0
             elif im.mode == "F":
-                a, alpha = np.asarray(im, dtype=np.float32), None
+                raw, scale = np.asarray(im), 1.0
             else:
                 has_alpha = "A" in im.getbands() or "transparency" in im.info
-                if im.mode in ("L", "LA") or (im.mode == "P" and not has_alpha and _grey_palette(im)):
-                    g = im.convert("LA")
-                    arr = np.asarray(g, dtype=np.float32) / 255.0
-                    a, alpha = arr[..., 0], (arr[..., 1] if has_alpha else None)
+                grey = im.mode in ("1", "L", "LA") or (im.mode == "P" and not has_alpha and _grey_palette(im))
+                if grey:
+                    raw = np.asarray(im.convert("LA") if has_alpha else im.convert("L"))
                 else:
-                    arr = np.asarray(im.convert("RGBA" if has_alpha else "RGB"), dtype=np.float32) / 255.0
-                    a, alpha = arr[..., :3], (arr[..., 3] if has_alpha else None)
+                    raw = np.asarray(im.convert("RGBA" if has_alpha else "RGB"))
+                scale = 255.0
+                if has_alpha:
+                    raw, alpha = raw[..., :-1], raw[..., -1]
+                    raw = raw[..., 0] if grey else raw
     except FileNotFoundError:
         raise InputError(f"{path}: image file not found") from None
     except UnidentifiedImageError:
         raise InputError(f"{path}: cannot read image (not a format Pillow recognizes)") from None
     except (OSError, ValueError, SyntaxError) as e:
         raise InputError(f"{path}: cannot read image: {e}") from None
-    a = np.clip(a, 0.0, 1.0)
-    if alpha is not None:
-        al = alpha[..., None] if a.ndim == 3 else alpha
-        a = a * al + (1.0 - al)                                  # over white
-    out = np.empty(a.shape[:2], dtype=np.float32)
-    for r in range(0, a.shape[0], _ROWS):                        # a few MB at a time
-        part = a[r:r + _ROWS]
-        out[r:r + _ROWS] = srgb_to_luminance(part) if a.ndim == 3 else grey_to_luminance(part)
+    out = np.empty(raw.shape[:2], dtype=np.float32)
+    for r in range(0, raw.shape[0], _ROWS):          # in bands of rows: a few MB at a time
+        a = np.clip(raw[r:r + _ROWS].astype(float) / scale, 0.0, 1.0)
+        if alpha is not None:
+            al = alpha[r:r + _ROWS].astype(float) / 255.0
+            al = al[..., None] if a.ndim == 3 else al
+            a = a * al + (1.0 - al)                      # over white
+        out[r:r + _ROWS] = srgb_to_luminance(a) if a.ndim == 3 else grey_to_luminance(a)
     return out
 
 
