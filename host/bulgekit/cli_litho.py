@@ -170,7 +170,8 @@ def summary(s: dict) -> str:
         f"{ml['layers_with_two_or_more']}",
         f"  gaps snapped (narrower than --min-line): {100 * gp['snapped_share']:.2f} % of samples",
         f"  predicted look vs picture (L*, the plate shows {lk['plate_L_range'][0]:.0f}-100): "
-        f"mean |dL*| {lk['mean_abs_dL']:.1f}, SSIM {lk['ssim_L']:.3f} ({lk['curve']} curve)",
+        f"mean |dL*| {lk['mean_abs_dL']:.1f}, "
+        f"SSIM {'n/a' if lk['ssim_L'] is None else format(lk['ssim_L'], '.3f')} ({lk['curve']} curve)",
     ])
 
 

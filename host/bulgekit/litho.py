@@ -547,7 +547,7 @@ def plan_lithophane(image, o: LithoOptions | None = None, progress=None) -> Plan
     from shapely.geometry.polygon import orient
 
     o = o or LithoOptions()
-    fld = image if isinstance(image, Field) else thickness_field(image, o)
+    fld = image if isinstance(image, Field) else thickness_field(image, o)   # a Field: calibration_field
     _check_fits(o, fld)
     plan = Plan(o, fld)
     plan.counts.update(sliver_added_mm3=0.0, sliver_left_mm3=0.0)
@@ -1031,7 +1031,9 @@ def plan_stats(plan: Plan, stl_volume: float) -> dict:
         },
         "look": {"attenuation_per_mm": o.attenuation, "curve": o.curve,
                  "plate_L_range": [round(L_lo, 2), round(L_hi, 2)],
-                 "mean_abs_dL": round(sim["mean_abs_dL"], 3), "ssim_L": round(sim["ssim_L"], 4),
+                 "mean_abs_dL": round(sim["mean_abs_dL"], 3),
+                 # None when the picture has fewer than 7 rows or samples (no 7 x 7 window)
+                 "ssim_L": round(sim["ssim_L"], 4) if math.isfinite(sim["ssim_L"]) else None,
                  "correlation": round(r, 4)},
     }
 
