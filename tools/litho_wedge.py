@@ -75,8 +75,8 @@ def look_table(a) -> None:
     from skimage import data
 
     print()
-    print("| picture | curve | mean abs dL* | SSIM on L* | time s |")
-    print("|---|---|---:|---:|---:|")
+    print("| picture | curve | mean abs dL* | SSIM on L* | samples snapped | time s |")
+    print("|---|---|---:|---:|---:|---:|")
     with tempfile.TemporaryDirectory() as d:
         for pic in a.look:
             path = pic
@@ -91,8 +91,10 @@ def look_table(a) -> None:
                 plan = lt.plan_lithophane(path, o)
                 target, pred = (x[plan.field.inside] for x in lt.look(plan))
                 sim = tone.similarity(target, pred)
+                f = plan.field
+                snapped = (f.snapped_down + f.snapped_up) / f.t[f.n_foot:].size
                 print(f"| {Path(pic).name} | {c} | {sim['mean_abs_dL']:.2f} | {sim['ssim_L']:.3f} | "
-                      f"{time.time() - t0:.0f} |", flush=True)
+                      f"{100 * snapped:.1f} % | {time.time() - t0:.0f} |", flush=True)
 
 
 def edges_table() -> None:

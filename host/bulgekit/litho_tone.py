@@ -247,7 +247,7 @@ def calibration_map(s: np.ndarray, z: np.ndarray, steps, t_min: float, t_max: fl
     t_max, each step at its thickness, label strips at t_min with the labels' digits raised to
     t_max (dark when backlit, raised when lit from the front)."""
     import shapely
-    from shapely.geometry import MultiLineString, Point
+    from shapely.geometry import LineString, Point
 
     from .strokes import text_strokes
 
@@ -262,11 +262,8 @@ def calibration_map(s: np.ndarray, z: np.ndarray, steps, t_min: float, t_max: fl
         pts = np.array([p for st in strokes for p in st.points])
         dx = (c0 + c1) / 2 - (pts[:, 0].min() + pts[:, 0].max()) / 2
         dy = (d0 + d1) / 2 - CAL_TEXT / 2
-        geoms = [Point(st.points[0]) if st.is_dot else None for st in strokes]
-        lines = MultiLineString([[(u + dx, v + dy) for u, v in st.points] for st in strokes if not st.is_dot])
-        ink = lines.buffer(CAL_STROKE / 2, cap_style="round")
-        for g in geoms:
-            if g is not None:
-                ink = ink.union(Point(g.x + dx, g.y + dy).buffer(CAL_STROKE / 2))
+        shifted = [[(u + dx, v + dy) for u, v in st.points] for st in strokes]
+        ink = shapely.union_all([(Point(p[0]) if len(p) == 1 else LineString(p)).buffer(CAL_STROKE / 2)
+                                 for p in shifted])
         t[shapely.contains_xy(ink, X, Z)] = t_max
     return t
