@@ -159,6 +159,9 @@ def test_look_in_L_and_the_png_unstretched(tmp_path):
     assert lk["mean_abs_dL"] == pytest.approx(np.abs(pred - target).mean(), abs=1e-3)
     assert lk["ssim_L"] == pytest.approx(structural_similarity(target, pred, data_range=100), abs=1e-4)
     assert lk["mean_abs_dL"] < 3 and lk["ssim_L"] > 0.9
+    from bulgekit.cli_litho import summary
+    assert (f"(L*, the plate shows 36-100): mean |dL*| {lk['mean_abs_dL']:.1f}, SSIM {lk['ssim_L']:.3f}"
+            in summary(res.stats | {"name": "ramp"}))
     # the backlit panel shows the thickest plate as the grey it is (sRGB of Y = exp(-1.5 x 1.6))
     im = np.asarray(Image.open(res.paths["png"]))
     pw, ph = res.plan.field.picture_mm
