@@ -436,6 +436,9 @@ def litho_view(plan) -> dict:
            "s": [round(float(v), 5) for v in fld.s[ci]],
            "z": [round(z0 + (float(i) + 0.5) * H, 4) for i in ri],
            "z_range": [z0, round(z0 + rows * H, 4)],
+           # where each row and column falls on the look's texture (texel centres, 0..1)
+           "u": [round((float(j) + 0.5) / cols, 6) for j in ci],
+           "v": [round((float(i) + 0.5) / rows, 6) for i in ri],
            "thickness_um": _b64(np.round(t[np.ix_(ri, ci)] * 1000).astype("<u2")),
            "max_thickness": o.max_thickness,
            "look": {"width": len(tj), "height": len(ti),
@@ -466,7 +469,7 @@ def litho_figures(st: dict) -> list:
         out.append(["Print time, stock firmware", _duration(est["estimated_time_s_stock"])])
     size = st.get("size_mm") or {}
     if size:
-        out.append(["Picture", f"{size['picture_width']:g} × {size['picture_height']:g} mm"
+        out.append(["Picture", f"{round(size['picture_width'], 1):g} × {round(size['picture_height'], 1):g} mm"
                                + (" around" if st.get("shape") == "cylinder" else "")])
     if "layers" in st:
         out.append(["Layers", f"{st['layers']:,}"
@@ -478,11 +481,11 @@ def litho_figures(st: dict) -> list:
         out.append(["Filled", f"{100 * st['fill_ratio']:.1f} % of the part's volume"])
     rates = st.get("rates") or {}
     if "mid_line_mm3_s" in rates:
-        out.append(["Middle line flow", f"{rates['mid_line_mm3_s']:g} mm³/s"])
+        out.append(["Mid-line flow", f"{rates['mid_line_mm3_s']:g} mm³/s"])
     ml, opts = st.get("mid_line") or {}, st.get("options") or {}
     if "max_speed" in opts and "capped_time_share" in ml:
         out.append(["Fastest head speed", f"{opts['max_speed']:g} mm/s, held for "
-                    f"{100 * ml['capped_time_share']:.1f} % of the middle line's time"])
+                    f"{100 * ml['capped_time_share']:.1f} % of the mid-line's time"])
     gaps = st.get("gaps") or {}
     if "snapped_share" in gaps:
         out.append(["Gaps too narrow for a line", f"{100 * gaps['snapped_share']:.2f} % of the samples"])
@@ -521,7 +524,7 @@ def _look_figures(lk: dict) -> list:
 
 
 _LITHO_FIELDS = {"--max": "Thickest (black)", "--min": "Thinnest (white)", "--foot": "Foot depth",
-                 "--line-width": "Line width", "--max-speed": "Max speed", "--width": "Width",
+                 "--line-width": "Line width", "--max-speed": "Fastest head speed", "--width": "Width",
                  "--diameter": "Diameter", "--height": "Height", "--frame": "Frame",
                  "--layer-height": "Layer height", "--infill-flow": "Mid-line flow", "--gamma": "Gamma",
                  "--attenuation": "Attenuation", "--temp": "Nozzle", "--bed-temp": "Bed",
