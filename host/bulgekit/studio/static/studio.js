@@ -970,10 +970,15 @@ const litho3d = (() => {
     camera.up.set(0, 0, 1);
     controls = new OrbitControls(camera, renderer.domElement);
     controls.addEventListener("change", render);
-    scene.add(new THREE.AmbientLight(0xffffff, 0.5));
-    const sun = new THREE.DirectionalLight(0xffffff, 1.4);
-    sun.position.set(-0.6, -1, 0.8);
-    scene.add(sun);
+    scene.add(new THREE.AmbientLight(0xffffff, 0.45));
+    // the light turns with the camera, from its upper left: the relief shades whichever side
+    // is seen
+    const sun = new THREE.DirectionalLight(0xffffff, 1.6), aim = new THREE.Object3D();
+    sun.position.set(-6, 7, 2);
+    aim.position.set(0, 0, -10);
+    camera.add(sun, aim);
+    sun.target = aim;
+    scene.add(camera);
     new ResizeObserver(size).observe(host);
     return true;
   }
@@ -1201,4 +1206,4 @@ init().catch((e) => status(`the studio did not start: ${e.message}`));
 // For the browser tests and the curious: idle() is true once the page's design has been
 // previewed and checked against the G-code, with no edit waiting.
 const idle = () => !inFlight && !pending && checkedFor === JSON.stringify(design());
-window.studio = { S, design, view2d, idle };
+window.studio = { S, design, view2d, idle, lithoKey: () => L.key };
