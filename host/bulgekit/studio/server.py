@@ -389,8 +389,10 @@ def litho_choices() -> dict:
     defaults of every option (so the page follows a toolkit that adds a curve or changes one)."""
     import dataclasses
     from .. import litho as lt
+    # None (chosen by the toolkit, e.g. the height from the picture) leaves the field empty, and
+    # an empty field is not sent
     defaults = {f.name: f.default for f in dataclasses.fields(lt.LithoOptions)
-                if f.default is not dataclasses.MISSING and isinstance(f.default, (int, float, str, bool))}
+                if f.default is None or isinstance(f.default, (int, float, str, bool))}
     return {"shapes": list(lt.SHAPES), "curves": list(lt.CURVES), "defaults": defaults}
 
 
@@ -467,6 +469,9 @@ def litho_figures(st: dict) -> list:
         out.append(["Print time", _duration(est["estimated_time_s_gcode"]) + " (bulgekit firmware)"])
     if est.get("estimated_time_s_stock") is not None:
         out.append(["Print time, stock firmware", _duration(est["estimated_time_s_stock"])])
+    machine = est.get("machine") or st.get("machine")
+    if isinstance(machine, dict) and machine:         # what the times assume, when the toolkit says
+        out.append(["Times assume", ", ".join(f"{k.replace('_', ' ')} {v}" for k, v in machine.items())])
     size = st.get("size_mm") or {}
     if size:
         out.append(["Picture", f"{round(size['picture_width'], 1):g} × {round(size['picture_height'], 1):g} mm"
@@ -483,9 +488,10 @@ def litho_figures(st: dict) -> list:
     if "mid_line_mm3_s" in rates:
         out.append(["Mid-line flow", f"{rates['mid_line_mm3_s']:g} mm³/s"])
     ml, opts = st.get("mid_line") or {}, st.get("options") or {}
-    if "max_speed" in opts and "capped_time_share" in ml:
-        out.append(["Fastest head speed", f"{opts['max_speed']:g} mm/s, held for "
-                    f"{100 * ml['capped_time_share']:.1f} % of the mid-line's time"])
+    if "max_speed" in opts:
+        held = (f", held for {100 * ml['capped_time_share']:.1f} % of the mid-line's time"
+                if "capped_time_share" in ml else "")
+        out.append(["Fastest head speed", f"{opts['max_speed']:g} mm/s{held}"])
     gaps = st.get("gaps") or {}
     if "snapped_share" in gaps:
         out.append(["Gaps too narrow for a line", f"{100 * gaps['snapped_share']:.2f} % of the samples"])

@@ -835,7 +835,9 @@ function lithoChoices(c) {
   for (const el of f.elements) {
     if (!el.name || !(el.name in c.defaults)) continue;
     const v = c.defaults[el.name];
-    if (el.type === "checkbox") el.checked = !!v; else el.value = v;
+    if (el.type === "checkbox") el.checked = !!v;
+    else if (v === null) { el.value = ""; if (!el.placeholder) el.placeholder = "automatic"; }
+    else el.value = v;
   }
   lithoShape();
 }
