@@ -402,11 +402,11 @@ def _b64(a) -> str:
 
 
 def _predicted_look(plan):
-    """The predicted backlit look on the layer x sample grid as display values 0..1 (what the
-    look PNG shows), bottom row first."""
+    """The predicted backlit look on the layer x sample grid, bottom row first, as the display
+    values 0..1 the look PNG shows (the page shows them as sRGB). The one place that follows
+    litho.look() if what it returns changes."""
     from .. import litho as lt
-    pred = lt.look(plan)[1]
-    return pred
+    return lt.look(plan)[1]
 
 
 VIEW_CELLS = 256        # the 3D view's mesh: at most this many rows and columns (the look is a texture)
@@ -414,11 +414,11 @@ VIEW_TEXELS = 1024      # the look's texture: at most this many texels a side
 
 
 def litho_view(plan) -> dict:
-    """What the page's 3D view draws: the relief as a height field (printed thickness on a grid of
-    at most VIEW_CELLS a side: a 240 x 220 px picture makes 250 x 460 samples, 116,000, and every
-    one of them as a vertex would be 2 MB of JSON for a 300-pixel-wide view) and the predicted
-    look as a texture on it (uint8, up to VIEW_TEXELS a side). Coordinates in mm, the part's
-    centre at x = y = 0, z up from the bed."""
+    """What the page's 3D view draws: the relief as a height field (the printed thickness, in um,
+    on a grid of at most VIEW_CELLS a side; a 240 x 220 px picture at the defaults has 460 x 251
+    samples, of which the view keeps 230 x 251) and the predicted look as a texture on it (uint8,
+    up to VIEW_TEXELS a side, so the picture stays sharp where the mesh is coarse). `s` is along
+    the part (mm on a plate, radians round a cylinder), `z` up from the bed, mm."""
     import numpy as np
     from .. import litho as lt
     o, fld = plan.options, plan.field
