@@ -4,6 +4,7 @@ to preview a design (without and with the reference-planner check) and to export
 server in this process and talks HTTP to it, as the page does (no browser).
 
     python3 tools/bench_studio.py [--mb 100]
+    python3 tools/bench_studio.py --litho     # the lithophane tab: make, and its 3D view's data
 """
 import argparse
 import sys
@@ -28,7 +29,12 @@ def timed(fn):
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--mb", type=float, default=100, help="size of the large G-code, MB")
+    ap.add_argument("--litho", action="store_true",
+                    help="instead: a 240 x 220 px photo (scikit-image's astronaut) made into each shape "
+                         "at the defaults, and the size of what the 3D view loads")
     a = ap.parse_args()
+    if a.litho:
+        return litho()
     with tempfile.TemporaryDirectory() as tmp:
         big = big_gcode(Path(tmp) / "tall.gcode", int(a.mb * 1e6))
         print(f"{'file':<26} {'MB':>6} {'open':>7} {'preview':>8} {'check':>7} {'export':>7}")
@@ -47,6 +53,29 @@ def main():
                       f"{p['summary']['points']} points)")
             finally:
                 run.stop()
+
+
+def litho():
+    import json
+    from PIL import Image
+    from skimage import data            # bundled with the wheel: nothing downloaded
+    with tempfile.TemporaryDirectory() as tmp:
+        pic = Path(tmp) / "astronaut.png"
+        Image.fromarray(data.astronaut()).resize((240, 220), Image.Resampling.LANCZOS).save(pic)
+        run = start(Path(tmp) / "w")
+        try:
+            _, info = call(run, "/api/asset?name=astronaut.png", pic.read_bytes())
+            print(f"{'shape':<9} {'make':>7} {'view':>7} {'view JSON':>10} {'mesh':>9} {'texture':>9}")
+            for shape in ("planar", "cylinder"):
+                job, t_make = timed(lambda: wait_job(run, call(run, "/api/litho", {
+                    "asset": info["name"], "options": {"shape": shape}})[1], 1200))
+                assert job["state"] == "done", job["error"]
+                (_, v), t_view = timed(lambda: call(run, job["result"]["view"]))
+                size = len(json.dumps(v).encode())
+                print(f"{shape:<9} {t_make:6.1f}s {t_view:6.2f}s {size / 1e6:8.2f} MB "
+                      f"{v['rows']:>4}x{v['cols']:<4} {v['look']['height']:>4}x{v['look']['width']:<4}")
+        finally:
+            run.stop()
 
 
 if __name__ == "__main__":

@@ -300,23 +300,101 @@ def test_send_errors_are_clear(studio):
 
 # -- lithophanes
 
-def test_litho_job_makes_the_cli_files(studio, tmp_path):
+def make_litho(studio, tmp_path, options, size=(40, 30)):
     img = tmp_path / "grad.png"
-    Image.linear_gradient("L").resize((40, 30)).save(img)
+    Image.linear_gradient("L").resize(size).save(img)       # black at the top, white at the bottom
     status, info = call(studio, "/api/asset?name=grad.png", img.read_bytes())
-    job = wait_job(studio, call(studio, "/api/litho", {"asset": info["name"], "options": {"width": 20}})[1])
+    assert status == 200, info
+    return info, wait_job(studio, call(studio, "/api/litho", {"asset": info["name"], "options": options})[1])
+
+
+def test_litho_job_makes_the_cli_files(studio, tmp_path):
+    info, job = make_litho(studio, tmp_path, {"width": 20})
     assert job["state"] == "done", job["error"]
-    names = {f["name"] for f in job["result"]["files"]}
+    res = job["result"]
+    names = {f["name"] for f in res["files"]}
     assert names == {"grad.litho.gcode", "grad.stock.gcode", "grad.stl", "grad.transmission.png",
                      "grad.litho.json"}
-    assert "SSIM" in job["result"]["summary"]
-    status, body = call(studio, job["result"]["look"], raw=True)
+    # the figures in the page's words: no CLI options or ASCII units, no working folder
+    figures = dict(res["figures"])
+    assert {"Print time", "Filament", "Fastest head speed", "Mid-line flow"} <= set(figures)
+    assert "SSIM" in " ".join(figures) and figures["Mid-line flow"] == "8 mm³/s"
+    text = repr(res)
+    assert "--" not in text and "mm^3" not in text and str(studio.studio.workdir) not in text
+    status, body = call(studio, res["look"], raw=True)
     assert status == 200 and body[:4] == b"\x89PNG"
     bad = wait_job(studio, call(studio, "/api/litho", {"asset": info["name"],
                                                        "options": {"min_thickness": 3, "max_thickness": 1}})[1])
     assert bad["state"] == "error" and "'Thickest (black)'" in bad["error"] and "--" not in bad["error"]
     bad = wait_job(studio, call(studio, "/api/litho", {"asset": info["name"], "options": {"colour": 1}})[1])
     assert bad["state"] == "error" and "colour" in bad["error"]
+
+
+def test_litho_figures_show_the_look_block_they_are_given():
+    from bulgekit.studio.server import litho_figures
+    # a toolkit with lightness figures: those are shown, the plain SSIM gives way to the one on L*
+    f = dict(litho_figures({"look": {"curve": "perceptual", "mean_dL": 1.234, "ssim_L": 0.9123, "ssim": 0.5,
+                                     "L_range": [38.2, 100.0], "new_figure": 0.25}}))
+    assert f == {"Mean lightness error": "1.2 ΔL*", "Likeness (SSIM on lightness)": "0.912",
+                 "Lightness range the plate shows": "38–100 L*", "new figure": "0.25"}
+    assert litho_figures({}) == []
+    f = dict(litho_figures({"options": {"max_speed": 150}, "estimate": {
+        "estimated_time_s_gcode": 3720, "machine": {"acceleration_mm_s2": 3000}}}))
+    assert f == {"Print time": "1 h 02 min (bulgekit firmware)", "Fastest head speed": "150 mm/s",
+                 "Times assume": "acceleration mm s2 3000"}
+
+
+def test_litho_view_is_the_relief_and_its_look(studio, tmp_path):
+    """The 3D view's data: the printed relief on a grid of at most VIEW_CELLS a side (the last
+    row and column kept), the predicted look as a texture."""
+    import base64
+    import numpy as np
+    from bulgekit.studio.server import VIEW_CELLS
+    _, job = make_litho(studio, tmp_path, {"width": 110, "height": 10, "curve": "linear"})
+    assert job["state"] == "done", job["error"]
+    status, v = call(studio, job["result"]["view"])
+    assert status == 200 and v["shape"] == "planar"
+    assert v["cols"] <= VIEW_CELLS < 276 and v["s"][0] == 0 and v["s"][-1] == 110
+    assert len(v["s"]) == len(v["u"]) == v["cols"] and len(v["z"]) == len(v["v"]) == v["rows"] == 50
+    t = np.frombuffer(base64.b64decode(v["thickness_um"]), "<u2").reshape(v["rows"], v["cols"]) / 1000
+    assert 0.8 - 1e-3 <= t.min() and t.max() <= 2.4 + 1e-3
+    # the picture is white at the bottom: thin there, thick at the top (rows go up)
+    assert t[:5].mean() < 1.2 < 2.0 < t[-5:].mean()
+    lk = v["look"]
+    look = np.frombuffer(base64.b64decode(lk["data"]), np.uint8).reshape(lk["height"], lk["width"])
+    assert lk["width"] == 276 and lk["height"] == 50          # the texture keeps every sample
+    assert look[:5].mean() - look[-5:].mean() > 80             # light where the picture is
+    assert np.corrcoef(look.mean(axis=1), -t.mean(axis=1))[0, 1] > 0.9       # (both 50 rows here)
+    status, body = call(studio, "/api/litho/nope/view")
+    assert status == 404
+
+
+def test_litho_form_choices_come_from_the_toolkit(studio):
+    from bulgekit import litho as lt
+    status, st = call(studio, "/api/state")
+    c = st["litho"]
+    assert c["curves"] == list(lt.CURVES) and c["shapes"] == list(lt.SHAPES)
+    assert c["defaults"]["curve"] == lt.LithoOptions().curve and c["defaults"]["foot"] == lt.LithoOptions().foot
+
+
+def test_send_a_lithophane_to_the_printer(studio, tmp_path):
+    _, job = make_litho(studio, tmp_path, {"width": 12}, size=(24, 12))
+    assert job["state"] == "done", job["error"]
+    key = job["result"]["key"]
+    with fake_printer(arena=1024) as (port, printer):
+        status, j = call(studio, "/api/send", {"litho": key, "which": "stock", "port": port, "baud": 115200})
+        assert status == 200
+        j = wait_job(studio, j, timeout=300)
+        assert j["state"] == "done", j["error"]
+        sent = [ln.split(";")[0].strip() for ln in studio.studio.lithos[key]["paths"]["stock"].read_text().splitlines()
+                if ln.split(";")[0].strip()]
+        assert j["done"] == j["total"] == len(sent) and j["result"]["file"].endswith(".stock.gcode")
+        assert printer.executed[-len(sent):] == sent
+    for body, message in (({"litho": "nope", "which": "litho"}, "make it first"),
+                          ({"litho": key, "which": "bulge"}, "'litho' or 'stock'")):
+        status, j = call(studio, "/api/send", {**body, "port": "/dev/null-none"})
+        j = wait_job(studio, j)
+        assert j["state"] == "error" and message in j["error"]
 
 
 # -- the command

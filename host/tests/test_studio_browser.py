@@ -266,7 +266,7 @@ def test_large_gcode_shows_progress_and_the_page_stays_responsive(browser, tmp_p
         run.stop()
 
 
-def test_send_to_printer_and_lithophane_tab(browser, studio, tmp_path):
+def test_send_to_printer(browser, studio, tmp_path):
     pg, errors = page_for(browser, studio)
     open_sample(pg)
     pg.click("#add-text")
@@ -285,21 +285,78 @@ def test_send_to_printer_and_lithophane_tab(browser, studio, tmp_path):
         assert any(c.startswith("M721") for c in printer.executed) and printer.executed[-1] == "M721 X"
         shot(pg, "7-sent")
 
+    assert not errors, errors
+
+
+def canvas_pixels(pg, selector):
+    import io
+    import numpy as np
+    return np.asarray(Image.open(io.BytesIO(pg.locator(selector).screenshot())).convert("L"), dtype=float)
+
+
+def test_lithophane_tab(browser, studio, tmp_path):
+    """The picture shows as soon as it is chosen; the fields follow the shape; Make shows the part
+    in 3D with its look, the figures in plain words; the file goes to the (fake) printer."""
+    import numpy as np
+    from skimage import data            # a real photograph, as scikit-image's wheel ships it
+    pg, errors = page_for(browser, studio)
     pg.click("#tab-litho")
-    pic = tmp_path / "face.png"
-    Image.radial_gradient("L").resize((60, 45)).save(pic)
+    form = "#litho-form "
+    assert pg.is_visible(form + "input[name=width]") and pg.is_visible(form + "input[name=foot]")
+    assert not pg.is_visible(form + "input[name=diameter]")
+    pg.select_option(form + "select[name=shape]", "cylinder")
+    assert pg.is_visible(form + "input[name=diameter]")
+    assert not pg.is_visible(form + "input[name=width]") and not pg.is_visible(form + "input[name=foot]")
+    pg.select_option(form + "select[name=shape]", "planar")
+    assert pg.is_visible(form + "input[name=width]") and not pg.is_visible(form + "input[name=diameter]")
+    # the curves are the toolkit's
+    from bulgekit import litho as lt
+    assert pg.eval_on_selector(form + "select[name=curve]", "s => [...s.options].map(o => o.value)") == list(lt.CURVES)
+
+    pic = tmp_path / "astronaut.png"
+    Image.fromarray(data.astronaut()).resize((90, 82)).save(pic)
     pg.set_input_files("#litho-file", str(pic))
+    # shown before Make
+    pg.wait_for_function("() => { const i = document.querySelector('#litho-src'); return i.complete && i.naturalWidth === 90; }")
+    assert pg.is_visible("#litho-src")
     pg.wait_for_function("() => !document.querySelector('#litho-make').disabled")
-    assert "60 × 45 pixels" in pg.inner_text("#litho-pic")
-    pg.fill("#litho-form input[name=width]", "40")
+    assert "90 × 82 pixels" in pg.inner_text("#litho-pic")
+    pg.fill(form + "input[name=width]", "40")
     pg.click("#litho-make")
-    pg.wait_for_function("() => { const i = document.querySelector('#litho-look'); return i && i.complete && i.naturalWidth > 0; }",
-                         timeout=240_000)
+    pg.wait_for_selector("#litho-figures", timeout=240_000)
+    pg.wait_for_function("() => { const i = document.querySelector('#litho-look'); return i && i.complete && i.naturalWidth > 0; }")
+    # the 3D view draws the part: light and dark texels of the look on a dark background
+    px = canvas_pixels(pg, "#litho-3d canvas")
+    bg = np.median(px[:5])                       # the top rows: background
+    part = px[np.abs(px - bg) > 8]
+    assert part.size > 0.1 * px.size, part.size / px.size
+    assert np.percentile(part, 95) - np.percentile(part, 5) > 80
     out = pg.inner_text("#litho-out")
-    assert "SSIM" in out and "face.litho.gcode" in out and "face.stl" in out
+    assert "Print time" in out and "Filament" in out and "Fastest head speed" in out and "mm³/s" in out
+    assert "--" not in out and "mm^3" not in out and str(studio.studio.workdir) not in pg.inner_text("body")
+    assert "astronaut.litho.gcode" in out and "astronaut.stl" in out
     shot(pg, "8-lithophane")
+    pg.click("#litho-light button[data-light=day]")           # the relief, lit from the front
+    day = canvas_pixels(pg, "#litho-3d canvas")
+    assert np.abs(day - px).mean() > 5
+    shot(pg, "9-lithophane-daylight")
+    pg.click("#litho-light button[data-light=back]")
+
+    with fake_printer(arena=1024) as (port, printer):
+        pg.fill("#litho-port", port)
+        pg.select_option("#litho-which", "stock")
+        pg.click("#litho-send")
+        pg.wait_for_function("() => document.querySelector('#status-text').textContent.startsWith('sent ')",
+                             timeout=300_000)
+        key = pg.evaluate("() => window.studio.lithoKey()")
+        path = studio.studio.lithos[key]["paths"]["stock"]
+        sent = [ln.split(";")[0].strip() for ln in path.read_text().splitlines() if ln.split(";")[0].strip()]
+        assert printer.executed[-len(sent):] == sent
+        assert "astronaut.stock.gcode" in pg.inner_text("#litho-send-log")
+        assert pg.evaluate("() => document.querySelector('#litho-send-bar').value") == 1
+
     # a bad setting is said in the page's own words
-    pg.fill("#litho-form input[name=min_thickness]", "3")
+    pg.fill(form + "input[name=min_thickness]", "3")
     pg.click("#litho-make")
     pg.wait_for_selector("#litho-error:not([hidden])", timeout=60_000)
     assert "'Thickest (black)'" in pg.inner_text("#litho-error")

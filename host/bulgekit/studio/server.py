@@ -97,6 +97,7 @@ class Studio:
         self.asset_kinds: dict[str, str] = {}
         self.design: dict | None = None
         self.exports: dict[str, dz.Export] = {}
+        self.lithos: dict[str, dict] = {}      # key -> the lithophane's files and its 3D view
         self.jobs: dict[str, Job] = {}
         self.worker = ThreadPoolExecutor(1, thread_name_prefix="studio-work")
         self.sending = threading.Lock()
@@ -303,17 +304,28 @@ class Studio:
 
     # -- printer
 
-    def send(self, job: Job, key: str, which: str, port: str, baud: int) -> dict:
-        from ..cli_io import annotated_arena, check_printer_arena
-        from ..sender import Sender, read_gcode
-        import click
+    def _export_file(self, key: str, which: str) -> Path:
         ex = self.exports.get(key)
         if ex is None:
             raise dz.DesignError(f"export {key!r} is not there: export first")
         suffix = {"bulge": ".bulge.gcode", "stock": ".stock.gcode"}.get(which)
         if suffix is None:
             raise dz.DesignError(f"which: 'bulge' or 'stock', got {which!r}")
-        path = next((p for p in ex.files if p.name.endswith(suffix)), None)
+        return next(p for p in ex.files if p.name.endswith(suffix))
+
+    def _litho_file(self, key: str, which: str) -> Path:
+        made = self.lithos.get(key)
+        if made is None:
+            raise dz.DesignError(f"lithophane {key!r} is not there: make it first")
+        if which not in ("litho", "stock"):
+            raise dz.DesignError(f"which: 'litho' or 'stock', got {which!r}")
+        return made["paths"]["gcode" if which == "litho" else "stock"]
+
+    def send(self, job: Job, key: str, which: str, port: str, baud: int, litho: bool = False) -> dict:
+        from ..cli_io import annotated_arena, check_printer_arena
+        from ..sender import Sender, read_gcode
+        import click
+        path = self._litho_file(key, which) if litho else self._export_file(key, which)
         lines = read_gcode(path)
         if not self.sending.acquire(blocking=False):
             raise dz.DesignError("a file is being sent already")
@@ -335,7 +347,6 @@ class Studio:
 
     def litho(self, job: Job, asset: str, opts: dict, name: str | None) -> dict:
         from .. import litho as lt
-        from ..cli_litho import summary
         a = self.assets.get(asset)
         if a is None or Path(a.name).suffix.lower() not in dz.IMAGE_EXT:
             raise dz.DesignError("choose a picture for the lithophane first")
@@ -365,17 +376,165 @@ class Studio:
         except BaseException:
             shutil.rmtree(folder, ignore_errors=True)
             raise
+        job.label, job.done, job.total = "preparing the 3D view", 0, 0
+        self.lithos[key] = {"paths": res.paths, "view": litho_view(res.plan)}
         files = [{"name": p.name, "bytes": p.stat().st_size, "url": f"/files/litho/{key}/{p.name}"}
                  for p in sorted(folder.iterdir())]
-        return {"key": key, "folder": str(folder), "files": files, "summary": summary(res.stats),
-                "look": f"/files/litho/{key}/{res.paths['png'].name}"}
+        return {"key": key, "files": files, "figures": litho_figures(res.stats),
+                "look": f"/files/litho/{key}/{res.paths['png'].name}", "view": f"/api/litho/{key}/view"}
+
+
+def litho_choices() -> dict:
+    """What the lithophane form offers, from the toolkit itself: the shapes, the curves and the
+    defaults of every option (so the page follows a toolkit that adds a curve or changes one)."""
+    import dataclasses
+    from .. import litho as lt
+    # None (chosen by the toolkit, e.g. the height from the picture) leaves the field empty, and
+    # an empty field is not sent
+    defaults = {f.name: f.default for f in dataclasses.fields(lt.LithoOptions)
+                if f.default is None or isinstance(f.default, (int, float, str, bool))}
+    return {"shapes": list(lt.SHAPES), "curves": list(lt.CURVES), "defaults": defaults}
+
+
+def _b64(a) -> str:
+    import numpy as np
+    return base64.b64encode(np.ascontiguousarray(a).tobytes()).decode()
+
+
+def _predicted_look(plan):
+    """The predicted backlit look on the layer x sample grid, bottom row first, as the display
+    values 0..1 the look PNG shows (the page shows them as sRGB). The one place that follows
+    litho.look() if what it returns changes."""
+    from .. import litho as lt
+    return lt.look(plan)[1]
+
+
+VIEW_CELLS = 256        # the 3D view's mesh: at most this many rows and columns (the look is a texture)
+VIEW_TEXELS = 1024      # the look's texture: at most this many texels a side
+
+
+def litho_view(plan) -> dict:
+    """What the page's 3D view draws: the relief as a height field (the printed thickness, in um,
+    on a grid of at most VIEW_CELLS a side; a 240 x 220 px picture at the defaults has 460 x 251
+    samples, of which the view keeps 230 x 251) and the predicted look as a texture on it (uint8,
+    up to VIEW_TEXELS a side, so the picture stays sharp where the mesh is coarse). `s` is along
+    the part (mm on a plate, radians round a cylinder), `z` up from the bed, mm."""
+    import numpy as np
+    from .. import litho as lt
+    o, fld = plan.options, plan.field
+    t = np.asarray(lt.printed_thickness(plan), dtype=float)        # (rows, samples), bottom first
+    pred = np.clip(np.nan_to_num(np.asarray(_predicted_look(plan), dtype=float)), 0.0, 1.0)
+    rows, cols = t.shape
+
+    def picks(n, most):
+        k = int(np.ceil(n / most))
+        i = np.arange(0, n, k)
+        return i if i[-1] == n - 1 else np.append(i, n - 1)    # keep the last row / column
+    ri, ci = picks(rows, VIEW_CELLS), picks(cols, VIEW_CELLS)
+    ti, tj = picks(rows, VIEW_TEXELS), picks(cols, VIEW_TEXELS)
+    H = o.layer_height
+    z0 = fld.n_foot * H
+    out = {"shape": o.shape, "rows": len(ri), "cols": len(ci),
+           "s": [round(float(v), 5) for v in fld.s[ci]],
+           "z": [round(z0 + (float(i) + 0.5) * H, 4) for i in ri],
+           "z_range": [z0, round(z0 + rows * H, 4)],
+           # where each row and column falls on the look's texture (texel centres, 0..1)
+           "u": [round((float(j) + 0.5) / cols, 6) for j in ci],
+           "v": [round((float(i) + 0.5) / rows, 6) for i in ri],
+           "thickness_um": _b64(np.round(t[np.ix_(ri, ci)] * 1000).astype("<u2")),
+           "max_thickness": o.max_thickness,
+           "look": {"width": len(tj), "height": len(ti),
+                    "data": _b64(np.round(pred[np.ix_(ti, tj)] * 255).astype(np.uint8))},
+           "foot": None}
+    if o.shape == "cylinder":
+        out["r_in"] = o.diameter / 2 - o.max_thickness
+    elif fld.n_foot:
+        out["foot"] = {"depth": o.foot, "height": z0}
+    return out
+
+
+def _duration(s: float) -> str:
+    if s < 60:
+        return f"{s:.0f} s"
+    m = round(s / 60)
+    return f"{m} min" if m < 60 else f"{m // 60} h {m % 60:02d} min"
+
+
+def litho_figures(st: dict) -> list:
+    """The lithophane's figures in the page's words: [label, value] pairs. Keys that a toolkit
+    version does not write are left out."""
+    out = []
+    est = st.get("estimate") or {}
+    if est.get("estimated_time_s_gcode") is not None:
+        out.append(["Print time", _duration(est["estimated_time_s_gcode"]) + " (bulgekit firmware)"])
+    if est.get("estimated_time_s_stock") is not None:
+        out.append(["Print time, stock firmware", _duration(est["estimated_time_s_stock"])])
+    machine = est.get("machine") or st.get("machine")
+    if isinstance(machine, dict) and machine:         # what the times assume, when the toolkit says
+        out.append(["Times assume", ", ".join(f"{k.replace('_', ' ')} {v}" for k, v in machine.items())])
+    size = st.get("size_mm") or {}
+    if size:
+        out.append(["Picture", f"{round(size['picture_width'], 1):g} × {round(size['picture_height'], 1):g} mm"
+                               + (" around" if st.get("shape") == "cylinder" else "")])
+    if "layers" in st:
+        out.append(["Layers", f"{st['layers']:,}"
+                              + (f", {size['height']:g} mm tall" if "height" in size else "")])
+    if "filament_mm" in st:
+        vol = f", {st['deposited_mm3'] / 1000:.1f} cm³" if "deposited_mm3" in st else ""
+        out.append(["Filament", f"{st['filament_mm'] / 1000:.2f} m{vol}"])
+    if "fill_ratio" in st:
+        out.append(["Filled", f"{100 * st['fill_ratio']:.1f} % of the part's volume"])
+    rates = st.get("rates") or {}
+    if "mid_line_mm3_s" in rates:
+        out.append(["Mid-line flow", f"{rates['mid_line_mm3_s']:g} mm³/s"])
+    ml, opts = st.get("mid_line") or {}, st.get("options") or {}
+    if "max_speed" in opts:
+        held = (f", held for {100 * ml['capped_time_share']:.1f} % of the mid-line's time"
+                if "capped_time_share" in ml else "")
+        out.append(["Fastest head speed", f"{opts['max_speed']:g} mm/s{held}"])
+    gaps = st.get("gaps") or {}
+    if "snapped_share" in gaps:
+        out.append(["Gaps too narrow for a line", f"{100 * gaps['snapped_share']:.2f} % of the samples"])
+    if "extruding_moves" in st:
+        out.append(["Moves", f"{st['extruding_moves']:,}"])
+    out += _look_figures(st.get("look") or {})
+    return out
+
+
+# the look block's figures as the page words them; numbers without a word here are shown under
+# their key (a newer toolkit may add some), words and settings (curve, attenuation) are left out
+_LOOK_WORDS = {"mean_dL": ("Mean lightness error", "{:.1f} ΔL*"),
+               "ssim_L": ("Likeness (SSIM on lightness)", "{:.3f}"),
+               "ssim": ("Likeness (SSIM)", "{:.3f}"),
+               "correlation": ("Correlation with the picture", "{:.3f}")}
+_LOOK_SKIP = {"attenuation_per_mm", "curve"}
+
+
+def _look_figures(lk: dict) -> list:
+    out = []
+    if "ssim_L" in lk and "ssim" in lk:
+        lk = {k: v for k, v in lk.items() if k != "ssim"}     # the one on lightness says it
+    for k, v in lk.items():
+        if k in _LOOK_SKIP:
+            continue
+        if k in _LOOK_WORDS:
+            label, fmt = _LOOK_WORDS[k]
+            if isinstance(v, (int, float)):
+                out.append([label, fmt.format(v)])
+        elif isinstance(v, (list, tuple)) and len(v) == 2 and all(isinstance(x, (int, float)) for x in v):
+            word = "Lightness range the plate shows" if "L" in k else k.replace("_", " ")
+            out.append([word, f"{v[0]:.0f}–{v[1]:.0f}" + (" L*" if "L" in k else "")])
+        elif isinstance(v, (int, float)) and not isinstance(v, bool):
+            out.append([k.replace("_", " "), f"{v:.4g}"])
+    return out
 
 
 _LITHO_FIELDS = {"--max": "Thickest (black)", "--min": "Thinnest (white)", "--foot": "Foot depth",
-                 "--line-width": "Line width", "--max-speed": "Max speed", "--width": "Width",
+                 "--line-width": "Line width", "--max-speed": "Fastest head speed", "--width": "Width",
                  "--diameter": "Diameter", "--height": "Height", "--frame": "Frame",
                  "--layer-height": "Layer height", "--infill-flow": "Mid-line flow", "--gamma": "Gamma",
-                 "--attenuation": "Attenuation", "--temp": "Nozzle", "--bed-temp": "Bed"}
+                 "--attenuation": "Attenuation", "--temp": "Nozzle", "--bed-temp": "Bed",
+                 "--curve": "Curve", "--shape": "Shape", "--invert": "Invert"}
 
 
 def _message(e: BaseException) -> str:
@@ -434,7 +593,7 @@ def make_app(st: Studio, port_ref: dict) -> web.Application:
             "limits": {"gcode_mb": st.limits.gcode_bytes / MB, "asset_mb": st.limits.asset_bytes / MB,
                        "image_megapixels": st.limits.image_pixels / 1e6, "arena": st.limits.arena},
             "jobs": [j.json() for j in st.jobs.values() if j.state == "running"],
-            "workdir": str(st.workdir)})
+            "workdir": str(st.workdir), "litho": litho_choices()})
 
     def too_big(name: str, limit: int, what: str, size: int | None = None) -> web.Response:
         hint = "; start it with a larger --max-upload" if what == "G-code" else ""
@@ -548,6 +707,7 @@ def make_app(st: Studio, port_ref: dict) -> web.Application:
 
     async def send(request):
         d = await body(request)
+        litho = "litho" in d                      # a lithophane's file, else the wall tab's export
         port = str(d.get("port") or "").strip()
         if not port:
             return _error(400, "choose the printer's port (e.g. /dev/ttyUSB0)")
@@ -557,8 +717,9 @@ def make_app(st: Studio, port_ref: dict) -> web.Application:
             return _error(400, f"baud: expected a whole number, got {d.get('baud')!r}")
         if st.sending.locked():
             return _error(409, "a file is being sent already")
-        j = st.start("send", st.send, str(d.get("export", "")), str(d.get("which", "bulge")), port, baud,
-                     thread=True)
+        key = str(d.get("litho" if litho else "export", ""))
+        which = str(d.get("which", "litho" if litho else "bulge"))
+        j = st.start("send", st.send, key, which, port, baud, litho, thread=True)
         return web.json_response(j.json())
 
     async def litho(request):
@@ -568,6 +729,12 @@ def make_app(st: Studio, port_ref: dict) -> web.Application:
             return _error(400, "options: expected an object")
         j = st.start("litho", st.litho, str(d.get("asset", "")), dict(opts), d.get("name"))
         return web.json_response(j.json())
+
+    async def litho_view_data(request):
+        made = st.lithos.get(request.match_info["key"])
+        if made is None:
+            return _error(404, "no such lithophane")
+        return web.json_response(made["view"])
 
     async def files(request):
         area, rest = request.match_info["area"], request.match_info["rest"]
@@ -595,6 +762,7 @@ def make_app(st: Studio, port_ref: dict) -> web.Application:
     app.router.add_get("/api/ports", ports)
     app.router.add_post("/api/send", send)
     app.router.add_post("/api/litho", litho)
+    app.router.add_get("/api/litho/{key}/view", litho_view_data)
     app.router.add_get("/files/{area}/{rest:.+}", files)
     return app
 

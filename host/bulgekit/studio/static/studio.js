@@ -816,9 +816,45 @@ async function loadPorts() {
 
 // ---------------------------------------------------------------- lithophane tab
 
-const L = { asset: null };
+const L = { asset: null, key: null, srcUrl: null, choices: null };
+// the curves in the page's words (a curve the toolkit adds without one here shows its name)
+const CURVE_WORDS = { linear: "linear (paper)", transmission: "transmission", perceptual: "perceptual" };
+const SHAPE_WORDS = { planar: "flat plate", cylinder: "cylinder" };
+
+// The form's choices and defaults come from the toolkit (litho.SHAPES, CURVES, LithoOptions).
+function lithoChoices(c) {
+  if (!c) return;
+  L.choices = c;
+  const f = $("litho-form");
+  const fill = (sel, list, words) => {
+    sel.textContent = "";
+    for (const v of list) { const o = document.createElement("option"); o.value = v; o.textContent = words[v] || v; sel.append(o); }
+  };
+  fill(f.shape, c.shapes, SHAPE_WORDS);
+  fill(f.curve, c.curves, CURVE_WORDS);
+  for (const el of f.elements) {
+    if (!el.name || !(el.name in c.defaults)) continue;
+    const v = c.defaults[el.name];
+    if (el.type === "checkbox") el.checked = !!v;
+    else if (v === null) { el.value = ""; if (!el.placeholder) el.placeholder = "automatic"; }
+    else el.value = v;
+  }
+  lithoShape();
+}
+
+// only the chosen shape's fields show (and only they are sent)
+function lithoShape() {
+  const shape = $("litho-form").shape.value;
+  for (const el of $("litho-form").querySelectorAll("[data-shape]")) el.hidden = el.dataset.shape !== shape;
+}
 
 async function lithoPicture(file) {
+  showError("litho-error", null);
+  // the picture shows at once, while it uploads (the browser reads it; nothing leaves the page)
+  if (L.srcUrl) URL.revokeObjectURL(L.srcUrl);
+  L.srcUrl = URL.createObjectURL(file);
+  $("litho-src").src = L.srcUrl;
+  $("litho-src-box").hidden = false;
   const info = await addFile(file, "litho-error");
   if (!info) return;
   if (info.kind !== "image") { showError("litho-error", `${file.name}: a lithophane needs a picture`); return; }
@@ -830,7 +866,7 @@ async function lithoPicture(file) {
 function lithoOptions() {
   const f = $("litho-form"), o = {};
   for (const el of f.elements) {
-    if (!el.name) continue;
+    if (!el.name || el.closest("label").hidden) continue;
     if (el.type === "checkbox") o[el.name] = el.checked;
     else if (el.tagName === "SELECT") o[el.name] = el.value;
     else if (el.value !== "") o[el.name] = ["temp", "bed_temp"].includes(el.name) ? Math.round(+el.value) : +el.value;
@@ -838,10 +874,32 @@ function lithoOptions() {
   return o;
 }
 
+function lithoResult(res) {
+  const out = $("litho-result");
+  out.textContent = "";
+  const tab = document.createElement("table"); tab.id = "litho-figures";
+  for (const [k, v] of res.figures) {
+    const tr = tab.insertRow(), th = document.createElement("th"), td = document.createElement("td");
+    th.textContent = k; td.textContent = v; tr.append(th, td);
+  }
+  const files = document.createElement("div"); files.className = "files";
+  const h = document.createElement("h2"); h.textContent = "Files";
+  files.append(h);
+  for (const f of res.files) {
+    const a = document.createElement("a"); a.href = fileUrl(f.url);
+    a.textContent = `${f.name} (${(f.bytes / 1024).toFixed(1)} KB)`; files.append(a);
+  }
+  const look = document.createElement("figure"); look.style.margin = "0";
+  const cap = document.createElement("figcaption"); cap.textContent = "The picture and its predicted look, flat";
+  const img = document.createElement("img"); img.src = fileUrl(res.look); img.id = "litho-look"; img.alt = "predicted look";
+  look.append(cap, img);
+  out.append(tab, files, look);
+}
+
 async function makeLitho() {
   showError("litho-error", null);
   $("litho-make").disabled = true;
-  const bar = $("litho-bar"), out = $("litho-out");
+  const bar = $("litho-bar");
   bar.hidden = false;
   try {
     const job = await postJSON("/api/litho", { asset: L.asset, options: lithoOptions() });
@@ -849,14 +907,10 @@ async function makeLitho() {
       bar.value = j.total ? j.done / j.total : 0;
       status(`lithophane: ${j.label || "…"}${j.total ? ` ${j.done}/${j.total}` : ""}`, j.total ? j.done / j.total : 0);
     });
-    out.textContent = "";
-    const h = document.createElement("h2"); h.textContent = "Predicted backlit look (left: the picture)";
-    const img = document.createElement("img"); img.src = fileUrl(res.look); img.id = "litho-look"; img.alt = "predicted look";
-    const pre = document.createElement("pre"); pre.textContent = res.summary;
-    const files = document.createElement("div"); files.className = "files";
-    for (const f of res.files) { const a = document.createElement("a"); a.href = fileUrl(f.url); a.textContent = `${f.name} (${(f.bytes / 1024).toFixed(1)} KB)`; files.append(a); }
-    const where = document.createElement("div"); where.className = "info"; where.textContent = `saved in ${res.folder}`;
-    out.append(h, img, pre, files, where);
+    L.key = res.key;
+    lithoResult(res);
+    litho3d.show(await api(res.view));
+    $("litho-send").disabled = false;
     status(`lithophane ${res.key} made`);
   } catch (e) {
     showError("litho-error", e);
@@ -866,6 +920,200 @@ async function makeLitho() {
     $("litho-make").disabled = !L.asset;
   }
 }
+
+// The same sender as the wall tab's: line numbers, checksums, resends, the printer's messages.
+async function sendLitho() {
+  showError("litho-send-error", null);
+  const bar = $("litho-send-bar"), log = $("litho-send-log");
+  log.textContent = "";
+  $("litho-send").disabled = true;
+  try {
+    const job = await postJSON("/api/send", { litho: L.key, which: $("litho-which").value,
+      port: $("litho-port").value, baud: +$("litho-baud").value });
+    bar.hidden = false;
+    const res = await pollJob(job, (j) => {
+      bar.value = j.total ? j.done / j.total : 0;
+      log.textContent = j.log.join("\n");
+      status(`${j.label || "connecting"}${j.total ? `: ${j.done} of ${j.total} lines` : "…"}`, j.total ? j.done / j.total : 0);
+    });
+    log.textContent += `\n${res.file}: ${res.summary}`;
+    status(`sent ${res.file}`);
+  } catch (e) {
+    showError("litho-send-error", e);
+    status("sending stopped");
+  } finally {
+    $("litho-send").disabled = !L.key;
+  }
+}
+
+const b64bytes = (s) => Uint8Array.from(atob(s), (c) => c.charCodeAt(0));
+
+// The part in 3D: the relief as the server sampled it (server.litho_view), the predicted look
+// as a texture on both faces. "Backlit" shows the look glowing, with a little light on the
+// relief so its shape reads; "Daylight" shows the bare plastic.
+const litho3d = (() => {
+  let renderer = null, scene, camera, controls, part = null, tex = null, light = "back", shape = null;
+  const host = $("litho-3d");
+  const mats = {};
+
+  function init() {
+    if (renderer) return true;
+    try {
+      renderer = new THREE.WebGLRenderer({ antialias: true, preserveDrawingBuffer: true });
+    } catch (e) {
+      host.textContent = `No 3D view: this browser gave no WebGL (${e.message}).`;
+      return false;
+    }
+    renderer.setPixelRatio(window.devicePixelRatio || 1);
+    host.textContent = "";
+    host.append(renderer.domElement);
+    scene = new THREE.Scene();
+    camera = new THREE.PerspectiveCamera(35, 1, 0.5, 5000);
+    camera.up.set(0, 0, 1);
+    controls = new OrbitControls(camera, renderer.domElement);
+    controls.addEventListener("change", render);
+    scene.add(new THREE.AmbientLight(0xffffff, 0.45));
+    // the light turns with the camera, from its upper left: the relief shades whichever side
+    // is seen
+    const sun = new THREE.DirectionalLight(0xffffff, 1.6), aim = new THREE.Object3D();
+    sun.position.set(-6, 7, 2);
+    aim.position.set(0, 0, -10);
+    camera.add(sun, aim);
+    sun.target = aim;
+    scene.add(camera);
+    new ResizeObserver(size).observe(host);
+    return true;
+  }
+
+  function size() {
+    const r = host.getBoundingClientRect();
+    const w = Math.max(10, r.width), h = Math.max(10, r.height);
+    renderer.setSize(w, h);
+    camera.aspect = w / h;
+    camera.updateProjectionMatrix();
+    render();
+  }
+  const render = () => renderer && renderer.render(scene, camera);
+
+  function materials() {
+    const back = light === "back";
+    scene.background = new THREE.Color(back ? 0x20262b : 0xeef1f3);
+    const face = back
+      ? new THREE.MeshStandardMaterial({ map: tex, emissive: 0xffffff, emissiveMap: tex, emissiveIntensity: 0.8,
+        color: 0x555555, roughness: 1, side: THREE.DoubleSide })
+      : new THREE.MeshStandardMaterial({ color: 0xf3efe6, roughness: 0.75, side: THREE.DoubleSide });
+    const rest = new THREE.MeshStandardMaterial({ color: back ? 0x6d6a64 : 0xe6e1d6, roughness: 0.8, side: THREE.DoubleSide });
+    for (const m of Object.values(mats)) m.dispose();
+    Object.assign(mats, { face, rest });
+    if (part) for (const m of part.children) m.material = m.userData.face ? face : rest;
+    render();
+  }
+
+  // vertices of one grid (rows x cols): thickness th(i, j) over the back face, mm
+  function surface(v, th) {
+    const R = v.rows, C = v.cols, ring = v.shape === "cylinder", n = ring ? C + 1 : C;
+    const pos = new Float32Array(R * n * 3), uv = new Float32Array(R * n * 2);
+    const mid = ring ? 0 : (v.s[0] + v.s[C - 1]) / 2;
+    for (let i = 0; i < R; i++) {
+      const z = i === 0 ? v.z_range[0] : i === R - 1 ? v.z_range[1] : v.z[i];
+      for (let k = 0; k < n; k++) {
+        const j = k % C, t = th(i, j), p = (i * n + k) * 3, q = (i * n + k) * 2;
+        if (ring) {
+          const a = k === C ? v.s[0] + 2 * Math.PI : v.s[j], r = v.r_in + t;
+          pos[p] = r * Math.cos(a); pos[p + 1] = r * Math.sin(a);
+        } else { pos[p] = v.s[j] - mid; pos[p + 1] = t; }
+        pos[p + 2] = z;
+        uv[q] = k === C ? 1 + v.u[0] : v.u[j]; uv[q + 1] = v.v[i];
+      }
+    }
+    return { pos, uv, R, n };
+  }
+
+  function grid(R, n) {
+    const idx = [];
+    for (let i = 0; i < R - 1; i++) for (let k = 0; k < n - 1; k++) {
+      const a = i * n + k, b = a + 1, c = a + n + 1, d = a + n;
+      idx.push(a, b, c, a, c, d);
+    }
+    return idx;
+  }
+
+  function mesh(pos, idx, uv, face) {
+    const g = new THREE.BufferGeometry();
+    g.setAttribute("position", new THREE.BufferAttribute(pos, 3));
+    if (uv) g.setAttribute("uv", new THREE.BufferAttribute(uv, 2));
+    g.setIndex(idx);
+    g.computeVertexNormals();
+    const m = new THREE.Mesh(g, face ? mats.face : mats.rest);
+    m.userData.face = face;
+    return m;
+  }
+
+  // a band of quads between two rows of points (caps and ends)
+  function band(A, B) {
+    const n = A.length / 3, pos = new Float32Array([...A, ...B]), idx = [];
+    for (let k = 0; k < n - 1; k++) idx.push(k, k + 1, n + k + 1, k, n + k + 1, n + k);
+    return mesh(pos, idx, null, false);
+  }
+
+  function show(v) {
+    if (!init()) return;
+    if (part) { scene.remove(part); part.traverse((o) => o.geometry && o.geometry.dispose()); }
+    if (tex) tex.dispose();
+    shape = v.shape;
+    const lk = v.look, g = b64bytes(lk.data), rgba = new Uint8Array(g.length * 4);
+    for (let i = 0; i < g.length; i++) { rgba[4 * i] = rgba[4 * i + 1] = rgba[4 * i + 2] = g[i]; rgba[4 * i + 3] = 255; }
+    tex = new THREE.DataTexture(rgba, lk.width, lk.height, THREE.RGBAFormat);
+    tex.colorSpace = THREE.SRGBColorSpace;
+    tex.magFilter = tex.minFilter = THREE.LinearFilter;
+    tex.wrapS = v.shape === "cylinder" ? THREE.RepeatWrapping : THREE.ClampToEdgeWrapping;
+    tex.needsUpdate = true;
+    materials();
+    const t = new Uint16Array(b64bytes(v.thickness_um).buffer), C = v.cols;
+    const front = surface(v, (i, j) => t[i * C + j] / 1000), back = surface(v, () => 0);
+    const idx = grid(front.R, front.n);
+    part = new THREE.Group();
+    part.add(mesh(front.pos, idx, front.uv, true), mesh(back.pos, idx, back.uv, true));
+    const row = (s, i) => s.pos.slice(i * s.n * 3, (i + 1) * s.n * 3);
+    const col = (s, k) => { const o = []; for (let i = 0; i < s.R; i++) o.push(...s.pos.slice((i * s.n + k) * 3, (i * s.n + k) * 3 + 3)); return o; };
+    part.add(band(row(front, 0), row(back, 0)), band(row(front, front.R - 1), row(back, back.R - 1)));
+    if (v.shape !== "cylinder") part.add(band(col(front, 0), col(back, 0)), band(col(front, front.n - 1), col(back, back.n - 1)));
+    if (v.foot) {             // the foot block under the plate, across its width, centred on it
+      const w = v.s[C - 1] - v.s[0];
+      const box = new THREE.Mesh(new THREE.BoxGeometry(w, v.foot.depth, v.foot.height), mats.rest);
+      box.position.set(0, v.max_thickness / 2, v.foot.height / 2);
+      part.add(box);
+    }
+    scene.add(part);
+    // the camera in front of the picture (the picture reads from -Y: the plate's flat back,
+    // the cylinder's outside), a little to the side and above
+    const bb = new THREE.Box3().setFromObject(part), c = bb.getCenter(new THREE.Vector3()), sz = bb.getSize(new THREE.Vector3());
+    const R = Math.max(sz.x, sz.z, 1), d = 0.75 * R / Math.tan((camera.fov * Math.PI) / 360);
+    controls.target.copy(c);
+    camera.position.set(c.x - 0.25 * d, c.y + (light === "day" && shape !== "cylinder" ? d : -d), c.z + 0.2 * d);
+    camera.near = d / 100; camera.far = d * 20;
+    camera.updateProjectionMatrix();
+    controls.update();
+    size();
+  }
+
+  // a plate's relief is on its other side: daylight turns the camera round to it
+  function turn(to) {
+    if (!part || shape === "cylinder" || to === light) return;
+    const t = controls.target;
+    camera.position.set(2 * t.x - camera.position.x, 2 * t.y - camera.position.y, camera.position.z);
+    controls.update();
+  }
+  for (const b of document.querySelectorAll("#litho-light button")) b.onclick = () => {
+    turn(b.dataset.light);
+    light = b.dataset.light;
+    for (const x of document.querySelectorAll("#litho-light button")) x.classList.toggle("on", x === b);
+    $("litho-3d-what").textContent = light === "back" ? "The part with its predicted look, backlit"
+      : "The part in daylight: its relief";
+    if (renderer) materials();
+  };
+  return { show, render: () => render() };
+})();
 
 // ---------------------------------------------------------------- wiring
 
@@ -928,6 +1176,10 @@ async function init() {
   $("litho-file").onchange = (e) => e.target.files[0] && lithoPicture(e.target.files[0]);
   dropTarget(document.querySelector('#page-litho .drop'), lithoPicture);
   $("litho-make").onclick = makeLitho;
+  $("litho-form").shape.addEventListener("change", lithoShape);
+  lithoChoices(st.litho);
+  $("litho-send").onclick = sendLitho;
+  $("litho-port").addEventListener("focus", loadPorts, { once: true });
   window.addEventListener("dragover", (e) => e.preventDefault());
   window.addEventListener("drop", (e) => e.preventDefault());
   for (const j of st.jobs) if (j.kind === "open") {     // a G-code given on the command line
@@ -956,4 +1208,4 @@ init().catch((e) => status(`the studio did not start: ${e.message}`));
 // For the browser tests and the curious: idle() is true once the page's design has been
 // previewed and checked against the G-code, with no edit waiting.
 const idle = () => !inFlight && !pending && checkedFor === JSON.stringify(design());
-window.studio = { S, design, view2d, idle };
+window.studio = { S, design, view2d, idle, lithoKey: () => L.key };
