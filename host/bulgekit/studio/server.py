@@ -402,11 +402,10 @@ def _b64(a) -> str:
 
 
 def _predicted_look(plan):
-    """The predicted backlit look on the layer x sample grid, bottom row first, as the display
-    values 0..1 the look PNG shows (the page shows them as sRGB). The one place that follows
-    litho.look() if what it returns changes."""
-    from .. import litho as lt
-    return lt.look(plan)[1]
+    """The predicted backlit look on the layer x sample grid, bottom row first, as the sRGB values
+    0..1 of the look PNG's unstretched panel (litho.look() gives L*)."""
+    from .. import litho as lt, litho_tone as tone
+    return tone.to_srgb(tone.luminance(lt.look(plan)[1]))
 
 
 VIEW_CELLS = 256        # the 3D view's mesh: at most this many rows and columns (the look is a texture)
