@@ -110,6 +110,8 @@ def sample_strokes(strokes: Sequence[Stroke], model: WallModel, spacing: float
             raise BuildError(f"{name}: weight {st.weight} outside 0..255")
         vmin, vmax = float(arr[:, 1].min()), float(arr[:, 1].max())
         if vmin < lo - 1e-9 or vmax > hi + 1e-9:
+            if getattr(st, "picture", None) is not None:
+                raise BuildError(st.picture.too_tall(lo, hi))
             raise BuildError(
                 f"{name}: stroke spans v {vmin:.2f}..{vmax:.2f} mm, outside the outer wall's "
                 f"height {lo:.2f}..{hi:.2f} mm")

@@ -666,6 +666,48 @@ def save_json(strokes: Sequence[Stroke], path: str) -> None:
 # Images
 
 
+@dataclass(frozen=True)
+class Picture:
+    """Where a picture's dots came from, so an error about them is said in the picture's terms
+    (its size at the width asked for) rather than a single cell's."""
+    path: str
+    width_mm: float
+    pitch_mm: float
+    size_px: tuple[int, int]
+    u0: float
+    v0: float
+
+    def rows_at(self, width_mm: float) -> int:
+        cols = max(1, round(width_mm / self.pitch_mm))
+        return max(1, round(cols * self.size_px[1] / self.size_px[0]))
+
+    @property
+    def height_mm(self) -> float:
+        return self.rows_at(self.width_mm) * self.pitch_mm
+
+    def too_tall(self, lo: float, hi: float) -> str:
+        """The message for dots outside the wall's height lo..hi (mm)."""
+        h, top, wall = self.height_mm, self.v0 + self.height_mm, hi - lo
+        if h > wall + 1e-9:
+            cols = max(1, round(self.width_mm / self.pitch_mm))
+            while cols > 1 and self.rows_at(cols * self.pitch_mm) * self.pitch_mm > wall + 1e-9:
+                cols -= 1
+            fit = (f"use a smaller width, {cols * self.pitch_mm:g} mm or less"
+                   if self.rows_at(cols * self.pitch_mm) * self.pitch_mm <= wall + 1e-9 else
+                   "use a smaller pitch")
+            return (f"{self.path}: the picture is {h:g} mm tall at a width on the wall "
+                    f"(--image-width) of {self.width_mm:g} mm, but the wall is only {wall:g} mm tall; {fit}")
+        return (f"{self.path}: the picture reaches from {self.v0:g} to {top:g} mm above the bed, "
+                f"but the wall goes from {lo:g} to {hi:g} mm; move it {'down' if top > hi else 'up'} "
+                f"(its lower-left corner, --at U,V)")
+
+
+@dataclass(frozen=True)
+class PictureDot(Stroke):
+    """One dot of a picture (image_dots), knowing its picture."""
+    picture: Picture | None = None
+
+
 def read_gray(path):
     """A picture as an 8-bit grayscale PIL image (any format Pillow reads);
     transparent pixels count as white. Errors name the file."""
@@ -715,6 +757,7 @@ def image_dots(path: str, width_mm: float, u0: float = 0.0, v0: float = 0.0, pit
     # BOX resampling averages all pixels of a cell.
     cells = gray.resize((cols, rows), Image.Resampling.BOX)
     px = cells.load()
+    pic = Picture(path, width_mm, pitch_mm, (w_px, h_px), u0, v0)
     dots = []
     for r in range(rows):
         v = v0 + (rows - 1 - r) * pitch_mm + pitch_mm / 2
@@ -726,7 +769,8 @@ def image_dots(path: str, width_mm: float, u0: float = 0.0, v0: float = 0.0, pit
                 continue
             cc = (cols - 1 - c) if mirror else c
             u = u0 + cc * pitch_mm + pitch_mm / 2
-            dots.append(Stroke(((u, v),), max(min_weight, round(dark * 255)), f"{path}: pixel cell row {r} col {c}"))
+            dots.append(PictureDot(((u, v),), max(min_weight, round(dark * 255)),
+                                   f"{path}: pixel cell row {r} col {c}", pic))
     return dots
 
 
