@@ -792,6 +792,12 @@ class Picture:
     def height_mm(self) -> float:
         return self.rows_at(self.width_mm) * self.pitch_mm
 
+    def holds(self, u: float, v: float) -> bool:
+        """Whether (u, v) lies on the picture as image_dots laid it (not turned since)."""
+        cols = max(1, round(self.width_mm / self.pitch_mm))
+        return (self.u0 - 1e-6 <= u <= self.u0 + cols * self.pitch_mm + 1e-6
+                and self.v0 - 1e-6 <= v <= self.v0 + self.height_mm + 1e-6)
+
     def too_tall(self, lo: float, hi: float) -> str:
         """The message for dots outside the wall's height lo..hi (mm)."""
         h, top, wall = self.height_mm, self.v0 + self.height_mm, hi - lo
@@ -802,8 +808,8 @@ class Picture:
             fit = (f"use a smaller width, {cols * self.pitch_mm:g} mm or less"
                    if self.rows_at(cols * self.pitch_mm) * self.pitch_mm <= wall + 1e-9 else
                    "use a smaller pitch")
-            return (f"{self.path}: the picture is {h:g} mm tall at a width on the wall "
-                    f"(--image-width) of {self.width_mm:g} mm, but the wall is only {wall:g} mm tall; {fit}")
+            return (f"{self.path}: the picture is {h:g} mm tall at --image-width {self.width_mm:g} mm, "
+                    f"but the wall is only {wall:g} mm tall; {fit}")
         return (f"{self.path}: the picture reaches from {self.v0:g} to {top:g} mm above the bed, "
                 f"but the wall goes from {lo:g} to {hi:g} mm; move it {'down' if top > hi else 'up'} "
                 f"(its lower-left corner, --at U,V)")

@@ -192,3 +192,21 @@ def test_a_reload_asks_when_the_design_was_made_on_another_gcode(browser, studio
     assert len(asked) == 1 and "Keep the design made on cylinder40x20.gcode (1 item)" in asked[0]
     assert pg.evaluate("() => window.studio.S.items.length") == 0
     assert not errors, errors
+
+
+def test_a_picture_too_tall_is_said_in_the_pages_words(studio, tmp_path):
+    import numpy as np
+    from PIL import Image
+    open_gcode(studio)
+    img = tmp_path / "sq.png"
+    Image.fromarray(np.zeros((100, 100), np.uint8)).save(img)
+    status, pic = call(studio, "/api/asset?name=sq.png", img.read_bytes())
+    assert status == 200, pic
+    for width, said in ((30, "sq.png: the picture is 30 mm tall at a width on the wall of 30 mm, but the "
+                             "wall is only 20.1 mm tall; use a smaller width, 19.5 mm or less"),
+                        (10, "sq.png: the picture reaches from 15 to 25.5 mm above the bed, but the wall "
+                             "goes from 0 to 20.1 mm; move it down (its lower-left corner, u, v)")):
+        d = {"items": [{"id": "p", "kind": "file", "asset": pic["name"], "at": [5, 15 if width == 10 else 0],
+                        "image_width": width, "rotate": 0}], "bulges": {}}
+        status, p = call(studio, "/api/preview", {"design": d})
+        assert status == 200 and p["items"]["p"]["errors"] == [said]

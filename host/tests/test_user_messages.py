@@ -51,7 +51,7 @@ def test_a_picture_taller_than_the_wall_is_said_in_its_own_size(tmp_path):
     r = run("build", CYL, "-s", p, "--image-width", 30, "-o", tmp_path / "o", "--no-preview")
     assert r.exit_code == 1
     assert r.output.strip() == (
-        f"Error: {p}: the picture is 30 mm tall at a width on the wall (--image-width) of 30 mm, "
+        f"Error: {p}: the picture is 30 mm tall at --image-width 30 mm, "
         "but the wall is only 20.1 mm tall; use a smaller width, 19.5 mm or less")
     assert "pixel cell" not in r.output and not (tmp_path / "o").exists()
     # the width it suggests fits
@@ -68,3 +68,15 @@ def test_a_picture_that_fits_but_sits_off_the_wall_is_told_to_move(tmp_path, at,
     r = run("build", CYL, "-s", p, "--image-width", 10, "--at", at, "-o", tmp_path / "o", "--no-preview")
     assert r.exit_code == 1
     assert f"{p}: the picture {said} (its lower-left corner, --at U,V)" in r.output
+
+
+def test_a_turned_picture_is_not_described_by_its_unturned_size(tmp_path):
+    from bulgekit import api
+    from bulgekit.mapbuild import BuildError
+    from bulgekit.placement import _rotated
+    from bulgekit.strokes import image_dots
+    p = square(tmp_path)
+    dots = _rotated(image_dots(str(p), 15, u0=20, v0=2), 45, (20, 2))   # turned: taller than 15 mm
+    with pytest.raises(BuildError) as e:
+        api.build_map(api.walls(CYL), dots)
+    assert "stroke spans v" in str(e.value) and "the picture is" not in str(e.value)
