@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Prepares the offline PlatformIO rig. Idempotent and quick when already done:
-#  1. checks the system tools (avr-gcc, avr-libc, libsimavr, arm-none-eabi-gcc, newlib,
+#  1. checks the system tools (avr-gcc, avr-libc, libsimavr, arm-none-eabi-gcc, newlib, clang, prusa-slicer,
 #     qemu-system-arm, g++, python packages, chromium and the studio's three.js),
 #  2. installs SCons from PyPI's wheel as PlatformIO's local `tool-scons` package
 #     (the version PlatformIO pins), so PlatformIO never downloads it,
@@ -13,7 +13,7 @@ cd "$BK_ROOT"
 
 missing_now() {  # prints what this checkout's build, tests and demo still need
   local missing=()
-  for tool in gcc g++ avr-gcc avr-g++ avr-size pkg-config arm-none-eabi-gcc qemu-system-arm; do
+  for tool in gcc g++ avr-gcc avr-g++ avr-size pkg-config arm-none-eabi-gcc qemu-system-arm clang prusa-slicer npm; do
     command -v "$tool" >/dev/null || missing+=("$tool")
   done
   [ -f /usr/lib/avr/include/avr/io.h ] || missing+=("avr-libc")
@@ -23,6 +23,8 @@ missing_now() {  # prints what this checkout's build, tests and demo still need
   command -v chromium >/dev/null || missing+=("chromium")
   python3 -c "import numpy, click, svgelements, HersheyFonts, PIL, matplotlib, serial, trimesh, shapely, aiohttp, pytest, playwright" \
     2>/dev/null || missing+=("python: the host package's dependencies")
+  python3 -c "import os, sysconfig; assert os.path.isfile(os.path.join(sysconfig.get_paths()['include'], 'Python.h'))" \
+    2>/dev/null || missing+=("python3-dev")
   command -v bulgekit >/dev/null || missing+=("the bulgekit command")
   python3 host/web/build.py --check >/dev/null 2>&1 || missing+=("studio front-end files")
   echo "${missing[*]}"
