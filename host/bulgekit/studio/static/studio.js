@@ -158,7 +158,7 @@ function addText() {
 // A new item goes where it touches no other: first by a guess at its size, then, once its first
 // preview gives its strokes, by its real box (placeNew). Only a full wall leaves it overlapping,
 // and the status line says so.
-const GAP = 1;                                   // mm kept between items
+const GAP = 3;                 // mm kept between items: about a word space at the 6 mm default
 const touches = (a, b) => a.u0 < b.u1 + GAP && b.u0 < a.u1 + GAP && a.v0 < b.v1 + GAP && b.v0 < a.v1 + GAP;
 
 // The lower-left corner of the first free w x h mm on the wall: along the row at v, then the
