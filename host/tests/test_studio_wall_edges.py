@@ -210,3 +210,11 @@ def test_a_picture_too_tall_is_said_in_the_pages_words(studio, tmp_path):
                         "image_width": width, "rotate": 0}], "bulges": {}}
         status, p = call(studio, "/api/preview", {"design": d})
         assert status == 200 and p["items"]["p"]["errors"] == [said]
+
+
+def test_an_empty_gcode_is_called_empty(studio):
+    open_gcode(studio)
+    status, job = call(studio, "/api/gcode?name=blank.gcode", b"")
+    job = wait_job(studio, job)
+    assert job["state"] == "error" and job["error"] == "blank.gcode: the G-code file is empty"
+    assert call(studio, "/api/state")[1]["gcode"]["name"] == "cylinder40x20.gcode"   # still open
