@@ -1,14 +1,15 @@
 # bulgekit — the two commands a user needs:
 #   make demo    run the main job on the sample data shipped in the repo
 #   make test    run every test: C++ core on the host, a simulated ATmega2560 and Cortex-M3/M4F in QEMU, checks, pytest
-# Other targets: make deps (install system + Python packages), make bench, make fuzz, make help
+# Both install what is missing first (tools/install-deps.sh; BK_NO_INSTALL=1 only lists it).
+# Other targets: make deps (install system + Python packages now), make bench, make fuzz, make help
 SHELL := /bin/bash
 ENV := source tools/env.sh &&
 
 .PHONY: help deps bootstrap test test-native test-avr test-arm bench fuzz demo clean
 
 help:
-	@sed -n 's/^#   //p; s/^# Other/Other/p' Makefile
+	@sed -n 's/^#   //p; s/^# Both/Both/p; s/^# Other/Other/p' Makefile
 
 deps:
 	bash tools/install-deps.sh

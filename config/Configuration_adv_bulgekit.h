@@ -1,7 +1,7 @@
 /**
  * bulgekit options for Marlin's Configuration_adv.h
  *
- * tools/marlin_install.py appends this block to Configuration_adv.h between
+ * install-marlin.py appends this block to Configuration_adv.h between
  * "bulgekit:begin config" / "bulgekit:end config" markers (--uninstall takes it
  * out again). It may also be pasted by hand. Every BK_ size, default and limit
  * not set here keeps the value of the core's bulgekit_config.h.

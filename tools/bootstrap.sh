@@ -1,30 +1,53 @@
 #!/usr/bin/env bash
 # Prepares the offline PlatformIO rig. Idempotent and quick when already done:
-#  1. checks the system tools (avr-gcc, avr-libc, libsimavr, arm-none-eabi-gcc, newlib,
+#  1. checks the system tools (avr-gcc, avr-libc, libsimavr, arm-none-eabi-gcc, newlib, clang, prusa-slicer,
 #     qemu-system-arm, g++, python packages, chromium and the studio's three.js),
 #  2. installs SCons from PyPI's wheel as PlatformIO's local `tool-scons` package
 #     (the version PlatformIO pins), so PlatformIO never downloads it,
 #  3. builds the simulator harness bksim and the core runner bkcore into .build/bin.
-# Missing system packages: run tools/install-deps.sh (apt + pip) first.
+# Anything missing is installed first by tools/install-deps.sh (apt + pip + npm), so `make demo`
+# and `make test` work on a fresh machine; BK_NO_INSTALL=1 stops with the list instead.
 set -euo pipefail
 source "$(dirname "${BASH_SOURCE[0]}")/env.sh"
 cd "$BK_ROOT"
 
-missing=()
-for tool in gcc g++ avr-gcc avr-g++ avr-size pkg-config arm-none-eabi-gcc qemu-system-arm; do
-  command -v "$tool" >/dev/null || missing+=("$tool")
-done
-[ -f /usr/lib/avr/include/avr/io.h ] || missing+=("avr-libc")
-[ -f /usr/lib/arm-none-eabi/lib/librdimon.a ] || missing+=("libnewlib-arm-none-eabi")
-pkg-config --exists simavr 2>/dev/null || missing+=("libsimavr-dev")
-python3 -c "import platformio, SCons" 2>/dev/null || missing+=("python: platformio scons")
-command -v chromium >/dev/null || missing+=("chromium")
-python3 -c "import aiohttp, playwright" 2>/dev/null || missing+=("python: aiohttp playwright (pip install -e 'host[test]')")
-python3 host/web/build.py --check >/dev/null || missing+=("studio front-end files (python3 host/web/build.py)")
-if [ ${#missing[@]} -gt 0 ]; then
-  echo "bootstrap: missing: ${missing[*]}" >&2
-  echo "bootstrap: run 'bash tools/install-deps.sh' (apt-get + pip) first" >&2
-  exit 1
+missing_now() {  # prints what this checkout's build, tests and demo still need
+  local missing=()
+  for tool in gcc g++ avr-gcc avr-g++ avr-size pkg-config arm-none-eabi-gcc qemu-system-arm clang prusa-slicer npm; do
+    command -v "$tool" >/dev/null || missing+=("$tool")
+  done
+  [ -f /usr/lib/avr/include/avr/io.h ] || missing+=("avr-libc")
+  [ -f /usr/lib/arm-none-eabi/lib/librdimon.a ] || missing+=("libnewlib-arm-none-eabi")
+  pkg-config --exists simavr 2>/dev/null || missing+=("libsimavr-dev")
+  python3 -c "import platformio, SCons" 2>/dev/null || missing+=("python: platformio scons")
+  command -v chromium >/dev/null || missing+=("chromium")
+  python3 -c "import numpy, click, svgelements, HersheyFonts, PIL, matplotlib, serial, trimesh, shapely, aiohttp, pytest, playwright" \
+    2>/dev/null || missing+=("python: the host package's dependencies")
+  python3 -c "import os, sysconfig; assert os.path.isfile(os.path.join(sysconfig.get_paths()['include'], 'Python.h'))" \
+    2>/dev/null || missing+=("python3-dev")
+  command -v bulgekit >/dev/null || missing+=("the bulgekit command")
+  python3 host/web/build.py --check >/dev/null 2>&1 || missing+=("studio front-end files")
+  echo "${missing[*]}"
+}
+
+missing=$(missing_now)
+if [ -n "$missing" ]; then
+  # `make demo` and `make test` are the two commands a new user runs: install what is missing
+  # here rather than send them to another target first. BK_NO_INSTALL=1 only reports it.
+  echo "bootstrap: missing: $missing" >&2
+  if [ "${BK_NO_INSTALL:-0}" = 1 ]; then
+    echo "bootstrap: BK_NO_INSTALL=1: run 'bash tools/install-deps.sh' (apt-get + pip + npm) yourself" >&2
+    exit 1
+  fi
+  echo "bootstrap: installing them now with tools/install-deps.sh (Debian packages with apt-get," \
+       "through sudo when not root; PyPI; npm). This happens once." >&2
+  bash tools/install-deps.sh
+  hash -r
+  missing=$(missing_now)
+  if [ -n "$missing" ]; then
+    echo "bootstrap: still missing after tools/install-deps.sh: $missing" >&2
+    exit 1
+  fi
 fi
 
 python3 tools/pio_offline.py

@@ -10,10 +10,10 @@
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 out=${1:-out/demo}
-command -v bulgekit >/dev/null || { echo "demo: the bulgekit command is missing: run 'make deps'" >&2; exit 1; }
+command -v bulgekit >/dev/null || { echo "demo: the bulgekit command is missing: run 'make demo', which installs it" >&2; exit 1; }
 
-echo "== 1. host toolkit: bulgekit demo $out"
-bulgekit demo "$out"
+echo "== 1. host toolkit: bulgekit demo -o $out"
+bulgekit demo -o "$out"
 
 echo
 echo "== 2. firmware core (native) on $out/demo.bulge.gcode"

@@ -86,3 +86,31 @@ def pair(ctx, param, value):
     if not (math.isfinite(a) and math.isfinite(b)):
         raise click.BadParameter(f"U,V must be finite numbers, got {value!r}")
     return (a, b)
+
+
+OUTDIR_DEFAULT = "bulgekit-out"
+
+
+class _OldSpellings(click.Option):
+    """An option whose earlier spellings still parse (scripts keep working) but are left out of
+    --help, so the help shows the one convention."""
+
+    def __init__(self, *a, old_spellings=(), **kw):
+        super().__init__(*a, **kw)
+        self.old_spellings = set(old_spellings)
+
+    def get_help_record(self, ctx):
+        opts = self.opts
+        self.opts = [o for o in opts if o not in self.old_spellings]
+        try:
+            return super().get_help_record(ctx)
+        finally:
+            self.opts = opts
+
+
+def outdir_option(*old_spellings):
+    """`-o/--outdir DIR`, the output folder of every command that writes several files
+    (build, litho, demo); a command writing one file takes `-o/--output FILE`."""
+    return click.option("-o", "--outdir", *old_spellings, "outdir", cls=_OldSpellings,
+                        old_spellings=old_spellings, type=click.Path(file_okay=False),
+                        default=OUTDIR_DEFAULT, show_default=True, help="Output folder.")

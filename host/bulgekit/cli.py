@@ -8,7 +8,7 @@ from pathlib import Path
 
 import click
 
-from ._cliutil import FINITE, POSITIVE, Num, friendly, pair, progress_option
+from ._cliutil import FINITE, POSITIVE, Num, friendly, outdir_option, pair, progress_option
 from . import __version__, mapformat
 from .fallback import (DEFAULT_DWELL_MS, DEFAULT_EXTRA_E_MM, DEFAULT_TOLERANCE_MM,
                        MODE_GEOMETRIC, MODE_MARKED, Settings)
@@ -89,7 +89,7 @@ def main():
 @click.argument("gcode", type=click.Path(exists=True, dir_okay=False))
 @click.option("-s", "--strokes", "stroke_files", multiple=True, type=click.Path(exists=True, dir_okay=False),
               help="Stroke file: .json stroke list, .svg drawing or an image (dots). Repeatable.")
-@click.option("--placement", type=click.Path(dir_okay=False),
+@click.option("--placement", type=click.Path(exists=True, dir_okay=False),
               help="TOML placement file (text, strokes, [bulges] settings; see examples/placement.toml), "
                    "as `post-process` reads it; options given here win over its [bulges].")
 @click.option("--text", help="Write this text on the wall (single-stroke font).")
@@ -106,7 +106,7 @@ def main():
 @click.option("--curve-tolerance", type=POSITIVE, default=0.05, show_default=True,
               help="SVG curve flattening tolerance, mm (--tolerance is M720 T).")
 @click.option("--mirror", is_flag=True, help="Mirror --text (paint rollers).")
-@click.option("-o", "--outdir", type=click.Path(file_okay=False), default="bulgekit-out", show_default=True)
+@outdir_option()
 @click.option("--name", help="Output base name (default: the G-code's name).")
 @click.option("--spacing", type=POSITIVE, help="Distance (mm) between points along a layer [2 x line width].")
 @click.option("--line-width", type=POSITIVE, default=0.45, show_default=True, help="Outer-wall line width, mm.")
@@ -173,7 +173,7 @@ def build(ctx, gcode, placement, stroke_files, text, text_size, at, font, letter
 
 
 @main.command("post-process", short_help="For a slicer's post-processing step: annotate a G-code file in place.")
-@click.option("--placement", required=True, type=click.Path(dir_okay=False),
+@click.option("--placement", required=True, type=click.Path(exists=True, dir_okay=False),
               help="TOML placement file: what to draw and the bulge settings (examples/placement.toml).")
 @_arena_option
 @click.option("--keep", type=click.Path(file_okay=False),
@@ -343,12 +343,25 @@ def stats(map_file, gcode, arena, accel, dwell, extra, tolerance, geometric):
         sys.exit(1)
 
 
+class _UnlistedArgument(click.Argument):
+    """An argument kept for old command lines, left out of the usage line."""
+
+    def get_usage_pieces(self, ctx):
+        return []
+
+
 @main.command(short_help="Worked example: text on a sliced cylinder.")
-@click.argument("outdir", type=click.Path(file_okay=False), default="bulgekit-demo")
+@outdir_option()
+@click.argument("old_outdir", cls=_UnlistedArgument, required=False, type=click.Path(file_okay=False))
 @click.option("--text", default="BULGE", show_default=True)
+@click.pass_context
 @friendly
-def demo(outdir, text):
+def demo(ctx, outdir, old_outdir, text):
     """Worked example: text on a sliced 40 mm cylinder -> OUTDIR."""
+    if old_outdir is not None:  # `bulgekit demo DIR`, the spelling before -o/--outdir
+        if ctx.get_parameter_source("outdir") is click.core.ParameterSource.COMMANDLINE:
+            raise click.UsageError("give the output folder once, with -o/--outdir")
+        outdir = old_outdir
     from . import api
     from .strokes import load_json, text_strokes
     ex = _examples_dir()

@@ -23,7 +23,7 @@ def _jerk(ctx, param, value):
 
 def register(main):
     @main.command(short_help="Print time of a G-code file, planned as Marlin 2.1 plans it.")
-    @click.argument("gcode", type=click.Path(dir_okay=False))
+    @click.argument("gcode", type=click.Path(exists=True, dir_okay=False))
     @click.option("--accel", type=POSITIVE, default=3000.0, show_default=True, help="M204 P, mm/s^2.")
     @click.option("--travel-accel", type=POSITIVE, default=3000.0, show_default=True, help="M204 T, mm/s^2.")
     @click.option("--retract-accel", type=POSITIVE, default=3000.0, show_default=True, help="M204 R, mm/s^2.")

@@ -84,7 +84,7 @@ def register(group: click.Group) -> None:
     """Add `strokes`, `preview` and `send` to the CLI group."""
 
     @group.command("strokes", short_help="Convert SVG / text / JSON / image to a strokes JSON.")
-    @click.argument("inputs", nargs=-1, type=click.Path(dir_okay=False))
+    @click.argument("inputs", nargs=-1, type=click.Path(exists=True, dir_okay=False))
     @_stroke_options
     @click.option("-o", "--output", type=click.Path(dir_okay=False),
                   help="Strokes JSON to write (see docs/inputs.md). Without it only the summary is printed.")
@@ -105,7 +105,7 @@ def register(group: click.Group) -> None:
 
     @group.command("preview", short_help="PNG of the bulges: unrolled wall or 3D.")
     @click.argument("gcode", required=False, type=click.Path(exists=True, dir_okay=False))
-    @click.option("-s", "--strokes", "inputs", multiple=True, type=click.Path(dir_okay=False),
+    @click.option("-s", "--strokes", "inputs", multiple=True, type=click.Path(exists=True, dir_okay=False),
                   help="Stroke input (.svg, .json, image). Repeatable.")
     @click.option("--map", "map_file", type=click.Path(exists=True, dir_okay=False),
                   help="Show this bulge map (.bkm) instead of strokes (needs GCODE).")
@@ -168,7 +168,7 @@ def register(group: click.Group) -> None:
             click.echo(f"wrote {output}: {r['inside']} bulges")
 
     @group.command("send", short_help="Stream G-code / M-codes / a map to the printer.")
-    @click.argument("files", nargs=-1, type=click.Path(dir_okay=False, allow_dash=True))
+    @click.argument("files", nargs=-1, type=click.Path(exists=True, dir_okay=False, allow_dash=True))
     @click.option("-p", "--port", required=True, envvar="BULGEKIT_PORT", show_envvar=True,
                   help="Serial device (/dev/ttyUSB0, /dev/ttyACM0, COM3) or pyserial URL (socket://host:port).")
     @click.option("-b", "--baud", type=int, default=115200, show_default=True)

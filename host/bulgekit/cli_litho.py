@@ -9,7 +9,7 @@ import math
 
 import click
 
-from ._cliutil import NONNEG, POSITIVE, friendly, progress_option
+from ._cliutil import NONNEG, POSITIVE, friendly, outdir_option, progress_option
 
 
 def _bed(ctx, param, value):
@@ -25,14 +25,13 @@ def _bed(ctx, param, value):
 
 def register(main):
     @main.command(short_help="A picture -> lithophane G-code (width mode + stock), STL, look, stats.")
-    @click.argument("image", type=click.Path(dir_okay=False), required=False)
+    @click.argument("image", type=click.Path(exists=True, dir_okay=False), required=False)
     @click.option("--calibration", is_flag=True,
                   help="No picture: a calibration plate, ten steps from --min to --max with their "
                        "thickness written under them, to choose --attenuation for a filament.")
     @click.option("--shape", type=click.Choice(["planar", "cylinder"]), default="planar", show_default=True,
                   help="Flat plate (flat back) or a cylinder (round back, picture around it).")
-    @click.option("-o", "--out", "outdir", type=click.Path(file_okay=False), default=".", show_default=True,
-                  help="Output folder.")
+    @outdir_option("--out")
     @click.option("--name", help="Base name of the outputs (default: the picture's name).")
     @click.option("--width", type=POSITIVE, default=100.0, show_default=True, help="Planar: plate width, mm.")
     @click.option("--diameter", type=POSITIVE, default=54.8, show_default=True,
@@ -94,9 +93,9 @@ def register(main):
     @click.option("--words", type=click.Choice(["e", "w"]), default="e", show_default=True,
                   help="Litho file: mid-line width as E (previews show it; prints on any firmware) "
                        "or as W words (bulgekit firmware only).")
-    @click.option("--start-gcode", type=click.Path(dir_okay=False), default=None,
+    @click.option("--start-gcode", type=click.Path(exists=True, dir_okay=False), default=None,
                   help="File replacing the default start G-code ({temp}, {bed_temp} filled in).")
-    @click.option("--end-gcode", type=click.Path(dir_okay=False), default=None,
+    @click.option("--end-gcode", type=click.Path(exists=True, dir_okay=False), default=None,
                   help="File replacing the default end G-code.")
     @click.option("--no-purge", is_flag=True, help="No purge line before the part.")
     @progress_option
@@ -111,7 +110,7 @@ def register(main):
         extruder at one rate and sets the width by head speed.
 
         \b
-        Writes to OUT/:
+        Writes to OUTDIR/:
           NAME.litho.gcode        for bulgekit firmware (M723 width mode)
           NAME.stock.gcode        for stock firmware (eq. 2: E and F per piece, same motion)
           NAME.stl                the same body, watertight (for slicer comparisons)

@@ -311,6 +311,10 @@ def check_text(data, source: str = "<gcode>") -> None:
     """Refuse a file that is not text (a program, an image, a zip passed by mistake): G-code has
     no NUL bytes, and reading such a file as lines would only produce nonsense errors."""
     head = data[:65536]
+    if len(data) <= len(head) and not head.strip():
+        # said as it is, not as the first thing a pass misses (its outer-wall comments, its moves)
+        raise GcodeError(f"{source}: the G-code file is empty" if not data else
+                         f"{source}: the G-code file has only blank lines, no G-code")
     i = head.find(b"\0" if isinstance(head, (bytes, bytearray)) else "\0")
     if i >= 0:
         raise GcodeError(f"{source}: not a text G-code file (binary data: a NUL byte at byte {i})")

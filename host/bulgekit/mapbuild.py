@@ -110,6 +110,11 @@ def sample_strokes(strokes: Sequence[Stroke], model: WallModel, spacing: float
             raise BuildError(f"{name}: weight {st.weight} outside 0..255")
         vmin, vmax = float(arr[:, 1].min()), float(arr[:, 1].max())
         if vmin < lo - 1e-9 or vmax > hi + 1e-9:
+            pic = getattr(st, "picture", None)
+            if pic is not None and pic.holds(*st.points[0]):          # a picture's dot, not turned
+                # keep what names the stroke's entry ("strokes[0] " in a placement file)
+                i = name.find(pic.path)
+                raise BuildError((name[:i] if i > 0 else "") + pic.too_tall(lo, hi))
             raise BuildError(
                 f"{name}: stroke spans v {vmin:.2f}..{vmax:.2f} mm, outside the outer wall's "
                 f"height {lo:.2f}..{hi:.2f} mm")

@@ -69,7 +69,9 @@ def preview_unrolled(points, wall_length: float, height: float, path, *, title: 
         for z in np.arange(layer_height, height, layer_height):
             ax.axhline(z, color="#dddddd", lw=0.4, zorder=1)
     ax.axvline(0, color="#888888", lw=1.2, ls="--", zorder=1)
-    ax.text(0, height, " u = 0", va="bottom", ha="left", fontsize=8, color="#555555")
+    # inside the wall's top-left corner, clear of both frame lines (bumps draw over it)
+    ax.annotate("u = 0", xy=(0, height), xytext=(4, -4), textcoords="offset points", va="top",
+                ha="left", fontsize=8, color="#555555", zorder=2)
 
     u, v, w = (pts[:, 0], pts[:, 1], pts[:, 2]) if len(pts) else (np.zeros(0),) * 3
     inside = (u >= 0) & (u <= wall_length) & (v >= 0) & (v <= height)
@@ -120,7 +122,7 @@ def preview_3d(wall_paths: Sequence, bumps, path, *, title: str | None = None, e
     subset of layers is drawn (the title says so); bumps are always all
     drawn.  Without azim the camera faces the side where the bumps are;
     bumps on the far side are faded, since matplotlib does not hide them
-    behind the walls.  Returns {"layers_drawn", "layers", "bumps", "far_side"}.
+    behind the walls.  Returns {"layers_drawn", "layers", "bumps", "far_side", "layers_with_bumps"}.
     """
     layers = []
     for i, item in enumerate(wall_paths):
@@ -174,13 +176,19 @@ def preview_3d(wall_paths: Sequence, bumps, path, *, title: str | None = None, e
     ax.set_xlabel("X (mm)")
     ax.set_ylabel("Y (mm)")
     ax.set_zlabel("Z (mm)")
-    note = f" (every {step}th of {len(layers)} layers)" if step > 1 else f" ({len(layers)} layers)"
+    # the print's layers and, apart, those with bumps (the map's layers), so neither is mistaken
+    # for the other
+    with_bumps = len(np.unique(np.round(b[:, 2], 4))) if len(b) else 0
+    note = (f"every {step}th of {len(layers)} layers drawn" if step > 1 else f"{len(layers)} layers")
+    note += f", {with_bumps} with bumps"
     far = f", {n_far} on the far side (faded)" if n_far else ""
-    ax.set_title((title or "Print preview") + f" — {len(b)} bumps{far}" + note, fontsize=10)
+    # two lines: one this long is cut off at the figure's edges
+    ax.set_title((title or "Print preview") + f"\n{len(b)} bumps{far}; " + note, fontsize=10)
     fig.tight_layout()
     _save(fig, path)
     plt.close(fig)
-    return {"layers_drawn": len(drawn), "layers": len(layers), "bumps": int(len(b)), "far_side": n_far}
+    return {"layers_drawn": len(drawn), "layers": len(layers), "bumps": int(len(b)), "far_side": n_far,
+            "layers_with_bumps": with_bumps}
 
 
 def build_unrolled(out, path):

@@ -489,12 +489,14 @@ def font_names() -> list[str]:
 
 
 class _Composed:
-    """A letter the Hershey fonts lack, made of one they have and an accent (see _accented)."""
+    """A letter the Hershey fonts lack, made of one they have and an accent (see _accented), a
+    bar or a second letter (see _more_letters); metrics are the base letter's unless given."""
     __slots__ = ("strokes", "left_offset", "char_width", "cap_line", "base_line")
 
-    def __init__(self, base, strokes):
+    def __init__(self, base, strokes, left_offset=None, char_width=None):
         self.strokes = strokes
-        self.left_offset, self.char_width = base.left_offset, base.char_width
+        self.left_offset = base.left_offset if left_offset is None else left_offset
+        self.char_width = base.char_width if char_width is None else char_width
         self.cap_line, self.base_line = base.cap_line, base.base_line
 
 
@@ -510,6 +512,12 @@ _ACCENTS = {
     "\u030a": [[(0, 1.5), (1.4, 2.1), (2, 3.5), (1.4, 4.9), (0, 5.5), (-1.4, 4.9), (-2, 3.5),
                 (-1.4, 2.1), (0, 1.5)]],                               # ring
     "\u0327": [[(0, 0), (0, 2), (1.5, 3), (0, 4.5), (-1.5, 4.5)]],     # cedilla (below)
+    "\u0304": [[(-3, 3), (3, 3)]],                                     # macron
+    "\u0306": [[(-3, 4.5), (-2, 2.5), (0, 1.5), (2, 2.5), (3, 4.5)]],   # breve
+    "\u0307": [[(0, 3)]],                                              # dot above
+    "\u030b": [[(-2.5, 1.5), (-0.5, 4.5)], [(1, 1.5), (3, 4.5)]],      # double acute
+    "\u030c": [[(-3, 4.5), (0, 1.5), (3, 4.5)]],                       # caron
+    "\u0328": [[(0, 0), (-2, 2), (-2, 4), (0, 5), (1, 5)]],            # ogonek (below, right)
 }
 
 
@@ -530,14 +538,113 @@ def _accented(hf, ch: str):
     pts = [p for st in strokes for p in st]
     mid = (min(x for x, _ in pts) + max(x for x, _ in pts)) / 2
     top, unit = min(y for _, y in pts), (base.base_line - base.cap_line) / 21
+    right = max(x for x, _ in pts)
     for mark in parts[1:]:
+        if mark == "\u030c" and parts[0] in "dltL":   # ď ť ľ Ľ: the caron is a comma beside the stem
+            tx = min(pts, key=lambda p: p[1])[0]
+            strokes.append([(tx + 3 * unit, base.cap_line), (tx + 2 * unit, base.cap_line + 4 * unit)])
+            continue
         for st in _ACCENTS[mark]:
             if mark == "\u0327":
                 strokes.append([(mid + x * unit, base.base_line + y * unit) for x, y in st])
+            elif mark == "\u0328":
+                strokes.append([(right - unit + x * unit, base.base_line + y * unit) for x, y in st])
             else:
                 strokes.append([(mid + x * unit, top - y * unit) for x, y in st])
         top -= 5 * unit
     return _Composed(base, strokes)
+
+
+# Letters of German, the Nordic languages, Polish, Croatian, Dutch... that are no accented letter.
+# Drawn ones are in the Hershey units of the font they stand in (capitals from y -12 to the
+# baseline at 9, x-height -5, descenders to 16): (left_offset, char_width, strokes).
+_DRAWN = {
+    "ß": (-10, 19, [[(-6, 9), (-6, -7), (-5, -10), (-3, -12), (0, -12), (3, -11), (4, -9), (4, -7),
+                     (3, -5), (0, -4), (3, -3), (5, -1), (6, 1), (6, 4), (5, 7), (3, 8.5), (1, 9),
+                     (-2, 9)]]),
+    "ẞ": (-11, 21, [[(-7, 9), (-7, -5), (-6, -9), (-4, -11), (-1, -12), (7, -12), (1, -4), (3, -4),
+                     (5, -3), (6, -2), (7, 1), (7, 3), (6, 6), (4, 8), (1, 9), (-2, 9)]]),
+    "Æ": (-12, 25, [[(-10, 9), (1, -12), (11, -12)], [(1, -12), (1, 9), (11, 9)], [(1, -2), (9, -2)],
+                    [(-6, 2), (1, 2)]]),
+    "Œ": (-11, 27, [[(13, -12), (-2, -12), (-4, -11), (-6, -9), (-7, -7), (-8, -4), (-8, 1), (-7, 4),
+                     (-6, 6), (-4, 8), (-2, 9), (13, 9)], [(2, -12), (2, 9)], [(2, -2), (10, -2)]]),
+    "ð": (-9, 19, [[(6, -1), (4, -4), (2, -5), (-1, -5), (-3, -4), (-5, -2), (-6, 1), (-6, 3), (-5, 6),
+                    (-3, 8), (-1, 9), (2, 9), (4, 8), (6, 6), (7, 3), (7, -1), (6, -5), (4, -8),
+                    (1, -11), (-2, -13)], [(-3, -7), (5, -11)]]),
+    "þ": (-10, 19, [[(-6, -12), (-6, 16)], [(-6, -2), (-4, -4), (-2, -5), (1, -5), (3, -4), (5, -2),
+                    (6, 1), (6, 3), (5, 6), (3, 8), (1, 9), (-2, 9), (-4, 8), (-6, 6)]]),
+    "Þ": (-11, 21, [[(-7, -12), (-7, 9)], [(-7, -7), (2, -7), (5, -6), (6, -5), (7, -3), (7, 0), (6, 2),
+                    (5, 3), (2, 4), (-7, 4)]]),
+}
+# A font's own letter with a stroke across it, the stroke in units of 1/21 of the capital height
+# relative to the letter's box (x from its left edge "l", right edge "r" or middle "m"; y upward
+# from the cap line "c", x-height "x", baseline "b" or mid-height "h").
+_BARRED = {
+    "ø": ("o", [[("l", -1, "b", -1), ("r", 1, "x", 1)]]),
+    "Ø": ("O", [[("l", -1, "b", -1), ("r", 1, "c", 1)]]),
+    "ł": ("l", [[("m", -3, "h", -2.5), ("m", 3, "h", 2.5)]]),
+    "Ł": ("L", [[("l", -3, "h", -3), ("l", 4, "h", 3)]]),
+    "đ": ("d", [[("r", -4, "c", -3), ("r", 2, "c", -3)]]),
+    "Đ": ("D", [[("l", -3, "h", 0), ("l", 4, "h", 0)]]),
+    "Ð": ("D", [[("l", -3, "h", 0), ("l", 4, "h", 0)]]),
+    "ħ": ("h", [[("l", -3, "c", -3), ("l", 4, "c", -3)]]),
+    "Ħ": ("H", [[("l", -2, "c", -4), ("r", 2, "c", -4)]]),
+    "ŧ": ("t", [[("m", -3, "h", -1), ("m", 3, "h", -1)]]),
+    "Ŧ": ("T", [[("m", -4, "h", 0), ("m", 4, "h", 0)]]),
+}
+# Two of the font's letters as one: a ligature (the second moved left onto the first's right
+# edge) or, for the Dutch ij, side by side
+_JOINED = {"æ": ("ae", True), "œ": ("oe", True), "ĳ": ("ij", False), "Ĳ": ("IJ", False)}
+
+
+def _more_letters(hf, ch: str):
+    """ß æ ø Æ Ø œ Œ ð þ Þ đ ł ı ... (see _DRAWN, _BARRED, _JOINED) in the loaded font, or None."""
+    def glyph(c):
+        found = list(hf.glyphs_for_text(c))
+        return found[0] if found else None
+
+    ref = glyph("H")
+    if ref is None:
+        return None
+    unit = (ref.base_line - ref.cap_line) / 21
+    if ch in _DRAWN:
+        left, width, strokes = _DRAWN[ch]
+        return _Composed(ref, [[(x * unit, ref.cap_line + (y + 12) * unit) for x, y in st] for st in strokes],
+                         left * unit, width * unit)
+    if ch == "ı":                                      # dotless i: the i's dot left out
+        base = glyph("i")
+        if base is None:
+            return None
+        stem = [list(st) for st in base.strokes if max(y for _, y in st) > base.cap_line + 3 * unit]
+        return _Composed(base, stem)
+    if ch in _BARRED:
+        letter, bars = _BARRED[ch]
+        base = glyph(letter)
+        if base is None:
+            return None
+        strokes = [list(st) for st in base.strokes]
+        xs = [x for st in strokes for x, _ in st]
+        ax = {"l": min(xs), "r": max(xs), "m": (min(xs) + max(xs)) / 2}
+        c, b = base.cap_line, base.base_line
+        ay = {"c": c, "b": b, "x": c + 7 * unit, "h": (c + b) / 2}
+        for bar in bars:
+            strokes.append([(ax[xa] + dx * unit, ay[ya] - dy * unit) for xa, dx, ya, dy in bar])
+        return _Composed(base, strokes)
+    if ch in _JOINED:
+        pair, ligature = _JOINED[ch]
+        first, second = (glyph(c) for c in pair)
+        if first is None or second is None:
+            return None
+        if ligature:
+            shift = (max(x for st in first.strokes for x, _ in st)
+                     - min(x for st in second.strokes for x, _ in st))
+        else:
+            shift = first.left_offset + first.char_width - second.left_offset
+        strokes = [list(st) for st in first.strokes] + [[(x + shift, y) for x, y in st]
+                                                        for st in second.strokes]
+        end = second.left_offset + second.char_width + shift
+        return _Composed(first, strokes, first.left_offset, end - first.left_offset)
+    return None
 
 
 def text_strokes(text: str, size_mm: float, spacing: float = 0.0, u0: float = 0.0, v0: float = 0.0,
@@ -568,7 +675,7 @@ def text_strokes(text: str, size_mm: float, spacing: float = 0.0, u0: float = 0.
         if g_char == "\n" or g_char in glyphs:
             continue
         found = list(hf.glyphs_for_text(g_char))
-        glyph = found[0] if found else _accented(hf, g_char)
+        glyph = found[0] if found else (_accented(hf, g_char) or _more_letters(hf, g_char))
         if glyph is None:
             raise InputError(f"text: character {g_char!r} (position {col + 1}) is not in font {font!r}")
         glyphs[g_char] = glyph
@@ -666,6 +773,54 @@ def save_json(strokes: Sequence[Stroke], path: str) -> None:
 # Images
 
 
+@dataclass(frozen=True)
+class Picture:
+    """Where a picture's dots came from, so an error about them is said in the picture's terms
+    (its size at the width asked for) rather than a single cell's."""
+    path: str
+    width_mm: float
+    pitch_mm: float
+    size_px: tuple[int, int]
+    u0: float
+    v0: float
+
+    def rows_at(self, width_mm: float) -> int:
+        cols = max(1, round(width_mm / self.pitch_mm))
+        return max(1, round(cols * self.size_px[1] / self.size_px[0]))
+
+    @property
+    def height_mm(self) -> float:
+        return self.rows_at(self.width_mm) * self.pitch_mm
+
+    def holds(self, u: float, v: float) -> bool:
+        """Whether (u, v) lies on the picture as image_dots laid it (not turned since)."""
+        cols = max(1, round(self.width_mm / self.pitch_mm))
+        return (self.u0 - 1e-6 <= u <= self.u0 + cols * self.pitch_mm + 1e-6
+                and self.v0 - 1e-6 <= v <= self.v0 + self.height_mm + 1e-6)
+
+    def too_tall(self, lo: float, hi: float) -> str:
+        """The message for dots outside the wall's height lo..hi (mm)."""
+        h, top, wall = self.height_mm, self.v0 + self.height_mm, hi - lo
+        if h > wall + 1e-9:
+            cols = max(1, round(self.width_mm / self.pitch_mm))
+            while cols > 1 and self.rows_at(cols * self.pitch_mm) * self.pitch_mm > wall + 1e-9:
+                cols -= 1
+            fit = (f"use a smaller width, {cols * self.pitch_mm:g} mm or less"
+                   if self.rows_at(cols * self.pitch_mm) * self.pitch_mm <= wall + 1e-9 else
+                   "use a smaller pitch")
+            return (f"{self.path}: the picture is {h:g} mm tall at --image-width {self.width_mm:g} mm, "
+                    f"but the wall is only {wall:g} mm tall; {fit}")
+        return (f"{self.path}: the picture reaches from {self.v0:g} to {top:g} mm above the bed, "
+                f"but the wall goes from {lo:g} to {hi:g} mm; move it {'down' if top > hi else 'up'} "
+                f"(its lower-left corner, --at U,V)")
+
+
+@dataclass(frozen=True)
+class PictureDot(Stroke):
+    """One dot of a picture (image_dots), knowing its picture."""
+    picture: Picture | None = None
+
+
 def read_gray(path):
     """A picture as an 8-bit grayscale PIL image (any format Pillow reads);
     transparent pixels count as white. Errors name the file."""
@@ -715,6 +870,7 @@ def image_dots(path: str, width_mm: float, u0: float = 0.0, v0: float = 0.0, pit
     # BOX resampling averages all pixels of a cell.
     cells = gray.resize((cols, rows), Image.Resampling.BOX)
     px = cells.load()
+    pic = Picture(path, width_mm, pitch_mm, (w_px, h_px), u0, v0)
     dots = []
     for r in range(rows):
         v = v0 + (rows - 1 - r) * pitch_mm + pitch_mm / 2
@@ -726,7 +882,8 @@ def image_dots(path: str, width_mm: float, u0: float = 0.0, v0: float = 0.0, pit
                 continue
             cc = (cols - 1 - c) if mirror else c
             u = u0 + cc * pitch_mm + pitch_mm / 2
-            dots.append(Stroke(((u, v),), max(min_weight, round(dark * 255)), f"{path}: pixel cell row {r} col {c}"))
+            dots.append(PictureDot(((u, v),), max(min_weight, round(dark * 255)),
+                                   f"{path}: pixel cell row {r} col {c}", pic))
     return dots
 
 

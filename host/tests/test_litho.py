@@ -383,7 +383,7 @@ def test_cli_bad_pictures(tmp_path):
     r = run(tiny, "-o", tmp_path / "o")
     assert r.exit_code != 0 and "5 x 5 px; a lithophane needs at least 8 x 8" in r.output
     r = run(tmp_path / "missing.png", "-o", tmp_path / "o")
-    assert r.exit_code != 0 and "image file not found" in r.output
+    assert r.exit_code == 2 and "missing.png' does not exist" in r.output
 
 
 # --- through the firmware core ------------------------------------------------------------------

@@ -1,4 +1,4 @@
-"""Tests for tools/marlin_install.py against a tiny synthetic Marlin tree.
+"""Tests for install-marlin.py (the top-level installer) against a tiny synthetic Marlin tree.
 
 The fake tree is generated here: each patched file holds filler lines and the
 anchor lines the installer looks for (taken from the installer's own edit
@@ -12,7 +12,7 @@ import os
 import pytest
 
 REPO = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-_spec = importlib.util.spec_from_file_location("marlin_install", os.path.join(REPO, "tools", "marlin_install.py"))
+_spec = importlib.util.spec_from_file_location("marlin_install", os.path.join(REPO, "install-marlin.py"))
 mi = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(mi)
 

@@ -130,7 +130,7 @@ def test_cura_script(work, tmp_path, monkeypatch):
     assert run("post-process", "--placement", p, g).exit_code == 0
     assert "".join(out) == g.read_text()
     bad = mod.Bulgekit({"placement": str(tmp_path / "missing.toml"), "command": str(cmd)})
-    with pytest.raises(RuntimeError, match="placement file not found"):
+    with pytest.raises(RuntimeError, match=r"'--placement': File '.*missing.toml' does not exist"):
         bad.execute(data)
 
 

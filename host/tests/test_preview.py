@@ -85,7 +85,7 @@ def test_3d_preview_counts_and_far_side(tmp_path):
     bumps.append((-20.0, 0.0, 5.0, 255))  # opposite side
     f = tmp_path / "p.png"
     r = preview_3d(walls, bumps, f)
-    assert r == {"layers_drawn": 50, "layers": 50, "bumps": 10, "far_side": 1}
+    assert r == {"layers_drawn": 50, "layers": 50, "bumps": 10, "far_side": 1, "layers_with_bumps": 1}
     assert Image.open(f).format == "PNG"
     assert bump_pixels(f) > 0
     # Thinning of many layers is reported, bumps are never thinned

@@ -33,9 +33,9 @@ def test_binary_file_as_gcode(tmp_path):
 
 
 def test_first_unsupported_character_is_named():
-    # ü is drawn (u + diaeresis); ß is in no Hershey font and comes first of the missing ones
-    with pytest.raises(InputError, match=r"character 'ß' \(position 4\)"):
-        text_strokes("Grüße ✓", 6)
+    # ü and ß are drawn (u + diaeresis; ß by bulgekit, see test_fonts.py); ✓ is the first missing one
+    with pytest.raises(InputError, match=r"character '✓' \(position 7\)"):
+        text_strokes("Grüße ✓ ☃", 6)
 
 
 @pytest.mark.parametrize("ch, base, marks", [("é", "e", 1), ("ü", "u", 2), ("ñ", "n", 1),

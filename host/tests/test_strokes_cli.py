@@ -37,14 +37,15 @@ def test_image_needs_width_and_converts(tmp_path):
     assert len(json.loads(out.read_text())["strokes"]) == 29
 
 
-def test_errors_are_one_line_with_file():
+def test_errors_are_one_line_with_file(tmp_path):
     r = run("strokes", DATA / "broken.svg")
     assert r.exit_code == 1 and "broken.svg:4:" in r.output and "Traceback" not in r.output
     r = run("strokes", DATA / "missing_points.json")
     assert r.exit_code == 1 and 'stroke 1: missing key "points"' in r.output
     r = run("strokes", "--text", "  ")
     assert r.exit_code == 1 and "empty text" in r.output
-    r = run("strokes", DATA / "strokes.txt")
+    (tmp_path / "strokes.txt").write_text("HI")
+    r = run("strokes", tmp_path / "strokes.txt")
     assert r.exit_code == 1 and "unknown input type '.txt'" in r.output
     r = run("strokes")
     assert r.exit_code == 2 and "--text" in r.output

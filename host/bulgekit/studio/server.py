@@ -5,7 +5,7 @@ server in Host (no DNS rebinding), a browser's Origin / Sec-Fetch-Site must be t
 and /api and /files need the token that came with the page. It reads the G-code given on the
 command line and what the page uploads, and writes only inside its working directory:
 
-    WORKDIR/gcode/      uploaded G-code          WORKDIR/exports/N-NAME/  + N-NAME.zip
+    WORKDIR/gcode/      uploaded G-code          WORKDIR/exports/NAME[-K]/ + NAME[-K].zip
     WORKDIR/assets/     drawing files, pictures  WORKDIR/litho/N-NAME/
     WORKDIR/scratch/    the preview's placement file
 
@@ -96,6 +96,7 @@ class Studio:
         self.assets: dict[str, dz.Asset] = {}
         self.asset_kinds: dict[str, str] = {}
         self.design: dict | None = None
+        self.design_gcode = ""                  # the G-code the design was last previewed on
         self.exports: dict[str, dz.Export] = {}
         self.lithos: dict[str, dict] = {}      # key -> the lithophane's files and its 3D view
         self.jobs: dict[str, Job] = {}
@@ -259,7 +260,8 @@ class Studio:
         msg = msg.replace(str(self.workdir) + "/", "")
         for cli, page in (("pass --geometric", "choose Mode: geometric (M720 S2)"),
                           ("--geometric", "Mode: geometric"), ("Use --allow-unreached to write the file anyway.", ""),
-                          ("--image-width MM", "Width on the wall")):
+                          ("--image-width MM", "Width on the wall"), ("at --image-width", "at a width on the wall of"),
+                          ("--at U,V", "u, v")):
             msg = msg.replace(cli, page)
         return msg.strip()
 
@@ -267,6 +269,7 @@ class Studio:
         if self.gcode is None:
             raise dz.DesignError("open a sliced G-code first")
         self.design = d                  # a reloaded page picks up where it was
+        self.design_gcode = self.gcode_name     # (asking first if another G-code is open by then)
         try:
             model = self.model_for(d)
         except dz.DesignError as e:
@@ -288,7 +291,7 @@ class Studio:
         if self.gcode is None:
             raise dz.DesignError("open a sliced G-code first")
         name = dz.safe_name(d.get("name") or Path(self.gcode_name).stem, "part")
-        key = f"{self.next_id()}-{name}"
+        key = self._free_export_name(name)
         folder = self.workdir / "exports" / key
         try:
             ex = dz.export(d, self.assets, self.gcode, folder, name)
@@ -301,6 +304,17 @@ class Studio:
         return {"key": key, "folder": str(ex.folder), "files": files,
                 "zip": f"/files/exports/{ex.zip_path.name}", "stats": st.text(per_layer=False),
                 "notes": list(ex.build.result.notes) + list(ex.build.annotate.notes)}
+
+    def _free_export_name(self, name: str) -> str:
+        """The export's folder name: the design's (the G-code's) name, then NAME-2, NAME-3 ... for
+        the next exports of it, none taken by a folder or zip already there (any case)."""
+        # exports run one at a time in the worker thread, so no two pick the same name
+        taken = {p.name.lower() for p in (self.workdir / "exports").iterdir()}
+        k, key = 1, name
+        while key.lower() in taken or f"{key}.zip".lower() in taken:
+            k += 1
+            key = f"{name}-{k}"
+        return key
 
     # -- printer
 
@@ -588,7 +602,8 @@ def make_app(st: Studio, port_ref: dict) -> web.Application:
     async def state(request):
         from ..strokes import font_names
         return web.json_response({
-            "gcode": st.gcode_state(), "assets": st.asset_kinds, "design": st.design, "fonts": font_names(),
+            "gcode": st.gcode_state(), "assets": st.asset_kinds, "design": st.design,
+            "design_gcode": st.design_gcode, "fonts": font_names(),
             "limits": {"gcode_mb": st.limits.gcode_bytes / MB, "asset_mb": st.limits.asset_bytes / MB,
                        "image_megapixels": st.limits.image_pixels / 1e6, "arena": st.limits.arena},
             "jobs": [j.json() for j in st.jobs.values() if j.state == "running"],

@@ -1,7 +1,7 @@
 /**
  * bulgekit for Marlin: the adapter between Marlin and the portable core.
  *
- * The core (core/, copied from bulgekit's src/ by tools/marlin_install.py) is
+ * The core (core/, copied from bulgekit's src/ by install-marlin.py) is
  * plain C++ that knows nothing of Marlin. This adapter owns its objects (the
  * map store, the M721 upload, the bulge planner, width mode) and turns what the
  * core decides into Marlin motion:

@@ -94,12 +94,23 @@ async function openGcode(file) {
     const job = await upload("/api/gcode", file, (a, b) => status(`uploading ${file.name}: ${Math.round(100 * a / b)} %`, a / b));
     const res = await pollJob(job, (j) => j.total ? status(`${file.name}: ${j.label} ${Math.round(100 * j.done / j.total)} %`, j.done / j.total)
       : status(`${file.name}: ${j.label || "reading"}…`, 0));
+    if (S.gcode && S.items.length && S.gcode.name !== res.name && !keepDesignFor(S.gcode.name, res.name)) {
+      flushHistory();                           // Undo brings the design back
+      S.items = [];
+      select(null);
+    }
     setGcode(res);
     status(`${res.name}: ${res.layers} layers of outer wall`);
   } catch (e) {
     showError("gcode-error", e);
     status(S.gcode ? `${S.gcode.name} stays open` : "Open a sliced G-code to start.");
   }
+}
+
+// A design made on one G-code is laid on another only when the user says so.
+function keepDesignFor(from, to, n = S.items.length) {
+  return window.confirm(`${to} is another G-code than ${from}.\n\nKeep the design made on ${from} ` +
+    `(${n} item${n === 1 ? "" : "s"}) and lay it on ${to}?\n\nOK keeps it; Cancel starts with an empty wall.`);
 }
 
 function setGcode(g, keepSettings = false) {
@@ -135,8 +146,73 @@ function addText() {
   const size = round2(Math.max(1, Math.min(6, (hi - lo) / 3)));
   const it = { id: `i${S.nextId++}`, kind: "text", text: "TEXT", font: "futural", size, letter_spacing: 0,
     mirror: false, rotate: 0, at: [5, +(lo + (hi - lo - size) / 2).toFixed(2)] };
+  // a capital is about as wide as it is tall: the box "TEXT" will take, until its strokes are in
+  placeInFreeSpace(it, 4 * size, size);
   S.items.push(it);
   select(it.id);
+  requestPreview();
+}
+
+// ---------------------------------------------------------------- free space for new items
+
+// A new item goes where it touches no other: first by a guess at its size, then, once its first
+// preview gives its strokes, by its real box (placeNew). Only a full wall leaves it overlapping,
+// and the status line says so.
+const GAP = 3;                 // mm kept between items: about a word space at the 6 mm default
+const touches = (a, b) => a.u0 < b.u1 + GAP && b.u0 < a.u1 + GAP && a.v0 < b.v1 + GAP && b.v0 < a.v1 + GAP;
+
+// The lower-left corner of the first free w x h mm on the wall: along the row at v, then the
+// rows above and below it in turn (0.5 mm steps), each from u = 0; null when there is none.
+function freeSpot(w, h, v, others) {
+  const [lo, hi] = S.gcode.walls.v_range, len = S.gcode.length_max;
+  const rows = [Math.min(Math.max(v, lo), hi - h)];
+  for (let d = 0.5; rows[0] - d >= lo || rows[0] + d + h <= hi; d += 0.5) {
+    if (rows[0] + d + h <= hi) rows.push(rows[0] + d);
+    if (rows[0] - d >= lo) rows.push(rows[0] - d);
+  }
+  for (const v0 of rows) {
+    for (let u0 = 0; u0 + w <= len; u0 += 0.5) {
+      const b = { u0, v0, u1: u0 + w, v1: v0 + h };
+      if (!others.some((o) => touches(b, o))) return [u0, v0];
+    }
+  }
+  return null;
+}
+
+// Move `it`, whose strokes span `box` (a guess or its real one), out of the others' way; the
+// offset between its anchor (`at`) and its box stays. Returns false when the wall is full.
+function moveToFreeSpace(it, box) {
+  const others = S.items.filter((o) => o !== it).map(itemBox);
+  if (!others.some((o) => touches(box, o))) return true;
+  const spot = freeSpot(box.u1 - box.u0, box.v1 - box.v0, box.v0, others);
+  if (!spot) return false;
+  it.at = [round2(it.at[0] + spot[0] - box.u0), round2(it.at[1] + spot[1] - box.v0)];
+  return true;
+}
+
+function placeInFreeSpace(it, w, h) {
+  it.placing = true;                             // placeNew looks again with its real box
+  moveToFreeSpace(it, { u0: it.at[0], v0: it.at[1], u1: it.at[0] + w, v1: it.at[1] + h });
+}
+
+// The items whose strokes' boxes cross this one's (both drawn already).
+function overlapping(it) {
+  const drawn = (x) => S.preview && S.preview.items[x.id] && S.preview.items[x.id].strokes.length;
+  if (!drawn(it)) return [];
+  const a = itemBox(it);
+  return S.items.filter((o) => o !== it && drawn(o)).filter((o) => {
+    const b = itemBox(o);
+    return a.u0 < b.u1 && b.u0 < a.u1 && a.v0 < b.v1 && b.v0 < a.v1;
+  });
+}
+
+function placeNew(it) {
+  delete it.placing;
+  if (!moveToFreeSpace(it, itemBox(it))) {      // the list says which item it overlaps
+    status(`no free space on the wall for ${itemName(it)}: it overlaps another item (move, shrink or delete one)`);
+    return;
+  }
+  if (it.id === S.selected) fillItemForm(it);
   requestPreview();
 }
 
@@ -169,6 +245,7 @@ async function addDrawing(file) {
     it.image_width = round2(Math.min(20, Math.max(5, S.gcode.length_max / 4)));
     delete it.scale;
   }
+  placeInFreeSpace(it, it.image_width || 10, it.image_width || 10);
   S.items.push(it);
   select(it.id);
   requestPreview();
@@ -244,8 +321,8 @@ function readItemForm(e) {
     case "text": it.text = el.value; break;
     case "font": it.font = el.value; break;
     case "mirror": it.mirror = el.checked; break;
-    case "u": it.at = [num(it.at[0]), it.at[1]]; break;
-    case "v": it.at = [it.at[0], num(it.at[1])]; break;
+    case "u": it.at = [num(it.at[0]), it.at[1]]; delete it.placing; break;    // placed by hand now
+    case "v": it.at = [it.at[0], num(it.at[1])]; delete it.placing; break;
     default: it[el.name] = num(it[el.name]);      // size, letter_spacing, scale, image_width, rotate
   }
   renderItems();
@@ -270,10 +347,15 @@ function renderItems() {
     sub.className = "info";
     sub.textContent = info ? `${n} bump${n === 1 ? "" : "s"}` : "";
     li.append(sub);
-    if (info && (info.errors.length || info.warnings.length)) {
+    const over = overlapping(it);
+    if (info && (info.errors.length || info.warnings.length || over.length)) {
       const m = document.createElement("ul");
       for (const e of info.errors) { const x = document.createElement("li"); x.className = "error"; x.textContent = e; m.append(x); }
       for (const w of info.warnings) { const x = document.createElement("li"); x.className = "warning"; x.textContent = w; m.append(x); }
+      for (const o of over) {
+        const x = document.createElement("li"); x.className = "warning overlap";
+        x.textContent = `overlaps ${itemName(o)}: their bumps mix`; m.append(x);
+      }
       li.append(m);
     }
     li.onclick = () => {
@@ -333,7 +415,8 @@ function requestPreview() {
 const history = [], redo = [];
 let historyTimer = null;
 const formValues = () => Object.fromEntries([...$("bulge-form").elements].filter((e) => e.name).map((e) => [e.name, e.value]));
-const snapshot = () => JSON.stringify({ items: S.items, form: formValues(), name: $("export-name").value });
+const snapshot = () => JSON.stringify({ items: S.items, form: formValues(), name: $("export-name").value },
+  (k, v) => (k === "placing" ? undefined : v));
 
 function flushHistory() {        // before a discrete edit: the state it starts from is kept
   clearTimeout(historyTimer);
@@ -399,6 +482,8 @@ async function pump(check = false) {
     if (p.walls) { S.gcode.walls = p.walls; view3d.setWalls(p.walls); }   // the mode's own walls
     if (check) checkedFor = key;
     showPreview(p);
+    for (const it of S.items) if (it.placing && p.items[it.id] && geom[it.id] && geomOf(it).u === geom[it.id].u
+      && geomOf(it).v === geom[it.id].v) placeNew(it);      // its first strokes: now its real box
     if (check) status(p.points.length ? `${S.gcode.name}: checked, ${p.summary.stops} stops` : `${S.gcode.name}: ${S.gcode.layers} layers of outer wall`);
   } catch (e) {
     S.preview = { items: {}, points: [], errors: [String(e.message || e)], warnings: [], summary: {} };
@@ -598,6 +683,7 @@ const view2d = (() => {
     flushHistory();
     const [u, v] = toMm(x, y);
     drag = { mode: h.mode, it: h.it, u, v, g: geomOf(h.it), at: [...h.it.at] };
+    delete h.it.placing;                        // placed by hand now
   });
   cv.addEventListener("pointermove", (e) => {
     const r = cv.getBoundingClientRect();
@@ -1165,6 +1251,7 @@ async function init() {
     if (!e.repeat) flushHistory();              // a held key is one step
     const k = e.shiftKey ? 5 : 0.5;
     it.at = [round2(it.at[0] + d[0] * k), round2(it.at[1] + d[1] * k)];
+    delete it.placing;
     clampItem(it); fillItemForm(it); view2d.draw(); requestPreview();
   });
   $("undo").onclick = () => step(true);
@@ -1190,7 +1277,10 @@ async function init() {
     } catch (e) { showError("gcode-error", e); status("Open a sliced G-code to start."); }
   }
   if (st.gcode && !S.gcode) {
-    const d = st.design;                      // the page was reloaded: the design comes back
+    // the page was reloaded: the design comes back (asked first if it was made on another G-code)
+    let d = st.design;
+    if (d && st.design_gcode && st.design_gcode !== st.gcode.name
+        && !keepDesignFor(st.design_gcode, st.gcode.name, (d.items || []).length)) d = null;
     if (d) {
       S.items = (d.items || []).map((it) => it.kind === "file" ? { ...it, assetKind: st.assets[it.asset] } : { ...it });
       S.nextId = 1 + Math.max(0, ...S.items.map((i) => +String(i.id).replace(/\D/g, "") || 0));

@@ -1,9 +1,9 @@
 #!/usr/bin/env python3
 """Install bulgekit into a Marlin 2.1.2.x checkout, or take it out again.
 
-    python3 tools/marlin_install.py PATH            # install (or update)
-    python3 tools/marlin_install.py PATH --uninstall
-    python3 tools/marlin_install.py PATH --check    # report, change nothing
+    python3 install-marlin.py PATH            # install (or update)
+    python3 install-marlin.py PATH --uninstall
+    python3 install-marlin.py PATH --check    # report, change nothing
 
 PATH is the checkout root (holding Marlin/ and, for PlatformIO, ini/) or its
 Marlin/ folder. What an install does:
@@ -32,7 +32,7 @@ import os
 import re
 import sys
 
-REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+REPO = os.path.dirname(os.path.abspath(__file__))   # this script sits at the checkout's top
 
 TAG = "bulgekit"
 CORE_DIR = "Marlin/src/feature/bulgekit/core"
@@ -41,7 +41,7 @@ VERSION_H = "Marlin/src/inc/Version.h"
 SUPPORTED = re.compile(r'^2\.1\.2(\.\d+)?$')
 
 SHIM = """\
-// bulgekit core configuration inside Marlin (written by tools/marlin_install.py).
+// bulgekit core configuration inside Marlin (written by bulgekit's install-marlin.py).
 // Marlin's Configuration.h and Configuration_adv.h come first, so any BK_ value
 // set there wins; the core's own file then fills in the rest.
 #pragma once
@@ -680,7 +680,7 @@ def install(root, check_only=False, any_version=False, out=print):
             os.remove(full)
     for rel, (_, new) in sorted(changes.items()):
         write_bytes(root, rel, new.encode("utf-8"))
-    lines = ["# bulgekit install manifest: tools/marlin_install.py --uninstall removes these",
+    lines = ["# bulgekit install manifest: install-marlin.py --uninstall removes these",
              "# Marlin " + version]
     lines += ["dir " + d for d in dirs]
     lines += ["file %s %s" % (sha256(data), rel) for rel, data in copies]
@@ -742,10 +742,10 @@ def main(argv=None):
         else:
             install(root, check_only=args.check, any_version=args.any_version)
     except InstallError as e:
-        print("marlin_install: error: %s" % e, file=sys.stderr)
+        print("install-marlin: error: %s" % e, file=sys.stderr)
         return 1
     except OSError as e:
-        print("marlin_install: error: %s" % e, file=sys.stderr)
+        print("install-marlin: error: %s" % e, file=sys.stderr)
         return 1
     return 0
 
