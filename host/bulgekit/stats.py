@@ -39,6 +39,7 @@ class Stats:
     extra_dropped_mm: float = 0.0
     decel_s: float | None = None   # stop/start cost at the moves' feedrates
     slicer_time_s: float | None = None
+    stock: object | None = None    # fallback.StopWriter of the stock file, when one was written
 
     @property
     def added_s(self) -> float:
@@ -70,6 +71,8 @@ class Stats:
         if self.slicer_time_s:
             t += f" ({100 * self.added_s / self.slicer_time_s:.1f}% of the slicer's {_hms(self.slicer_time_s)})"
         out.append(t)
+        if self.stock is not None:
+            out.append(f"stock file: {self.stock.summary()}")
         if per_layer:
             out.append("per layer (z mm: points" + (" / stops" if self.stops is not None else "") + "):")
             row = []

@@ -1,7 +1,7 @@
 import pytest
 
 from bulgekit import mapformat
-from bulgekit.fallback import RefPlanner, Settings, rewrite
+from bulgekit.fallback import RefPlanner, Settings, StockStops, rewrite
 from bulgekit.gcode import iter_moves
 
 
@@ -9,8 +9,11 @@ def bmap(layers, weights=None, lh=0.3):
     return mapformat.decode_map(mapformat.encode_map(layers, layer_height_mm=lh, weights=weights))
 
 
-def run(text, layers, settings=Settings(), weights=None):
-    out = "".join(rewrite(text.splitlines(keepends=True), bmap(layers, weights), settings))
+G4 = StockStops("g4")        # the paper's rewrite: where the stops go and what E the pieces get
+
+
+def run(text, layers, settings=Settings(), weights=None, stops=G4):
+    out = "".join(rewrite(text.splitlines(keepends=True), bmap(layers, weights), settings, stops=stops))
     return [l for l in out.splitlines() if l and not l.startswith("; bulgekit")]
 
 
@@ -112,7 +115,9 @@ def test_each_point_fires_once_per_layer():
     assert run(text, [(0.3, [(5.0, 0.0)])]).count("G4 P100") == 1
 
 
-def test_real_file_extrusion_totals_and_untouched_moves(data_dir):
+@pytest.mark.parametrize("stops", [G4, StockStops()], ids=["g4", "move"])
+def test_real_file_extrusion_totals_and_untouched_moves(data_dir, stops):
+    import re
     from bulgekit.mapbuild import build
     from bulgekit.strokes import Stroke
     from bulgekit.wall import walls_from_gcode
@@ -123,18 +128,22 @@ def test_real_file_extrusion_totals_and_untouched_moves(data_dir):
         planner_stats = {}
         from bulgekit.fallback import RewriteResult
         rr = RewriteResult()
-        out = list(rewrite(src, res.bulge_map, Settings(), name, rr))
+        out = list(rewrite(src, res.bulge_map, Settings(), name, rr, stops))
         e_in = sum(m.e for m in iter_moves(src))
         e_out = sum(m.e for m in iter_moves(out))
         assert rr.stats.points_fired == len(res.points)
-        assert e_out - e_in == pytest.approx(rr.stats.extra_applied, abs=1e-3)
+        # E laid during the stops comes out of the extra (unless a wall's end dropped it)
+        assert e_out - e_in == pytest.approx(rr.stats.extra_applied + rr.stock.unpaid_e_mm, abs=1e-3)
         assert rr.stats.extra_applied == pytest.approx(0.1 * len(res.points) - rr.stats.extra_dropped, abs=1e-6)
         # every position of the original is still visited, in order
         orig = [(round(m.x1, 3), round(m.y1, 3), round(m.z1, 3)) for m in iter_moves(src)]
         new = [(round(m.x1, 3), round(m.y1, 3), round(m.z1, 3)) for m in iter_moves(out)]
         it = iter(new)
         assert all(p in it for p in orig)
-        assert sum(1 for l in out if l.startswith("G4 P")) == len(res.points)
+        g4 = sum(1 for l in out if l.startswith("G4 P"))
+        e_only = (sum(1 for l in out if re.fullmatch(r"G1 E[-\d.]+ F[\d.]+\n", l))
+                  - sum(1 for l in src if re.fullmatch(r"G1 E[-\d.]+ F[\d.]+\n", l)))
+        assert (g4, e_only) == ((len(res.points), 0) if stops is G4 else (0, len(res.points)))
 
 
 @pytest.mark.parametrize("name,geometric", [
