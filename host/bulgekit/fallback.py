@@ -720,13 +720,14 @@ def plan_stop(ms: int, spm: float, owed_mm: float, steps: int | None = None) -> 
         return StopMove(ms, STOP_G4, still=d, why="extra")
     best = None
     # whole rates make the stillness come in quanta ((n - 1)/r^2 per step/s, large at low
-    # rates): unless the steps were given, a step or a few more may hit the dwell closer
+    # rates): unless the steps were given, a step or a few more are added when the fewest
+    # miss the dwell by more than NEAREST_MS
     last = want if steps is not None else min(avail, 2 * want + 8)
     for n in range(min(want, avail), max(min(want, avail), last) + 1):
         cand = _rate_for(n, d, spm)
         if best is None or abs(cand.still - d) < abs(best.still - d) - 1e-9:
             best = cand
-        if abs(best.still - d) <= 0.0005:
+        if abs(best.still - d) * 1000 <= NEAREST_MS:
             break
     best.ms = ms
     if abs(best.still - d) > G4_OVER_S and best.still < d:
