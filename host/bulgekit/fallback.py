@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import bisect
 import math
+import re
 from dataclasses import dataclass, field
 from typing import Iterable, Iterator
 
@@ -804,11 +805,12 @@ class StopWriter:
         k = bisect.bisect_left(self.m92, (line_no,))
         return self.m92[k - 1][1] if k else self.cfg.e_steps
 
-    def note_m92(self, line_no: int, words: dict | None) -> None:
-        """rewrite()'s stream: an M92 line (the byte path scans for them first)."""
-        v = (words or {}).get("E")
-        if v is not None and v > 0:
-            self.m92.append((line_no, float(v)))
+    def note_m92(self, line_no: int, raw: str) -> None:
+        """rewrite()'s stream: an M92 line (the byte path scans the file for them first)."""
+        mt = _M92_RX.match(raw.encode("utf-8", "replace"))
+        v = _m92_e(mt.group(1)) if mt else None
+        if v is not None:
+            self.m92.append((line_no, v))
 
     def plan(self, a: Action, line_no: int) -> StopMove:
         if self.cfg.stop == STOP_G4:
@@ -858,12 +860,18 @@ class StopWriter:
         return out
 
 
+_M92_RX = re.compile(rb"^[ \t]*(?:[Nn]\d+[ \t]+)?[Mm]0*92(?![0-9.])([^\n;]*)", re.M)
+_M92_E_RX = re.compile(rb"[Ee]\s*([-+]?(?:\d+\.?\d*|\.\d+))")
+
+
+def _m92_e(args: bytes) -> float | None:
+    e = _M92_E_RX.search(args)
+    return float(e.group(1)) if e and float(e.group(1)) > 0 else None
+
+
 def scan_m92(path) -> list[tuple[int, float]]:
     """(line number, E) of every M92 with an E word in a file, in order."""
     import mmap
-    import re
-    rx = re.compile(rb"^[ \t]*(?:[Nn]\d+[ \t]+)?[Mm]0*92(?![0-9.])([^\n;]*)", re.M)
-    erx = re.compile(rb"[Ee]\s*([-+]?(?:\d+\.?\d*|\.\d+))")
     out = []
     with open(path, "rb") as f:
         try:
@@ -872,12 +880,12 @@ def scan_m92(path) -> list[tuple[int, float]]:
             return out
         with data:
             line, pos = 1, 0
-            for mt in rx.finditer(data):
+            for mt in _M92_RX.finditer(data):
                 line += data.count(b"\n", pos, mt.start())
                 pos = mt.start()
-                e = erx.search(mt.group(1))
-                if e and float(e.group(1)) > 0:
-                    out.append((line, float(e.group(1))))
+                e = _m92_e(mt.group(1))
+                if e is not None:
+                    out.append((line, e))
     return out
 
 
@@ -912,7 +920,7 @@ def rewrite(lines: Iterable[str], bmap: mapformat.BulgeMap, settings: Settings,
         raw = ln.raw if ln.raw.endswith("\n") else ln.raw.rstrip("\r") + "\n"
         if not ln.moves:
             if ln.cmd == "M92":
-                sw.note_m92(ln.line_no, ln.words)
+                sw.note_m92(ln.line_no, ln.raw)
             yield raw
             continue
         per_move = [(m, planner.plan(m)) for m in ln.moves]
