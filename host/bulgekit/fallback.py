@@ -846,7 +846,7 @@ class StopWriter:
 
     def summary(self) -> str:
         if self.cfg.stop == STOP_G4:
-            return f"stops as G4: {self.g4} ({self.g4_s:.1f} s dwell, plus the queue's drain at each)"
+            return f"stops as G4 P<ms>: {self.g4} ({self.g4_s:.1f} s dwell)"
         out = f"stops as E-only moves: {self.moves} ({self.still_s:.1f} s head still, {self.stop_e_mm:.3f} mm E in them)"
         if self.g4_why.get("extra"):
             out += f"; {self.g4_why['extra']} as G4 (extra under {MIN_STEPS_PER_SEGMENT} E steps)"

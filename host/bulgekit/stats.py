@@ -72,7 +72,16 @@ class Stats:
             t += f" ({100 * self.added_s / self.slicer_time_s:.1f}% of the slicer's {_hms(self.slicer_time_s)})"
         out.append(t)
         if self.stock is not None:
+            # the stock file's stops as the printer runs them: an E-only stop holds the head for
+            # its stillness (fallback.still_s), a G4 for its dwell and the planner's drain
             out.append(f"stock file: {self.stock.summary()}")
+            held = self.stock.still_s + self.stock.g4_s
+            t = f"stock file's added time: {_hms(held)} held"
+            if self.decel_s is not None:
+                t += f" + {_hms(self.decel_s)} stopping/starting = {_hms(held + self.decel_s)}"
+            if self.stock.g4:
+                t += f" (and the planner's drain and refill at each of its {self.stock.g4} G4)"
+            out.append(t)
         if per_layer:
             out.append("per layer (z mm: points" + (" / stops" if self.stops is not None else "") + "):")
             row = []
