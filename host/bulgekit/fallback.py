@@ -653,6 +653,8 @@ MINIMAL_STEP_RATE = 120        # steps/s: Marlin's floor for a block's first and
 SLOWEST_STEP_RATE = 32         # steps/s: AVR stepper timer's longest interval (F_CPU / 500000)
 MAX_E_FEEDRATE = 25.0          # mm/s: Marlin's default M203 E; a faster E move is slowed
 NEAREST_MS = 1.0               # a stop further than this from its dwell is counted as "nearest"
+MIN_AUTORETRACT = 0.1          # mm: with FWRETRACT autoretract on (M209 S1) Marlin turns a move of
+                               # E alone this long or longer into a firmware retract/recover
 G4_OVER_S = 0.017              # G4 P100 held the head 116.4-117.4 ms (issue 25): a move that would
                                # miss its dwell by more than this is written as G4 instead
 
@@ -800,6 +802,7 @@ class StopWriter:
         self.g4_s = 0.0                        # dwell of the G4 stops, s
         self.stop_e_mm = 0.0                   # E laid during stops
         self.unpaid_e_mm = 0.0                 # of that, not taken from a following piece
+        self.autoretract = 0                   # stops of MIN_AUTORETRACT or more (see there)
 
     def spm_at(self, line_no: int) -> float:
         k = bisect.bisect_left(self.m92, (line_no,))
@@ -829,6 +832,7 @@ class StopWriter:
         self.nearest += stop.nearest
         self.stop_e_mm += laid
         self.debt += laid
+        self.autoretract += laid >= MIN_AUTORETRACT - 1e-9
 
     def drop(self) -> None:
         """The planner dropped the extra owed: E a stop laid stays laid."""
@@ -857,6 +861,9 @@ class StopWriter:
             out += f"; {self.nearest} not exactly as asked (nearest made)"
         if self.unpaid_e_mm > 1e-9:
             out += f"; {self.unpaid_e_mm:.3f} mm stop E beyond the extra (dropped at walls' ends)"
+        if self.autoretract:
+            out += (f"; {self.autoretract} lay {MIN_AUTORETRACT} mm or more: with FWRETRACT "
+                    "autoretract on (M209 S1) Marlin would make them recover moves")
         return out
 
 

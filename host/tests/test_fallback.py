@@ -469,3 +469,14 @@ def test_g92_bookkeeping_in_absolute_e_with_a_reset_mid_wall():
     i = mv.index("G1 E1.064516 F38.387")
     assert mv[i + 1:i + 5] == ["G1 F1200", "G92 E1", "G92 E0", "G1 X10 Y5 E0.53548"]
     assert mv[-1] == g4[-1] == "G1 X0 Y10 E2.0"
+
+
+def test_stops_long_enough_for_autoretract_are_named():
+    from bulgekit.fallback import RewriteResult
+    text = HEAD.format(mode="M83") + "G1 X10 Y0 E1.0\n"
+    for steps, named in ((9, False), (10, True)):       # 9/93 = 0.097 mm, 10/93 = 0.108 mm
+        rr = RewriteResult()
+        "".join(rewrite(text.splitlines(keepends=True), bmap([(0.3, [(4.0, 0.0)])]), Settings(extra_e=0.2),
+                        result=rr, stops=StockStops(stop_e_steps=steps)))
+        assert rr.stock.autoretract == named
+        assert ("autoretract on (M209 S1)" in rr.stock.summary()) == named
