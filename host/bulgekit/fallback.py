@@ -760,29 +760,38 @@ def _lround(v) -> int:
     return int(math.floor(v + 0.5)) if v >= 0 else -int(math.floor(-v + 0.5))
 
 
-def stop_e_words(e_pos: float, n: int, spm: float, abs_e: bool) -> tuple[str, float]:
-    """(the E word, the filament it lays) for an E-only move of exactly n steps from host E
-    e_pos. Marlin plans a move to lround(E x steps/mm) steps, in float: the target is put at
-    the middle of its step (lround(e_pos x spm) + n, a whole number), so neither float32 nor
-    the fraction carried from before can change the count, with as many digits as that needs."""
+def _digits(value: float, ok) -> str:
+    """value with 6 or more decimals, as few as make ok(written value) true."""
+    for nd in range(6, 12):
+        txt = f"{value:.{nd}f}"
+        if ok(float(txt)):
+            break
+    return txt.rstrip("0").rstrip(".") if "." in txt else txt
+
+
+def stop_e_lines(e_pos: float, n: int, spm: float, abs_e: bool) -> tuple[list[str], str, float]:
+    """(lines before the stop, its E word, the filament it lays in host terms) for an E-only move
+    of exactly n steps from host E e_pos. Marlin plans a move to lround(E x steps/mm) steps, in
+    float. The target is put in the middle of a step, lround(e_pos x spm) + n, a whole number,
+    so that neither float32 nor the fraction carried from before changes the count:
+      - absolute E (M82): Marlin's position is the last E the file wrote, known here exactly:
+        the move goes to the target;
+      - relative E (M83): Marlin adds each E to its position in float32, which drifts from the
+        host's sum (0.1 mm over 1,400 mm of a file without G92 E0: ten steps at 93 steps/mm),
+        so the position is first set to the whole step nearest the host's (G92 E), and the move
+        is n steps from there.
+    The filament laid is target/spm - e_pos either way (the next piece lays the rest of the
+    extra, so the total is the host's); as many digits as the exact count needs."""
     f = np.float32
     spm32 = f(spm)
     start = _lround(f(e_pos) * spm32)
     target = start + n
-    e_abs = target / spm
-    for nd in range(6, 12):
-        if abs_e:
-            txt = f"{e_abs:.{nd}f}"
-            got = _lround(f(float(txt)) * spm32)
-            laid = float(txt) - e_pos
-        else:
-            txt = f"{e_abs - e_pos:.{nd}f}"
-            got = _lround((f(e_pos) + f(float(txt))) * spm32)
-            laid = float(txt)
-        if got == target:
-            break
-    txt = txt.rstrip("0").rstrip(".") if "." in txt else txt
-    return f"E{txt}", laid
+    if abs_e:
+        e = _digits(target / spm, lambda v: _lround(f(v) * spm32) == target)
+        return [], f"E{e}", float(e) - e_pos
+    base = _digits(start / spm, lambda v: _lround(f(v) * spm32) == start)
+    step = _digits(n / spm, lambda v: _lround(f(f(float(base)) + f(v)) * spm32) == target)
+    return [f"G92 E{base}"], f"E{step}", float(base) + float(step) - e_pos
 
 
 class StopWriter:
@@ -980,10 +989,12 @@ def _emit(ln: Line, per_move, st: GcodeState, sw: StopWriter) -> Iterator[str]:
                     yield f"G4 P{a.ms}\n"
                     continue
                 spm = sw.spm_at(ln.line_no)
-                word, laid = stop_e_words(e_host + acc + added, stop.n, spm, abs_e)
+                before, word, laid = stop_e_lines(e_host + acc + added, stop.n, spm, abs_e)
                 sw.count(stop, laid)
                 acc += laid
                 feed = m.f
+                for b in before:
+                    yield b + "\n"
                 yield f"G1 {word} F{stop.feed(spm):.3f}\n"
                 continue
             parts = ["G1"]
