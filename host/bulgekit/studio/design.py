@@ -119,7 +119,7 @@ def bulges(design: dict) -> dict:
     for f in _BULGE_FIELDS:
         if f in b and b[f] is not None:
             v = b[f]
-            if f == "dwell" and isinstance(v, float) and v.is_integer():
+            if f in ("dwell", "stop_e_steps") and isinstance(v, float) and v.is_integer():
                 v = int(v)
             out[f] = v
     return out
