@@ -274,3 +274,16 @@ def test_stop_as_e_only_move_on_the_issues_wall():
     assert move93 * 1000 == pytest.approx(103.6, abs=1.5)
     assert move415 * 1000 == pytest.approx(103.7, abs=1.5)
     assert g4 > move93 + 0.005
+
+
+def test_cli_e_steps(tmp_path):
+    # 9 steps at 93 steps/mm, 96 steps/s: 1/120 + 8/96 = 0.0917 s each; at 500 steps/mm 48 steps
+    # at 513 steps/s: trapezoids through collinear junctions, 0.0968 mm at 1.025 mm/s = 0.0944 s
+    p = tmp_path / "a.gcode"
+    p.write_text("M83\n" + "G1 E0.0968 F61.5\n" * 100)
+    r = CliRunner().invoke(main, ["estimate", str(p), "--e-steps", "93"])
+    assert r.exit_code == 0 and "(9.2 s; 100 moves" in r.output, r.output
+    r = CliRunner().invoke(main, ["estimate", str(p)])
+    assert r.exit_code == 0 and "(9.4 s; 100 moves" in r.output, r.output
+    r = CliRunner().invoke(main, ["estimate", str(p), "--e-steps", "0"])
+    assert r.exit_code == 2 and "--e-steps" in r.output
