@@ -827,7 +827,8 @@ class StopWriter:
     def plan(self, a: Action, line_no: int) -> StopMove:
         if self.cfg.stop == STOP_G4:
             return StopMove(a.ms, STOP_G4, still=a.ms / 1000)
-        return plan_stop(a.ms, self.spm_at(line_no), a.extra, self.cfg.stop_e_steps)
+        # the extra owed here, less what stops before it (not yet paid) laid already
+        return plan_stop(a.ms, self.spm_at(line_no), a.extra - self.debt, self.cfg.stop_e_steps)
 
     def count(self, stop: StopMove, laid: float = 0.0) -> None:
         if stop.kind == STOP_G4:
@@ -849,10 +850,12 @@ class StopWriter:
         self.debt = 0.0
 
     def pay(self, a: Action) -> float:
-        """Filament to take off a line piece for E laid during the stops before it."""
+        """Filament to take off a line piece for E laid during the stops before it: the piece
+        that carries their extra (a stop's E may pass its whole steps of extra by the half step
+        it was aimed to the middle of: that comes off the piece's own filament)."""
         if self.debt == 0 or a.extra <= 0:
             return 0.0
-        take = min(self.debt, a.extra)
+        take = min(self.debt, a.e)
         self.unpaid_e_mm += self.debt - take
         self.debt = 0.0
         return take

@@ -501,3 +501,17 @@ def test_stops_long_enough_for_autoretract_are_named():
                         result=rr, stops=StockStops(stop_e_steps=steps)))
         assert rr.stock.autoretract == named
         assert ("autoretract on (M209 S1)" in rr.stock.summary()) == named
+
+
+def test_stops_in_a_row_share_the_extra_they_are_owed():
+    # a stop at the wall's corner (9.95, 0), then one at the next edge's start (10.2, 0): the
+    # second is owed both extras less what the first laid; 12 steps asked, 9 of each 9.3 there
+    text = HEAD.format(mode="M83") + "G1 X10 Y0 E1.0\nG1 X10 Y10 E1.0\n"
+    pts = [(0.3, [(9.95, 0.0), (10.2, 0.0)])]
+    mv = run(text, pts, stops=StockStops(stop_e_steps=12))
+    g4 = run(text, pts)
+    assert g4[-3:] == ["G4 P100", "G4 P100", "G1 X10 Y10 E1.2"]
+    made = marlin_e(HEAD.format(mode="M83").splitlines() + mv)
+    assert [n for ln, n, _ in made if ln in stop_lines(mv)] == [9, 9]
+    assert sum(n for _, n, _ in made) == sum(n for _, n, _ in marlin_e(g4)) == 205
+    assert mv[-1] == "G1 X10 Y10 E1.00645 F1200"         # 1.0 + 0.2 - 2 x 9 / 93
