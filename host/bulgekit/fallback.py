@@ -808,6 +808,8 @@ class StopWriter:
         self.g4_why: dict[str, int] = {}       # --stop move, written as G4: why (StopMove.why)
         self.nearest = 0                       # stops whose stillness is off their dwell (> 1 ms)
         self.still_s = 0.0                     # stillness of the E-only stops, s
+        self.run_s = 0.0                       # their time as blocks: the stillness but the
+                                               # braking's last 1/120 s (estimate.py's model)
         self.g4_s = 0.0                        # dwell of the G4 stops, s
         self.stop_e_mm = 0.0                   # E laid during stops
         self.unpaid_e_mm = 0.0                 # of that, not taken from a following piece
@@ -839,6 +841,7 @@ class StopWriter:
             return
         self.moves += 1
         self.still_s += stop.still
+        self.run_s += stop.still - 1 / MINIMAL_STEP_RATE
         self.nearest += stop.nearest
         self.stop_e_mm += laid
         self.debt += laid

@@ -72,11 +72,12 @@ class Stats:
             t += f" ({100 * self.added_s / self.slicer_time_s:.1f}% of the slicer's {_hms(self.slicer_time_s)})"
         out.append(t)
         if self.stock is not None:
-            # the stock file's stops as the printer runs them: an E-only stop holds the head for
-            # its stillness (fallback.still_s), a G4 for its dwell and the planner's drain
+            # the stock file's stops as the printer runs them: an E-only stop is a block of
+            # its stillness less the braking's last step (counted in stopping/starting below),
+            # as bulgekit estimate times it; a G4 its dwell and the planner's drain
             out.append(f"stock file: {self.stock.summary()}")
-            held = self.stock.still_s + self.stock.g4_s
-            t = f"stock file's added time: {_hms(held)} held"
+            held = self.stock.run_s + self.stock.g4_s
+            t = f"stock file's added time: {_hms(held)} in the stops"
             if self.decel_s is not None:
                 t += f" + {_hms(self.decel_s)} stopping/starting = {_hms(held + self.decel_s)}"
             if self.stock.g4:

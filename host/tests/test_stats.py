@@ -60,6 +60,8 @@ def test_build_stats_give_the_stock_files_stops_as_printed(data_dir, tmp_path):
     assert st.stock.moves == n and st.stock.still_s == pytest.approx(held)
     text = out.stats_path.read_text()
     assert f"stock file: stops as E-only moves: {n} ({held:.1f} s head still" in text
-    assert f"stock file's added time: {held:.1f} s held + {st.decel_s:.1f} s stopping/starting" in text
+    run = held - n / 120                  # each block: the stillness less the braking's last step
+    assert st.stock.run_s == pytest.approx(run)
+    assert f"stock file's added time: {run:.1f} s in the stops + {st.decel_s:.1f} s stopping/starting" in text
     g4 = api.build(g, strokes, tmp_path / "c", write_fallback=True, stops=StockStops("g4"))
     assert f"and the planner's drain and refill at each of its {n} G4" in g4.stats_path.read_text()
