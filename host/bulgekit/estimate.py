@@ -45,9 +45,10 @@ side slow to its speed (a junction with a move of E alone is limited by both mov
 
 The planner empties (the machine stops) at G4, G28, M400 and the heating waits M109/M190: the
 moves before brake to a stop and the ones after start from rest (the drain's cost), the dwell
-itself is added; the time the host takes to fill the queue again is not modelled. Not modelled: Marlin's slow-down when the buffer runs low (a host that keeps it
-full: SD card, or a fast enough serial line), LIN_ADVANCE, S-curve acceleration, arcs' exact
-segment count (G2/G3 are cut into pieces of at most 1 mm, as MAX_ARC_SEGMENT_MM).
+itself is added; the time the host takes to fill the queue again is not modelled. Not
+modelled either: Marlin's slow-down when the buffer runs low (a host that keeps it full: SD
+card, or a fast enough serial line), LIN_ADVANCE, S-curve acceleration, arcs' exact segment
+count (G2/G3 are cut into pieces of at most 1 mm, as MAX_ARC_SEGMENT_MM).
 """
 from __future__ import annotations
 
