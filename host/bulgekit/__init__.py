@@ -18,6 +18,6 @@ from .strokes import BulgekitError, InputError, Stroke, text_strokes
 
 __all__ = [
     "BuildOutput", "BulgekitError", "InputError", "MODE_GEOMETRIC", "MODE_MARKED", "MODE_OFF",
-    "Settings", "StockStops", "Stroke", "annotate_gcode", "build", "build_map", "bulge_stats", "fallback_gcode",
-    "load_strokes", "text_strokes", "walls", "__version__",
+    "Settings", "StockStops", "Stroke", "annotate_gcode", "build", "build_map", "bulge_stats",
+    "fallback_gcode", "load_strokes", "text_strokes", "walls", "__version__",
 ]

@@ -20,9 +20,10 @@ G-code give the same stops:
     vertex hands it to the next move if that move qualifies, else it is lost.
 
 `rewrite()` turns those actions back into plain G-code for stock firmware:
-G1 pieces with E proportional to their length (eq. 1), G4 P<ms> at each
-stop, the extra E added to the next piece and a G92 E that puts the host's
-E back (M82), or relative pieces (M83) which need no G92.
+G1 pieces with E proportional to their length (eq. 1), a stop at each point
+(an E-only move of whole steps timed to the dwell, StockStops; or G4 P<ms>,
+the paper's), the extra E added to the next piece and a G92 E that puts the
+host's E back (M82), or relative pieces (M83) which need no G92.
 """
 from __future__ import annotations
 
@@ -866,7 +867,8 @@ class StopWriter:
     def summary(self) -> str:
         if self.cfg.stop == STOP_G4:
             return f"stops as G4 P<ms>: {self.g4} ({self.g4_s:.1f} s dwell)"
-        out = f"stops as E-only moves: {self.moves} ({self.still_s:.1f} s head still, {self.stop_e_mm:.3f} mm E in them)"
+        out = (f"stops as E-only moves: {self.moves} ({self.still_s:.1f} s head still, "
+               f"{self.stop_e_mm:.3f} mm E in them)")
         if self.g4_why.get("extra"):
             out += f"; {self.g4_why['extra']} as G4 (extra under {MIN_STEPS_PER_SEGMENT} E steps)"
         if self.g4_why.get("long"):
@@ -1051,7 +1053,8 @@ def _emit(ln: Line, per_move, st: GcodeState, sw: StopWriter) -> Iterator[str]:
 def _header(bmap: mapformat.BulgeMap, settings: Settings, stops: StockStops) -> str:
     how = ""
     if stops.stop == STOP_MOVE:
-        how = (f", stops as E-only moves at {_fmt(stops.e_steps, 3)} E steps/mm (or as M92 E in the file sets)"
+        how = (f", stops as E-only moves at {_fmt(stops.e_steps, 3)} E steps/mm"
+               " (or as M92 E in the file sets)"
                + (f", {stops.stop_e_steps} E steps each" if stops.stop_e_steps else ""))
     return (f"; bulgekit fallback: {len(bmap.layers)} layers, {bmap.point_count} points, "
             f"dwell {settings.dwell_ms} ms, extra E {settings.extra_e:.3f} mm, "
