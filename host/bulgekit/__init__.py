@@ -13,11 +13,11 @@ __version__ = "0.1.0"
 # stats.py) so that `from bulgekit import annotate` keeps meaning the module.
 from .api import (BuildOutput, annotate_gcode, build, build_map, bulge_stats, fallback_gcode,
                   load_strokes, walls)
-from .fallback import MODE_GEOMETRIC, MODE_MARKED, MODE_OFF, Settings
+from .fallback import MODE_GEOMETRIC, MODE_MARKED, MODE_OFF, Settings, StockStops
 from .strokes import BulgekitError, InputError, Stroke, text_strokes
 
 __all__ = [
     "BuildOutput", "BulgekitError", "InputError", "MODE_GEOMETRIC", "MODE_MARKED", "MODE_OFF",
-    "Settings", "Stroke", "annotate_gcode", "build", "build_map", "bulge_stats", "fallback_gcode",
-    "load_strokes", "text_strokes", "walls", "__version__",
+    "Settings", "StockStops", "Stroke", "annotate_gcode", "build", "build_map", "bulge_stats",
+    "fallback_gcode", "load_strokes", "text_strokes", "walls", "__version__",
 ]

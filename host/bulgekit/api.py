@@ -72,11 +72,13 @@ def annotate_gcode(gcode, map_bytes: bytes, out, settings: Settings = Settings()
 
 
 def fallback_gcode(gcode, map_bytes: bytes, out, settings: Settings = Settings(), *,
-                   allow_unreached: bool = False) -> _fallback.RewriteResult:
-    """Map points no move reaches are an error unless allow_unreached."""
+                   allow_unreached: bool = False,
+                   stops: _fallback.StockStops = _fallback.StockStops()) -> _fallback.RewriteResult:
+    """Map points no move reaches are an error unless allow_unreached. stops: how the stops
+    are written (E-only moves by default, or G4)."""
     with progress.phase("stock fallback", path=gcode):
         return _fallback.rewrite_file(gcode, out, mapformat.decode_map(map_bytes, source="map"),
-                                      settings, allow_unreached)
+                                      settings, allow_unreached, stops)
 
 
 def bulge_stats(map_bytes: bytes, settings: Settings = Settings(), gcode=None,
@@ -103,7 +105,8 @@ def build(gcode, strokes: Sequence[Stroke], outdir, *, name: str | None = None,
           line_width: float = mapbuild.DEFAULT_LINE_WIDTH, layer_height: float | None = None,
           ref_angle_deg: float = -90.0, settings: Settings | None = None,
           stream: bool = True, arena: int = _annotate.ARENA_BYTES,
-          write_fallback: bool = False, quantum_um: int = mapbuild.MAP_QUANTUM_UM) -> BuildOutput:
+          write_fallback: bool = False, quantum_um: int = mapbuild.MAP_QUANTUM_UM,
+          stops: _fallback.StockStops = _fallback.StockStops()) -> BuildOutput:
     """Strokes + sliced G-code -> <name>.bkm, <name>.bulge.gcode, <name>.stats.txt
     (and <name>.stock.gcode with write_fallback) in outdir."""
     gcode = Path(gcode)
@@ -139,9 +142,12 @@ def build(gcode, strokes: Sequence[Stroke], outdir, *, name: str | None = None,
         # listed by the stats below (one planner run instead of three)
         ann = annotate_gcode(gcode, res.map_bytes, gpath, settings, stream=stream, arena=arena,
                              check=False)
+        stock = None
         if fpath is not None:
-            fallback_gcode(gcode, res.map_bytes, fpath, settings, allow_unreached=True)
+            stock = fallback_gcode(gcode, res.map_bytes, fpath, settings, allow_unreached=True,
+                                   stops=stops).stock
         st = bulge_stats(res.map_bytes, settings, gcode, arena)
+        st.stock = stock
         spath.write_text(st.text() + "\n", encoding="utf-8")
     except BaseException:
         for p in written:

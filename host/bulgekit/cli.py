@@ -10,8 +10,8 @@ import click
 
 from ._cliutil import FINITE, POSITIVE, Num, friendly, outdir_option, pair, progress_option
 from . import __version__, mapformat
-from .fallback import (DEFAULT_DWELL_MS, DEFAULT_EXTRA_E_MM, DEFAULT_TOLERANCE_MM,
-                       MODE_GEOMETRIC, MODE_MARKED, Settings)
+from .fallback import (DEFAULT_DWELL_MS, DEFAULT_E_STEPS, DEFAULT_EXTRA_E_MM, DEFAULT_TOLERANCE_MM,
+                       MIN_STEPS_PER_SEGMENT, MODE_GEOMETRIC, MODE_MARKED, Settings, StockStops)
 from .strokes import BulgekitError
 
 
@@ -33,6 +33,29 @@ def _settings_options(fn):
     fn = click.option("--dwell", type=int, default=DEFAULT_DWELL_MS, show_default=True,
                       help="M720 P: dwell (ms) at each point, scaled by its weight/255.")(fn)
     return fn
+
+
+def _stock_options(fn):
+    """How a stock file writes its stops (docs/host.md, "Stops on stock firmware")."""
+    fn = click.option("--stop-e-steps", type=click.IntRange(MIN_STEPS_PER_SEGMENT, 10000),
+                      help="Stock file: E steps laid during each stop, taken from its extra filament "
+                           "(the rest goes on the next piece) [the fewest that make a move: "
+                           f"{MIN_STEPS_PER_SEGMENT}, more for long dwells].")(fn)
+    fn = click.option("--e-steps", type=Num(1.0, 10000.0), default=DEFAULT_E_STEPS, show_default=True,
+                      help="Stock file: the printer's E steps/mm (M92 E), until an M92 E in the "
+                           "G-code changes it.")(fn)
+    fn = click.option("--stop", "stop_kind", type=click.Choice(["move", "g4"]), default="move",
+                      show_default=True,
+                      help="Stock file: each stop as an extruder-only move (queued, no planner "
+                           "drain, exact to the millisecond) or as G4 P<ms> (the paper's rewrite).")(fn)
+    return fn
+
+
+def _stops(stop_kind, e_steps, stop_e_steps) -> StockStops:
+    try:
+        return StockStops(stop_kind, e_steps, stop_e_steps)
+    except ValueError as e:        # values from a placement file's [bulges]
+        raise click.BadParameter(str(e), param_hint="'--stop', '--e-steps' or '--stop-e-steps'") from None
 
 
 def _arena_option(fn):
@@ -119,12 +142,14 @@ def main():
 @click.option("--preview/--no-preview", default=True, show_default=True, help="Write <name>.preview.png.")
 @click.option("--preview-3d", is_flag=True, help="Also write <name>.preview3d.png (the walls in 3D).")
 @_settings_options
+@_stock_options
 @progress_option
 @friendly
 @click.pass_context
 def build(ctx, gcode, placement, stroke_files, text, text_size, at, font, letter_spacing, scale, image_width,
           curve_tolerance, mirror, outdir, name, spacing, line_width, layer_height, ref_angle, no_stream,
-          write_fallback, preview, preview_3d, dwell, extra, tolerance, geometric):
+          write_fallback, preview, preview_3d, dwell, extra, tolerance, geometric, stop_kind, e_steps,
+          stop_e_steps):
     """Place strokes on GCODE's outer wall: map + annotated G-code + stats."""
     from . import api
     from .strokes import text_strokes
@@ -142,6 +167,9 @@ def build(ctx, gcode, placement, stroke_files, text, text_size, at, font, letter
         spacing = spacing if given("spacing") else b.get("spacing", spacing)
         line_width = line_width if given("line_width") else b.get("line_width", line_width)
         write_fallback = write_fallback or b.get("fallback", False)
+        stop_kind = stop_kind if given("stop_kind") else b.get("stop", stop_kind)
+        e_steps = e_steps if given("e_steps") else b.get("e_steps", e_steps)
+        stop_e_steps = stop_e_steps if given("stop_e_steps") else b.get("stop_e_steps", stop_e_steps)
     for f in stroke_files:
         strokes += api.load_strokes(f, image_width_mm=image_width, offset=at, scale=scale,
                                     curve_tolerance_mm=curve_tolerance)
@@ -151,10 +179,11 @@ def build(ctx, gcode, placement, stroke_files, text, text_size, at, font, letter
     if not strokes:
         raise click.UsageError("nothing to draw: give --strokes FILE, --text TEXT or --placement FILE")
     settings = _settings(dwell, extra, tolerance, geometric)
+    stops = _stops(stop_kind, e_steps, stop_e_steps)
     t0 = time.perf_counter()
     out = api.build(gcode, strokes, outdir, name=name, spacing=spacing, line_width=line_width,
                     layer_height=layer_height, ref_angle_deg=ref_angle, settings=settings,
-                    stream=not no_stream, write_fallback=write_fallback)
+                    stream=not no_stream, write_fallback=write_fallback, stops=stops)
     click.echo(out.stats.text(per_layer=False))
     for note in out.result.notes:
         click.echo(f"note: {note}")
@@ -205,6 +234,7 @@ def post_process(placement, arena, keep, gcode):
         settings = Settings(MODE_GEOMETRIC if b.get("geometric") else MODE_MARKED,
                             b.get("dwell", DEFAULT_DWELL_MS), b.get("extra", DEFAULT_EXTRA_E_MM),
                             b.get("tolerance", DEFAULT_TOLERANCE_MM))
+        stops = StockStops(b.get("stop", "move"), b.get("e_steps", DEFAULT_E_STEPS), b.get("stop_e_steps"))
     except ValueError as e:
         raise PlacementError(f"{placement}: bulges: {e}") from None
     src = Path(gcode)
@@ -212,7 +242,7 @@ def post_process(placement, arena, keep, gcode):
     try:
         out = api.build(src, pl.strokes, tmp, name="pp", spacing=b.get("spacing"),
                         line_width=b.get("line_width", DEFAULT_LINE_WIDTH), settings=settings, arena=arena,
-                        write_fallback=bool(b.get("fallback")))
+                        write_fallback=bool(b.get("fallback")), stops=stops)
         result = out.fallback_path if b.get("fallback") else out.gcode_path
         if keep:
             Path(keep).mkdir(parents=True, exist_ok=True)
@@ -257,27 +287,33 @@ def annotate(gcode, map_file, output, no_stream, arena, allow_unreached, dwell, 
                + f" ({dt:.2f} s)")
 
 
-@main.command(short_help="Rewrite for stock firmware: G4 dwell + extra E + G92.")
+@main.command(short_help="Rewrite for stock firmware: stops as E-only moves (or G4) + extra E.")
 @click.argument("gcode", type=click.Path(exists=True, dir_okay=False))
 @click.argument("map_file", metavar="MAP", type=click.Path(exists=True, dir_okay=False))
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="G-code to write.")
 @_allow_unreached_option
 @_settings_options
+@_stock_options
 @progress_option
 @friendly
-def fallback(gcode, map_file, output, allow_unreached, dwell, extra, tolerance, geometric):
-    """Rewrite GCODE for stock firmware: split, G4 dwell, extra E, G92 E.
+def fallback(gcode, map_file, output, allow_unreached, dwell, extra, tolerance, geometric, stop_kind,
+             e_steps, stop_e_steps):
+    """Rewrite GCODE for stock firmware: split at each point, stop there (an extruder-only
+    move of whole E steps timed to the dwell, or G4 P<ms> with --stop g4), extra E on the
+    next piece, G92 E.
 
     Map points that no move reaches (a map made for another file) are an
     error unless --allow-unreached."""
     from . import api
     settings = _settings(dwell, extra, tolerance, geometric)
-    res = api.fallback_gcode(gcode, _read_map(map_file), output, settings, allow_unreached=allow_unreached)
+    res = api.fallback_gcode(gcode, _read_map(map_file), output, settings, allow_unreached=allow_unreached,
+                             stops=_stops(stop_kind, e_steps, stop_e_steps))
     if res.unreached:
         click.echo(f"WARNING: {res.unreached}", err=True)
     st = res.stats
     click.echo(f"wrote {output}: {st.points_fired} stops on {res.moves_split} lines, "
                f"{st.dwell_ms_total / 1000:.1f} s dwell, {st.extra_applied:.2f} mm extra filament")
+    click.echo(res.stock.summary())
 
 
 @main.command(short_help="M720 settings + M721 upload of a map, for any host.")

@@ -34,8 +34,12 @@ def register(main):
                   help="Planner blocks (BLOCK_BUFFER_SIZE); 0: plan with the whole file.")
     @click.option("--honour-file-limits", is_flag=True,
                   help="Apply the file's own M201/M203/M204/M205 (slicers write them).")
+    @click.option("--e-steps", type=POSITIVE, default=500.0, show_default=True,
+                  help="E steps/mm (M92 E; an M92 E in the file wins): whole steps of moves of E "
+                       "alone, such as a stock file's stops. An Ender-3: 93.")
     @friendly
-    def estimate(gcode, accel, travel_accel, retract_accel, jd, jerk, lookahead, honour_file_limits):
+    def estimate(gcode, accel, travel_accel, retract_accel, jd, jerk, lookahead, honour_file_limits,
+                 e_steps):
         """Estimate GCODE's print time: trapezoids with acceleration, per-axis limits (Marlin's
         RAMPS defaults: 300/300/5/25 mm/s, 3000/3000/100/10000 mm/s^2), junction deviation or
         classic jerk, the planner's look-ahead, dwells; width mode (M723) as our firmware does
@@ -45,6 +49,7 @@ def register(main):
         m = es.Machine(accel=accel, travel_accel=travel_accel, retract_accel=retract_accel,
                        junction_deviation=jd, jerk=jerk, lookahead=lookahead or None,
                        honour_file_limits=honour_file_limits)
+        m.steps_per_mm["E"] = e_steps
         r = es.estimate_file(gcode, m)
         click.echo(f"{gcode}: {r.summary()} ({r.total_s:.1f} s; {len(r.blocks)} moves, "
                    f"dwell {r.dwell_s:.1f} s, filament {es.deposited_filament(r):.1f} mm)")

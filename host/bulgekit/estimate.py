@@ -35,10 +35,20 @@ whole file, as slicers' estimators do. Both passes are solved in closed form wit
     forward:  v_i^2 = S_i + min_{k <= i} (b_k - S_k)
 Each block is then a trapezoid (accelerate, cruise, brake).
 
-The planner empties (the machine stops) at G4, G28, M400 and the heating waits M109/M190, which
-add no time here. Not modelled: Marlin's slow-down when the buffer runs low (a host that keeps it
-full: SD card, or a fast enough serial line), LIN_ADVANCE, S-curve acceleration, arcs' exact
-segment count (G2/G3 are cut into pieces of at most 1 mm, as MAX_ARC_SEGMENT_MM).
+A move of E alone (a retraction, or a stop in a stock file, see fallback.py) runs n whole steps
+(n = lround(|dE| x M92 E)) at the block's rate r = ceil(n x speed / |dE|) steps/s. Below Marlin's
+MINIMAL_STEP_RATE (120 steps/s) the stepper starts and ends the block at 120 steps/s: it takes
+1/120 + (n - 1)/r s (measured in simulated stock Marlin 2.1.2.7, issue 25: the head stands still
+1/120 + (n - 1)/r + 1/120 s, the last 1/120 being the following block's first step, which its
+trapezoid holds). It is queued like any move: the planner does not empty, and the moves on either
+side slow to its speed (a junction with a move of E alone is limited by both moves' speeds).
+
+The planner empties (the machine stops) at G4, G28, M400 and the heating waits M109/M190: the
+moves before brake to a stop and the ones after start from rest (the drain's cost), the dwell
+itself is added; the time the host takes to fill the queue again is not modelled. Not
+modelled either: Marlin's slow-down when the buffer runs low (a host that keeps it full: SD
+card, or a fast enough serial line), LIN_ADVANCE, S-curve acceleration, arcs' exact segment
+count (G2/G3 are cut into pieces of at most 1 mm, as MAX_ARC_SEGMENT_MM).
 """
 from __future__ import annotations
 
@@ -51,6 +61,9 @@ import numpy as np
 from .strokes import BulgekitError
 
 AXES = "XYZE"
+
+
+MINIMAL_STEP_RATE = 120          # steps/s: Marlin's floor for a block's first and last step rate
 
 
 class EstimateError(BulgekitError):
@@ -124,6 +137,8 @@ class _Parser:
         self.pending = [0.0, 0.0, 0.0, 0.0]     # distance of dropped tiny moves
         self.dwell = 0.0
         self.dwell_by_feature: dict[str, float] = {}
+        self.spm = dict(m.steps_per_mm)         # M92 in the file changes it
+        self.e_at = 0                           # the planner's E position, whole steps
 
     def err(self, n, msg):
         raise EstimateError(f"{self.src}:{n}: {msg}")
@@ -179,6 +194,7 @@ class _Parser:
             for i, a in enumerate(AXES):
                 if a in w:
                     self.pos[i] = w[a] or 0.0
+            self.e_at = _lround(self.pos[3] * self.spm["E"])
         elif cmd == "G90":
             self.rel = [False] * 4
         elif cmd == "G91":
@@ -199,6 +215,13 @@ class _Parser:
                 if not any(k in w for k in "XYZ") or a in w:
                     self.pos[i] = 0.0
             self.brk = True
+        elif cmd == "M92":
+            # steps/mm: the E-only rule and the tiny-move rule count whole steps
+            w = self.words(n, toks[1:])
+            for a in AXES:
+                if w.get(a) and w[a] > 0:
+                    self.spm[a] = w[a]
+            self.e_at = _lround(self.pos[3] * self.spm["E"])   # Marlin re-sets its position
         elif cmd in ("M400", "M109", "M190", "M116", "M0", "M1"):
             self.brk = True
         elif cmd == "M220":
@@ -276,12 +299,18 @@ class _Parser:
     def emit(self, n, d, f_override=None):
         m = self.m
         d = [d[i] + self.pending[i] for i in range(4)]
-        steps = [abs(d[i]) * m.steps_per_mm[a] for i, a in enumerate(AXES)]
+        steps = [abs(d[i]) * self.spm[a] for i, a in enumerate(AXES)]
+        xyz = math.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
+        e_to = _lround(self.pos[3] * self.spm["E"])
+        if xyz == 0:
+            # E alone: whole steps from the planner's position (the fraction carried matters)
+            steps[3] = abs(e_to - self.e_at)
         if max(steps) < m.min_segment_steps:               # Marlin drops it; the distance carries on
             self.pending = d
             return
         self.pending = [0.0, 0.0, 0.0, 0.0]
-        xyz = math.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
+        n_e = steps[3] if xyz == 0 else 0
+        self.e_at = e_to
         v = f_override if f_override is not None else self.f * self.pct / 100
         if self.width and d[3] > 0 and (d[0] or d[1]):
             s = self.w_state
@@ -293,7 +322,8 @@ class _Parser:
             accel = self.retract_accel
         self.rows.append((n, self.fidx[self.feature], self.layer, d[0], d[1], d[2], d[3], v, accel,
                           self.brk, self.jd, tuple(self.jerk[a] for a in AXES) if self.jerk else None,
-                          tuple(self.max_accel[a] for a in AXES), tuple(self.max_fr[a] for a in AXES)))
+                          tuple(self.max_accel[a] for a in AXES), tuple(self.max_fr[a] for a in AXES),
+                          n_e, self.spm["E"]))
         self.brk = False
 
     def arc(self, n, cw, w):
@@ -326,6 +356,7 @@ class _Parser:
             self.emit(n, [nx - px, ny - py, (z1 - z0) / segs, (e1 - e0) / segs])
             px, py = nx, ny
         self.pos = [x1, y1, z1, e1]
+        self.e_at = _lround(e1 * self.spm["E"])
 
 
 def _junctions(b, jd, jerk, amax, m: Machine):
@@ -512,6 +543,7 @@ def estimate_lines(lines, machine: Machine | None = None, source: str = "<gcode>
                 seg = b[s:e]
                 _plan_segment(seg, maxentry2[s:e], m)
                 b[s:e] = seg
+        _slow_e_only(b, xyz, np.array(cols[14], float), np.array(cols[15], float))
     t = b["t_accel"] + b["t_cruise"] + b["t_decel"]
     feats = p.features
     by = {}
@@ -523,6 +555,27 @@ def estimate_lines(lines, machine: Machine | None = None, source: str = "<gcode>
     moves = float(t.sum())
     return Result(total_s=moves + p.dwell, moves_s=moves, dwell_s=p.dwell, by_feature=by,
                   features=feats, blocks=b, lines=count)
+
+
+def _lround(v: float) -> int:
+    return int(math.floor(v + 0.5)) if v >= 0 else -int(math.floor(-v + 0.5))
+
+
+def _slow_e_only(b, xyz, steps_e, spm_e) -> None:
+    """Moves of E alone whose step rate is under MINIMAL_STEP_RATE: 1/120 + (n - 1)/r s, all at
+    their speed (see the module's doc); faster ones keep their trapezoid, which is n/r plus the
+    ramp."""
+    sel = np.flatnonzero((xyz == 0) & (b["de"] != 0))
+    if not len(sel):
+        return
+    n = steps_e[sel]
+    # Marlin's length of the block is its whole steps in mm: the rate is speed x steps/mm
+    rate = np.ceil(b["nominal_speed"][sel] * spm_e[sel] - 1e-9)
+    slow = (rate < MINIMAL_STEP_RATE) & (n >= 1)
+    k = sel[slow]
+    b["t_accel"][k] = 0.0
+    b["t_decel"][k] = 0.0
+    b["t_cruise"][k] = 1 / MINIMAL_STEP_RATE + (n[slow] - 1) / rate[slow]
 
 
 def estimate_file(path, machine: Machine | None = None) -> Result:

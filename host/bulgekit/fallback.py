@@ -20,13 +20,16 @@ G-code give the same stops:
     vertex hands it to the next move if that move qualifies, else it is lost.
 
 `rewrite()` turns those actions back into plain G-code for stock firmware:
-G1 pieces with E proportional to their length (eq. 1), G4 P<ms> at each
-stop, the extra E added to the next piece and a G92 E that puts the host's
-E back (M82), or relative pieces (M83) which need no G92.
+G1 pieces with E proportional to their length (eq. 1), a stop at each point
+(an E-only move of whole steps timed to the dwell, StockStops; or G4 P<ms>,
+the paper's), the extra E added to the next piece and a G92 E that puts the
+host's E back (M82), or relative pieces (M83) which need no G92.
 """
 from __future__ import annotations
 
 import bisect
+import math
+import re
 from dataclasses import dataclass, field
 from typing import Iterable, Iterator
 
@@ -86,6 +89,9 @@ class Action:
     e: float = 0.0      # filament of this piece, extra included
     ms: int = 0
     t: float = 1.0      # parameter along the host move (1 = its end)
+    # for the stock writer (they change nothing the planner decides):
+    extra: float = 0.0  # line: the extra filament in e; dwell: the extra owed after the stop
+    dropped: float = 0.0  # line: extra owed before this move that it dropped
 
 
 @dataclass
@@ -261,12 +267,14 @@ class RefPlanner:
             self._flush(m, outer, actions)
         if not self._eligible(m, outer):
             # as the firmware: a move that moves nothing keeps the owed extra
+            dropped = 0.0
             if not null:
                 self.stop_ms = 0
                 if self.carry != 0:
-                    self.stats.extra_dropped += float(self.carry)
+                    dropped = float(self.carry)
+                    self.stats.extra_dropped += dropped
                     self.carry = f32(0)
-            return actions + [Action("line", m.x1, m.y1, m.z1, m.e)]
+            return actions + [Action("line", m.x1, m.y1, m.z1, m.e, dropped=dropped)]
         self.last_end = (_bits(m.x1), _bits(m.y1))
         x0, y0, z0 = f32(m.x0), f32(m.y0), f32(m.z0)
         x1, y1, z1 = f32(m.x1), f32(m.y1), f32(m.z1)
@@ -311,6 +319,7 @@ class RefPlanner:
                 az = m.z1 if z0 == z1 else float(z0 + t * (z1 - z0))
                 a = Action("line", float(ax), float(ay), az, 0.0, t=float(t))
             a.e = piece_e + float(pending)
+            a.extra = float(pending)
             self.stats.extra_applied += float(pending)
             pending = f32(0)
             self.stop_ms = 0
@@ -359,6 +368,7 @@ class RefPlanner:
         if extra > room:
             extra = room if room > 0 else f32(0)
             self.stats.extra_dropped += float(f32(self.s.extra_e) - extra)
+        actions[-1].extra = float(pending + extra)
         return pending + extra
 
     def _flush(self, m: Move, outer: bool, actions: list[Action]) -> None:
@@ -628,6 +638,281 @@ def _on_arcs(planner: RefPlanner, miss) -> tuple[int, int] | None:
     return (n, first) if n else None
 
 
+# --- stops for stock firmware -------------------------------------------------------------
+# A stop is written as an extruder-only move (--stop move, the default) or as G4 P<ms>
+# (--stop g4, the paper's rewrite). Marlin's G4 drains the planner queue before it dwells
+# (planner.synchronize()); a G1 of E alone is queued like any move, and the head stands still
+# while the extruder makes its steps. Measured in simulated stock Marlin 2.1.2.7 (issue 25):
+# with n whole E steps at r steps/s the head stands still for
+#     1/120 + (n - 1)/r + 1/120 s   when r < 120 steps/s (Marlin's MINIMAL_STEP_RATE),
+#     n/r + 1/120 s                 when r >= 120,
+# where r is the block's nominal rate, ceil(n x feed / length) in whole steps/s.
+STOP_MOVE, STOP_G4 = "move", "g4"
+DEFAULT_E_STEPS = 93.0         # E steps/mm of an Ender-3's stock extruder
+MIN_STEPS_PER_SEGMENT = 6      # Marlin drops a move with fewer steps on every axis
+MINIMAL_STEP_RATE = 120        # steps/s: Marlin's floor for a block's first and last step rate
+SLOWEST_STEP_RATE = 32         # steps/s: AVR stepper timer's longest interval (F_CPU / 500000)
+MAX_E_FEEDRATE = 25.0          # mm/s: Marlin's default M203 E; a faster E move is slowed
+NEAREST_MS = 1.0               # a stop further than this from its dwell is counted as "nearest"
+MIN_AUTORETRACT = 0.1          # mm: with FWRETRACT autoretract on (M209 S1) Marlin turns a move of
+                               # E alone this long or longer into a firmware retract/recover
+G4_OVER_S = 0.017              # G4 P100 held the head 116.4-117.4 ms (issue 25): a move that would
+                               # miss its dwell by more than this is written as G4 instead
+
+
+@dataclass(frozen=True)
+class StockStops:
+    """How a stock file writes its stops. e_steps: the printer's E steps/mm until the file's own
+    M92 E changes it (the printer runs the file's M92, so that wins from its line on).
+    stop_e_steps: E steps laid during each stop (None: the fewest that make a move, 6, or more
+    when a long dwell needs them to keep the rate above SLOWEST_STEP_RATE); they are taken from
+    the stop's extra filament, the rest of which goes on the next piece as before."""
+    stop: str = STOP_MOVE
+    e_steps: float = DEFAULT_E_STEPS
+    stop_e_steps: int | None = None
+
+    def __post_init__(self):
+        if self.stop not in (STOP_MOVE, STOP_G4):
+            raise ValueError(f"stop {self.stop!r} must be {STOP_MOVE!r} or {STOP_G4!r}")
+        if not (math.isfinite(self.e_steps) and 1 <= self.e_steps <= 10000):
+            raise ValueError(f"E steps {self.e_steps} outside 1..10000 steps/mm")
+        if self.stop_e_steps is not None and not MIN_STEPS_PER_SEGMENT <= self.stop_e_steps <= 10000:
+            raise ValueError(f"stop E steps {self.stop_e_steps} outside {MIN_STEPS_PER_SEGMENT}..10000")
+
+
+def still_s(n: int, rate: int) -> float:
+    """Seconds the head stands still for an E-only move of n steps at `rate` steps/s (the rule above)."""
+    if rate < MINIMAL_STEP_RATE:
+        return 2 / MINIMAL_STEP_RATE + (n - 1) / rate
+    return n / rate + 1 / MINIMAL_STEP_RATE
+
+
+@dataclass
+class StopMove:
+    """One stop as written: `g4` (a G4 P ms), or an E-only move of n steps at `rate` steps/s."""
+    ms: int
+    kind: str
+    n: int = 0
+    rate: int = 0
+    still: float = 0.0         # s the head stands still (G4: the dwell itself)
+    nearest: bool = False      # the dwell could not be made exactly (counted in the stats)
+    why: str = ""              # a move stop written as G4: "extra" (under 6 steps), "long"
+
+    def feed(self, spm: float) -> float:
+        """mm/min whose block rate, ceil(n x feed / length), is `rate`: the middle of the feeds
+        that give it, so float rounding in the firmware cannot change it."""
+        return (self.rate - 0.5) * 60 / spm
+
+
+def _min_steps_for(d: float) -> int:
+    """The fewest steps whose rate stays at or above SLOWEST_STEP_RATE for a stillness of d s."""
+    need = 1 + SLOWEST_STEP_RATE * (d - 2 / MINIMAL_STEP_RATE)
+    return max(MIN_STEPS_PER_SEGMENT, math.ceil(need - 1e-9))
+
+
+def plan_stop(ms: int, spm: float, owed_mm: float, steps: int | None = None) -> StopMove:
+    """The E-only move for a stop of `ms`: n whole steps (`steps`, or the fewest that make it),
+    at most the whole steps of the extra owed at the stop, and the rate whose stillness is
+    nearest the dwell. Falls back to G4 when the owed extra is under MIN_STEPS_PER_SEGMENT steps
+    (a shorter E-only move is dropped by Marlin: the stop would be lost)."""
+    d = ms / 1000
+    if ms == 0:
+        return StopMove(0, "none")            # a weight-0 point: nothing to hold
+    want = steps if steps is not None else _min_steps_for(d)
+    avail = math.floor(owed_mm * spm + 1e-6)
+    if avail < MIN_STEPS_PER_SEGMENT:
+        return StopMove(ms, STOP_G4, still=d, why="extra")
+    best = None
+    # whole rates make the stillness come in quanta ((n - 1)/r^2 per step/s, large at low
+    # rates): unless the steps were given, a step or a few more are added when the fewest
+    # miss the dwell by more than NEAREST_MS
+    last = want if steps is not None else min(avail, 2 * want + 8)
+    for n in range(min(want, avail), max(min(want, avail), last) + 1):
+        cand = _rate_for(n, d, spm)
+        if best is None or abs(cand.still - d) < abs(best.still - d) - 1e-9:
+            best = cand
+        if abs(best.still - d) * 1000 <= NEAREST_MS:
+            break
+    best.ms = ms
+    if abs(best.still - d) > G4_OVER_S and best.still < d:
+        # too little extra for the slowest rate: G4 holds nearer the dwell, despite its drain
+        return StopMove(ms, STOP_G4, still=d, why="long")
+    best.nearest = abs(best.still - d) * 1000 > NEAREST_MS
+    return best
+
+
+def _rate_for(n: int, d: float, spm: float) -> StopMove:
+    """n steps at the whole rate whose stillness is nearest d s."""
+    r_max = max(int(MAX_E_FEEDRATE * spm), MINIMAL_STEP_RATE)
+    if d >= (n + 1) / MINIMAL_STEP_RATE:
+        r = (n - 1) / (d - 2 / MINIMAL_STEP_RATE)
+    elif d > 1 / MINIMAL_STEP_RATE:
+        r = n / (d - 1 / MINIMAL_STEP_RATE)
+    else:
+        r = float(r_max)
+    cands = {min(max(k, SLOWEST_STEP_RATE), r_max) for k in (math.floor(r), math.ceil(r))}
+    rate = min(sorted(cands), key=lambda k: abs(still_s(n, k) - d))
+    return StopMove(0, STOP_MOVE, n, rate, still_s(n, rate))
+
+
+def _lround(v) -> int:
+    """C's lroundf: halves away from zero."""
+    v = float(v)
+    return int(math.floor(v + 0.5)) if v >= 0 else -int(math.floor(-v + 0.5))
+
+
+def _digits(value: float, ok) -> str:
+    """value with 6 or more decimals, as few as make ok(written value) true."""
+    for nd in range(6, 12):
+        txt = f"{value:.{nd}f}"
+        if ok(float(txt)):
+            break
+    return txt.rstrip("0").rstrip(".") if "." in txt else txt
+
+
+def stop_e_lines(e_pos: float, n: int, spm: float, abs_e: bool) -> tuple[list[str], str, float]:
+    """(lines before the stop, its E word, the filament it lays in host terms) for an E-only move
+    of exactly n steps from host E e_pos. Marlin plans a move to lround(E x steps/mm) steps, in
+    float. The target is put in the middle of a step, lround(e_pos x spm) + n, a whole number,
+    so that neither float32 nor the fraction carried from before changes the count:
+      - absolute E (M82): Marlin's position is the last E the file wrote, known here exactly:
+        the move goes to the target;
+      - relative E (M83): Marlin adds each E to its position in float32, which drifts from the
+        host's sum (0.1 mm over 1,400 mm of a file without G92 E0: ten steps at 93 steps/mm),
+        so the position is first set to the whole step nearest the host's (G92 E), and the move
+        is n steps from there.
+    The filament laid is target/spm - e_pos either way (the next piece lays the rest of the
+    extra, so the total is the host's); as many digits as the exact count needs."""
+    f = np.float32
+    spm32 = f(spm)
+    start = _lround(f(e_pos) * spm32)
+    target = start + n
+    if abs_e:
+        e = _digits(target / spm, lambda v: _lround(f(v) * spm32) == target)
+        return [], f"E{e}", float(e) - e_pos
+    base = _digits(start / spm, lambda v: _lround(f(v) * spm32) == start)
+    step = _digits(n / spm, lambda v: _lround(f(f(float(base)) + f(v)) * spm32) == target)
+    return [f"G92 E{base}"], f"E{step}", float(base) + float(step) - e_pos
+
+
+class StopWriter:
+    """Writes the stops of one stock file (used by rewrite() and the byte path alike) and counts
+    what it wrote. E laid during a stop is taken from the extra filament of the next piece
+    (`debt`); if that piece never comes (the extra is dropped at a wall's end), it stays laid."""
+
+    def __init__(self, stops: StockStops, m92: list[tuple[int, float]] | None = None):
+        self.cfg = stops
+        self.m92 = list(m92 or [])             # (line number, E steps/mm) of the file's M92 E
+        self.debt = 0.0
+        self.moves = 0                         # stops written as E-only moves
+        self.g4 = 0                            # stops written as G4 (--stop g4, or too little extra)
+        self.g4_why: dict[str, int] = {}       # --stop move, written as G4: why (StopMove.why)
+        self.nearest = 0                       # stops whose stillness is off their dwell (> 1 ms)
+        self.still_s = 0.0                     # stillness of the E-only stops, s
+        self.run_s = 0.0                       # their time as blocks: the stillness but the
+                                               # braking's last 1/120 s (estimate.py's model)
+        self.g4_s = 0.0                        # dwell of the G4 stops, s
+        self.stop_e_mm = 0.0                   # E laid during stops
+        self.unpaid_e_mm = 0.0                 # of that, not taken from a following piece
+        self.autoretract = 0                   # stops of MIN_AUTORETRACT or more (see there)
+
+    def spm_at(self, line_no: int) -> float:
+        k = bisect.bisect_left(self.m92, (line_no,))
+        return self.m92[k - 1][1] if k else self.cfg.e_steps
+
+    def note_m92(self, line_no: int, raw: str) -> None:
+        """rewrite()'s stream: an M92 line (the byte path scans the file for them first)."""
+        mt = _M92_RX.match(raw.encode("utf-8", "replace"))
+        v = _m92_e(mt.group(1)) if mt else None
+        if v is not None:
+            self.m92.append((line_no, v))
+
+    def plan(self, a: Action, line_no: int) -> StopMove:
+        if self.cfg.stop == STOP_G4:
+            return StopMove(a.ms, STOP_G4, still=a.ms / 1000)
+        # the extra owed here, less what stops before it (not yet paid) laid already
+        return plan_stop(a.ms, self.spm_at(line_no), a.extra - self.debt, self.cfg.stop_e_steps)
+
+    def count(self, stop: StopMove, laid: float = 0.0) -> None:
+        if stop.kind == STOP_G4:
+            self.g4 += 1
+            self.g4_s += stop.still
+            if stop.why:
+                self.g4_why[stop.why] = self.g4_why.get(stop.why, 0) + 1
+            return
+        self.moves += 1
+        self.still_s += stop.still
+        self.run_s += stop.still - 1 / MINIMAL_STEP_RATE
+        self.nearest += stop.nearest
+        self.stop_e_mm += laid
+        self.debt += laid
+        self.autoretract += laid >= MIN_AUTORETRACT - 1e-9
+
+    def drop(self) -> None:
+        """The planner dropped the extra owed: E a stop laid stays laid."""
+        self.unpaid_e_mm += self.debt
+        self.debt = 0.0
+
+    def pay(self, a: Action) -> float:
+        """Filament to take off a line piece for E laid during the stops before it: the piece
+        that carries their extra (a stop's E may pass its whole steps of extra by the half step
+        it was aimed to the middle of: that comes off the piece's own filament)."""
+        if self.debt == 0 or a.extra <= 0:
+            return 0.0
+        take = min(self.debt, a.e)
+        self.unpaid_e_mm += self.debt - take
+        self.debt = 0.0
+        return take
+
+    def summary(self) -> str:
+        if self.cfg.stop == STOP_G4:
+            return f"stops as G4 P<ms>: {self.g4} ({self.g4_s:.1f} s dwell)"
+        out = (f"stops as E-only moves: {self.moves} ({self.still_s:.1f} s head still, "
+               f"{self.stop_e_mm:.3f} mm E in them)")
+        if self.g4_why.get("extra"):
+            out += f"; {self.g4_why['extra']} as G4 (extra under {MIN_STEPS_PER_SEGMENT} E steps)"
+        if self.g4_why.get("long"):
+            out += (f"; {self.g4_why['long']} as G4 (dwell too long for the extra's steps at "
+                    f"{SLOWEST_STEP_RATE} steps/s)")
+        if self.nearest:
+            out += f"; {self.nearest} not exactly as asked (nearest made)"
+        if self.unpaid_e_mm > 1e-9:
+            out += f"; {self.unpaid_e_mm:.3f} mm stop E beyond the extra (dropped at walls' ends)"
+        if self.autoretract:
+            out += (f"; {self.autoretract} lay {MIN_AUTORETRACT} mm or more: with FWRETRACT "
+                    "autoretract on (M209 S1) Marlin would make them recover moves")
+        return out
+
+
+_M92_RX = re.compile(rb"^[ \t]*(?:[Nn]\d+[ \t]+)?[Mm]0*92(?![0-9.])([^\n;]*)", re.M)
+_M92_E_RX = re.compile(rb"[Ee]\s*([-+]?(?:\d+\.?\d*|\.\d+))")
+
+
+def _m92_e(args: bytes) -> float | None:
+    e = _M92_E_RX.search(args)
+    return float(e.group(1)) if e and float(e.group(1)) > 0 else None
+
+
+def scan_m92(path) -> list[tuple[int, float]]:
+    """(line number, E) of every M92 with an E word in a file, in order."""
+    import mmap
+    out = []
+    with open(path, "rb") as f:
+        try:
+            data = mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ)
+        except ValueError:                    # an empty file
+            return out
+        with data:
+            line, pos = 1, 0
+            for mt in _M92_RX.finditer(data):
+                line += data.count(b"\n", pos, mt.start())
+                pos = mt.start()
+                e = _m92_e(mt.group(1))
+                if e is not None:
+                    out.append((line, e))
+    return out
+
+
 def _fmt(v: float, nd: int = 5) -> str:
     s = f"{v:.{nd}f}".rstrip("0").rstrip(".")
     if s in ("-0", ""):
@@ -642,27 +927,34 @@ class RewriteResult:
     stops: list = field(default_factory=list)
     stats: PlanStats | None = None
     unreached: str | None = None     # message when map points get no stop
+    stock: StopWriter | None = None  # how the stops were written, and their counts
 
 
 def rewrite(lines: Iterable[str], bmap: mapformat.BulgeMap, settings: Settings,
-            source: str = "<gcode>", result: RewriteResult | None = None) -> Iterator[str]:
+            source: str = "<gcode>", result: RewriteResult | None = None,
+            stops: StockStops = StockStops()) -> Iterator[str]:
     """Yield the stock-firmware G-code (lines end with '\\n')."""
     planner = RefPlanner(bmap, settings)
     st = GcodeState()
     res = result if result is not None else RewriteResult()
-    yield _header(bmap, settings)
+    sw = res.stock = StopWriter(stops)
+    yield _header(bmap, settings, stops)
     for ln in parse_lines(lines, source, st):
         res.lines_in += 1
         raw = ln.raw if ln.raw.endswith("\n") else ln.raw.rstrip("\r") + "\n"
         if not ln.moves:
+            if ln.cmd == "M92":
+                sw.note_m92(ln.line_no, ln.raw)
             yield raw
             continue
         per_move = [(m, planner.plan(m)) for m in ln.moves]
         if all(_unchanged(m, a) for m, a in per_move):
+            if any(a.dropped for _, acts in per_move for a in acts):
+                sw.drop()
             yield raw
             continue
         res.moves_split += 1
-        yield from _emit(ln, per_move, st)
+        yield from _emit(ln, per_move, st, sw)
     res.stops = planner.stops
     res.stats = planner.stats
     res.unreached = unreached_message(planner, source)
@@ -674,7 +966,7 @@ def _unchanged(m: Move, actions: list[Action]) -> bool:
             and abs(actions[0].e - m.e) < 1e-12)
 
 
-def _emit(ln: Line, per_move, st: GcodeState) -> Iterator[str]:
+def _emit(ln: Line, per_move, st: GcodeState, sw: StopWriter) -> Iterator[str]:
     """G-code for one source line whose moves were split or got extra E."""
     w = ln.words or {}
     comment = ""
@@ -689,12 +981,29 @@ def _emit(ln: Line, per_move, st: GcodeState) -> Iterator[str]:
     e_host = m0.e_start            # host E at the start of the current move
     e_out = m0.e_start             # E as written (absolute mode)
     added = 0.0
+    feed = None                    # a stop move changed the feed: the feed to give back
     for m, acts in per_move:
         e_host = m.e_start
         acc = 0.0                  # filament written for this move so far
         for a in acts:
+            if a.dropped:
+                sw.drop()
             if a.kind == "dwell":
-                yield f"G4 P{a.ms}\n"
+                stop = sw.plan(a, ln.line_no)
+                if stop.kind == "none":
+                    continue
+                if stop.kind == STOP_G4:
+                    sw.count(stop)
+                    yield f"G4 P{a.ms}\n"
+                    continue
+                spm = sw.spm_at(ln.line_no)
+                before, word, laid = stop_e_lines(e_host + acc + added, stop.n, spm, abs_e)
+                sw.count(stop, laid)
+                acc += laid
+                feed = m.f
+                for b in before:
+                    yield b + "\n"
+                yield f"G1 {word} F{stop.feed(spm):.3f}\n"
                 continue
             parts = ["G1"]
             if a.t >= 1.0:
@@ -715,19 +1024,25 @@ def _emit(ln: Line, per_move, st: GcodeState) -> Iterator[str]:
                     parts.append(f"Y{_fmt(ty - cy, 4)}")
                 if tz != cz:
                     parts.append(f"Z{_fmt(tz - cz, 4)}")
-            acc += a.e
+            piece_e = a.e - sw.pay(a)     # E a stop laid comes off the extra this piece carries
+            acc += piece_e
             if abs_e:
                 e_out = e_host + acc + added
                 parts.append(f"E{_fmt(e_out)}")
             else:
-                parts.append(f"E{_fmt(a.e)}")
+                parts.append(f"E{_fmt(piece_e)}")
             if first and "F" in w:
                 parts.append(f"F{_fmt(w['F'], 3)}")
+            elif feed is not None:
+                parts.append(f"F{_fmt(m.f, 3)}")
+            feed = None
             first = False
             cx, cy, cz = tx, ty, tz
             yield " ".join(parts) + "\n"
         extra_here = acc - m.e
         added += extra_here
+    if feed is not None:
+        yield f"G1 F{_fmt(per_move[-1][0].f, 3)}\n"   # the stop's feed must not carry on
     if abs_e and abs(added) > 1e-9:
         # put the host's E back where the original line left it
         yield f"G92 E{_fmt(per_move[-1][0].e_start + per_move[-1][0].e)}\n"
@@ -735,27 +1050,42 @@ def _emit(ln: Line, per_move, st: GcodeState) -> Iterator[str]:
         yield comment + "\n"
 
 
-def _header(bmap: mapformat.BulgeMap, settings: Settings) -> str:
+def _header(bmap: mapformat.BulgeMap, settings: Settings, stops: StockStops) -> str:
+    how = ""
+    if stops.stop == STOP_MOVE:
+        how = (f", stops as E-only moves at {_fmt(stops.e_steps, 3)} E steps/mm"
+               " (or as M92 E in the file sets)"
+               + (f", {stops.stop_e_steps} E steps each" if stops.stop_e_steps else ""))
     return (f"; bulgekit fallback: {len(bmap.layers)} layers, {bmap.point_count} points, "
             f"dwell {settings.dwell_ms} ms, extra E {settings.extra_e:.3f} mm, "
-            f"tolerance {settings.tolerance:.3f} mm, mode {settings.mode}\n")
+            f"tolerance {settings.tolerance:.3f} mm, mode {settings.mode}{how}\n")
 
 
 def _rewrite_records(src, out, chunks, bmap: mapformat.BulgeMap, settings: Settings,
-                     source: str, res: RewriteResult) -> None:
+                     source: str, res: RewriteResult, stops: StockStops = StockStops(),
+                     m92: list | None = None) -> None:
     """rewrite() on the compiled scanner's chunks: the same output, but lines that stay as they
     are copied as bytes and only the moves that can change planned (Skipper). Needs a file
     whose lines end in \n or \r\n and that is valid UTF-8 (rewrite_file checks)."""
     from .gcode import parse_words, split_code
     planner = RefPlanner(bmap, settings)
-    out.write(_header(bmap, settings).encode())
+    sw = res.stock = StopWriter(stops, m92)
+    out.write(_header(bmap, settings, stops).encode())
     pos = 0                                   # bytes of src copied so far
 
     def emit_changed(a, done, planned):
         nonlocal pos
         lines = a["line_no"]
-        changed = (int(lines[i]) for i, (m, acts) in planned.items() if not _unchanged(m, acts))
-        for ln_no in dict.fromkeys(changed):
+        seen = set()
+        for i, (m, acts) in sorted(planned.items()):     # in file order, as rewrite() goes
+            ln_no = int(lines[i])
+            if ln_no in seen:
+                continue
+            if _unchanged(m, acts):
+                if acts[0].dropped:
+                    sw.drop()
+                continue
+            seen.add(ln_no)
             idx = np.flatnonzero(lines == ln_no)      # the line's moves (an arc's chords)
             r0 = a[idx[0]]
             start = int(r0["offset"])
@@ -775,7 +1105,7 @@ def _rewrite_records(src, out, chunks, bmap: mapformat.BulgeMap, settings: Setti
             st.abs_e = bool(int(r0["flags"]) & movescan.ABS_E)
             res.moves_split += 1
             out.write("".join(_emit(Line(ln_no, text, head[0].upper(), words, [], None),
-                                    per_move, st)).encode())
+                                    per_move, st, sw)).encode())
     plan_records(planner, chunks, on_chunk=emit_changed)
     rest = src.read()
     out.write(rest)
@@ -802,7 +1132,7 @@ def _plain_lines(data) -> bool:
 
 
 def rewrite_file(src, dst, bmap: mapformat.BulgeMap, settings: Settings,
-                 allow_unreached: bool = False) -> RewriteResult:
+                 allow_unreached: bool = False, stops: StockStops = StockStops()) -> RewriteResult:
     """Rewrite src into dst.  Map points no move reaches are an error (the
     map is likely for another file) unless allow_unreached; then the message
     is in result.unreached.  dst is only written when the rewrite succeeds."""
@@ -822,7 +1152,8 @@ def rewrite_file(src, dst, bmap: mapformat.BulgeMap, settings: Settings,
             def fast(chunks):
                 r = RewriteResult()
                 with open(tmp, "wb") as f, open(src, "rb") as g:
-                    _rewrite_records(g, f, chunks, bmap, settings, str(src), r)
+                    _rewrite_records(g, f, chunks, bmap, settings, str(src), r, stops,
+                                     scan_m92(src) if stops.stop == STOP_MOVE else None)
                 return r
             try:
                 res = movescan.run(src, fast, fast=True)
@@ -832,7 +1163,7 @@ def rewrite_file(src, dst, bmap: mapformat.BulgeMap, settings: Settings,
         if not done:
             with open(tmp, "w", encoding="utf-8", newline="") as f:
                 buf = []
-                for out in rewrite(lines, bmap, settings, str(src), res):
+                for out in rewrite(lines, bmap, settings, str(src), res, stops):
                     buf.append(out)
                     if len(buf) >= 4096:
                         f.write("".join(buf))

@@ -25,7 +25,10 @@ post-processing step (`bulgekit post-process`) or `bulgekit build --placement` r
     geometric = false            # no outer-wall markers in the G-code (M720 S2)
     spacing = 0.9                # mm between points along a layer
     line_width = 0.45
-    fallback = false             # write stock-firmware G-code (G4 + extra E) instead of M720-M722
+    fallback = false             # write stock-firmware G-code (stops + extra E) instead of M720-M722
+    stop = "move"                # stock stops: "move" (E-only moves, exact) or "g4" (G4 P<ms>)
+    e_steps = 93                 # the printer's E steps/mm (an M92 E in the G-code wins)
+    stop_e_steps = 6             # E steps laid during each stop (default: the fewest that make a move)
 
 Unknown tables or keys, wrong types and missing files are errors that name the file and key.
 Every stroke's source starts with its table ("text[0] ...", "strokes[1] ..."), so a message
@@ -45,7 +48,8 @@ _TEXT_KEYS = {"text": str, "at": list, "size": (int, float), "font": str, "lette
 _STROKE_KEYS = {"file": str, "at": list, "scale": (int, float), "image_width": (int, float),
                 "curve_tolerance": (int, float), "rotate": (int, float)}
 _BULGE_KEYS = {"dwell": int, "extra": (int, float), "tolerance": (int, float), "geometric": bool,
-               "spacing": (int, float), "line_width": (int, float), "fallback": bool}
+               "spacing": (int, float), "line_width": (int, float), "fallback": bool,
+               "stop": str, "e_steps": (int, float), "stop_e_steps": int}
 
 
 class PlacementError(InputError):

@@ -39,6 +39,7 @@ class Stats:
     extra_dropped_mm: float = 0.0
     decel_s: float | None = None   # stop/start cost at the moves' feedrates
     slicer_time_s: float | None = None
+    stock: object | None = None    # fallback.StopWriter of the stock file, when one was written
 
     @property
     def added_s(self) -> float:
@@ -70,6 +71,18 @@ class Stats:
         if self.slicer_time_s:
             t += f" ({100 * self.added_s / self.slicer_time_s:.1f}% of the slicer's {_hms(self.slicer_time_s)})"
         out.append(t)
+        if self.stock is not None:
+            # the stock file's stops as the printer runs them: an E-only stop is a block of
+            # its stillness less the braking's last step (counted in stopping/starting below),
+            # as bulgekit estimate times it; a G4 its dwell and the planner's drain
+            out.append(f"stock file: {self.stock.summary()}")
+            held = self.stock.run_s + self.stock.g4_s
+            t = f"stock file's added time: {_hms(held)} in the stops"
+            if self.decel_s is not None:
+                t += f" + {_hms(self.decel_s)} stopping/starting = {_hms(held + self.decel_s)}"
+            if self.stock.g4:
+                t += f" (and the planner's drain and refill at each of its {self.stock.g4} G4)"
+            out.append(t)
         if per_layer:
             out.append("per layer (z mm: points" + (" / stops" if self.stops is not None else "") + "):")
             row = []

@@ -21,7 +21,7 @@ from pathlib import Path
 import pytest
 
 from bulgekit.annotate import AnnotateResult, annotate_bytes
-from bulgekit.fallback import RewriteResult, Settings, rewrite
+from bulgekit.fallback import RewriteResult, Settings, StockStops, rewrite
 from bulgekit.mapbuild import build
 from bulgekit.strokes import Stroke, text_strokes
 from bulgekit.wall import walls_from_gcode
@@ -147,7 +147,9 @@ def test_firmware_path_matches_stock_fallback(bkcore, case):
     if kind == "dense":
         assert ares.appends, "this case is meant to stream the map"
     rres = RewriteResult()
-    stock = "".join(rewrite(src.decode().splitlines(keepends=True), r.bulge_map, settings, name, rres))
+    # the paper's rewrite (G4 stops), whose dwells bkcore counts as the firmware's
+    stock = "".join(rewrite(src.decode().splitlines(keepends=True), r.bulge_map, settings, name, rres,
+                            StockStops("g4")))
     assert "M72" not in stock
 
     fw, fw_sum, fw_err = run_core(bkcore, annotated)

@@ -227,3 +227,63 @@ def test_agrees_with_prusaslicer_in_classic_jerk(data_dir, name, prusa_s):
                    max_feedrate=es._axes(500, 500, 12, 120), jerk=es._axes(10, 10, 0.2, 2.5), lookahead=None)
     r = es.estimate_file(data_dir / name, m)
     assert r.total_s == pytest.approx(prusa_s, rel=0.01)
+
+
+# -- moves of E alone (issue 25: stops in stock files) -------------------------------------
+
+def test_slow_e_only_move_follows_the_minimum_rate_rule():
+    # 9 steps at 93 steps/mm, F61.5: ceil(61.5 / 60 x 93) = 96 steps/s, under Marlin's 120:
+    # 1/120 + 8/96 s (the head stands still 1/120 s longer: the next block's first step)
+    r = es.estimate_lines(["M83", "M92 E93", "G1 E0.0968 F61.5"], machine())
+    assert r.total_s == pytest.approx(1 / 120 + 8 / 96, rel=1e-12)
+    # at 500 steps/mm (Machine's default) the same move is 48 steps at 513 steps/s: a trapezoid
+    r = es.estimate_lines(["M83", "G1 E0.0968 F61.5"], machine())
+    assert r.total_s == pytest.approx(trapezoid(0.0968, 61.5 / 60, 1000.0), rel=1e-9)
+
+
+def test_e_only_steps_count_from_the_planners_position():
+    # E0.07 at 93 steps/mm is 6.51 steps: 6 or 7 whole steps by the fraction carried from before
+    def stop_time(e0):
+        r = es.estimate_lines(["M83", "M92 E93", f"G92 E{e0}", "G1 E0.07 F42"], machine())
+        return r.total_s
+    assert stop_time(0.0) == pytest.approx(1 / 120 + 6 / 66)           # 0 -> 6.51: 7 steps
+    assert stop_time(0.5797) == pytest.approx(1 / 120 + 5 / 66)        # 53.91 -> 60.42: 6 steps
+    # under six steps Marlin drops it, and the distance goes to the next move
+    r = es.estimate_lines(["M83", "M92 E93", "G1 E0.03 F18", "G1 X10 E0.5 F1200"], machine())
+    assert len(r.blocks) == 1 and r.blocks["de"][0] == pytest.approx(0.53)
+
+
+def test_stop_as_e_only_move_on_the_issues_wall():
+    """The issue's wall: 40 mm/s in 0.5 mm pieces, three stops, RAMPS defaults (3000 mm/s^2,
+    JD 0.013, 16 blocks), measured in simulated stock Marlin 2.1.2.7: 103.6 ms added per stop for
+    G1 E0.0968 F61.5 (93 steps/mm) and 103.7 for G1 E0.0988 F64.6 (415). G4 P100 empties the
+    planner: it costs more (155.1 ms measured; the host's refill of the queue is not modelled)."""
+    def added(stop, spm):
+        def wall(with_stop):
+            out = ["G90", "M83", f"M92 E{spm}", "G1 X0 Y0 F2400"]
+            for i in range(120):
+                out.append(f"G1 X{0.5 * (i + 1):.3f} E0.0187 F2400")     # F back after a stop
+                if with_stop and i in (30, 60, 90):
+                    out.append(stop)
+            return out
+        m = es.Machine()
+        return (es.estimate_lines(wall(True), m).total_s - es.estimate_lines(wall(False), m).total_s) / 3
+    move93 = added("G1 E0.0968 F61.5", 93)
+    move415 = added("G1 E0.0988 F64.6", 415)
+    g4 = added("G4 P100", 93)
+    assert move93 * 1000 == pytest.approx(103.6, abs=1.5)
+    assert move415 * 1000 == pytest.approx(103.7, abs=1.5)
+    assert g4 > move93 + 0.005
+
+
+def test_cli_e_steps(tmp_path):
+    # 9 steps at 93 steps/mm, 96 steps/s: 1/120 + 8/96 = 0.0917 s each; at 500 steps/mm 48 steps
+    # at 513 steps/s: trapezoids through collinear junctions, 0.0968 mm at 1.025 mm/s = 0.0944 s
+    p = tmp_path / "a.gcode"
+    p.write_text("M83\n" + "G1 E0.0968 F61.5\n" * 100)
+    r = CliRunner().invoke(main, ["estimate", str(p), "--e-steps", "93"])
+    assert r.exit_code == 0 and "(9.2 s; 100 moves" in r.output, r.output
+    r = CliRunner().invoke(main, ["estimate", str(p)])
+    assert r.exit_code == 0 and "(9.4 s; 100 moves" in r.output, r.output
+    r = CliRunner().invoke(main, ["estimate", str(p), "--e-steps", "0"])
+    assert r.exit_code == 2 and "--e-steps" in r.output

@@ -1,7 +1,10 @@
+import math
+
+import numpy as np
 import pytest
 
 from bulgekit import mapformat
-from bulgekit.fallback import RefPlanner, Settings, rewrite
+from bulgekit.fallback import RefPlanner, Settings, StockStops, rewrite
 from bulgekit.gcode import iter_moves
 
 
@@ -9,8 +12,11 @@ def bmap(layers, weights=None, lh=0.3):
     return mapformat.decode_map(mapformat.encode_map(layers, layer_height_mm=lh, weights=weights))
 
 
-def run(text, layers, settings=Settings(), weights=None):
-    out = "".join(rewrite(text.splitlines(keepends=True), bmap(layers, weights), settings))
+G4 = StockStops("g4")        # the paper's rewrite: where the stops go and what E the pieces get
+
+
+def run(text, layers, settings=Settings(), weights=None, stops=G4):
+    out = "".join(rewrite(text.splitlines(keepends=True), bmap(layers, weights), settings, stops=stops))
     return [l for l in out.splitlines() if l and not l.startswith("; bulgekit")]
 
 
@@ -112,7 +118,9 @@ def test_each_point_fires_once_per_layer():
     assert run(text, [(0.3, [(5.0, 0.0)])]).count("G4 P100") == 1
 
 
-def test_real_file_extrusion_totals_and_untouched_moves(data_dir):
+@pytest.mark.parametrize("stops", [G4, StockStops()], ids=["g4", "move"])
+def test_real_file_extrusion_totals_and_untouched_moves(data_dir, stops):
+    import re
     from bulgekit.mapbuild import build
     from bulgekit.strokes import Stroke
     from bulgekit.wall import walls_from_gcode
@@ -123,18 +131,35 @@ def test_real_file_extrusion_totals_and_untouched_moves(data_dir):
         planner_stats = {}
         from bulgekit.fallback import RewriteResult
         rr = RewriteResult()
-        out = list(rewrite(src, res.bulge_map, Settings(), name, rr))
+        out = list(rewrite(src, res.bulge_map, Settings(), name, rr, stops))
         e_in = sum(m.e for m in iter_moves(src))
         e_out = sum(m.e for m in iter_moves(out))
         assert rr.stats.points_fired == len(res.points)
-        assert e_out - e_in == pytest.approx(rr.stats.extra_applied, abs=1e-3)
+        # E laid during the stops comes out of the extra (unless a wall's end dropped it): in
+        # the file's E words where the stops set no E position (M83 stops start with G92 E) ...
+        extra = rr.stats.extra_applied + rr.stock.unpaid_e_mm
+        if stops is G4 or name == "prusa_cyl.gcode":
+            assert e_out - e_in == pytest.approx(extra, abs=1e-3)
+        # ... and in the steps Marlin makes (float32, whole steps): each stop 6, and in all as
+        # many as the paper's rewrite makes (which differs from extra x 93 by the half steps
+        # each G92 E lets go: 454 steps here for 437.1)
+        if stops is not G4:
+            ref = list(rewrite(src, res.bulge_map, Settings(), name, None, G4))
+            made = marlin_e(out)
+            ours = set(stop_lines([ln.rstrip("\n") for ln in out])) - set(ln.rstrip("\n") for ln in src)
+            assert [n for ln, n, _ in made if ln in ours] == [6] * len(res.points)
+            total = [sum(n for _, n, _ in marlin_e(x)) for x in (ref, out)]
+            assert abs(total[1] - total[0]) <= 3
         assert rr.stats.extra_applied == pytest.approx(0.1 * len(res.points) - rr.stats.extra_dropped, abs=1e-6)
         # every position of the original is still visited, in order
         orig = [(round(m.x1, 3), round(m.y1, 3), round(m.z1, 3)) for m in iter_moves(src)]
         new = [(round(m.x1, 3), round(m.y1, 3), round(m.z1, 3)) for m in iter_moves(out)]
         it = iter(new)
         assert all(p in it for p in orig)
-        assert sum(1 for l in out if l.startswith("G4 P")) == len(res.points)
+        g4 = sum(1 for l in out if l.startswith("G4 P"))
+        e_only = (sum(1 for l in out if re.fullmatch(r"G1 E[-\d.]+ F[\d.]+\n", l))
+                  - sum(1 for l in src if re.fullmatch(r"G1 E[-\d.]+ F[\d.]+\n", l)))
+        assert (g4, e_only) == ((len(res.points), 0) if stops is G4 else (0, len(res.points)))
 
 
 @pytest.mark.parametrize("name,geometric", [
@@ -256,3 +281,237 @@ def test_processed_files_are_refused_so_bulges_are_not_doubled(tmp_path, data_di
     ok = tmp_path / "ok.gcode"
     ok.write_text("".join(text[:50] + ["M7220\n", "; M720 S1 in a comment\n"] + text[50:]))
     annotate_file(ok, tmp_path / "o3.gcode", bm, Settings())
+
+
+# -- stops as extruder-only moves (issue 25) ------------------------------------------------
+
+def marlin_e(lines, spm=93.0):
+    """E as stock Marlin plans it, in float32 and whole steps: [(line, steps, F or None)] for
+    every move that drives E, with M82/M83, G92 E and M92 E followed."""
+    import re
+    f = np.float32
+    rel, pos, at, out = False, f(0), 0, []
+    for ln in lines:
+        code = ln.split(";")[0].split()
+        if not code:
+            continue
+        w = {t[0]: float(t[1:]) for t in code[1:] if len(t) > 1}
+        if code[0] == "M83":
+            rel = True
+        elif code[0] == "M82":
+            rel = False
+        elif code[0] == "M92" and "E" in w:
+            spm = w["E"]
+            at = lround(pos * f(spm))
+        elif code[0] == "G92" and "E" in w:
+            pos = f(w["E"])
+            at = lround(pos * f(spm))
+        elif code[0] in ("G0", "G1") and "E" in w:
+            pos = f(pos + f(w["E"])) if rel else f(w["E"])
+            to = lround(pos * f(spm))
+            out.append((ln.strip(), to - at, w.get("F")))
+            at = to
+    return out
+
+
+def lround(v) -> int:
+    v = float(v)
+    return int(np.floor(v + 0.5)) if v >= 0 else -int(np.floor(-v + 0.5))
+
+
+def stop_lines(lines):
+    import re
+    return [ln for ln in lines if re.fullmatch(r"G1 E[-\d.]+ F[\d.]+", ln)]
+
+
+def test_stop_length_matches_the_issue_table():
+    from bulgekit.fallback import plan_stop
+    # 9 steps at 93 steps/mm: F61.5 in the issue (ceil(61.5 x 93 / 60) = 96 steps/s) held 100.0 ms
+    s = plan_stop(100, 93, 1.0, steps=9)
+    assert (s.kind, s.n, s.rate) == ("move", 9, 96) and s.still == pytest.approx(0.100, abs=1e-9)
+    assert math.ceil(61.5 * 93 / 60) == s.rate and f"{s.feed(93):.3f}" == "61.613"
+    # 41 steps at 415 steps/mm: F64.6 (447 steps/s) held 100.09 ms
+    s = plan_stop(100, 415, 1.0, steps=41)
+    assert (s.n, s.rate) == (41, 447) and math.ceil(64.6 * 415 / 60) == 447
+    assert s.still == pytest.approx(41 / 447 + 1 / 120) and abs(s.still - 0.1) < 1e-4
+    # 6 steps (G1 E0.07 F42 in the issue, 66 steps/s) held 92.6 ms: the rule gives 92.4
+    from bulgekit.fallback import still_s
+    assert still_s(6, 66) * 1000 == pytest.approx(92.42, abs=0.01)
+
+
+def test_feed_gives_the_rate_in_float32():
+    # Marlin: nominal_rate = ceil(steps x feed / length), length = steps / (steps/mm), in float
+    from bulgekit.fallback import plan_stop
+    f = np.float32
+    for spm in (93.0, 96.2, 130.0, 280.0, 415.0, 837.0):
+        for ms in (20, 37, 50, 100, 150, 250):
+            s = plan_stop(ms, spm, 1.0)
+            if s.kind != "move":
+                continue
+            feed = float(f"{s.feed(spm):.3f}")
+            mm = f(s.n) * (f(1) / f(spm))
+            assert math.ceil(f(s.n) * (f(feed) / f(60) / mm)) == s.rate, (spm, ms)
+
+
+def test_default_stop_is_six_steps_timed_to_the_dwell():
+    lines = run(HEAD.format(mode="M83") + "G1 X10 Y0 E1.0\n", [(0.3, [(4.0, 0.0)])], stops=StockStops())
+    # 100 ms with 6 steps: 2/120 + 5/r = 0.1 s, r = 60 steps/s, F = 59.5 x 60 / 93
+    assert stop_lines(lines) == ["G1 E0.064516 F38.387"]
+    # M83: E first set to the whole step nearest the host's (0.4 mm = 37.2 steps: 37)
+    assert lines[lines.index(stop_lines(lines)[0]) - 1] == "G92 E0.397849"
+    assert "G4 P100" not in lines
+    e = marlin_e(HEAD.format(mode="M83").splitlines() + lines)
+    assert [n for ln, n, _ in e if ln.startswith("G1 E")] == [6]
+
+
+@pytest.mark.parametrize("mode", ["M82", "M83"])
+def test_stop_e_comes_out_of_the_extra_and_the_total_is_unchanged(mode):
+    e1 = "E1.0" if mode == "M83" else "E1.0"
+    e2 = "E1.0" if mode == "M83" else "E2.0"
+    text = (HEAD.format(mode=mode) + f"G1 X10 Y0 {e1}\nG1 X10 Y10 {e2}\n")
+    pts = [(0.3, [(4.0, 0.0), (9.95, 0.0), (10.0, 5.0)])]
+    g4 = run(text, pts)
+    mv = run(text, pts, stops=StockStops())
+    head = HEAD.format(mode=mode).splitlines()
+    fw_g4, fw_mv = marlin_e(head + g4), marlin_e(head + mv)
+    # the same filament in all, to the step; each stop 6 whole steps
+    assert sum(n for _, n, _ in fw_mv) == sum(n for _, n, _ in fw_g4)
+    assert [n for ln, n, _ in fw_mv if ln in stop_lines(mv)] == [6, 6, 6]
+    # the pieces carry the extra less what the stop before them laid: 0.1 mm = 9.3 steps
+    pieces = [n for ln, n, _ in fw_mv if ln not in stop_lines(mv)]
+    pieces_g4 = [n for ln, n, _ in fw_g4]
+    assert sum(pieces_g4) - sum(pieces) == 18
+    if mode == "M82":
+        # absolute E: positions after each piece are those of the G4 rewrite, G92 puts E back
+        assert [ln for ln in mv if ln.startswith("G92")] == [ln for ln in g4 if ln.startswith("G92")]
+        assert mv[-1] == g4[-1] == "G92 E2"
+
+
+def test_feed_is_given_back_after_a_stop():
+    # the stop's F must not carry on to the next move of the file
+    text = HEAD.format(mode="M83") + "G1 X10 Y0 E1.0\nG1 X10 Y10 E1.0\nG1 X0 Y10 E1.0\n"
+    lines = run(text, [(0.3, [(4.0, 0.0), (9.95, 0.0)])], stops=StockStops())
+    i, j = [k for k, ln in enumerate(lines) if ln in stop_lines(lines)]
+    assert lines[i + 1] == "G1 X10 Y0 E0.63764 F1200"       # 0.6 + 0.1 - (0.397849 + 0.064516 - 0.4)
+    assert lines[j + 1] == "G1 F1200"             # the stop ends the line: F given back alone
+
+
+def test_weighted_stop_is_timed_to_its_share_of_the_dwell():
+    from bulgekit.fallback import plan_stop
+    lines = run(HEAD.format(mode="M83") + "G1 X10 Y0 E1.0\n", [(0.3, [(4.0, 0.0)])], weights=[[51]],
+                stops=StockStops())
+    # (100 x 51 + 127) // 255 = 20 ms: 6 steps at 514 steps/s, 6/514 + 1/120 = 20.006 ms
+    s = plan_stop(20, 93, 0.1)
+    assert (s.n, s.rate) == (6, 514) and s.still == pytest.approx(0.020006, abs=1e-6)
+    assert stop_lines(lines) == [f"G1 E0.064516 F{s.feed(93):.3f}"]
+
+
+def test_stop_e_steps_option_and_e_steps():
+    text = HEAD.format(mode="M83") + "G1 X10 Y0 E1.0\n"
+    lines = run(text, [(0.3, [(4.0, 0.0)])], stops=StockStops(e_steps=415, stop_e_steps=30))
+    (ln,) = stop_lines(lines)
+    e = marlin_e(HEAD.format(mode="M83").splitlines() + lines, spm=415)
+    assert [n for l, n, _ in e if l == ln] == [30]
+    # 30 steps in 100 ms: 2/120 + 29/r = 0.1 s at r = 348 >= 120, so n/r + 1/120: r = 327.3
+    assert ln.endswith(" F47.205")          # (327 - 0.5) x 60 / 415
+
+
+def test_the_files_m92_e_rules_from_its_line():
+    text = (HEAD.format(mode="M83") + "G1 X10 Y0 E1.0\nM92 E415\nG1 X10 Y10 E1.0\n")
+    lines = run(text, [(0.3, [(4.0, 0.0), (10.0, 5.0)])], stops=StockStops())
+    e = marlin_e(HEAD.format(mode="M83").splitlines() + lines)
+    stops = stop_lines(lines)
+    assert [n for l, n, _ in e if l in stops] == [6, 6]
+    # the same 6 steps at 415 steps/mm are 4.46 x shorter in E
+    e_words = [float(s.split()[1][1:]) for s in stops]
+    assert e_words[0] * 93 == pytest.approx(6, abs=0.75) and e_words[1] * 415 == pytest.approx(6, abs=0.75)
+
+
+def test_extra_under_six_steps_keeps_g4_and_is_counted():
+    from bulgekit.fallback import RewriteResult
+    rr = RewriteResult()
+    text = HEAD.format(mode="M83") + "G1 X10 Y0 E1.0\n"
+    out = "".join(rewrite(text.splitlines(keepends=True), bmap([(0.3, [(4.0, 0.0)])]),
+                          Settings(extra_e=0.05), result=rr, stops=StockStops()))
+    # 0.05 mm at 93 steps/mm is 4.65 steps: an E-only move of 4 would be dropped by Marlin
+    assert "G4 P100\n" in out and not stop_lines(out.splitlines())
+    assert (rr.stock.moves, rr.stock.g4, rr.stock.g4_why) == (0, 1, {"extra": 1})
+    assert "1 as G4 (extra under 6 E steps)" in rr.stock.summary()
+
+
+def test_no_stop_is_lost_and_short_or_long_dwells_are_the_nearest():
+    from bulgekit.fallback import plan_stop
+    for ms in range(1, 2001, 7):
+        s = plan_stop(ms, 93, 0.1)
+        assert s.kind in ("move", "g4")
+        if s.kind == "move":
+            assert s.n >= 6 and 32 <= s.rate <= 25 * 93
+            assert s.nearest == (abs(s.still - ms / 1000) > 0.001)
+        else:
+            assert s.why == "long" and ms > 266      # 9 steps at 32 steps/s hold 266.7 ms at most
+    assert plan_stop(5, 93, 0.1).nearest              # 6 steps at 25 mm/s take 10.9 ms
+    assert plan_stop(0, 93, 0.1).kind == "none"       # a weight-0 point: no stop to write
+
+
+@pytest.mark.parametrize("frac_at", [0.0, 0.25, 0.4999, 0.5, 0.5001, 0.75, 0.999])
+def test_stop_e_is_exact_to_the_step_whatever_the_fraction_before(frac_at):
+    from bulgekit.fallback import stop_e_lines
+    f = np.float32
+    for spm in (93.0, 415.0, 96.7):
+        for base in (0.0, 3.1, 517.0, 2981.3):
+            e_pos = (math.floor(base * spm) + frac_at) / spm
+            for n in (6, 9, 41):
+                # M82: Marlin's position is the E the file wrote last
+                before, word, laid = stop_e_lines(e_pos, n, spm, abs_e=True)
+                assert before == []
+                assert lround(f(float(word[1:])) * f(spm)) - lround(f(e_pos) * f(spm)) == n
+                # the target is the middle of a step: at most half a step (and float32) from n/spm
+                assert laid == pytest.approx(n / spm, abs=0.75 / spm)
+                # M83: Marlin's float32 sum drifts from the host's (here up to 0.2 mm either way);
+                # the G92 E before the stop puts it on a whole step, n steps follow
+                (g92,), word, laid = stop_e_lines(e_pos, n, spm, abs_e=False)
+                at = f(float(g92.split()[1][1:]))
+                assert lround(f(at + f(float(word[1:]))) * f(spm)) - lround(at * f(spm)) == n
+                assert laid == pytest.approx(n / spm, abs=0.75 / spm)
+                assert float(at) == pytest.approx(e_pos, abs=0.75 / spm)
+
+
+def test_g92_bookkeeping_in_absolute_e_with_a_reset_mid_wall():
+    text = (HEAD.format(mode="M82") + "G92 E0\nG1 X10 Y0 E1.0\nG92 E0\nG1 X10 Y10 E1.0\nG1 X0 Y10 E2.0\n")
+    pts = [(0.3, [(9.95, 0.0), (10.0, 5.0)])]
+    mv = run(text, pts, stops=StockStops())
+    g4 = run(text, pts)
+    head = HEAD.format(mode="M82").splitlines()
+    fw_mv, fw_g4 = marlin_e(head + mv), marlin_e(head + g4)
+    assert sum(n for _, n, _ in fw_mv) == sum(n for _, n, _ in fw_g4)
+    assert [n for ln, n, _ in fw_mv if ln in stop_lines(mv)] == [6, 6]
+    # a stop at a line's end lays its E there: G92 puts E back where the host left it before
+    # the file's own G92 E0, and the next line's first piece lays the extra less that E
+    i = mv.index("G1 E1.064516 F38.387")
+    assert mv[i + 1:i + 5] == ["G1 F1200", "G92 E1", "G92 E0", "G1 X10 Y5 E0.53548"]
+    assert mv[-1] == g4[-1] == "G1 X0 Y10 E2.0"
+
+
+def test_stops_long_enough_for_autoretract_are_named():
+    from bulgekit.fallback import RewriteResult
+    text = HEAD.format(mode="M83") + "G1 X10 Y0 E1.0\n"
+    for steps, named in ((9, False), (10, True)):       # 9/93 = 0.097 mm, 10/93 = 0.108 mm
+        rr = RewriteResult()
+        "".join(rewrite(text.splitlines(keepends=True), bmap([(0.3, [(4.0, 0.0)])]), Settings(extra_e=0.2),
+                        result=rr, stops=StockStops(stop_e_steps=steps)))
+        assert rr.stock.autoretract == named
+        assert ("autoretract on (M209 S1)" in rr.stock.summary()) == named
+
+
+def test_stops_in_a_row_share_the_extra_they_are_owed():
+    # a stop at the wall's corner (9.95, 0), then one at the next edge's start (10.2, 0): the
+    # second is owed both extras less what the first laid; 12 steps asked, 9 of each 9.3 there
+    text = HEAD.format(mode="M83") + "G1 X10 Y0 E1.0\nG1 X10 Y10 E1.0\n"
+    pts = [(0.3, [(9.95, 0.0), (10.2, 0.0)])]
+    mv = run(text, pts, stops=StockStops(stop_e_steps=12))
+    g4 = run(text, pts)
+    assert g4[-3:] == ["G4 P100", "G4 P100", "G1 X10 Y10 E1.2"]
+    made = marlin_e(HEAD.format(mode="M83").splitlines() + mv)
+    assert [n for ln, n, _ in made if ln in stop_lines(mv)] == [9, 9]
+    assert sum(n for _, n, _ in made) == sum(n for _, n, _ in marlin_e(g4)) == 205
+    assert mv[-1] == "G1 X10 Y10 E1.00645 F1200"         # 1.0 + 0.2 - 2 x 9 / 93

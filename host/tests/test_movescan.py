@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from bulgekit import mapformat, movescan
-from bulgekit.fallback import (RefPlanner, RewriteResult, Settings, plan_records, rewrite,
+from bulgekit.fallback import (RefPlanner, RewriteResult, Settings, StockStops, plan_records, rewrite,
                                rewrite_file)
 from bulgekit.gcode import GcodeError, parse_lines
 
@@ -129,18 +129,22 @@ def test_skipping_moves_changes_nothing_the_planner_does(path):
             assert fast.arcs == ref.arcs
 
 
+@pytest.mark.parametrize("stops", [StockStops(), StockStops("g4"), StockStops(e_steps=415, stop_e_steps=9)],
+                         ids=["move", "g4", "move415"])
 @pytest.mark.parametrize("path", FILES, ids=lambda p: p.name)
-def test_fallback_file_is_the_same_by_either_path(path, tmp_path):
+def test_fallback_file_is_the_same_by_either_path(path, tmp_path, stops):
     rng = random.Random("fallback" + path.name)
     geometric = path.name.startswith("slic3r")
     settings = Settings(mode=2 if geometric else 1, extra_e=0.3)
     bm = _random_map(path, rng, geometric)
     out = tmp_path / "out.gcode"
-    res = rewrite_file(path, out, bm, settings, allow_unreached=True)    # bytes copied
+    res = rewrite_file(path, out, bm, settings, allow_unreached=True, stops=stops)    # bytes copied
     text_res = RewriteResult()
     text = "".join(rewrite(path.read_text().splitlines(keepends=True), bm, settings, str(path),
-                           text_res))
+                           text_res, stops))
     assert res.moves_split > 10
     assert out.read_text() == text
     assert (res.lines_in, res.moves_split, res.stops, res.stats, res.unreached) == \
         (text_res.lines_in, text_res.moves_split, text_res.stops, text_res.stats, text_res.unreached)
+    assert res.stock.summary() == text_res.stock.summary()
+    assert vars(res.stock) == vars(text_res.stock)

@@ -90,10 +90,37 @@ def test_placement_errors(work, body, message):
 
 def test_fallback_rewrites_for_stock_firmware(work):
     g, p = work
+    orig = g.read_text()
     p.write_text(PLACEMENT + "fallback = true\n")
     assert run("post-process", "--placement", p, g).exit_code == 0
     text = g.read_text()
-    assert text.startswith("; bulgekit fallback") and "\nG4 P120" in text and "M721" not in text
+    assert text.startswith("; bulgekit fallback") and "M721" not in text
+    # stops are E-only moves (issue 25): 120 ms = 2/120 + 5/r s for 6 steps: r = 48.4 steps/s,
+    # 48 the nearest whole rate (120.8 ms), F = (48 - 0.5) x 60 / 93 mm/min at 93 steps/mm
+    stops = [ln for ln in text.splitlines() if ln.startswith("G1 E") and ln not in orig]
+    assert len(stops) == 34 and "G4 P" not in text
+    assert all(ln.endswith(" F30.645") for ln in stops)
+
+
+def test_fallback_stop_settings_from_the_placement(work, tmp_path):
+    g, p = work
+    keep = g.read_text()
+    p.write_text(PLACEMENT + 'fallback = true\nstop = "g4"\n')
+    assert run("post-process", "--placement", p, g).exit_code == 0
+    assert "\nG4 P120\n" in g.read_text()
+    g.write_text(keep)
+    # at 415 steps/mm the 0.12 mm extra has 49 steps; 8 of them in each stop
+    p.write_text(PLACEMENT + "fallback = true\ne_steps = 415\nstop_e_steps = 8\n")
+    assert run("post-process", "--placement", p, g).exit_code == 0
+    text = g.read_text()
+    stops = [ln for ln in text.splitlines() if ln.startswith("G1 E") and ln not in keep]
+    # 2/120 + 7/r = 0.120 s: r = 67.74, 68 steps/s is nearest: F (68 - 0.5) x 60 / 415
+    assert len(stops) == 34 and all(ln.endswith(" F9.759") for ln in stops)
+    g.write_text(keep)
+    p.write_text(PLACEMENT + 'fallback = true\nstop = "pause"\n')
+    r = run("post-process", "--placement", p, g)
+    assert r.exit_code == 1 and "bulges: stop 'pause' must be 'move' or 'g4'" in r.output
+    assert g.read_text() == keep
 
 
 def test_example_placement_fits_the_example_cylinder(tmp_path):

@@ -43,3 +43,25 @@ def test_slicer_time_dialects():
     assert slicer_time(";TIME:6666\n") == 6666
     assert slicer_time(";   Build time: 2 hours 5 minutes\n") == 7500
     assert slicer_time("G1 X1\n") is None
+
+
+def test_build_stats_give_the_stock_files_stops_as_printed(data_dir, tmp_path):
+    from bulgekit import api
+    from bulgekit.fallback import StockStops, still_s
+    g = data_dir / "prusa_cyl.gcode"
+    strokes = [Stroke(((5.0, 2.0), (5.0, 4.0)))]
+    plain = api.build(g, strokes, tmp_path / "a")
+    assert "stock file" not in plain.stats_path.read_text()          # no stock file, no stock line
+    out = api.build(g, strokes, tmp_path / "b", write_fallback=True, settings=Settings(dwell_ms=130))
+    st = out.stats
+    n = st.stops
+    # 130 ms: 6 steps at r = 5 / (0.13 - 2/120) = 44.1 steps/s, 44 the nearest whole rate
+    held = n * still_s(6, 44)
+    assert st.stock.moves == n and st.stock.still_s == pytest.approx(held)
+    text = out.stats_path.read_text()
+    assert f"stock file: stops as E-only moves: {n} ({held:.1f} s head still" in text
+    run = held - n / 120                  # each block: the stillness less the braking's last step
+    assert st.stock.run_s == pytest.approx(run)
+    assert f"stock file's added time: {run:.1f} s in the stops + {st.decel_s:.1f} s stopping/starting" in text
+    g4 = api.build(g, strokes, tmp_path / "c", write_fallback=True, stops=StockStops("g4"))
+    assert f"and the planner's drain and refill at each of its {n} G4" in g4.stats_path.read_text()

@@ -242,7 +242,7 @@ def test_export_is_byte_identical_to_the_cli(studio, tmp_path):
     d = design(text_item("t", text="Hi!", at=[3.25, 6.5], rotate=12.5, letter_spacing=0.3),
                {"id": "s", "kind": "file", "asset": svg["name"], "at": [45, 5], "scale": 0.6, "rotate": -20},
                {"id": "p", "kind": "file", "asset": pic["name"], "at": [80, 8], "image_width": 6},
-               dwell=120, extra=0.08, spacing=1.0)
+               dwell=120, extra=0.08, spacing=1.0, e_steps=415, stop_e_steps=7)
     d["name"] = "mine"
     job = wait_job(studio, call(studio, "/api/export", {"design": d})[1])
     assert job["state"] == "done", job["error"]
@@ -255,6 +255,10 @@ def test_export_is_byte_identical_to_the_cli(studio, tmp_path):
     assert {p.name for p in cli} == made
     for p in cli:
         assert _sha(p) == _sha(folder / p.name), p.name
+    # the stock file's stops are E-only moves with the design's E steps (issue 25)
+    stock = (folder / "mine.stock.gcode").read_text()
+    assert "at 415 E steps/mm" in stock.splitlines()[0] and ", 7 E steps each" in stock.splitlines()[0]
+    assert "\nG4 P" not in stock
     # the downloads are those files, and the zip holds them all
     status, body = call(studio, f"/files/exports/{job['result']['key']}/mine.bkm", raw=True)
     assert status == 200 and body == (folder / "mine.bkm").read_bytes()

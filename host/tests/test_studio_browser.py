@@ -387,10 +387,13 @@ def test_open_placement_file_and_nudge_with_keys(browser, studio, tmp_path):
     odd = tmp_path / "odd.toml"
     odd.write_text('[[text]]\ntext = "Odd"\nat = [3.14159, 6.0004]\nsize = 5.12345\nrotate = 7.77\n'
                    '[[strokes]]\nfile = "wave.json"\nat = [0.333, 0.1]\ncurve_tolerance = 0.02\n'
-                   '[bulges]\ndwell = 90\nextra = 0.0725\n')
+                   '[bulges]\ndwell = 90\nextra = 0.0725\ne_steps = 415.5\nstop_e_steps = 8\n')
     pg.set_input_files("#open-placement", [str(odd), str(ex / "wave.json")])
     pg.wait_for_function("() => window.studio.S.items.length === 2 && window.studio.S.items[0].text === 'Odd'")
     settled(pg)
+    # the stock file's stop settings come in with it (issue 25) and go out with the export
+    assert pg.input_value("#bulge-form input[name=e_steps]") == "415.5"
+    assert pg.input_value("#bulge-form input[name=stop_e_steps]") == "8"
     pg.fill("#export-name", "odd")
     pg.click("#export")
     pg.wait_for_selector("#export-zip", timeout=120_000)

@@ -29,8 +29,8 @@ from pathlib import Path
 import numpy as np
 
 from .. import api, mapformat, stats as _stats
-from ..fallback import (DEFAULT_DWELL_MS, DEFAULT_EXTRA_E_MM, DEFAULT_TOLERANCE_MM, MODE_GEOMETRIC,
-                        MODE_MARKED, Settings)
+from ..fallback import (DEFAULT_DWELL_MS, DEFAULT_E_STEPS, DEFAULT_EXTRA_E_MM, DEFAULT_TOLERANCE_MM,
+                        MODE_GEOMETRIC, MODE_MARKED, Settings, StockStops)
 from ..mapbuild import DEFAULT_LINE_WIDTH, BuildError
 from ..placement import PlacementError, dump_placement, load_placement
 from ..strokes import BulgekitError, InputError
@@ -39,7 +39,8 @@ _ENTRY_RX = re.compile(r"(?:^|: )((text|strokes)\[(\d+)\])")   # a placement ent
 # Fields the page may set per item kind, as the placement file names them.
 _TEXT_FIELDS = ("text", "at", "size", "font", "letter_spacing", "mirror", "rotate")
 _FILE_FIELDS = ("at", "scale", "image_width", "curve_tolerance", "rotate")
-_BULGE_FIELDS = ("dwell", "extra", "tolerance", "geometric", "spacing", "line_width", "fallback")
+_BULGE_FIELDS = ("dwell", "extra", "tolerance", "geometric", "spacing", "line_width", "fallback",
+                 "stop", "e_steps", "stop_e_steps")
 IMAGE_EXT = {".png", ".jpg", ".jpeg", ".bmp", ".gif", ".tif", ".tiff", ".webp"}
 DRAWING_EXT = {".svg", ".json"} | IMAGE_EXT
 MAX_ITEMS = 64
@@ -118,7 +119,7 @@ def bulges(design: dict) -> dict:
     for f in _BULGE_FIELDS:
         if f in b and b[f] is not None:
             v = b[f]
-            if f == "dwell" and isinstance(v, float) and v.is_integer():
+            if f in ("dwell", "stop_e_steps") and isinstance(v, float) and v.is_integer():
                 v = int(v)
             out[f] = v
     return out
@@ -188,6 +189,14 @@ def settings_of(b: dict) -> Settings:
         return Settings(MODE_GEOMETRIC if b.get("geometric") else MODE_MARKED,
                         b.get("dwell", DEFAULT_DWELL_MS), b.get("extra", DEFAULT_EXTRA_E_MM),
                         b.get("tolerance", DEFAULT_TOLERANCE_MM))
+    except ValueError as e:
+        raise DesignError(f"bulges: {e}") from None
+
+
+def stops_of(b: dict) -> StockStops:
+    """How the export's stock file writes its stops: as `bulgekit build --placement` reads them."""
+    try:
+        return StockStops(b.get("stop", "move"), b.get("e_steps", DEFAULT_E_STEPS), b.get("stop_e_steps"))
     except ValueError as e:
         raise DesignError(f"bulges: {e}") from None
 
@@ -362,7 +371,7 @@ def export(design: dict, assets: dict[str, Asset], gcode: Path, folder: Path, na
         b = pl.bulges
         out = api.build(gcode, pl.strokes, folder, name=name, spacing=b.get("spacing"),
                         line_width=b.get("line_width", DEFAULT_LINE_WIDTH),
-                        settings=settings_of(b), write_fallback=True)
+                        settings=settings_of(b), write_fallback=True, stops=stops_of(b))
         pv.build_unrolled(out, folder / f"{name}.preview.png")
         pv.build_3d(out, folder / f"{name}.preview3d.png")
         made = sorted(p for p in folder.iterdir() if p.is_file())

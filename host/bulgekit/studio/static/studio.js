@@ -254,7 +254,7 @@ async function addDrawing(file) {
 // A placement file (and the drawing files it names, chosen with it) replaces the design: the
 // server checks it as `bulgekit build --placement` would and hands back the items.
 const BULGE_DEFAULTS = { dwell: 100, extra: 0.1, tolerance: 0.25, spacing: "", line_width: 0.45,
-  geometric: false, fallback: false };
+  geometric: false, fallback: false, stop: "move", e_steps: 93, stop_e_steps: "" };
 
 async function openPlacement(list) {
   showError("asset-error", null);
@@ -376,6 +376,11 @@ function bulgeSettings() {
   for (const k of ["extra", "tolerance", "spacing", "line_width"]) if (n(f[k]) !== null) out[k] = n(f[k]);
   out.geometric = f.geometric.value === "true";
   out.fallback = f.fallback.value === "true";
+  // the stock file's stops (the export always writes it): written only when not the defaults,
+  // so a placement file without them stays as it was
+  if (f.stop.value !== "move") out.stop = f.stop.value;
+  if (n(f.e_steps) !== null && n(f.e_steps) !== 93) out.e_steps = n(f.e_steps);
+  if (n(f.stop_e_steps) !== null) out.stop_e_steps = Math.round(n(f.stop_e_steps));
   return out;
 }
 
