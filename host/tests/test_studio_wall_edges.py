@@ -105,7 +105,7 @@ def test_choices_are_not_cut_off(browser, studio):
         return out; }""")
     assert cut == [], cut
     n = pg.evaluate("() => [...document.querySelectorAll('#page-wall select')].filter((s) => s.offsetParent).length")
-    assert n == 4                                         # font, mode, printer, file to send
+    assert n == 5                                         # font, mode, printer, stock stops, file to send
     assert not errors, errors
 
 
