@@ -115,11 +115,11 @@ def _mapformat():
 def gcode_e_only_steps(path, start):
     """E steps Marlin makes for each stop written as an extruder-only G0/G1, in
     order (positions held in steps rounded from mm, re-rounded at each G92 E).
-    A stop is an E-only move forward right after an extruding X/Y move; one
-    after a travel or a retraction is a slicer's unretract, not a stop."""
+    A stop is an E-only move forward; the first one after a retraction (an
+    E-only move back) is the slicer's unretract, not a stop."""
     lround = _mapformat().round_half_away
     e, absolute_e, out = start["E"], True, []
-    after_extrusion = False
+    retracted = False
     at_step = lround(e * STEPS["E"])
     with open(path, encoding="utf-8", errors="replace") as f:
         for line in f:
@@ -135,16 +135,18 @@ def gcode_e_only_steps(path, start):
             elif c == "G92" and "E" in w:
                 e = w["E"]
                 at_step = lround(e * STEPS["E"])
-            elif c in ("G0", "G1"):
-                moves = any(a in w for a in "XYZ")
-                if "E" not in w:
-                    after_extrusion = after_extrusion and not moves
-                    continue
+            elif c in ("G0", "G1") and "E" in w:
                 e = w["E"] if absolute_e else e + w["E"]
                 target = lround(e * STEPS["E"])
-                if not moves and target > at_step and after_extrusion:
-                    out.append(target - at_step)
-                after_extrusion = moves and target > at_step if moves else after_extrusion
+                if not any(a in w for a in "XYZ"):
+                    if target < at_step:
+                        retracted = True
+                    elif target > at_step:
+                        if not retracted:
+                            out.append(target - at_step)
+                        retracted = False
+                elif target > at_step:
+                    retracted = False
                 at_step = target
     return out
 
