@@ -82,6 +82,9 @@ def main(argv=None):
     ap.add_argument("--xy-steps", type=float, default=80.0, help="X steps/mm (the wall runs along X)")
     ap.add_argument("--accel", type=float, default=3000.0, help="printing acceleration, mm/s^2")
     ap.add_argument("--jd", type=float, default=0.013, help="junction deviation, mm")
+    ap.add_argument("--rule", choices=("junction", "issue"), default="junction",
+                    help="junction: the rule above; issue: issue 25's rule (the next move's first "
+                    "step always 1/120 s after the last E step), for comparison")
     args = ap.parse_args(argv)
     try:
         weights = [int(w) for w in args.weights.split(",")]
@@ -92,6 +95,7 @@ def main(argv=None):
     if args.e_steps <= 0:
         raise SystemExit("stop_wall.py: --e-steps must be > 0")
     n = max(MIN_STEPS, round(args.stop_e * args.e_steps))
+    k = args.xy_steps if args.rule == "junction" else 0.0  # v x 0 < 120: always 1/120
     v_jd = math.sqrt(args.accel * args.jd * (1 / (math.sqrt(2) - 1)))  # 90 degrees: sin/(1-sin) = 2.414
     os.makedirs(args.outdir, exist_ok=True)
     head = ["G4 P1200", "G92 X100 Y100 Z0 E0", "G1 Z0.2 F600", "M83"]
@@ -99,16 +103,16 @@ def main(argv=None):
     bodies = {"ref": [], "g4": [], "move": []}
     x = 100.0
     plan = []
-    for k in range(len(weights) + 1):
+    for i in range(len(weights) + 1):
         for _ in range(PIECES_PER_GAP):
             x += PIECE_MM
             piece = "G1 X%.3f E%.5f F%d" % (x, E_PER_PIECE, FEED)
             for b in bodies.values():
                 b.append(piece)
-        if k == len(weights):
+        if i == len(weights):
             break
-        ms = dwell_ms(args.dwell, weights[k])
-        r = stop_move(ms, n, args.e_steps, args.xy_steps, v_jd, args.max_e_rate * args.e_steps)
+        ms = dwell_ms(args.dwell, weights[i])
+        r = stop_move(ms, n, args.e_steps, k, v_jd, args.max_e_rate * args.e_steps)
         # F for r - 0.5 steps/s, so that CEIL() lands on r; E to 5 decimals
         # is within 0.001 steps of n at up to 100 steps/mm (more digits above).
         digits = max(5, int(math.ceil(math.log10(args.e_steps * 100))))
@@ -116,7 +120,7 @@ def main(argv=None):
         f = (r - 0.5) * 60.0 / args.e_steps
         bodies["g4"].append("G4 P%d" % ms)
         bodies["move"].append("G1 E%.*f F%.2f" % (digits, e, f))
-        plan.append((weights[k], ms, n, r, still_s(n, r, args.e_steps, args.xy_steps, v_jd) * 1000))
+        plan.append((weights[i], ms, n, r, still_s(n, r, args.e_steps, k, v_jd) * 1000))
     for name, body in bodies.items():
         with open(os.path.join(args.outdir, name + ".g"), "w") as fh:
             fh.write("\n".join(head + body + tail) + "\n")
