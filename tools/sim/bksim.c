@@ -61,7 +61,7 @@ static avr_t *avr;
  * changed. The wall-clock side is read in the main loop (a clock call per
  * instruction would cost more than the instruction). */
 static avr_cycle_count_t last_activity;
-static int activity_seen; /* set by the wall-clock check, cleared there */
+static int activity_seen; /* set here, cleared by the wall-clock check in the main loop */
 static long bytes_received;
 static void note_activity(void) {
   last_activity = avr->cycle;
