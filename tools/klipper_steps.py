@@ -20,6 +20,7 @@ Reads text only; it runs nothing of Klipper's.
 """
 
 import argparse
+import os
 import re
 import sys
 
@@ -92,7 +93,6 @@ def main(argv=None):
     with open(tmp, "w") as out:
         for clock, pin, level in events:
             out.write("%d %s %d\n" % (clock, pin, level))
-    import os
     os.replace(tmp, args.output)  # written whole or not at all
     print("%s: %s" % (args.output, ", ".join("%s %d steps" % kv for kv in sorted(counts.items()))))
     return 0
