@@ -17,6 +17,14 @@
         and the rest are the added stops; with --map each added stop is matched
         to its bulge point; with --gcode the E total and final position the
         G-code asks for are compared with the steps made and with M114 in --log.
+        With --ref and -v, one line per added stop: how long the head (X, Y, Z)
+        stands, how long every axis stands, the E steps made while the head
+        stands against the steps of the file's extruder-only move there (stops
+        written as `G1 E.. F..`, issue 25), and the time the stop added to the
+        print (the run's delay behind the reference at the X/Y step halfway to
+        the next stop, less the delay halfway from the previous one).
+        --e-steps sets the E steps/mm of the firmware (default 500, RAMPS);
+        --stop-ms gives each added stop's requested duration, in order.
 
 Reads only bksim's trace format ('<cycle> <port><bit> <level>' per edge) and
 G-code text; it builds nothing. Exit status 1 if a check fails.
@@ -102,6 +110,45 @@ def _mapformat():
     sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "host"))
     from bulgekit import mapformat
     return mapformat
+
+
+def gcode_e_only_steps(path, start):
+    """E steps Marlin makes for each stop written as an extruder-only G0/G1, in
+    order (positions held in steps rounded from mm, re-rounded at each G92 E).
+    A stop is an E-only move forward; the first one after a retraction (an
+    E-only move back) is the slicer's unretract, not a stop."""
+    lround = _mapformat().round_half_away
+    e, absolute_e, out = start["E"], True, []
+    retracted = False
+    at_step = lround(e * STEPS["E"])
+    with open(path, encoding="utf-8", errors="replace") as f:
+        for line in f:
+            w, code = words(line)
+            g = re.match(r"([GM])0*(\d+)", code)
+            if not g:
+                continue
+            c = g.group(1) + g.group(2)
+            if c in ("G90", "M82"):
+                absolute_e = True
+            elif c in ("G91", "M83"):
+                absolute_e = False
+            elif c == "G92" and "E" in w:
+                e = w["E"]
+                at_step = lround(e * STEPS["E"])
+            elif c in ("G0", "G1") and "E" in w:
+                e = w["E"] if absolute_e else e + w["E"]
+                target = lround(e * STEPS["E"])
+                if not any(a in w for a in "XYZ"):
+                    if target < at_step:
+                        retracted = True
+                    elif target > at_step:
+                        if not retracted:
+                            out.append(target - at_step)
+                        retracted = False
+                elif target > at_step:
+                    retracted = False
+                at_step = target
+    return out
 
 
 def gcode_end_state(path, start, segments=None, steps=None):
@@ -203,6 +250,14 @@ class Run:
     def mm(self, a, steps):
         return self.origin[a] + steps / STEPS[a]
 
+    def head_still(self, c0, c1):
+        """The longest time (cycles) in [c0, c1] with no X, Y or Z step."""
+        if not hasattr(self, "_head"):
+            self._head = sorted([c for c, _, _ in self.xy] + [c for c, _ in self.z])
+        i, j = bisect.bisect_right(self._head, c0), bisect.bisect_left(self._head, c1)
+        marks = [c0] + self._head[i:j] + [c1]
+        return max(b - a for a, b in zip(marks, marks[1:]))
+
     def stops(self, gap_ms):
         """(start cycle, end cycle, x count, y count) of every X/Y gap >= gap_ms."""
         lim = gap_ms * 1e-3 * F_CPU
@@ -245,6 +300,46 @@ class Run:
                 self._ecum.append(n)
         i = bisect.bisect_right(self._ec, cycle)
         return self._ecum[i - 1] if i else 0
+
+
+def per_stop(run, ref, added, args, origin):
+    """One line per added stop; see the module doc. The k-th X/Y step is the
+    same place on the path in both runs (same step counts)."""
+    ms = lambda c: c / F_CPU * 1e3
+    index = {c: i for i, (c, _, _) in enumerate(run.xy)}
+    at = [index[c0] for c0, _, _, _ in added]
+    # halfway (in X/Y steps) between consecutive stops, and the first and last steps
+    marks = [0] + [(a + b) // 2 for a, b in zip(at, at[1:])] + [len(run.xy) - 1]
+    lag = [(run.xy[i][0] - run.first) - (ref.xy[i][0] - ref.first) for i in marks]
+    want_e = gcode_e_only_steps(args.gcode, origin) if args.gcode else []
+    if want_e and len(want_e) != len(added):
+        print("  (the file has %d extruder-only moves for %d added stops: not compared)"
+              % (len(want_e), len(added)))
+        want_e = []
+    want_ms = [float(v) for v in args.stop_ms.split(",")] if args.stop_ms else []
+    if args.verbose:
+        print(" #   X/Y/Z still ms  all axes still ms  added ms  E steps (file)%s"
+              % ("  requested ms" if len(want_ms) == len(added) else ""))
+    heads, adds, e_bad = [], [], 0
+    for k, (c0, c1, _, _) in enumerate(added):
+        e_in = run.e_at(c1 - 1) - run.e_at(c0)
+        heads.append(ms(run.head_still(c0, c1)))
+        adds.append(ms(lag[k + 1] - lag[k]))
+        line = "%2d  %14.3f  %17.3f  %8.2f  %7d" % (k, heads[-1], ms(run.stillness(c0, c1)), adds[-1], e_in)
+        if want_e:
+            e_bad += want_e[k] != e_in
+            line += " (%d)%s" % (want_e[k], "" if want_e[k] == e_in else " MISMATCH")
+        if len(want_ms) == len(added):
+            line += "  %12g" % want_ms[k]
+        if args.verbose:
+            print(line)
+    print("per stop: head (X/Y/Z) still min %.3f / mean %.3f / max %.3f ms; added min %.2f / mean %.2f "
+          "/ max %.2f ms" % (min(heads), sum(heads) / len(heads), max(heads), min(adds),
+                             sum(adds) / len(adds), max(adds)))
+    if want_e:
+        print("E steps while the head stands = the file's E-only move: %d of %d stops%s"
+              % (len(added) - e_bad, len(added), "" if not e_bad else " MISMATCH"))
+    return e_bad == 0
 
 
 def read_map_points(path):
@@ -415,6 +510,8 @@ def stops(args):
             print("  " + " ".join(str(v) for v in per))
     elif args.ref and added:
         print("X/Y step counts differ from the reference (%d vs %d): no per-stop E" % (len(run.xy), len(ref.xy)))
+    if args.ref and added and len(run.xy) == len(ref.xy):
+        ok &= per_stop(run, ref, added, args, origin)
     durs = [ms(c1 - c0) for c0, c1, _, _ in added]
     if durs:
         print("added stops: %d, duration min %.4f / mean %.4f / max %.4f ms"
@@ -425,6 +522,18 @@ def stops(args):
         if holds:
             print("  hold (longest time with no step of any axis, E and Z included): "
                   "min %.4f / mean %.4f / max %.4f ms" % (min(holds), sum(holds) / len(holds), max(holds)))
+        if args.stop_ms:
+            want = [float(v) for v in args.stop_ms.split(",")]
+            if len(want) != len(added):
+                print("  --stop-ms lists %d stops, the run made %d added stops: MISMATCH"
+                      % (len(want), len(added)))
+                ok = False
+            else:
+                heads = [ms(run.head_still(c0, c1)) for c0, c1, _, _ in added]
+                bad = [k for k, (h, w) in enumerate(zip(heads, want)) if abs(h - w) > args.dwell_tol]
+                ok &= not bad
+                print("  head still vs --stop-ms +- %.2f ms: %s"
+                      % (args.dwell_tol, "all within" if not bad else "stops %s outside" % bad))
         if args.dwell is not None and not args.map:
             bad = [d for d in durs if abs(d - args.dwell) > args.dwell_tol]
             ok &= not bad
@@ -552,6 +661,9 @@ def main(argv=None):
     s.add_argument("--log", help="UART output with the final M114")
     s.add_argument("--dwell", type=int, help="requested dwell, ms")
     s.add_argument("--dwell-tol", type=float, default=1.0)
+    s.add_argument("--stop-ms", help="each added stop's requested duration, ms, comma-separated "
+                   "(checked against the time the head stands, +- --dwell-tol)")
+    s.add_argument("--e-steps", type=float, help="the firmware's E steps/mm (default 500)")
     s.add_argument("--extra", type=float, help="extra filament per stop, mm")
     s.add_argument("--fallback", action="store_true", help="the G-code carries the extra E itself (G4 rewrite)")
     s.add_argument("-v", "--verbose", action="store_true", help="one line per added stop")
@@ -559,6 +671,8 @@ def main(argv=None):
                    "are read with it, and no Z step may fall in a hold")
     s.add_argument("--fade", type=float, default=0.0, help="fade height of the mesh (M420 Z), mm; 0: none")
     args = ap.parse_args(argv)
+    if getattr(args, "e_steps", None):
+        STEPS["E"] = args.e_steps
     return cut(args) if args.cmd == "cut" else stops(args)
 
 

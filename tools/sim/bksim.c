@@ -6,16 +6,20 @@
  *     (optionally one line per "ok", as Marlin hosts send),
  *   - or (--pty) bridges UART0 to a pseudo-terminal, so a host program such as
  *     `bulgekit send` or Pronterface talks to the simulated board,
+ *   - ends a run of a program that never stops (Marlin) when it has gone idle
+ *     (--idle-timeout), or on SIGINT/SIGTERM, with its output and trace complete,
  *   - records port pin edges with cycle timestamps (for step traces),
  *   - enforces a cycle cap so a hung program fails in seconds,
  *   - counts cycles between benchmark markers: the program writes 1 then 2 to
  *     GPIOR0; the count is printed on stderr with --markers and returned to the
  *     program on four reads of GPIOR1 (low byte first).
  *
- * Exit status: 0 = the program stopped by itself (cli + sleep) and, unless
- * --no-test, printed bktest's closing line with 0 failed. 65 = tests failed,
- * 66 = no closing line, 70 = cycle cap reached, 71 = crash, 72 = usage or I/O.
- * (Codes above 64 so PlatformIO does not report them as signal numbers.)
+ * Exit status: 0 = the program stopped by itself (cli + sleep), --settle or
+ * --idle-timeout ended the run and, unless --no-test, bktest's closing line
+ * said 0 failed. 65 = tests failed, 66 = no closing line, 70 = cycle cap
+ * reached, 71 = crash, 72 = usage or I/O. (Codes above 64 so PlatformIO does
+ * not report them as signal numbers.) 128 + N = ended by signal N (SIGINT 130,
+ * SIGTERM 143), after writing out the output and the trace.
  */
 #include <errno.h>
 #include <stdarg.h>
@@ -25,7 +29,9 @@
 #include <string.h>
 #include <fcntl.h>
 #include <pty.h>
+#include <signal.h>
 #include <termios.h>
+#include <time.h>
 #include <unistd.h>
 
 #include <simavr/avr_ioport.h>
@@ -49,6 +55,18 @@
 #define RXEN0_BIT 4
 
 static avr_t *avr;
+
+/* ---- activity, for --idle-timeout ------------------------------------------------
+ * The last simulated cycle at which a UART byte went either way or a traced pin
+ * changed. The wall-clock side is read in the main loop (a clock call per
+ * instruction would cost more than the instruction). */
+static avr_cycle_count_t last_activity;
+static int activity_seen; /* set here, cleared by the wall-clock check in the main loop */
+static long bytes_received;
+static void note_activity(void) {
+  last_activity = avr->cycle;
+  activity_seen = 1;
+}
 
 /* ---- UART output and the closing-line check ------------------------------------ */
 static int opt_raw, opt_quiet;
@@ -74,6 +92,7 @@ static void uart_out_hook(struct avr_irq_t *irq, uint32_t value, void *param) {
   (void)irq;
   (void)param;
   char c = (char)value;
+  note_activity();
   if (pty_master >= 0) {
     /* the host on the PTY sees the raw byte stream, CR included */
     if (write(pty_master, &c, 1) < 0) { /* host not reading: drop, as a real line would */ }
@@ -99,6 +118,11 @@ static int in_eof, opt_okpace;
 static avr_irq_t *uart_in_irq;
 static avr_cycle_count_t next_byte_cycle;
 static long lines_sent;
+/* Bytes read from the PTY and not yet delivered. One read() per byte time at
+   most: a read() per simulated instruction (the first version) made a --pty
+   run several times slower than a --input run. */
+static unsigned char pty_buf[512];
+static size_t pty_len, pty_pos;
 
 static avr_cycle_count_t byte_cycles(void) {
   uint16_t ubrr = (uint16_t)(avr->data[ADDR_UBRR0L] | (avr->data[ADDR_UBRR0H] << 8));
@@ -112,8 +136,16 @@ static void feed_input(void) {
   if (avr->cycle < next_byte_cycle) return;
   int c = -1;
   if (pty_master >= 0) {
-    unsigned char b;
-    if (read(pty_master, &b, 1) == 1) c = b; /* non-blocking */
+    if (pty_pos == pty_len) {
+      ssize_t n = read(pty_master, pty_buf, sizeof pty_buf); /* non-blocking */
+      if (n <= 0) {
+        next_byte_cycle = avr->cycle + byte_cycles(); /* look again a byte time later */
+        return;
+      }
+      pty_len = (size_t)n;
+      pty_pos = 0;
+    }
+    c = pty_buf[pty_pos++];
   } else if (in_file && !in_eof) {
     if (opt_okpace && lines_sent > oks_seen) return;
     c = fgetc(in_file);
@@ -125,6 +157,8 @@ static void feed_input(void) {
   }
   if (c < 0) return;
   avr_raise_irq(uart_in_irq, (uint32_t)c);
+  bytes_received++;
+  note_activity();
   next_byte_cycle = avr->cycle + byte_cycles();
 }
 
@@ -145,6 +179,7 @@ static void pin_hook(struct avr_irq_t *irq, uint32_t value, void *param) {
   uint8_t *lv = &pin_level[(id >> 8) - 'A'], bit = (uint8_t)(1u << (id & 7));
   if (!!(*lv & bit) == (value & 1)) return;
   *lv ^= bit;
+  note_activity();
   fprintf(trace_file, "%llu %c%u %u\n", (unsigned long long)avr->cycle, (char)(id >> 8),
           (unsigned)(id & 0xFF), (unsigned)(value & 1));
 }
@@ -181,6 +216,17 @@ static uint8_t gpior1_read(struct avr_t *a, avr_io_addr_t addr, void *param) {
 /* simavr would usleep() in real time while the AVR sleeps; we only want cycles. */
 static void no_sleep(avr_t *a, avr_cycle_count_t how_long) { (void)a; (void)how_long; }
 
+/* SIGINT/SIGTERM end the main loop, which then writes out what is buffered
+   (a killed run used to lose the last few KB of its trace). */
+static volatile sig_atomic_t stop_signal;
+static void on_stop_signal(int sig) { stop_signal = sig; }
+
+static double wall_seconds(void) {
+  struct timespec t;
+  clock_gettime(CLOCK_MONOTONIC, &t);
+  return (double)t.tv_sec + (double)t.tv_nsec * 1e-9;
+}
+
 static void usage(void) {
   fprintf(stderr,
           "usage: bksim [options] program.elf\n"
@@ -194,6 +240,9 @@ static void usage(void) {
           "  --trace-pins LIST pins to trace, e.g. F0,F1,F6,F7,L3,L1,A4,A6 (default: none)\n"
           "  --settle N        end the run N cycles after the input is used up (and, with\n"
           "                    --ok-pace, answered): for firmware that never stops\n"
+          "  --idle-timeout S  end the run (exit 0) once the program has received a byte and\n"
+          "                    then S seconds pass, simulated and wall-clock alike, with no\n"
+          "                    UART byte either way and no edge on a traced pin (--pty runs)\n"
           "  --markers         print benchmark marker cycle counts on stderr\n"
           "  --no-test         do not require a bktest closing line\n"
           "  --raw             keep CR characters in the output\n"
@@ -207,6 +256,7 @@ int main(int argc, char **argv) {
   unsigned long freq = 16000000UL;
   unsigned long long cap = 800000000ULL;
   unsigned long long settle = 0, settle_end = 0;
+  double idle_timeout = 0;
   int opt_test = 1;
   for (int i = 1; i < argc; i++) {
     const char *a = argv[i];
@@ -221,6 +271,14 @@ int main(int argc, char **argv) {
     else if (!strcmp(a, "--markers")) opt_markers = 1;
     else if (!strcmp(a, "--ok-pace")) opt_okpace = 1;
     else if (!strcmp(a, "--settle") && next) settle = strtoull(argv[++i], NULL, 10);
+    else if (!strcmp(a, "--idle-timeout") && next) {
+      char *end;
+      idle_timeout = strtod(argv[++i], &end);
+      if (*end || !(idle_timeout > 0)) {
+        fprintf(stderr, "bksim: --idle-timeout wants seconds > 0, got '%s'\n", argv[i]);
+        return 72;
+      }
+    }
     else if (!strcmp(a, "--no-test")) opt_test = 0;
     else if (!strcmp(a, "--raw")) opt_raw = 1;
     else if (!strcmp(a, "--quiet")) opt_quiet = 1;
@@ -312,9 +370,21 @@ int main(int argc, char **argv) {
     }
   }
 
+  struct sigaction sa;
+  memset(&sa, 0, sizeof sa);
+  sa.sa_handler = on_stop_signal;
+  sigemptyset(&sa.sa_mask);
+  sigaction(SIGINT, &sa, NULL);
+  sigaction(SIGTERM, &sa, NULL);
+
   int state = cpu_Running;
-  int capped = 0, tx_primed = 0;
-  while (1) {
+  int capped = 0, tx_primed = 0, idled = 0;
+  /* --idle-timeout bookkeeping: the wall clock is read every 2^16 cycles (4 ms
+     simulated at 16 MHz); activity seen since the last read restarts it. */
+  const avr_cycle_count_t idle_cycles = (avr_cycle_count_t)(idle_timeout * fw.frequency);
+  avr_cycle_count_t next_clock_check = 0;
+  double wall_activity = wall_seconds();
+  while (!stop_signal) {
     /* simavr 1.6 quirk: UDRE0 is not set when the transmitter is enabled, and a
        polled writer then spins forever. Set it on every rising edge of TXEN0
        (simavr's reset state already has TXEN0 set, and Marlin clears the UART
@@ -338,6 +408,19 @@ int main(int argc, char **argv) {
         break;
       }
     }
+    if (idle_cycles && avr->cycle >= next_clock_check) {
+      next_clock_check = avr->cycle + 65536;
+      double now = wall_seconds();
+      if (activity_seen) {
+        activity_seen = 0;
+        wall_activity = now;
+      } else if (bytes_received && avr->cycle - last_activity >= idle_cycles &&
+                 now - wall_activity >= idle_timeout) {
+        idled = 1;
+        state = cpu_Done;
+        break;
+      }
+    }
   }
   fflush(stdout);
   if (line_len) check_line();
@@ -345,6 +428,12 @@ int main(int argc, char **argv) {
   if (pty_link) unlink(pty_link);
   fprintf(stderr, "bksim: %llu cycles (%.3f s simulated)\n", (unsigned long long)avr->cycle,
           (double)avr->cycle / (double)fw.frequency);
+  if (stop_signal) {
+    fprintf(stderr, "bksim: stopped by signal %d; output and trace written\n", (int)stop_signal);
+    return 128 + stop_signal;
+  }
+  if (idled)
+    fprintf(stderr, "bksim: idle for %g s (no UART byte, no traced edge): run ended\n", idle_timeout);
   if (capped) {
     fprintf(stderr, "bksim: FAIL: cycle cap of %llu reached (hung program?)\n", cap);
     return 70;
