@@ -642,17 +642,25 @@ def _on_arcs(planner: RefPlanner, miss) -> tuple[int, int] | None:
 # A stop is written as an extruder-only move (--stop move, the default) or as G4 P<ms>
 # (--stop g4, the paper's rewrite). Marlin's G4 drains the planner queue before it dwells
 # (planner.synchronize()); a G1 of E alone is queued like any move, and the head stands still
-# while the extruder makes its steps. Measured in simulated stock Marlin 2.1.2.7 (issue 25):
-# with n whole E steps at r steps/s the head stands still for
-#     1/120 + (n - 1)/r + 1/120 s   when r < 120 steps/s (Marlin's MINIMAL_STEP_RATE),
-#     n/r + 1/120 s                 when r >= 120,
-# where r is the block's nominal rate, ceil(n x feed / length) in whole steps/s.
+# while the extruder makes its steps. Measured in simulated stock Marlin 2.1.2.7 (issue 25,
+# docs/marlin-integration.md): with n whole E steps at r steps/s the head stands still for
+#     1/max(r, 120) + (n - 1)/r + 1/max(120, v k) s
+# where r is the block's nominal rate, ceil(n x feed / length) in whole steps/s, and 120 steps/s
+# Marlin's MINIMAL_STEP_RATE. The E move's first step comes 1/r after the last X/Y step (never
+# later than 1/120 s); the next X/Y move enters at v = min(r / E steps/mm, v_jd) (junction
+# deviation takes the E-only move as a 90 degree corner) and makes its first step 1/(v k) after
+# the last E step, k being its leading axis's steps per mm of path. Below v k = 120 this is
+# 1/120 + (n - 1)/r + 1/120 (issue 25's rule); short, fast stops end sooner than that rule says.
 STOP_MOVE, STOP_G4 = "move", "g4"
 DEFAULT_E_STEPS = 93.0         # E steps/mm of an Ender-3's stock extruder
 MIN_STEPS_PER_SEGMENT = 6      # Marlin drops a move with fewer steps on every axis
 MINIMAL_STEP_RATE = 120        # steps/s: Marlin's floor for a block's first and last step rate
 SLOWEST_STEP_RATE = 32         # steps/s: AVR stepper timer's longest interval (F_CPU / 500000)
 MAX_E_FEEDRATE = 25.0          # mm/s: Marlin's default M203 E; a faster E move is slowed
+XY_STEPS = 80.0                # steps/mm of X and Y (Marlin's RAMPS and Ender-3 defaults)
+V_JD = math.sqrt(3000 * 0.013 / (math.sqrt(2) - 1))   # mm/s: junction deviation's speed at a
+                               # 90 degree corner, sqrt(a JD sin / (1 - sin)), Marlin's defaults
+                               # 3000 mm/s^2 and 0.013 mm: 9.7 mm/s
 NEAREST_MS = 1.0               # a stop further than this from its dwell is counted as "nearest"
 MIN_AUTORETRACT = 0.1          # mm: with FWRETRACT autoretract on (M209 S1) Marlin turns a move of
                                # E alone this long or longer into a firmware retract/recover
@@ -680,11 +688,12 @@ class StockStops:
             raise ValueError(f"stop E steps {self.stop_e_steps} outside {MIN_STEPS_PER_SEGMENT}..10000")
 
 
-def still_s(n: int, rate: int) -> float:
-    """Seconds the head stands still for an E-only move of n steps at `rate` steps/s (the rule above)."""
-    if rate < MINIMAL_STEP_RATE:
-        return 2 / MINIMAL_STEP_RATE + (n - 1) / rate
-    return n / rate + 1 / MINIMAL_STEP_RATE
+def still_s(n: int, rate: int, spm: float | None = None, k: float = XY_STEPS) -> float:
+    """Seconds the head stands still for an E-only move of n steps at `rate` steps/s (the rule
+    above) at `spm` E steps/mm, the next move's leading axis making k steps per mm of its path.
+    Without spm: issue 25's rule (the next move starts at the 120 steps/s floor)."""
+    v = min(rate / spm, V_JD) if spm else 0.0
+    return 1 / max(rate, MINIMAL_STEP_RATE) + (n - 1) / rate + 1 / max(MINIMAL_STEP_RATE, v * k)
 
 
 @dataclass
@@ -710,10 +719,11 @@ def _min_steps_for(d: float) -> int:
     return max(MIN_STEPS_PER_SEGMENT, math.ceil(need - 1e-9))
 
 
-def plan_stop(ms: int, spm: float, owed_mm: float, steps: int | None = None) -> StopMove:
+def plan_stop(ms: int, spm: float, owed_mm: float, steps: int | None = None,
+              k: float = XY_STEPS) -> StopMove:
     """The E-only move for a stop of `ms`: n whole steps (`steps`, or the fewest that make it),
     at most the whole steps of the extra owed at the stop, and the rate whose stillness is
-    nearest the dwell. Falls back to G4 when the owed extra is under MIN_STEPS_PER_SEGMENT steps
+    nearest the dwell (k: the next move's leading-axis steps per mm of path, see still_s). Falls back to G4 when the owed extra is under MIN_STEPS_PER_SEGMENT steps
     (a shorter E-only move is dropped by Marlin: the stop would be lost)."""
     d = ms / 1000
     if ms == 0:
@@ -728,7 +738,7 @@ def plan_stop(ms: int, spm: float, owed_mm: float, steps: int | None = None) -> 
     # miss the dwell by more than NEAREST_MS
     last = want if steps is not None else min(avail, 2 * want + 8)
     for n in range(min(want, avail), max(min(want, avail), last) + 1):
-        cand = _rate_for(n, d, spm)
+        cand = _rate_for(n, d, spm, k)
         if best is None or abs(cand.still - d) < abs(best.still - d) - 1e-9:
             best = cand
         if abs(best.still - d) * 1000 <= NEAREST_MS:
@@ -741,18 +751,28 @@ def plan_stop(ms: int, spm: float, owed_mm: float, steps: int | None = None) -> 
     return best
 
 
-def _rate_for(n: int, d: float, spm: float) -> StopMove:
-    """n steps at the whole rate whose stillness is nearest d s."""
-    r_max = max(int(MAX_E_FEEDRATE * spm), MINIMAL_STEP_RATE)
+def _rate_for(n: int, d: float, spm: float, k: float = XY_STEPS) -> StopMove:
+    """n steps at the whole rate whose stillness is nearest d s: a first guess from issue 25's
+    rule, then the whole rates around it by the full rule (stillness falls as the rate rises)."""
+    # above v_jd the E move would have to accelerate from the junction: the rule holds below it
+    r_max = max(int(min(MAX_E_FEEDRATE, V_JD) * spm), MINIMAL_STEP_RATE)
     if d >= (n + 1) / MINIMAL_STEP_RATE:
         r = (n - 1) / (d - 2 / MINIMAL_STEP_RATE)
     elif d > 1 / MINIMAL_STEP_RATE:
         r = n / (d - 1 / MINIMAL_STEP_RATE)
     else:
         r = float(r_max)
-    cands = {min(max(k, SLOWEST_STEP_RATE), r_max) for k in (math.floor(r), math.ceil(r))}
-    rate = min(sorted(cands), key=lambda k: abs(still_s(n, k) - d))
-    return StopMove(0, STOP_MOVE, n, rate, still_s(n, rate))
+    clamp = lambda q: min(max(q, SLOWEST_STEP_RATE), r_max)
+    still = lambda q: still_s(n, q, spm, k)
+    lo, hi = clamp(math.floor(r)), clamp(math.ceil(r))
+    # the full rule's stillness is at most the first guess's: slow down until it is not short
+    while lo > SLOWEST_STEP_RATE and still(lo) < d:
+        hi, lo = lo, clamp(max(SLOWEST_STEP_RATE, lo - max(1, lo // 16)))
+    while hi - lo > 1:                                   # bisect the whole rates between
+        mid = (lo + hi) // 2
+        lo, hi = (mid, hi) if still(mid) >= d else (lo, mid)
+    rate = min((lo, hi), key=lambda q: abs(still(q) - d))
+    return StopMove(0, STOP_MOVE, n, rate, still(rate))
 
 
 def _lround(v) -> int:
@@ -827,11 +847,12 @@ class StopWriter:
         if v is not None:
             self.m92.append((line_no, v))
 
-    def plan(self, a: Action, line_no: int) -> StopMove:
+    def plan(self, a: Action, line_no: int, k: float = XY_STEPS) -> StopMove:
+        """k: leading-axis steps per mm of the move the head goes on with (see still_s)."""
         if self.cfg.stop == STOP_G4:
             return StopMove(a.ms, STOP_G4, still=a.ms / 1000)
         # the extra owed here, less what stops before it (not yet paid) laid already
-        return plan_stop(a.ms, self.spm_at(line_no), a.extra - self.debt, self.cfg.stop_e_steps)
+        return plan_stop(a.ms, self.spm_at(line_no), a.extra - self.debt, self.cfg.stop_e_steps, k)
 
     def count(self, stop: StopMove, laid: float = 0.0) -> None:
         if stop.kind == STOP_G4:
@@ -966,6 +987,14 @@ def _unchanged(m: Move, actions: list[Action]) -> bool:
             and abs(actions[0].e - m.e) < 1e-12)
 
 
+def _lead_steps(m: Move) -> float:
+    """Steps per mm of path of a move's leading X/Y axis: the head goes on along the move it
+    stopped on (a stop at a move's end is followed by the wall's next move, nearly as straight)."""
+    dx, dy = abs(m.x1 - m.x0), abs(m.y1 - m.y0)
+    length = math.hypot(dx, dy)
+    return XY_STEPS * max(dx, dy) / length if length > 1e-9 else XY_STEPS
+
+
 def _emit(ln: Line, per_move, st: GcodeState, sw: StopWriter) -> Iterator[str]:
     """G-code for one source line whose moves were split or got extra E."""
     w = ln.words or {}
@@ -989,7 +1018,7 @@ def _emit(ln: Line, per_move, st: GcodeState, sw: StopWriter) -> Iterator[str]:
             if a.dropped:
                 sw.drop()
             if a.kind == "dwell":
-                stop = sw.plan(a, ln.line_no)
+                stop = sw.plan(a, ln.line_no, _lead_steps(m))
                 if stop.kind == "none":
                     continue
                 if stop.kind == STOP_G4:

@@ -337,6 +337,20 @@ def test_stop_length_matches_the_issue_table():
     # 6 steps (G1 E0.07 F42 in the issue, 66 steps/s) held 92.6 ms: the rule gives 92.4
     from bulgekit.fallback import still_s
     assert still_s(6, 66) * 1000 == pytest.approx(92.42, abs=0.01)
+    assert still_s(6, 66, 93) == still_s(6, 66)          # v k = 57 steps/s: under the 120 floor
+
+
+def test_short_stops_follow_the_measured_junction_term():
+    # stock-sim (docs/marlin-integration.md, stops on stock firmware): at E 93, 6 steps, the next
+    # X move along X (80 steps/mm) starts at v = r / 93 mm/s; F184.84 (287 steps/s) held
+    # 24.96-26.50 ms for 25 ms stops, where issue 25's rule (1/120 at the end) gave 19.9-21.1 ms
+    from bulgekit.fallback import plan_stop, still_s
+    s = plan_stop(25, 93, 1.0)
+    assert (s.n, s.rate, f"{s.feed(93):.2f}") == (6, 287, "184.84")
+    assert s.still == pytest.approx(6 / 287 + 93 / (287 * 80))
+    # a diagonal next move (56.6 steps per mm of path) starts later: a faster E move makes up
+    assert plan_stop(25, 93, 1.0, k=80 / math.sqrt(2)).rate > 287
+    assert still_s(6, 287, 93, k=80) < still_s(6, 287, 93, k=56.6) < still_s(6, 287)
 
 
 def test_feed_gives_the_rate_in_float32():
@@ -400,9 +414,11 @@ def test_weighted_stop_is_timed_to_its_share_of_the_dwell():
     from bulgekit.fallback import plan_stop
     lines = run(HEAD.format(mode="M83") + "G1 X10 Y0 E1.0\n", [(0.3, [(4.0, 0.0)])], weights=[[51]],
                 stops=StockStops())
-    # (100 x 51 + 127) // 255 = 20 ms: 6 steps at 514 steps/s, 6/514 + 1/120 = 20.006 ms
+    # (100 x 51 + 127) // 255 = 20 ms: 6 steps at 358 steps/s, 6/358 + 1/(358/93 x 80) = 20.01 ms
+    # (the next X move starts at 3.85 mm/s, 308 steps/s: sooner than issue 25's 1/120 s)
     s = plan_stop(20, 93, 0.1)
-    assert (s.n, s.rate) == (6, 514) and s.still == pytest.approx(0.020006, abs=1e-6)
+    assert (s.n, s.rate) == (6, 358) and s.still == pytest.approx(6 / 358 + 93 / (358 * 80), abs=1e-9)
+    assert abs(s.still - 0.020) < 1e-4
     assert stop_lines(lines) == [f"G1 E0.064516 F{s.feed(93):.3f}"]
 
 
@@ -449,7 +465,7 @@ def test_no_stop_is_lost_and_short_or_long_dwells_are_the_nearest():
             assert s.nearest == (abs(s.still - ms / 1000) > 0.001)
         else:
             assert s.why == "long" and ms > 266      # 9 steps at 32 steps/s hold 266.7 ms at most
-    assert plan_stop(5, 93, 0.1).nearest              # 6 steps at 25 mm/s take 10.9 ms
+    assert plan_stop(5, 93, 0.1).nearest              # 6 steps at v_jd (9.7 mm/s) take 7.9 ms
     assert plan_stop(0, 93, 0.1).kind == "none"       # a weight-0 point: no stop to write
 
 
