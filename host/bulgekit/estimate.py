@@ -277,7 +277,7 @@ class _Parser:
         m = self.m
         d = [d[i] + self.pending[i] for i in range(4)]
         steps = [abs(d[i]) * m.steps_per_mm[a] for i, a in enumerate(AXES)]
-        if max(steps) < m.min_segment_steps:               # Marlin drops it; the distance carries on
+        if max(steps) < m.min_segment_steps or max(steps) == 0:   # Marlin drops it; the distance carries on
             self.pending = d
             return
         self.pending = [0.0, 0.0, 0.0, 0.0]
