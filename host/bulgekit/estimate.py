@@ -94,6 +94,21 @@ class Result:
         return f"{int(h)}h {int(rem // 60):02d}m {rem % 60:04.1f}s"
 
 
+@dataclass
+class MoveBlock:
+    """Moves a program already holds as numbers, given to estimate_lines in place of their text
+    (which it then need not parse): G1 to absolute X, Y (mm) with relative E (mm) or W words,
+    F (mm/min) per move, all as the text has them (rounded alike). Needs G90 and M83 in force."""
+    x: np.ndarray
+    y: np.ndarray
+    e: np.ndarray
+    f: np.ndarray
+    w: np.ndarray | None = None
+
+    def __len__(self):
+        return len(self.x)
+
+
 BLOCK_DTYPE = [("line", "i8"), ("feature", "i4"), ("layer", "i4"), ("dx", "f8"), ("dy", "f8"), ("dz", "f8"),
                ("de", "f8"), ("length", "f8"), ("nominal_speed", "f8"), ("accel", "f8"),
                ("entry_speed", "f8"), ("exit_speed", "f8"), ("cruise_speed", "f8"),
@@ -120,6 +135,7 @@ class _Parser:
         self.width = None                       # width mode: dict(r=, D=, H=, L=, U=) when on
         self.w_state = dict(q=None, r=None, D=1.75, H=0.0, L=5.0, U=150.0)
         self.rows = []                          # (line, feat, layer, dx, dy, dz, de, v, accel, brk, jd, jerk)
+        self.parts = []                         # rows turned into column arrays, and MoveBlocks' columns
         self.brk = True                         # the next block starts from rest
         self.pending = [0.0, 0.0, 0.0, 0.0]     # distance of dropped tiny moves
         self.dwell = 0.0
@@ -296,6 +312,57 @@ class _Parser:
                           tuple(self.max_accel[a] for a in AXES), tuple(self.max_fr[a] for a in AXES)))
         self.brk = False
 
+    def flush(self):
+        if self.rows:
+            self.parts.append(_columns(self.rows))
+            self.rows = []
+
+    def block(self, n, mb: MoveBlock):
+        """A MoveBlock: the same blocks as its lines would give, computed on whole arrays."""
+        k = len(mb)
+        if k == 0:
+            return
+        m, s = self.m, self.w_state
+        x = np.concatenate([[self.pos[0]], mb.x])
+        y = np.concatenate([[self.pos[1]], mb.y])
+        dx, dy = np.diff(x), np.diff(y)
+        L = np.hypot(dx, dy)
+        de = np.asarray(mb.e, float)
+        if mb.w is not None:
+            de = np.where(mb.w > 0, mb.w * s["H"] * L / (math.pi * s["D"] ** 2 / 4), de)
+        spm = m.steps_per_mm
+        steps = np.maximum(np.maximum(np.abs(dx) * spm["X"], np.abs(dy) * spm["Y"]), np.abs(de) * spm["E"])
+        if (self.rel[0] or self.rel[1] or not self.rel[3] or any(self.pending)
+                or np.any(steps < max(m.min_segment_steps, 1e-12))):
+            for i in range(k):                          # as the text: move by move
+                w = {"X": float(mb.x[i]), "Y": float(mb.y[i]), "F": float(mb.f[i])}
+                if mb.w is not None and mb.w[i] > 0:
+                    w["W"] = float(mb.w[i])
+                elif mb.e[i] != 0:
+                    w["E"] = float(mb.e[i])
+                self.move(n + i, w)
+            return
+        self.flush()
+        v = np.asarray(mb.f, float) / 60 * self.pct / 100
+        if self.width:
+            ext = de > 0
+            with np.errstate(divide="ignore", invalid="ignore"):
+                vw = np.clip(L * self._rate() / de, s["L"], s["U"])
+            v = np.where(ext, vw, v)
+        brk = np.zeros(k, bool)
+        brk[0] = self.brk
+        full = lambda val: np.full(k, val)
+        self.parts.append({
+            "line": n + np.arange(k), "feature": full(self.fidx[self.feature]), "layer": full(self.layer),
+            "dx": dx, "dy": dy, "dz": np.zeros(k), "de": de, "v": v,
+            "accel": np.where(de != 0, self.accel, self.travel_accel), "brk": brk, "jd": full(self.jd),
+            "jerk": None if self.jerk is None else np.tile([self.jerk[a] for a in AXES], (k, 1)),
+            "amax": np.tile([self.max_accel[a] for a in AXES], (k, 1)),
+            "vmax": np.tile([self.max_fr[a] for a in AXES], (k, 1))})
+        self.brk = False
+        self.f = float(mb.f[-1]) / 60
+        self.pos = [float(mb.x[-1]), float(mb.y[-1]), self.pos[2], self.pos[3] + float(de.sum())]
+
     def arc(self, n, cw, w):
         if "R" in w:
             self.err(n, "G2/G3 with R is not supported by the estimator (use I/J)")
@@ -468,25 +535,40 @@ def _plan_segment(b, maxentry2, m: Machine):
     b["t_accel"], b["t_cruise"], b["t_decel"] = ta, tc, td
 
 
+def _columns(rows) -> dict:
+    """The parser's rows (tuples) as column arrays."""
+    cols = list(zip(*rows))
+    out = {name: np.array(cols[k]) for k, name in enumerate(("line", "feature", "layer", "dx", "dy", "dz", "de"))}
+    out.update(v=np.array(cols[7], float), accel=np.array(cols[8], float), brk=np.array(cols[9], bool),
+               jd=np.array(cols[10], float), amax=np.array(cols[12], float), vmax=np.array(cols[13], float),
+               jerk=None if cols[11][0] is None else np.array(cols[11], float))
+    return out
+
+
 def estimate_lines(lines, machine: Machine | None = None, source: str = "<gcode>") -> Result:
+    """Items of `lines`: G-code lines, or MoveBlocks standing for the lines of their moves."""
     m = machine or Machine()
     p = _Parser(m, source)
     count = 0
-    for count, raw in enumerate(lines, 1):
-        p.line(count, raw)
-    rows = p.rows
-    b = np.zeros(len(rows), dtype=BLOCK_DTYPE)
-    if rows:
-        cols = list(zip(*rows))
-        for k, name in enumerate(("line", "feature", "layer", "dx", "dy", "dz", "de")):
-            b[name] = cols[k]
-        v = np.array(cols[7], float)
-        b["accel"] = cols[8]
-        brk = np.array(cols[9], bool)
-        jd = np.array(cols[10], float)
-        jerk = cols[11]
-        amax = np.array(cols[12], float)
-        vmax = np.array(cols[13], float)
+    for raw in lines:
+        if isinstance(raw, MoveBlock):
+            p.block(count + 1, raw)
+            count += len(raw)
+        else:
+            count += 1
+            p.line(count, raw)
+    p.flush()
+    parts = p.parts
+    n = sum(len(q["v"]) for q in parts)
+    b = np.zeros(n, dtype=BLOCK_DTYPE)
+    if n:
+        cat = lambda key: np.concatenate([q[key] for q in parts])
+        for name in ("line", "feature", "layer", "dx", "dy", "dz", "de"):
+            b[name] = cat(name)
+        v, brk, jd, amax, vmax = cat("v"), cat("brk"), cat("jd"), cat("amax"), cat("vmax")
+        b["accel"] = cat("accel")
+        jerk = None if parts[0]["jerk"] is None else cat("jerk")
+        p.parts = parts = None                      # a large file's columns: not kept twice
         d = np.column_stack([b["dx"], b["dy"], b["dz"], b["de"]])
         xyz = np.linalg.norm(d[:, :3], axis=1)
         L = np.where(xyz > 0, xyz, np.abs(d[:, 3]))
@@ -501,8 +583,7 @@ def estimate_lines(lines, machine: Machine | None = None, source: str = "<gcode>
         if np.any(b["nominal_speed"] <= 0):
             i = int(np.argmax(b["nominal_speed"] <= 0))
             raise EstimateError(f"{source}:{b['line'][i]}: move with feed rate 0")
-        jerk_arr = None if jerk[0] is None else np.array(jerk, float)
-        maxentry2 = _junctions(b, jd, jerk_arr, amax, m)
+        maxentry2 = _junctions(b, jd, jerk, amax, m)
         starts = np.flatnonzero(brk)
         if len(starts) == 0 or starts[0] != 0:
             starts = np.concatenate([[0], starts])

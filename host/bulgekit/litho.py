@@ -26,6 +26,7 @@ Gaps the method cannot fill as asked are handled, and counted in the stats:
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import os
@@ -464,19 +465,20 @@ def _layer_paths(o: LithoOptions, fld: Field, k: int, wall_q, mid_q, counts: dic
     share = (g > 1e-9) & (g < nl * lmin - 1e-9)
     ww = np.where(share, w + g / 2, w)
     gm = t - 2 * ww
-    u = np.arange(n, dtype=float)
-    if planar:                                  # the mid-line runs between the end walls
+    if planar:
+        # the mid-line runs between the end walls (x = w .. X - w), the walls' centre lines from
+        # x = w / 2 to X - w / 2: the samples inside, and the ends
         X = fld.s[-1]
-        xm = fld.s.copy()
-        xm[0], xm[-1] = w, X - w
-        tm = np.interp(xm, fld.s, t)
+        ends = lambda a: np.concatenate([[a], fld.s[(fld.s > a + 1e-9) & (fld.s < X - a - 1e-9)], [X - a]])
+        xm = ends(w)
+        um = xm / (X / (n - 1))
         wwm = np.interp(xm, fld.s, ww)
-        gmm = tm - 2 * wwm
+        gmm = np.interp(xm, fld.s, t) - 2 * wwm
         band = _Band(o, fld, k, xm)
     else:
         wwm, gmm, band = ww, gm, _Band(o, fld, k)
-        u = np.append(u, n)
-    given = np.zeros(n if not planar else n - 1)    # mid-line area per piece given to the walls
+        um = np.arange(n + 1, dtype=float)
+    given = np.zeros(len(um) - 1)                   # mid-line area per piece given to the walls
     mids = []
     for i in range(nl):
         lo, hi = wwm + gmm * i / nl, wwm + gmm * (i + 1) / nl
@@ -484,7 +486,7 @@ def _layer_paths(o: LithoOptions, fld: Field, k: int, wall_q, mid_q, counts: dic
         L = np.linalg.norm(np.diff(pts, axis=0), axis=1)
         laid = area >= lmin * L * (1 - 1e-6)
         while True:
-            sec, lonely = _pieces("mid-line", pts, area, laid, u, o, mid_q)
+            sec, lonely = _pieces("mid-line", pts, area, laid, um, o, mid_q)
             if lonely is None:
                 break
             laid = laid & ~lonely                   # runs too short for the block rate: to the walls
@@ -499,23 +501,26 @@ def _layer_paths(o: LithoOptions, fld: Field, k: int, wall_q, mid_q, counts: dic
     counts["shared_mm3"] += float(given.sum() * o.layer_height)
     # the walls: centre lines half their band in from each face
     if planar:
-        X = fld.s[-1]
-        xw = fld.s.copy()
-        xw[0], xw[-1] = w / 2, X - w / 2
+        xw = ends(w / 2)
+        nw = len(xw)
+        u = xw / (X / (n - 1))
         tw, wwv = np.interp(xw, fld.s, t), np.interp(xw, fld.s, ww)
         bw = _Band(o, fld, k, xw)
         back_p, front_p = bw.points(wwv / 2), bw.points(tw - wwv / 2)
-        back_a = bw.area(np.zeros(n), wwv) + given / 2
-        front_a = bw.area(tw - wwv, tw) + given / 2
+        # what the mid-line gave, moved onto the walls' pieces by x
+        g_w = np.diff(np.interp(xw, xm, np.concatenate([[0.0], np.cumsum(given)])))
+        back_a = bw.area(np.zeros(nw), wwv) + g_w / 2
+        front_a = bw.area(tw - wwv, tw) + g_w / 2
         # one loop, counter-clockwise: back left to right, up the right end, front right to
         # left, down the left end; the ends are plain lines of one line width
         pts = np.vstack([back_p, front_p[::-1], back_p[:1]])
-        ends = np.linalg.norm(pts[[n, 2 * n]] - pts[[n - 1, 2 * n - 1]], axis=1) * w
-        area = np.concatenate([back_a, [ends[0]], front_a[::-1], [ends[1]]])
-        uu = np.concatenate([u, u[::-1], [0.0]])
+        end_a = np.linalg.norm(pts[[nw, 2 * nw]] - pts[[nw - 1, 2 * nw - 1]], axis=1) * w
+        area = np.concatenate([back_a, [end_a[0]], front_a[::-1], [end_a[1]]])
+        uu = np.concatenate([u, u[::-1], u[:1]])
         walls, _ = _pieces("wall", pts, area, np.ones(len(area), bool), uu, o, wall_q)
         walls = [walls]
     else:
+        u = um
         inner_p, outer_p = band.points(ww / 2), band.points(t - ww / 2)
         inner_a = band.area(np.zeros(n), ww) + given / 2
         outer_a = band.area(t - ww, t) + given / 2
@@ -672,21 +677,46 @@ def _fmt(v: float, nd: int) -> str:
     return "0" if s in ("-0", "") else s
 
 
+def _words(letter: str, a: np.ndarray, nd: int) -> list:
+    """`letter` + each value to nd decimals, trailing zeros dropped (Python's shortest repr of the
+    rounded value: fast, and exact to the decimals asked)."""
+    r = np.round(a, nd) + 0.0                       # + 0.0: no "-0.0"
+    out = [f"{letter}{x!r}" for x in r.tolist()]
+    small = np.flatnonzero((np.abs(r) < 1e-4) | (np.abs(r) >= 1e15))
+    for i in small.tolist():                        # repr would use an exponent there
+        out[i] = letter + _fmt(float(r[i]), nd)
+    return [w[:-2] if w.endswith(".0") else w for w in out]
+
+
 class _Writer:
     """Writes one of the two G-code files. `mode`: "litho" (width mode: M723 sets the extruder
     rate, the firmware picks each piece's speed) or "stock" (eq. 2: explicit F per piece so that
-    E * F / L is the same rate, for stock firmware)."""
+    E * F / L is the same rate, for stock firmware). `items` holds the file as lines, and each
+    section's moves as (text, estimate.MoveBlock), so the estimate need not parse them again."""
 
     def __init__(self, plan: Plan, mode: str):
         self.p, self.o, self.mode = plan, plan.options, mode
-        self.lines: list[str] = []
+        self.items: list = []
         self.x = self.y = None
         self.f = None
         self.retracted = False
         self.flow = None
 
     def out(self, s):
-        self.lines.append(s)
+        self.items.append(s)
+
+    def text(self):
+        """The file's text in pieces (one per line or section)."""
+        for it in self.items:
+            yield (it if isinstance(it, str) else it[0]) + "\n"
+
+    def lines(self):
+        """The file for the estimator: lines, and MoveBlocks for the sections' moves."""
+        for it in self.items:
+            if isinstance(it, str):
+                yield from it.split("\n")
+            else:
+                yield it[1]
 
     def move(self, x, y, e=None, f=None, w=None):
         ox, oy = self.p.origin
@@ -726,6 +756,8 @@ class _Writer:
             self.flow = q
 
     def section(self, s: Section, wall_flow, mid_flow):
+        from .estimate import MoveBlock
+
         o = self.o
         start = s.pts[0]
         if self.x is None or math.hypot(start[0] - self.x, start[1] - self.y) > 1e-6:
@@ -742,12 +774,24 @@ class _Writer:
         self.prime()
         self.out(f";TYPE:{s.kind}")
         self.set_flow(wall_flow if s.kind == "wall" else mid_flow)
-        for i in range(len(s.e)):
-            x, y = s.pts[i + 1]
-            if s.e[i] > 0:
-                self._piece(x, y, s.e[i], s.v[i], s.width[i])
-            else:                                        # no line here: the head moves on
-                self.move(x, y, f=o.travel_speed)
+        # every piece at once: X Y, E (or W) where laid, F where it changes
+        ox, oy = self.p.origin
+        X, Y = np.round(s.pts[1:, 0] + ox, 3), np.round(s.pts[1:, 1] + oy, 3)
+        laid = s.e > 0
+        F = np.round(s.v * 60, 1)
+        use_w = self.mode == "litho" and o.words == "w"
+        E = np.where(laid, np.round(s.e, 5), 0.0)
+        Wd = np.where(laid, np.round(s.width, 4), 0.0) if use_w else None
+        prev = np.concatenate([[self.f if self.f is not None else -1.0], F[:-1]])
+        newf = np.abs(F - prev) > 1e-6
+        xs, ys, fs = _words("X", X, 3), _words("Y", Y, 3), _words("F", F, 1)
+        amount = _words("W", Wd, 4) if use_w else _words("E", E, 5)
+        text = "\n".join(
+            f"G1 {x} {y}" + (f" {a}" if on else "") + (f" {f}" if nf else "")
+            for x, y, a, f, on, nf in zip(xs, ys, amount, fs, laid.tolist(), newf.tolist()))
+        self.items.append((text, MoveBlock(X, Y, E, F, Wd)))
+        self.f = float(F[-1])
+        self.x, self.y = s.pts[-1]
 
     def _piece(self, x, y, e, v, width):
         if self.mode == "stock":
@@ -760,7 +804,11 @@ class _Writer:
             self.move(x, y, e=e, f=v)
 
 
-def write_gcode(plan: Plan, path, mode: str, name: str = "lithophane") -> None:
+def write_gcode(plan: Plan, path, mode: str, name: str = "lithophane", estimate_with=()) -> list:
+    """Write one G-code file, and return its estimated print time (s, from the moves as
+    written) for every estimate.Machine in `estimate_with`."""
+    from . import progress as pg
+
     o = plan.options
     w = _Writer(plan, mode)
     fill = lambda text: text.replace("{temp}", str(o.temp)).replace("{bed_temp}", str(o.bed_temp))
@@ -786,20 +834,31 @@ def write_gcode(plan: Plan, path, mode: str, name: str = "lithophane") -> None:
               f"L{_fmt(o.min_speed, 3)} U{_fmt(o.max_speed, 3)} ; width mode: extruder at one rate")
         w.flow = o.wall_flow
     ratio = o.first_layer_speed / o.wall_speed
-    for k, L in enumerate(plan.layers):
-        w.out(f";LAYER:{k}")
-        w.out(f"G1 Z{_fmt(L.z, 3)} F{_fmt(o.z_speed * 60, 1)}")
-        w.f = o.z_speed * 60
-        wall_q = o.wall_flow * (ratio if k == 0 else 1.0)
-        mid_q = o.mid_flow * (ratio if k == 0 else 1.0)
-        for s in L.sections:
-            w.section(s, wall_q, mid_q)
-    if mode == "litho":
-        w.out("M723 S0 ; width mode off")
-    if o.retract > 0:
-        w.out(f"G1 E-{_fmt(o.retract, 4)} F{_fmt(o.retract_speed * 60, 1)}")
-    w.out(fill(end).rstrip("\n"))
-    _write_atomic(path, "\n".join(w.lines) + "\n")
+    n = len(plan.layers)
+    with pg.phase(f"writing {Path(path).name}", n, unit="layers"):
+        for k, L in enumerate(plan.layers):
+            w.out(f";LAYER:{k}")
+            w.out(f"G1 Z{_fmt(L.z, 3)} F{_fmt(o.z_speed * 60, 1)}")
+            w.f = o.z_speed * 60
+            wall_q = o.wall_flow * (ratio if k == 0 else 1.0)
+            mid_q = o.mid_flow * (ratio if k == 0 else 1.0)
+            for s in L.sections:
+                w.section(s, wall_q, mid_q)
+            if k % 16 == 0:
+                pg.tick(k)
+        if mode == "litho":
+            w.out("M723 S0 ; width mode off")
+        if o.retract > 0:
+            w.out(f"G1 E-{_fmt(o.retract, 4)} F{_fmt(o.retract_speed * 60, 1)}")
+        w.out(fill(end).rstrip("\n"))
+        _write_atomic(path, w.text())
+    from . import estimate
+
+    out = []
+    for m in estimate_with:
+        with pg.phase(f"estimating {Path(path).name}", 1, unit="estimates"):
+            out.append(estimate.estimate_lines(w.lines(), m, source=os.fspath(path)).total_s)
+    return out
 
 
 def _read_text(path, opt):
@@ -822,12 +881,16 @@ def _umask() -> int:
 
 
 def _write_atomic(path, data, binary=False):
-    """Write all of it or nothing: a temporary file in the same folder, renamed over the target."""
+    """Write all of it or nothing: a temporary file in the same folder, renamed over the target.
+    `data`: str or bytes, or an iterable of them (written piece by piece)."""
     path = Path(path)
     fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".part", dir=path.parent)
     try:
         with os.fdopen(fd, "wb" if binary else "w") as f:
-            f.write(data)
+            if isinstance(data, (str, bytes)):
+                f.write(data)
+            else:
+                f.writelines(data)
         os.chmod(tmp, 0o666 & ~_umask())
         os.replace(tmp, path)
     except BaseException:
@@ -865,12 +928,14 @@ def body_mesh(plan: Plan) -> tuple[np.ndarray, np.ndarray]:
         c, sn = np.cos(fld.s), np.sin(fld.s)
         Z = np.broadcast_to(zs[:, None], (R, C))
         front = np.stack([(r_in + T) * c, (r_in + T) * sn, Z], axis=-1)
-        back = np.stack([np.broadcast_to(r_in * c, (R, C)), np.broadcast_to(r_in * sn, (R, C)), Z], axis=-1)
+        # the back is a plain cylinder: its bottom and top rows are all it needs
+        zb = np.broadcast_to(zs[[0, -1], None], (2, C))
+        back = np.stack([np.broadcast_to(r_in * c, (2, C)), np.broadcast_to(r_in * sn, (2, C)), zb], axis=-1)
         closed = True
     V = np.concatenate([front.reshape(-1, 3), back.reshape(-1, 3)])
     nf = R * C
     idx_f = np.arange(nf).reshape(R, C)
-    idx_b = idx_f + nf
+    idx_b = np.arange(nf, len(V)).reshape(-1, C)
     faces = []
 
     def grid(idx, flip):
@@ -924,7 +989,7 @@ def write_stl(V: np.ndarray, F: np.ndarray, path, name="bulgekit lithophane") ->
     rec = np.zeros(len(F), dtype=[("n", "<f4", 3), ("v", "<f4", (3, 3)), ("attr", "<u2")])
     rec["n"], rec["v"] = n, tri
     head = name.encode()[:80].ljust(80, b" ")
-    _write_atomic(path, head + np.uint32(len(F)).tobytes() + rec.tobytes(), binary=True)
+    _write_atomic(path, [head, np.uint32(len(F)).tobytes(), memoryview(rec).cast("B")], binary=True)
 
 
 # --- predicted look and statistics ---------------------------------------------------------
@@ -936,6 +1001,54 @@ def printed_thickness(plan: Plan) -> np.ndarray:
     return np.array([2 * L.wall + L.gap for L in plan.layers[fld.n_foot:]])
 
 
+def laid_area(plan: Plan, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """Area (mm^2) laid by layer k's walls and mid-line(s) over each interval between
+    neighbouring samples, and the body's area there (as the STL has it). A merged piece is spread
+    over the stretch along the layer it spans (in samples, Section.u), a piece across the layer
+    (a planar end wall) goes to the interval it stands in; joins laid as connectors of their own
+    are not counted."""
+    o, fld = plan.options, plan.field
+    t = fld.t[k]
+    n = len(t)
+    closed = o.shape == "cylinder"
+    m = n if closed else n - 1
+    lo_all, hi_all, a_all = [], [], []
+    for s in plan.layers[k].sections:
+        on = s.e > 0
+        a = (s.e * o.filament_area / o.layer_height)[on]
+        ua, ub = s.u[:-1][on], s.u[1:][on]
+        if closed:                                  # across the seam: unwrap
+            ub = np.where(ub - ua > n / 2, ub - n, np.where(ua - ub > n / 2, ub + n, ub))
+        lo_all.append(np.minimum(ua, ub)), hi_all.append(np.maximum(ua, ub)), a_all.append(a)
+    lo, hi, a = (np.concatenate(x) for x in (lo_all, hi_all, a_all))
+    if closed:
+        lo, hi = lo % n, lo % n + (hi - lo)
+    laid = np.zeros(m + (1 if not closed else n))
+    point = hi - lo < 1e-9
+    np.add.at(laid, np.minimum(np.floor(lo[point]).astype(int), m - 1), a[point])
+    lo, hi, a = lo[~point], hi[~point], a[~point]
+    # each piece lays evenly along [lo, hi]: the laid area up to u is piecewise linear in u
+    ev = np.concatenate([lo, hi])
+    slope = np.concatenate([a / (hi - lo), -a / (hi - lo)])
+    order = np.argsort(ev, kind="stable")
+    ev, slope = ev[order], np.cumsum(slope[order])
+    cum = np.concatenate([[0.0], np.cumsum(slope[:-1] * np.diff(ev))])
+    q = np.arange(len(laid) + 1, dtype=float)
+    F = np.interp(q, ev, cum, left=0.0, right=cum[-1])
+    laid = laid + np.diff(F)
+    if closed:
+        laid = laid[:n] + np.concatenate([laid[n:], np.zeros(n - len(laid[n:]))])
+        r_in = o.diameter / 2 - o.max_thickness
+        r2 = (r_in + t) ** 2 - r_in ** 2
+        body = (r2 + np.roll(r2, -1)) / 4 * (2 * math.pi / n)
+    else:
+        laid = laid[:m]
+        body = (t[:-1] + t[1:]) / 2 * np.diff(fld.s)
+        if k < fld.n_foot:
+            body = np.full(m, o.foot) * np.diff(fld.s)
+    return laid, body
+
+
 def transmission(t: np.ndarray, mu: float) -> np.ndarray:
     """Beer-Lambert: share of the backlight that passes t mm."""
     return np.exp(-mu * t)
@@ -943,15 +1056,17 @@ def transmission(t: np.ndarray, mu: float) -> np.ndarray:
 
 def _ssim(a: np.ndarray, b: np.ndarray) -> float:
     """Mean structural similarity over 7 x 7 windows (Wang et al. 2004, constants for range 1)."""
-    from numpy.lib.stride_tricks import sliding_window_view as win
-
     if min(a.shape) < 7:
         return float("nan")
     c1, c2 = 0.01 ** 2, 0.03 ** 2
-    wa, wb = win(a, (7, 7)), win(b, (7, 7))
-    ma, mb = wa.mean(axis=(-1, -2)), wb.mean(axis=(-1, -2))
-    va, vb = wa.var(axis=(-1, -2)), wb.var(axis=(-1, -2))
-    cov = (wa * wb).mean(axis=(-1, -2)) - ma * mb
+
+    def mean7(x):                                   # 7 x 7 window means, without 49 copies
+        c = np.cumsum(np.cumsum(np.pad(x, ((1, 0), (1, 0))), axis=0), axis=1)
+        return (c[7:, 7:] - c[:-7, 7:] - c[7:, :-7] + c[:-7, :-7]) / 49
+
+    ma, mb = mean7(a), mean7(b)
+    va, vb = mean7(a * a) - ma ** 2, mean7(b * b) - mb ** 2
+    cov = mean7(a * b) - ma * mb
     s = ((2 * ma * mb + c1) * (2 * cov + c2)) / ((ma ** 2 + mb ** 2 + c1) * (va + vb + c2))
     return float(s.mean())
 
@@ -1060,9 +1175,15 @@ class LithoResult:
     stats: dict
 
 
-def make(image, outdir, name: str | None = None, progress=None, **opts) -> LithoResult:
+def make(image, outdir, name: str | None = None, progress=None, machine=None, **opts) -> LithoResult:
     """Everything `bulgekit litho` writes, from a picture: NAME.litho.gcode, NAME.stock.gcode,
-    NAME.stl, NAME.transmission.png, NAME.litho.json. Options: the fields of LithoOptions."""
+    NAME.stl, NAME.transmission.png, NAME.litho.json. Options: the fields of LithoOptions.
+    `progress(done, total)` hears the planning; the later phases (writing each file, the
+    estimate) are reported through bulgekit.progress. `machine`: the estimate's
+    estimate.Machine (default: Marlin's RAMPS defaults)."""
+    from . import estimate
+    from . import progress as pg
+
     o = opts.pop("options", None) or LithoOptions(**opts)
     name = name or Path(os.fspath(image)).stem
     out = Path(outdir)
@@ -1071,29 +1192,32 @@ def make(image, outdir, name: str | None = None, progress=None, **opts) -> Litho
     paths = {"gcode": out / f"{name}.litho.gcode", "stock": out / f"{name}.stock.gcode",
              "stl": out / f"{name}.stl", "png": out / f"{name}.transmission.png",
              "json": out / f"{name}.litho.json"}
-    V, F = body_mesh(plan)
-    write_stl(V, F, paths["stl"], name=f"bulgekit lithophane {name}")
-    write_gcode(plan, paths["gcode"], "litho", name)
-    write_gcode(plan, paths["stock"], "stock", name)
+    m = machine or estimate.Machine()
+    with pg.phase(f"writing {paths['stl'].name}", 1, unit="files"):
+        V, F = body_mesh(plan)
+        write_stl(V, F, paths["stl"], name=f"bulgekit lithophane {name}")
+        stl_volume = mesh_volume(V, F)
+        del V, F
+    times = {}
+    # the litho file also with every move planned (Klipper, RepRapFirmware): nothing dropped
+    every = dataclasses.replace(m, min_segment_steps=0)
+    times["gcode"], times["every"] = write_gcode(plan, paths["gcode"], "litho", name, estimate_with=[m, every])
+    times["stock"], = write_gcode(plan, paths["stock"], "stock", name, estimate_with=[m])
     write_transmission_png(plan, paths["png"])
-    stats = plan_stats(plan, mesh_volume(V, F))
+    stats = plan_stats(plan, stl_volume)
     stats["name"] = name
     stats["image"] = os.fspath(image)
     stats["options"] = _options_dict(o)
-    stats.update(_estimated(paths))
+    stats["estimate"] = {"estimated_time_s_gcode": round(times["gcode"], 1),
+                         "estimated_time_s_stock": round(times["stock"], 1),
+                         "estimated_time_s_gcode_every_move_planned": round(times["every"], 1),
+                         "machine": machine_words(m)}
     _write_atomic(paths["json"], json.dumps(stats, indent=2) + "\n")
     return LithoResult(plan, paths, stats)
 
 
-def _estimated(paths) -> dict:
-    """Print time of both files by the Marlin-style estimator, when it is there."""
-    try:
-        from . import estimate
-    except ImportError:
-        return {}
-    m = estimate.Machine()
-    out = {}
-    for key in ("gcode", "stock"):
-        r = estimate.estimate_file(paths[key], m)
-        out[f"estimated_time_s_{key}"] = round(r.total_s, 1)
-    return {"estimate": out}
+def machine_words(m) -> dict:
+    """What an estimate assumes, as the JSON and the CLI name it."""
+    return {"accel_mm_s2": m.accel, "travel_accel_mm_s2": m.travel_accel,
+            "junction_deviation_mm": m.junction_deviation, "classic_jerk": m.jerk,
+            "lookahead_blocks": m.lookahead, "min_segment_steps": m.min_segment_steps}
