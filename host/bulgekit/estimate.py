@@ -545,6 +545,92 @@ def _columns(rows) -> dict:
     return out
 
 
+CHUNK = 1 << 16          # blocks computed at once (a large file's temporaries stay small)
+
+
+def _plan_parts(p: "_Parser", m: Machine, source: str) -> np.ndarray:
+    """The parser's columns -> planned blocks, a chunk of blocks at a time."""
+    parts, p.parts = p.parts, None
+    n = sum(len(q["v"]) for q in parts)
+    b = np.zeros(n, dtype=BLOCK_DTYPE)
+    if not n:
+        return b
+    v, jd, brk = np.empty(n), np.empty(n), np.empty(n, bool)
+    amax, vmax = np.empty((n, 4)), np.empty((n, 4))
+    jerk = None if parts[0]["jerk"] is None else np.empty((n, 4))
+    off = 0
+    while parts:                                    # copied in, each part dropped once copied
+        q = parts.pop(0)
+        k = len(q["v"])
+        sl = slice(off, off + k)
+        for name in ("line", "feature", "layer", "dx", "dy", "dz", "de", "accel"):
+            b[name][sl] = q[name]
+        v[sl], jd[sl], brk[sl], amax[sl], vmax[sl] = q["v"], q["jd"], q["brk"], q["amax"], q["vmax"]
+        if jerk is not None:
+            jerk[sl] = q["jerk"]
+        off += k
+    for c0 in range(0, n, CHUNK):
+        c = slice(c0, min(n, c0 + CHUNK))
+        bc = b[c]
+        d = np.column_stack([bc["dx"], bc["dy"], bc["dz"], bc["de"]])
+        xyz = np.linalg.norm(d[:, :3], axis=1)
+        L = np.where(xyz > 0, xyz, np.abs(d[:, 3]))
+        b["length"][c] = L
+        # per-axis limits: speed so no axis exceeds its M203, accel so none exceeds its M201
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ratio = np.abs(d) / L[:, None]
+            vlim = np.where(ratio > 0, vmax[c] / ratio, np.inf).min(axis=1)
+            alim = np.where(ratio > 0, amax[c] / ratio, np.inf).min(axis=1)
+        b["nominal_speed"][c] = np.minimum(v[c], vlim)
+        b["accel"][c] = np.where(xyz > 0, np.minimum(bc["accel"], alim), bc["accel"])
+    del v, vmax
+    if np.any(b["nominal_speed"] <= 0):
+        i = int(np.argmax(b["nominal_speed"] <= 0))
+        raise EstimateError(f"{source}:{b['line'][i]}: move with feed rate 0")
+    # junctions: each block's only with the one before (chunks overlap by one block)
+    maxentry2 = np.zeros(n)
+    for c0 in range(0, n, CHUNK):
+        lo, hi = max(0, c0 - 1), min(n, c0 + CHUNK)
+        part = _junctions(b[lo:hi], jd[lo:hi], None if jerk is None else jerk[lo:hi], amax[lo:hi], m)
+        maxentry2[c0:hi] = part[c0 - lo:]
+    del jd, amax, jerk
+    starts = np.flatnonzero(brk)
+    if len(starts) == 0 or starts[0] != 0:
+        starts = np.concatenate([[0], starts])
+    bounds = list(starts) + [n]
+    for s0, e0 in zip(bounds[:-1], bounds[1:]):
+        if e0 > s0:
+            _plan_long(b, s0, e0, maxentry2, m)
+    return b
+
+
+def _plan_long(b, s0, e0, maxentry2, m: Machine) -> None:
+    """_plan_segment on blocks s0..e0 (no stop between them), a chunk at a time. A block's speeds
+    depend only on blocks within the distance the head needs to reach or lose its highest
+    speed (v^2 / 2a), so each chunk is planned with that much on both sides and only its own
+    blocks are kept: the same result as planning the whole run at once."""
+    n = e0 - s0
+    if n <= 2 * CHUNK:
+        seg = b[s0:e0]
+        _plan_segment(seg, maxentry2[s0:e0], m)
+        b[s0:e0] = seg
+        return
+    L = b["length"][s0:e0]
+    cum = np.concatenate([[0.0], np.cumsum(L)])
+    reach = float((b["nominal_speed"][s0:e0] ** 2).max() / (2 * b["accel"][s0:e0].min())) * 1.5 + 1.0
+    for c0 in range(0, n, CHUNK):
+        c1 = min(n, c0 + CHUNK)
+        lo = int(np.searchsorted(cum, cum[c0] - reach, side="right")) - 1
+        hi = int(np.searchsorted(cum, cum[c1] + reach, side="left")) + 1
+        lo, hi = max(0, lo - m.lookahead if m.lookahead else lo), min(n, hi + (m.lookahead or 0))
+        seg = b[s0 + lo:s0 + hi].copy()              # its edges are planned wrongly: not kept
+        me = maxentry2[s0 + lo:s0 + hi]
+        _plan_segment(seg, me, m)
+        keep = slice(c0 - lo, c1 - lo)
+        for f in ("entry_speed", "exit_speed", "cruise_speed", "t_accel", "t_cruise", "t_decel"):
+            b[f][s0 + c0:s0 + c1] = seg[f][keep]
+
+
 def estimate_lines(lines, machine: Machine | None = None, source: str = "<gcode>") -> Result:
     """Items of `lines`: G-code lines, or MoveBlocks standing for the lines of their moves."""
     m = machine or Machine()
@@ -558,41 +644,7 @@ def estimate_lines(lines, machine: Machine | None = None, source: str = "<gcode>
             count += 1
             p.line(count, raw)
     p.flush()
-    parts = p.parts
-    n = sum(len(q["v"]) for q in parts)
-    b = np.zeros(n, dtype=BLOCK_DTYPE)
-    if n:
-        cat = lambda key: np.concatenate([q[key] for q in parts])
-        for name in ("line", "feature", "layer", "dx", "dy", "dz", "de"):
-            b[name] = cat(name)
-        v, brk, jd, amax, vmax = cat("v"), cat("brk"), cat("jd"), cat("amax"), cat("vmax")
-        b["accel"] = cat("accel")
-        jerk = None if parts[0]["jerk"] is None else cat("jerk")
-        p.parts = parts = None                      # a large file's columns: not kept twice
-        d = np.column_stack([b["dx"], b["dy"], b["dz"], b["de"]])
-        xyz = np.linalg.norm(d[:, :3], axis=1)
-        L = np.where(xyz > 0, xyz, np.abs(d[:, 3]))
-        b["length"] = L
-        # per-axis limits: speed so no axis exceeds its M203, accel so none exceeds its M201
-        with np.errstate(divide="ignore", invalid="ignore"):
-            ratio = np.abs(d) / L[:, None]
-            vlim = np.where(ratio > 0, vmax / ratio, np.inf).min(axis=1)
-            alim = np.where(ratio[:, :4] > 0, amax / ratio, np.inf).min(axis=1)
-        b["nominal_speed"] = np.minimum(v, vlim)
-        b["accel"] = np.where(xyz > 0, np.minimum(b["accel"], alim), b["accel"])
-        if np.any(b["nominal_speed"] <= 0):
-            i = int(np.argmax(b["nominal_speed"] <= 0))
-            raise EstimateError(f"{source}:{b['line'][i]}: move with feed rate 0")
-        maxentry2 = _junctions(b, jd, jerk, amax, m)
-        starts = np.flatnonzero(brk)
-        if len(starts) == 0 or starts[0] != 0:
-            starts = np.concatenate([[0], starts])
-        bounds = list(starts) + [len(b)]
-        for s, e in zip(bounds[:-1], bounds[1:]):
-            if e > s:
-                seg = b[s:e]
-                _plan_segment(seg, maxentry2[s:e], m)
-                b[s:e] = seg
+    b = _plan_parts(p, m, source)
     t = b["t_accel"] + b["t_cruise"] + b["t_decel"]
     feats = p.features
     by = {}
