@@ -478,11 +478,35 @@ def _layer_paths(o: LithoOptions, fld: Field, k: int, wall_q, mid_q, counts: dic
     else:
         wwm, gmm, band = ww, gm, _Band(o, fld, k)
         um = np.arange(n + 1, dtype=float)
+    # the walls: centre lines half their band in from each face
+    if planar:
+        xw = ends(w / 2)
+        uw = xw / (X / (n - 1))
+        tw, wwv = np.interp(xw, fld.s, t), np.interp(xw, fld.s, ww)
+        bw = _Band(o, fld, k, xw)
+        move_w = lambda a: np.diff(np.interp(xw, xm, np.concatenate([[0.0], np.cumsum(a)])))
+        move_m = lambda a: np.diff(np.interp(xm, xw, np.concatenate([[0.0], np.cumsum(a)])))
+    else:
+        uw, tw, wwv, bw = um, t, ww, band
+        move_w = move_m = lambda a: a
+    back_p, front_p = bw.points(wwv / 2), bw.points(tw - wwv / 2)
+    back_a, front_a = bw.area(np.zeros(len(wwv)), wwv), bw.area(tw - wwv, tw)
+    # A wall along a slope is longer than its band is wide: at its own width it lays a little
+    # more than the band, taken from the mid-line beside it, so that the walls keep one speed.
+    wbar = (wwv + np.roll(wwv, -1))[: len(back_a)] / 2
+    want = [np.maximum(wbar * np.linalg.norm(np.diff(p_, axis=0), axis=1) - a_, 0.0)
+            for p_, a_ in ((back_p, back_a), (front_p, front_a))]
+    mid_w = move_w(band.area(wwm, wwm + gmm))
+    take = want[0] + want[1]
+    scale = np.where(take > mid_w, mid_w / np.maximum(take, 1e-12), 1.0)
+    back_a, front_a = back_a + want[0] * scale, front_a + want[1] * scale
+    taken = move_m(take * scale)
     given = np.zeros(len(um) - 1)                   # mid-line area per piece given to the walls
     mids = []
     for i in range(nl):
         lo, hi = wwm + gmm * i / nl, wwm + gmm * (i + 1) / nl
-        pts, area = band.points((lo + hi) / 2), band.area(lo, hi)
+        pts = band.points((lo + hi) / 2)
+        area = np.maximum(band.area(lo, hi) - taken / nl, 0.0)
         L = np.linalg.norm(np.diff(pts, axis=0), axis=1)
         laid = area >= lmin * L * (1 - 1e-6)
         while True:
@@ -499,34 +523,22 @@ def _layer_paths(o: LithoOptions, fld: Field, k: int, wall_q, mid_q, counts: dic
                 sec = _reverse(sec)
         mids.append(sec)
     counts["shared_mm3"] += float(given.sum() * o.layer_height)
-    # the walls: centre lines half their band in from each face
+    g_w = move_w(given)
+    back_a, front_a = back_a + g_w / 2, front_a + g_w / 2
     if planar:
-        xw = ends(w / 2)
-        nw = len(xw)
-        u = xw / (X / (n - 1))
-        tw, wwv = np.interp(xw, fld.s, t), np.interp(xw, fld.s, ww)
-        bw = _Band(o, fld, k, xw)
-        back_p, front_p = bw.points(wwv / 2), bw.points(tw - wwv / 2)
-        # what the mid-line gave, moved onto the walls' pieces by x
-        g_w = np.diff(np.interp(xw, xm, np.concatenate([[0.0], np.cumsum(given)])))
-        back_a = bw.area(np.zeros(nw), wwv) + g_w / 2
-        front_a = bw.area(tw - wwv, tw) + g_w / 2
         # one loop, counter-clockwise: back left to right, up the right end, front right to
         # left, down the left end; the ends are plain lines of one line width
+        nw = len(xw)
         pts = np.vstack([back_p, front_p[::-1], back_p[:1]])
         end_a = np.linalg.norm(pts[[nw, 2 * nw]] - pts[[nw - 1, 2 * nw - 1]], axis=1) * w
         area = np.concatenate([back_a, [end_a[0]], front_a[::-1], [end_a[1]]])
-        uu = np.concatenate([u, u[::-1], u[:1]])
+        uu = np.concatenate([uw, uw[::-1], uw[:1]])
         walls, _ = _pieces("wall", pts, area, np.ones(len(area), bool), uu, o, wall_q)
         walls = [walls]
     else:
-        u = um
-        inner_p, outer_p = band.points(ww / 2), band.points(t - ww / 2)
-        inner_a = band.area(np.zeros(n), ww) + given / 2
-        outer_a = band.area(t - ww, t) + given / 2
         lay = np.ones(n, bool)
-        outer, _ = _pieces("wall", outer_p, outer_a, lay, u, o, wall_q)
-        inner, _ = _pieces("wall", inner_p[::-1], inner_a[::-1], lay, u[::-1], o, wall_q)
+        outer, _ = _pieces("wall", front_p, front_a, lay, uw, o, wall_q)
+        inner, _ = _pieces("wall", back_p[::-1], back_a[::-1], lay, uw[::-1], o, wall_q)
         walls = [outer, inner]                      # outer counter-clockwise, inner clockwise
     return walls, mids, gm, ww
 
