@@ -569,8 +569,8 @@ def _orient(s: Section, near) -> Section:
 
 def _join(s: Section, at, o: LithoOptions, flow) -> Section:
     """A section started from `at` when the way there is too short for a move of its own (under
-    MIN_MOVE, or under its speed / block rate): its first piece begins at `at` and also lays
-    what a connector would have laid there (at the first piece's width)."""
+    MIN_MOVE, or under its speed / block rate): its first piece begins at `at` and lays the same
+    volume over the longer way (no extra filament at the join)."""
     d = float(np.linalg.norm(s.pts[0] - at))
     if d <= 1e-6 or d >= o.retract_min:
         return s
@@ -582,10 +582,8 @@ def _join(s: Section, at, o: LithoOptions, flow) -> Section:
     e, v, width = s.e.copy(), s.v.copy(), s.width.copy()
     L = float(np.linalg.norm(pts[1] - pts[0]))
     if e[0] > 0:
-        area = width[0] * (np.linalg.norm(s.pts[1] - s.pts[0]) + d)
-        width[0] = area / max(L, 1e-12)
+        width[0] = width[0] * np.linalg.norm(s.pts[1] - s.pts[0]) / max(L, 1e-12)
         v[0] = float(_speeds(np.array([width[0]]), o, flow)[0])
-        e[0] = area * o.layer_height / o.filament_area
     return Section(s.kind, pts, e, v, width, s.u)
 
 
