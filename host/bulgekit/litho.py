@@ -9,20 +9,25 @@ extruder rate (firmware width mode, M723: v = q / (W * H)), so the gap fills in 
     plan = litho.plan_lithophane("cat.png", LithoOptions(shape="cylinder"))
     out = litho.make("cat.png", "out/")      # .litho.gcode .stock.gcode .stl .transmission.png .json
 
-Geometry per layer (shapely): the layer's cross-section P; the walls run on P shrunk by half a line
-(their centre line); the mid-line fills R = P shrunk by a whole line. R is probed across the layer
-at every sample (vertical probes for planar, radial for cylinder): the probe's extent is the gap g,
-its middle the mid-line's centre. A mid-line piece between two samples deposits the area of R
-between them (trapezoid rule), so the filament equals the gap's volume; its width is area / length.
+Geometry per layer, on the sample grid (no polygon offsets): every sample has a probe across
+the layer (vertical for planar, radial for cylinder) from the back face to the relief at
+thickness t. Along it lie three bands: the back wall [0, ww], the mid-line [ww, t - ww] and the
+front wall [t - ww, t], ww = one line width. The bands between two samples are trapezoids (in
+polar form for the cylinder), so together they are exactly the body the STL holds, and each
+piece lays its band's area (width = area / length: the filament is the body's volume).
 
-Gaps the method cannot fill as asked are handled, and counted in the stats:
-  - narrower than `min_line`: the thickness is snapped to two walls (gap 0: the walls merge) or
-    up to two walls plus `min_line`, whichever is nearer. By default min_line is the narrowest
-    line the mid-line's rate lays at `max_speed`, q / (U * H), but at least 0.2 mm (half a line),
-    so that no piece is capped and the extruder keeps its one rate everywhere. The STL, the
-    G-code and the predicted transmission all use the snapped thickness: nothing is under-filled.
-  - wider than `max_line`: the layer gets n = ceil(gap / max_line) mid-lines of gap / n each.
-  - head speed above `max_speed` (very narrow lines): capped; the extruder then runs slower there.
+  - A gap t - 2 w narrower than a printable mid-line (`min_line`, by default the narrowest line
+    the mid-line's rate lays at `max_speed`, q / (U * H), but at least half a line) is not
+    snapped: the two walls widen by half of it each (ww = w + gap / 2) and lay it at their own
+    rate (width by feedrate: v = q_wall / (W * H)). Mid-line pieces narrower than min_line next
+    to such places give their area to the walls too. Nothing is snapped; the thickness printed
+    is the picture's.
+  - A wall along a slope is longer than its band is wide; it keeps its width (so its speed) and
+    takes what it lays beyond its band from the mid-line beside it.
+  - Wider than `max_line`: the layer gets n = ceil(gap / max_line) mid-lines of gap / n each.
+  - Pieces merge where they run on straight (within CHORD_TOL) at one width (within WIDTH_TOL),
+    none is shorter than MIN_MOVE (6 steps), and with `block_rate` none is shorter than its
+    speed / block_rate: short pieces merge with their neighbours (area summed: the volume is kept).
 """
 from __future__ import annotations
 
@@ -548,10 +553,30 @@ def _reverse(s: Section) -> Section:
     return Section(s.kind, s.pts[::-1].copy(), s.e[::-1].copy(), s.v[::-1].copy(), s.width[::-1].copy(), u)
 
 
-def _rotate_loop(s: Section, near) -> Section:
-    """A closed loop started at its vertex nearest `near`."""
+def _rotate_loop(s: Section, near, o: LithoOptions | None = None) -> Section:
+    """A closed loop started at its point nearest `near`: a vertex, or a new one on a long piece
+    (split in two, each part laying its share), so that the way there is short."""
+    a, b = s.pts[:-1], s.pts[1:]
+    d = b - a
+    L2 = np.maximum((d * d).sum(axis=1), 1e-24)
+    f = np.clip(((near - a) * d).sum(axis=1) / L2, 0.0, 1.0)
+    q = a + d * f[:, None]
+    j = int(np.argmin(np.linalg.norm(q - near, axis=1)))
+    Lj = math.sqrt(L2[j])
+    need = MIN_MOVE if o is None else max(MIN_MOVE, s.v[j] / o.block_rate if o.block_rate else 0.0)
+    if f[j] * Lj >= need and (1 - f[j]) * Lj >= need:         # split piece j at q
+        fj = f[j]
+        pts = np.vstack([s.pts[:j + 1], q[j:j + 1], s.pts[j + 1:]])
+        ins = lambda x, y0, y1: np.concatenate([x[:j], [y0, y1], x[j + 1:]])
+        e = ins(s.e, s.e[j] * fj, s.e[j] * (1 - fj))
+        s = Section(s.kind, pts, e, ins(s.v, s.v[j], s.v[j]), ins(s.width, s.width[j], s.width[j]),
+                    None if s.u is None else np.concatenate([s.u[:j + 1], [s.u[j] + (s.u[j + 1] - s.u[j]) * fj],
+                                                              s.u[j + 1:]]))
+        i = j + 1
+    else:
+        i = j if f[j] < 0.5 else j + 1
     pts = s.pts[:-1]
-    i = int(np.argmin(np.linalg.norm(pts - near, axis=1)))
+    i %= len(pts)
     if i == 0:
         return s
     pts = np.vstack([pts[i:], pts[:i], pts[i:i + 1]])
@@ -607,7 +632,7 @@ def plan_lithophane(image, o: LithoOptions | None = None, progress=None) -> Plan
         flows = []
         if o.shape == "planar":
             # one loop round the plate, then the mid-line(s) from the end nearer the loop's start
-            secs.append(_rotate_loop(walls[0], pos))
+            secs.append(_rotate_loop(walls[0], pos, o))
             flows.append(wall_q)
             for m in mids:
                 secs.append(_orient(m, secs[-1].pts[-1]))
@@ -619,7 +644,7 @@ def plan_lithophane(image, o: LithoOptions | None = None, progress=None) -> Plan
             if k % 2:
                 order = order[::-1]
             for s, q in order:
-                secs.append(_rotate_loop(s, pos if not secs else secs[-1].pts[-1]))
+                secs.append(_rotate_loop(s, pos if not secs else secs[-1].pts[-1], o))
                 flows.append(q)
         secs = [secs[0]] + [_join(s, p.pts[-1], o, q) for p, s, q in zip(secs, secs[1:], flows[1:])]
         plan.layers.append(Layer(z=(k + 1) * H, sections=secs, gap=gm, wall=ww))

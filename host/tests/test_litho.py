@@ -252,10 +252,16 @@ def test_one_mid_line_centred_and_as_wide_as_the_gap(step_plan):
     for x0, thick in ((5.0, t[12]), (15.0, t[37])):
         i = np.flatnonzero((np.minimum(m.pts[:-1, 0], m.pts[1:, 0]) <= x0)
                            & (np.maximum(m.pts[:-1, 0], m.pts[1:, 0]) > x0))[0]
-        assert m.pts[i:i + 2, 1] == pytest.approx(thick / 2, abs=1e-6)   # centre of the plate
-        assert m.width[i] == pytest.approx(thick - 2 * W, abs=1e-6)
-    # the mid-line runs from end wall to end wall
-    assert {round(m.pts[0, 0], 6), round(m.pts[-1, 0], 6)} == {W, round(20.0 - W, 6)}
+        assert m.pts[i + 1, 1] == pytest.approx(thick / 2, abs=1e-6)   # centre of the plate
+        if i == 0:          # it starts from where the loop ended: the same volume over a longer way
+            assert m.width[i] == pytest.approx(thick - 2 * W, rel=0.03)
+        else:
+            assert m.pts[i, 1] == pytest.approx(thick / 2, abs=1e-6)
+            assert m.width[i] == pytest.approx(thick - 2 * W, abs=1e-6)
+    # the mid-line runs from end wall to end wall (its start joined to the loop's end)
+    ends = sorted([m.pts[0, 0], m.pts[-1, 0]])
+    assert ends[0] == pytest.approx(W, abs=0.75) and ends[1] == pytest.approx(20.0 - W, abs=1e-6) or \
+        ends[0] == pytest.approx(W, abs=1e-6) and ends[1] == pytest.approx(20.0 - W, abs=0.75)
 
 
 def test_nothing_outside_the_body(step_plan):
