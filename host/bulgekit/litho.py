@@ -713,14 +713,14 @@ def _fmt(v: float, nd: int) -> str:
 
 
 def _words(letter: str, a: np.ndarray, nd: int) -> list:
-    """`letter` + each value to nd decimals, trailing zeros dropped (Python's shortest repr of the
-    rounded value: fast, and exact to the decimals asked)."""
+    """`letter` + each value to nd decimals (Python's shortest repr of the rounded value: fast,
+    exact to the decimals asked, no trailing zeros but a whole number's ".0")."""
     r = np.round(a, nd) + 0.0                       # + 0.0: no "-0.0"
     out = [f"{letter}{x!r}" for x in r.tolist()]
     small = np.flatnonzero((np.abs(r) < 1e-4) | (np.abs(r) >= 1e15))
     for i in small.tolist():                        # repr would use an exponent there
         out[i] = letter + _fmt(float(r[i]), nd)
-    return [w[:-2] if w.endswith(".0") else w for w in out]
+    return out
 
 
 class _Writer:
