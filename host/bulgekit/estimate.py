@@ -35,6 +35,12 @@ whole file, as slicers' estimators do. Both passes are solved in closed form wit
     forward:  v_i^2 = S_i + min_{k <= i} (b_k - S_k)
 Each block is then a trapezoid (accelerate, cruise, brake).
 
+A program that writes G-code can hand its moves over as numbers (MoveBlock items among the
+lines: `bulgekit litho` does), so they are not parsed again; the blocks are the same. Large files
+are planned a chunk of blocks at a time, each chunk with the braking distance of its fastest
+block on both sides (what decides a block's speeds lies within it): the same speeds in a fraction
+of the memory. `Machine(min_segment_steps=0)` plans every move, as Klipper and RepRapFirmware do.
+
 The planner empties (the machine stops) at G4, G28, M400 and the heating waits M109/M190, which
 add no time here. Not modelled: Marlin's slow-down when the buffer runs low (a host that keeps it
 full: SD card, or a fast enough serial line), LIN_ADVANCE, S-curve acceleration, arcs' exact
