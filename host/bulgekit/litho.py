@@ -646,7 +646,9 @@ def plan_lithophane(image, o: LithoOptions | None = None, progress=None) -> Plan
             for s, q in order:
                 secs.append(_rotate_loop(s, pos if not secs else secs[-1].pts[-1], o))
                 flows.append(q)
-        secs = [secs[0]] + [_join(s, p.pts[-1], o, q) for p, s, q in zip(secs, secs[1:], flows[1:])]
+        # the first part joins where the layer below ended, the others the part before them
+        ends = [pos] + [p.pts[-1] for p in secs[:-1]]
+        secs = [_join(s, at, o, q) for s, at, q in zip(secs, ends, flows)]
         plan.layers.append(Layer(z=(k + 1) * H, sections=secs, gap=gm, wall=ww))
         pos = secs[-1].pts[-1]
         capped += sum(int(np.sum(_capped(s, o, mid_q))) for s in secs if s.kind == "mid-line")

@@ -137,6 +137,17 @@ def noisy_made(tmp_path_factory):
     return lt.make(noisy(d), d / "out", options=lt.LithoOptions(width=24.0, height=4.0), name="noisy")
 
 
+def shortest_extruding_moves(path):
+    prev, short = None, []
+    for x, y, e, f, w_, kind in moves(path):
+        if prev is not None and (e > 0 or w_):
+            L = math.hypot(x - prev[0], y - prev[1])
+            if L < 0.075:
+                short.append((L, kind))
+        prev = (x, y)
+    return short
+
+
 def test_no_extruding_move_shorter_than_the_firmware_runs(noisy_made):
     """6 steps at 80 steps/mm: Marlin drops shorter moves, Klipper plans them; neither file has one,
     and the estimate with every move planned is within 2 % of Marlin's."""
@@ -444,6 +455,12 @@ def test_cylinder_crossings_are_chords_near_the_middle(cyl):
     inner = hop[np.isin(hop - 1, hop) & np.isin(hop + 1, hop)]   # not the joins to laid pieces
     mids = (m.pts[inner + 1] + m.pts[inner]) / 2
     assert np.abs(np.linalg.norm(mids, axis=1) - r_mid).max() < 2 * lt.CHORD_TOL
+
+
+def test_cylinder_has_no_short_extruding_move(cyl):
+    """Layer to layer, wall to mid-line to wall: no join shorter than a move the firmware runs."""
+    for key in ("gcode", "stock"):
+        assert not shortest_extruding_moves(cyl.paths[key])
 
 
 def test_cylinder_seam(cyl):
