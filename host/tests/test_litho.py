@@ -457,10 +457,19 @@ def test_cylinder_crossings_are_chords_near_the_middle(cyl):
     assert np.abs(np.linalg.norm(mids, axis=1) - r_mid).max() < 2 * lt.CHORD_TOL
 
 
-def test_cylinder_has_no_short_extruding_move(cyl):
+def test_cylinder_has_no_short_extruding_move(cyl, tmp_path):
     """Layer to layer, wall to mid-line to wall: no join shorter than a move the firmware runs."""
     for key in ("gcode", "stock"):
         assert not shortest_extruding_moves(cyl.paths[key])
+    plan = lt.plan_lithophane(noisy(tmp_path, w=90, h=40), lt.LithoOptions(shape="cylinder", diameter=30.0,
+                                                                           height=8.0))
+    end = None
+    for L in plan.layers:
+        for s in L.sections:
+            if end is not None:
+                d = np.linalg.norm(s.pts[0] - end)
+                assert d < 1e-9 or d >= lt.MIN_MOVE
+            end = s.pts[-1]
 
 
 def test_cylinder_seam(cyl):
