@@ -543,7 +543,19 @@ def _layer_paths(o: LithoOptions, fld: Field, k: int, wall_q, mid_q, counts: dic
     else:
         lay = np.ones(n, bool)
         outer, _ = _pieces("wall", front_p, front_a, lay, uw, o, wall_q)
-        inner, _ = _pieces("wall", back_p[::-1], back_a[::-1], lay, uw[::-1], o, wall_q)
+        if np.all(ww == w) and np.all(g_w == 0):
+            # a plain circle: chords of as many samples as the chord tolerance allows
+            r, step = band.r_in + w / 2, 1
+            # a chord over k samples strays from the points it drops by r (cos(a) - cos(k dth / 2)),
+            # a the angle of the point nearest its middle
+            while step < n // 3 and r * (math.cos(((step + 1) % 2) * band.dth / 2)
+                                         - math.cos((step + 1) * band.dth / 2)) <= CHORD_TOL:
+                step += 1
+            keep = np.unique(np.append(np.arange(0, n + 1, step), n))
+            inner, _ = _pieces("wall", back_p[keep][::-1], np.add.reduceat(back_a, keep[:-1])[::-1],
+                               np.ones(len(keep) - 1, bool), uw[keep][::-1], o, wall_q, merge=False)
+        else:
+            inner, _ = _pieces("wall", back_p[::-1], back_a[::-1], lay, uw[::-1], o, wall_q)
         walls = [outer, inner]                      # outer counter-clockwise, inner clockwise
     return walls, mids, gm, ww
 
