@@ -905,7 +905,8 @@ def write_gcode(plan: Plan, path, mode: str, name: str = "lithophane", estimate_
 
     out = []
     for m in estimate_with:
-        with pg.phase(f"estimating {Path(path).name}", 1, unit="estimates"):
+        every = "" if m.min_segment_steps else ", every move planned"
+        with pg.phase(f"estimating {Path(path).name}{every}", 1, unit="estimates"):
             out.append(estimate.estimate_lines(w.lines(), m, source=os.fspath(path)).total_s)
     return out
 
