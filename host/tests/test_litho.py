@@ -169,6 +169,10 @@ def test_no_extruding_move_shorter_than_the_firmware_runs(noisy_made):
     r6 = es.estimate_file(noisy_made.paths["stock"], es.Machine())
     r0 = es.estimate_file(noisy_made.paths["stock"], es.Machine(min_segment_steps=0))
     assert r0.total_s == pytest.approx(r6.total_s, rel=0.02)
+    # the JSON's times come from the moves handed over as numbers: the same as parsing the files
+    assert est["estimated_time_s_stock"] == pytest.approx(r6.total_s, abs=0.06)
+    parsed = es.estimate_file(noisy_made.paths["gcode"], es.Machine(min_segment_steps=0)).total_s
+    assert est["estimated_time_s_gcode_every_move_planned"] == pytest.approx(parsed, abs=0.06)
     m = est["machine"]
     assert m["accel_mm_s2"] == 3000 and m["junction_deviation_mm"] == 0.013 and m["lookahead_blocks"] == 16
 
