@@ -610,3 +610,18 @@ def test_extruder_rate_through_the_core(bkcore, made, which):
     assert t_in == pytest.approx(t_all)
     if which == "gcode":
         assert "M723" in made.paths[which].read_text()
+
+
+def test_estimate_in_chunks_is_the_whole_plan(noisy_made, monkeypatch):
+    """A large file is planned a chunk of blocks at a time (with the braking distance on both
+    sides); the speeds are those of planning it at once, with a lookahead or without."""
+    from bulgekit import estimate as es
+
+    for la in (16, None):
+        whole = es.estimate_file(noisy_made.paths["gcode"], es.Machine(lookahead=la))
+        monkeypatch.setattr(es, "CHUNK", 64)
+        part = es.estimate_file(noisy_made.paths["gcode"], es.Machine(lookahead=la))
+        monkeypatch.setattr(es, "CHUNK", 1 << 16)
+        assert len(whole.blocks) > 10 * 64
+        assert part.blocks["entry_speed"] == pytest.approx(whole.blocks["entry_speed"], abs=1e-6)
+        assert part.total_s == pytest.approx(whole.total_s, rel=1e-9)
