@@ -64,12 +64,16 @@ def register(main):
     @click.option("--pitch", type=POSITIVE, default=0.4, show_default=True,
                   help="Distance between samples along a layer, mm.")
     @click.option("--min-line", type=POSITIVE, default=None,
-                  help="Narrowest mid-line, mm; narrower gaps snap to merged walls or to this width. "
-                       "Default: the narrowest line laid at --max-speed (flow / (max-speed x layer "
-                       "height), 0.27 mm at the defaults) but at least half a line width, so that "
-                       "no piece is capped.")
+                  help="Narrowest mid-line, mm; where the gap between the walls is narrower, the two "
+                       "walls widen and share it. Default: the narrowest line laid at --max-speed "
+                       "(flow / (max-speed x layer height), 0.27 mm at the defaults) but at least half "
+                       "a line width, so that no piece is capped.")
     @click.option("--max-line", type=POSITIVE, default=1.6, show_default=True,
                   help="Widest single mid-line, mm; wider gaps get two or more.")
+    @click.option("--block-rate", type=NONNEG, default=200.0, show_default=True,
+                  help="Moves per second the printer's board plans: no piece is shorter than its "
+                       "speed / this (samples merge). 200 suits an 8-bit ATmega2560; a 32-bit "
+                       "board: 2000; 0: off (pieces still at least 0.075 mm).")
     @click.option("--filament", type=POSITIVE, default=1.75, show_default=True, help="Filament diameter, mm.")
     @click.option("--wall-speed", type=POSITIVE, default=40.0, show_default=True, help="Walls, mm/s.")
     @click.option("--infill-flow", type=POSITIVE, default=8.0, show_default=True,
@@ -158,16 +162,23 @@ def summary(s: dict) -> str:
     est = s.get("estimate", {})
     t = est.get("estimated_time_s_gcode")
     tt = f"{int(t // 3600)}h {int(t % 3600 // 60):02d}m" if t is not None else "n/a"
+    m = est.get("machine")
+    if m:
+        look = "whole file" if m["lookahead_blocks"] is None else f"{m['lookahead_blocks']} blocks"
+        corner = (f"junction deviation {m['junction_deviation_mm']:g} mm" if m["classic_jerk"] is None
+                  else "classic jerk " + "/".join(f"{j:g}" for j in m["classic_jerk"]) + " mm/s")
+        tt += f" (acceleration {m['accel_mm_s2']:g} mm/s², {corner}, look-ahead {look})"
     ml, gp, lk = s["mid_line"], s["gaps"], s["look"]
     return "\n".join([
         f"{s['name']}: {s['shape']}, {s['layers']} layers, picture {s['size_mm']['picture_width']:g} x "
         f"{s['size_mm']['picture_height']:g} mm",
-        f"  estimated time {tt}, filament {s['filament_mm'] / 1000:.2f} m, fill ratio {s['fill_ratio']:.3f}, "
+        f"  estimated time {tt}",
+        f"  filament {s['filament_mm'] / 1000:.2f} m, fill ratio {s['fill_ratio']:.3f}, "
         f"{s['extruding_moves']} extruding moves",
         f"  mid-line at {s['rates']['mid_line_mm3_s']:g} mm^3/s: capped at --max-speed "
         f"{100 * ml['capped_time_share']:.1f} % of its time; layers with 2+ mid-lines: "
         f"{ml['layers_with_two_or_more']}",
-        f"  gaps snapped (narrower than --min-line): {100 * gp['snapped_share']:.2f} % of samples",
+        f"  gaps narrower than a mid-line, shared by the walls: {100 * gp['shared_share']:.2f} % of samples",
         f"  predicted look vs picture (L*, the plate shows {lk['plate_L_range'][0]:.0f}-100): "
         f"mean |dL*| {lk['mean_abs_dL']:.1f}, "
         f"SSIM {'n/a' if lk['ssim_L'] is None else format(lk['ssim_L'], '.3f')} ({lk['curve']} curve)",

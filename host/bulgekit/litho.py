@@ -9,23 +9,29 @@ extruder rate (firmware width mode, M723: v = q / (W * H)), so the gap fills in 
     plan = litho.plan_lithophane("cat.png", LithoOptions(shape="cylinder"))
     out = litho.make("cat.png", "out/")      # .litho.gcode .stock.gcode .stl .transmission.png .json
 
-Geometry per layer (shapely): the layer's cross-section P; the walls run on P shrunk by half a line
-(their centre line); the mid-line fills R = P shrunk by a whole line. R is probed across the layer
-at every sample (vertical probes for planar, radial for cylinder): the probe's extent is the gap g,
-its middle the mid-line's centre. A mid-line piece between two samples deposits the area of R
-between them (trapezoid rule), so the filament equals the gap's volume; its width is area / length.
+Geometry per layer, on the sample grid (no polygon offsets): every sample has a probe across
+the layer (vertical for planar, radial for cylinder) from the back face to the relief at
+thickness t. Along it lie three bands: the back wall [0, ww], the mid-line [ww, t - ww] and the
+front wall [t - ww, t], ww = one line width. The bands between two samples are trapezoids (in
+polar form for the cylinder), so together they are exactly the body the STL holds, and each
+piece lays its band's area (width = area / length: the filament is the body's volume).
 
-Gaps the method cannot fill as asked are handled, and counted in the stats:
-  - narrower than `min_line`: the thickness is snapped to two walls (gap 0: the walls merge) or
-    up to two walls plus `min_line`, whichever is nearer. By default min_line is the narrowest
-    line the mid-line's rate lays at `max_speed`, q / (U * H), but at least 0.2 mm (half a line),
-    so that no piece is capped and the extruder keeps its one rate everywhere. The STL, the
-    G-code and the predicted transmission all use the snapped thickness: nothing is under-filled.
-  - wider than `max_line`: the layer gets n = ceil(gap / max_line) mid-lines of gap / n each.
-  - head speed above `max_speed` (very narrow lines): capped; the extruder then runs slower there.
+  - A gap t - 2 w narrower than a printable mid-line (`min_line`, by default the narrowest line
+    the mid-line's rate lays at `max_speed`, q / (U * H), but at least half a line) is not
+    snapped: the two walls widen by half of it each (ww = w + gap / 2) and lay it at their own
+    rate (width by feedrate: v = q_wall / (W * H)). Mid-line pieces narrower than min_line next
+    to such places give their area to the walls too. Nothing is snapped; the thickness printed
+    is the picture's.
+  - A wall along a slope is longer than its band is wide; it keeps its width (so its speed) and
+    takes what it lays beyond its band from the mid-line beside it.
+  - Wider than `max_line`: the layer gets n = ceil(gap / max_line) mid-lines of gap / n each.
+  - Pieces merge where they run on straight (within CHORD_TOL) at one width (within WIDTH_TOL),
+    none is shorter than MIN_MOVE (6 steps), and with `block_rate` none is shorter than its
+    speed / block_rate: short pieces merge with their neighbours (area summed: the volume is kept).
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import os
@@ -67,6 +73,7 @@ class LithoOptions:
     pitch: float = 0.4              # mm between samples along a layer
     min_line: float | None = None   # narrowest mid-line, mm (None: the narrowest line_min())
     max_line: float = 1.6           # widest single mid-line, mm
+    block_rate: float = 200.0       # blocks/s the board plans: no piece shorter than speed / rate (0: off)
     filament: float = 1.75
     wall_speed: float = 40.0        # mm/s
     infill_flow: float = 8.0        # mm^3/s, the mid-line's volumetric rate
@@ -130,7 +137,7 @@ def check_options(o: LithoOptions) -> None:
             bad(k, f"must be a number > 0, got {v}")
     if o.height is not None and not (math.isfinite(o.height) and o.height > 0):
         bad("height", f"must be a number > 0, got {o.height}")
-    for k, v in {"frame": o.frame, "foot": o.foot, "foot-height": o.foot_height, "retract": o.retract,
+    for k, v in {"block-rate": o.block_rate, "frame": o.frame, "foot": o.foot, "foot-height": o.foot_height, "retract": o.retract,
                  "retract-min": o.retract_min}.items():
         if not (math.isfinite(v) and v >= 0):
             bad(k, f"must be a number >= 0, got {v}")
@@ -165,14 +172,13 @@ def check_options(o: LithoOptions) -> None:
 @dataclass
 class Field:
     """Thickness per layer and sample, and how the picture maps onto the part."""
-    t: np.ndarray            # (layers, samples) mm, after snapping; foot layers hold the foot depth
+    t: np.ndarray            # (layers, samples) mm; foot layers hold the foot depth
     bright: np.ndarray       # (image layers, samples) the picture's lightness L*/100 (0 black, 1 white;
                              # area average in linear light, before --invert) on the same grid
     s: np.ndarray            # sample positions: x mm (planar) or angle rad (cylinder)
     n_foot: int              # layers of foot at the bottom (planar)
     lines: np.ndarray        # mid-lines per layer
-    snapped_down: int        # samples whose gap was below min_line and went to 0 (walls merge)
-    snapped_up: int          # samples whose gap was raised to min_line
+    shared: int              # picture samples whose gap is narrower than a mid-line: the walls share it
     picture_mm: tuple        # (width or circumference, height) of the picture, mm
     inside: tuple            # (rows, samples) slices of the picture inside the frame
 
@@ -224,25 +230,22 @@ def _field(t: np.ndarray, bright: np.ndarray, s: np.ndarray, o: LithoOptions, pi
             t[:, edge] = tmax
             cols = slice(int(np.argmin(edge)), n - int(np.argmin(edge[::-1])))
         inside = (slice(fr, max(fr, rows - fr)), cols)
-    # Gaps narrower than a printable mid-line: snap to the nearer of "walls merge" (gap 0) and
-    # "one narrowest line per mid-line". The per-layer line count comes first: a layer whose
-    # widest gap needs two lines can only lay 2 * min_line.
+    # Gaps narrower than a printable mid-line are not snapped: the two walls widen and share them
+    # (_layer_paths). The per-layer line count comes first: a layer whose widest gap needs two
+    # lines lays a mid-line only where the gap is at least 2 * min_line.
     w2 = 2 * o.line_width
     gap = np.maximum(t - w2, 0.0)
     lines = np.maximum(1, np.ceil(gap.max(axis=1) / o.max_line - 1e-9)).astype(int)
     thr = (lines * o.line_min())[:, None]
-    low = (gap > 1e-9) & (gap < thr - 1e-9)
-    down = low & (gap < thr / 2)
-    up = low & ~down
-    t = np.where(down, w2, np.where(up, w2 + thr, t))
+    shared = (gap > 1e-9) & (gap < thr - 1e-9)
     n_foot = 0
     if o.shape == "planar" and o.foot > 0:
         n_foot = int(round(o.foot_height / o.layer_height))
         t = np.vstack([np.full((n_foot, n), o.foot), t])
         foot_lines = max(1, math.ceil((o.foot - w2) / o.max_line - 1e-9))
         lines = np.concatenate([np.full(n_foot, foot_lines), lines])
-    return Field(t=t, bright=bright, s=s, n_foot=n_foot, lines=lines, snapped_down=int(down.sum()),
-                 snapped_up=int(up.sum()), picture_mm=(pic_w, rows * o.layer_height), inside=inside)
+    return Field(t=t, bright=bright, s=s, n_foot=n_foot, lines=lines, shared=int(shared.sum()),
+                 picture_mm=(pic_w, rows * o.layer_height), inside=inside)
 
 
 def calibration_field(o: LithoOptions) -> tuple[Field, dict]:
@@ -283,23 +286,30 @@ def calibration_field(o: LithoOptions) -> tuple[Field, dict]:
 
 # --- per-layer paths -----------------------------------------------------------------------
 
+CHORD_TOL = 0.01       # mm: how far a merged piece may stray from the points it replaces
+WIDTH_TOL = 0.005      # pieces merge only where their widths agree within this share
+MIN_MOVE = 0.075       # mm: 6 steps at 80 steps/mm, the shortest move Marlin executes
+
+
 @dataclass
 class Section:
     """One continuous extrusion path: points (k, 2) in part coordinates (mm), filament per piece
-    (k - 1,) in mm, head speed per piece (mm/s), and the kind: wall, mid-line, connector."""
+    (k - 1,) in mm, head speed per piece (mm/s), and the kind: wall, mid-line, connector.
+    `u` is each point's place along the layer in samples (for volume checks)."""
     kind: str
     pts: np.ndarray
     e: np.ndarray
     v: np.ndarray
     width: np.ndarray          # line width per piece (mm): deposited area / length
+    u: np.ndarray | None = None
 
 
 @dataclass
 class Layer:
     z: float
     sections: list
-    gap: np.ndarray            # mid-line probe extents per sample (mm), 0 where no mid-line
-    probe_mid: np.ndarray      # where the probes' middles are (k, 2)
+    gap: np.ndarray            # the mid-line band's extent across the layer per sample (mm)
+    wall: np.ndarray           # each wall's band across the layer per sample (mm): line width + share
 
 
 @dataclass
@@ -312,6 +322,7 @@ class Plan:
 
 
 def _layer_polygon(o: LithoOptions, fld: Field, k: int):
+    """The layer's cross-section (shapely), as the STL has it."""
     from shapely.geometry import Polygon
 
     t = fld.t[k]
@@ -328,59 +339,10 @@ def _layer_polygon(o: LithoOptions, fld: Field, k: int):
     return Polygon(outer, [inner])
 
 
-def _probes(o: LithoOptions, fld: Field, k: int):
-    """Probe segments across the layer at every sample: (start, end) arrays (k, 2)."""
-    if o.shape == "planar":
-        reach = max(o.max_thickness, o.foot)                # the foot is centred on the plate
-        lo, hi = -reach - 1.0, 2 * reach + 1.0
-        # samples nearer the ends than a line width are the end walls; their probes run just
-        # inside R (on R's edge at x = line width, shapely's answer hangs on the last bit of x:
-        # empty or the whole edge, which printed white specks and lines at the plate's ends)
-        eps = 1e-4
-        x = np.clip(fld.s, o.line_width + eps, fld.s[-1] - o.line_width - eps)
-        return np.column_stack([x, np.full_like(x, lo)]), np.column_stack([x, np.full_like(x, hi)])
-    r_in = o.diameter / 2 - o.max_thickness
-    c, sn = np.cos(fld.s), np.sin(fld.s)
-    r0, r1 = r_in - 1.0, o.diameter / 2 + 1.0
-    return np.column_stack([r0 * c, r0 * sn]), np.column_stack([r1 * c, r1 * sn])
-
-
-def _plate_middle(o: LithoOptions, fld: Field, k: int, a, b):
-    """The middle of the plate on each probe: half the thickness from the back face."""
-    d = (b - a) / np.linalg.norm(b - a, axis=1, keepdims=True)
-    t = fld.t[k]
-    if o.shape == "planar":
-        y0 = (o.max_thickness - o.foot) / 2 if k < fld.n_foot else 0.0
-        return np.column_stack([a[:, 0], y0 + t / 2])
-    r_in = o.diameter / 2 - o.max_thickness
-    return d * (r_in + t / 2)[:, None]
-
-
-def _gap_along(region, a, b, centre):
-    """Length of each probe inside `region`, and the middle of its extent (between the first and
-    last point inside). Where the probe misses the region (the walls merge) the middle is
-    `centre`, the plate's own middle, so that the head crosses there inside the part."""
-    import shapely
-
-    lines = shapely.linestrings(np.stack([a, b], axis=1))
-    inter = shapely.intersection(region, lines)
-    length = shapely.length(inter)
-    mid = np.array(centre, dtype=float)
-    empty = shapely.is_empty(inter)
-    d = b - a
-    dn = d / np.linalg.norm(d, axis=1, keepdims=True)
-    for i in np.flatnonzero(~empty):
-        xy = shapely.get_coordinates(inter[i])
-        proj = (xy - a[i]) @ dn[i]
-        lo, hi = proj.min(), proj.max()
-        mid[i] = a[i] + dn[i] * (lo + hi) / 2
-    return np.where(empty, 0.0, length), mid
-
-
-def _speeds(area_per_mm, o: LithoOptions, flow):
-    """Head speed for a line of cross-section A at volumetric rate q: v = q / A (eq. 1), capped."""
+def _speeds(width, o: LithoOptions, flow):
+    """Head speed for a line of width W at volumetric rate q: v = q / (W * H) (eq. 1), capped."""
     with np.errstate(divide="ignore"):
-        v = flow / np.maximum(area_per_mm, 1e-12)
+        v = flow / np.maximum(width * o.layer_height, 1e-12)
     return np.clip(v, o.min_speed, o.max_speed)
 
 
@@ -389,150 +351,284 @@ def _capped(s: Section, o: LithoOptions, flow) -> np.ndarray:
     return (s.e > 0) & (s.width * o.layer_height * s.v < flow * (1 - 1e-6))
 
 
-def _wall_section(ring, o: LithoOptions, speed) -> Section:
-    pts = np.asarray(ring.coords)
-    seg = np.linalg.norm(np.diff(pts, axis=0), axis=1)
-    keep = np.concatenate([[True], seg > 1e-6])
-    pts = pts[keep]
-    seg = np.linalg.norm(np.diff(pts, axis=0), axis=1)
-    e = seg * o.line_width * o.layer_height / o.filament_area
-    n = len(seg)
-    return Section("wall", pts, e, np.full(n, speed), np.full(n, o.line_width))
+class _Band:
+    """Points across the layer on each sample's probe (planar: vertical lines at x; cylinder:
+    radial lines at angle s), and the area of a band between two probes. Everything in a layer
+    is a band between two offsets from the back face, so the bands add up to the body exactly
+    (the STL is linear between samples too)."""
 
-
-def _mid_sections(o: LithoOptions, fld: Field, k: int, region, flow, counts: dict):
-    """The layer's mid-line(s) from probes across R: (sections, gap per sample, probe middles).
-    Next to a steep step R can be narrower than the thickness says (the wall bends round the
-    step). Such slivers narrower than the narrowest line are laid at that width (a little more
-    filament, so the rate stays one) when they are at least half of it, and otherwise not laid
-    (the head moves on); both areas are added up in `counts` (mm^2 per layer, x H = mm^3)."""
-    a, b = _probes(o, fld, k)
-    g, mid = _gap_along(region, a, b, _plate_middle(o, fld, k, a, b))
-    nl = int(fld.lines[k])
-    out = []
-    d = (b - a) / np.linalg.norm(b - a, axis=1, keepdims=True)
-    base = mid - d * (g / 2)[:, None]                       # the gap's inner edge (back side)
-    closed = o.shape == "cylinder"
-    for i in range(nl):
-        c = base + d * (g * (2 * i + 1) / (2 * nl))[:, None]    # centre of line i
-        gi = g / nl
-        if closed:
-            c = np.vstack([c, c[:1]])
-            gi = np.concatenate([gi, gi[:1]])
-        seg = np.linalg.norm(np.diff(c, axis=0), axis=1)
-        if closed:
-            # area of the band between two radial probes: mean of (gap * centre radius) * dtheta
-            rr = np.linalg.norm(c, axis=1)
-            dth = 2 * math.pi / len(fld.s)
-            area = (gi[:-1] * rr[:-1] + gi[1:] * rr[1:]) / 2 * dth
+    def __init__(self, o: LithoOptions, fld: Field, k: int, x=None):
+        self.o, self.closed = o, o.shape == "cylinder"
+        if self.closed:
+            self.r_in = o.diameter / 2 - o.max_thickness
+            self.c, self.sn = np.cos(fld.s), np.sin(fld.s)
+            self.dth = 2 * math.pi / len(fld.s)
         else:
-            area = (gi[:-1] + gi[1:]) / 2 * np.abs(np.diff(c[:, 0]))
-        with np.errstate(divide="ignore", invalid="ignore"):
-            width = np.where(seg > 1e-9, area / np.maximum(seg, 1e-12), 0.0)
-        lmin = o.line_min()
-        laid = width >= lmin / 2
-        widen = laid & (width < lmin)
-        counts["sliver_added_mm3"] += float(((lmin - width[widen]) * seg[widen]).sum() * o.layer_height)
-        counts["sliver_left_mm3"] += float(area[~laid].sum() * o.layer_height)
-        width = np.where(widen, lmin, width)
-        area = np.where(widen, lmin * seg, area)
-        e = np.where(laid, area * o.layer_height / o.filament_area, 0.0)
-        speed_of = lambda wd: _speeds(wd * o.layer_height, o, flow)
-        sec = _simplify(Section("mid-line", c, e, speed_of(width), np.where(laid, width, 0.0)),
-                        closed, speed_of, chord=3 * o.pitch)
-        if sec is None:                                     # the walls merge all along
-            continue
-        if i % 2 and not closed:                            # serpentine: odd lines run back
-            sec = _reverse(sec)
-        out.append(sec)
-    return out, g, mid
+            self.x = fld.s if x is None else x
+            self.y0 = (o.max_thickness - o.foot) / 2 if k < fld.n_foot else 0.0
+
+    def points(self, off):
+        """Points at `off` mm from the back face (per sample); a closed band repeats its first."""
+        if self.closed:
+            r = self.r_in + off
+            p = np.column_stack([r * self.c, r * self.sn])
+            return np.vstack([p, p[:1]])
+        return np.column_stack([self.x, self.y0 + off])
+
+    def area(self, lo, hi):
+        """Area (mm^2) of the band between offsets lo and hi, per piece between samples."""
+        h = hi - lo
+        if self.closed:
+            hr = h * (self.r_in + (lo + hi) / 2)             # exact for an annulus sector
+            hr = np.append(hr, hr[:1])
+            return (hr[:-1] + hr[1:]) / 2 * self.dth
+        return (h[:-1] + h[1:]) / 2 * np.abs(np.diff(self.x))
 
 
-def _simplify(s: Section, closed: bool, speed_of, chord: float, rel_width=0.005,
-              sin_tol=1e-3) -> Section | None:
-    """Fewer, longer pieces: neighbours that run on in the same direction merge when both are
-    laid at the same width (within rel_width) or both are not laid, and where nothing is laid
-    on a curve the head moves on in chords of about `chord` mm (_straighten_crossings). An open path
-    loses its unlaid ends; a path with nothing laid is None. Filament and area are kept
-    exactly; a merged piece's speed is `speed_of(width)` of its merged width."""
-    laid = s.e > 0
+def _keep_straight(pts, area, laid):
+    """Points to keep when neighbouring pieces merge: pieces run on as one where both are laid at
+    the same width (within WIDTH_TOL) or both are not laid, and the path strays no more than
+    CHORD_TOL from the points it drops (Douglas-Peucker, GEOS, per run)."""
+    import shapely
+
+    seg = np.linalg.norm(np.diff(pts, axis=0), axis=1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        wd = np.where(seg > 1e-12, area / np.maximum(seg, 1e-12), 0.0)
+        key = np.where(laid, np.floor(np.log(np.maximum(wd, 1e-9)) / math.log1p(WIDTH_TOL)), -1e9)
+    bounds = np.concatenate([[0], np.flatnonzero(key[1:] != key[:-1]) + 1, [len(seg)]])
+    keep = np.zeros(len(pts), bool)
+    keep[bounds] = True
+    multi = np.flatnonzero(np.diff(bounds) > 1)
+    if len(multi):
+        starts, counts = bounds[multi], bounds[multi + 1] - bounds[multi] + 1
+        first = np.repeat(np.cumsum(counts) - counts, counts)
+        idx = np.repeat(starts, counts) + np.arange(counts.sum()) - first
+        run = np.repeat(np.arange(len(multi)), counts)
+        # the vertex index rides along as z: the simplified runs tell which points stay
+        lines = shapely.linestrings(np.column_stack([pts[idx], idx.astype(float)]), indices=run)
+        simple = shapely.simplify(lines, CHORD_TOL, preserve_topology=False)
+        keep[np.rint(shapely.get_coordinates(simple, include_z=True)[:, 2]).astype(int)] = True
+    return keep
+
+
+def _long_enough(pts, area, laid, o: LithoOptions, flow, rate):
+    """Points to keep so that every laid piece is at least MIN_MOVE long and, with a block-rate
+    budget, no shorter than its speed / rate: short pieces merge with their laid neighbours (the
+    areas add up, width = area / length, so the volume is kept). Also the pieces of laid runs that
+    cannot be made long enough at all (too short in total)."""
+    n = len(area)
+    keep = np.ones(n + 1, bool)
+    lonely = np.zeros(n, bool)
+    L = np.linalg.norm(np.diff(pts, axis=0), axis=1)
+    H = o.layer_height
+    with np.errstate(divide="ignore", invalid="ignore"):
+        v = np.clip(flow * L / np.maximum(area * H, 1e-12), o.min_speed, o.max_speed)
+    need = np.maximum(MIN_MOVE, v / rate) if rate else np.full(n, MIN_MOVE)
+    short = laid & (L < need - 1e-9)
+    if not short.any():
+        return keep, lonely
+    # runs of laid pieces that hold a short one
+    edge = np.diff(np.concatenate([[0], laid.astype(np.int8), [0]]))
+    r0, r1 = np.flatnonzero(edge == 1), np.flatnonzero(edge == -1)
+    has = np.add.reduceat(short.astype(int), r0) > 0 if len(r0) else []
+    px, py, al = pts[:, 0].tolist(), pts[:, 1].tolist(), area.tolist()
+    lo, hi, inv_rate = o.min_speed, o.max_speed, (1.0 / rate if rate else 0.0)
+    for i, j in zip(r0[has], r1[has]):
+        groups, s, acc = [], i, 0.0
+        for q in range(i, j):
+            acc += al[q]
+            ln = math.hypot(px[q + 1] - px[s], py[q + 1] - py[s])
+            sp = min(max(flow * ln / max(acc * H, 1e-12), lo), hi)
+            if ln >= max(MIN_MOVE, sp * inv_rate) - 1e-9:
+                groups.append((s, q + 1))
+                s, acc = q + 1, 0.0
+        if s < j:                                   # a short tail joins the group before it
+            if not groups:
+                lonely[i:j] = True
+                continue
+            groups[-1] = (groups[-1][0], j)
+        for g0, g1 in groups:
+            keep[g0 + 1:g1] = False
+    return keep, lonely
+
+
+def _pieces(kind, pts, area, laid, u, o: LithoOptions, flow, merge=True) -> tuple:
+    """A section from points and the area each piece lays: straight runs merged, short pieces
+    merged (block-rate budget). Returns (section or None if nothing is laid, lonely) where
+    lonely marks laid pieces that could not be made long enough (the caller gives them away)."""
+    if merge:
+        k1 = np.flatnonzero(_keep_straight(pts, area, laid))
+        pts, area, laid, u = pts[k1], np.add.reduceat(area, k1[:-1]), laid[k1[:-1]], u[k1]
+        back = k1
+    else:
+        back = np.arange(len(pts))
+    keep, lonely = _long_enough(pts, area, laid, o, flow, o.block_rate)
+    if lonely.any():                                # in the caller's piece numbering
+        out = np.zeros(int(back[-1]), bool)
+        for i in np.flatnonzero(lonely):
+            out[back[i]:back[i + 1]] = True
+        return None, out
+    k2 = np.flatnonzero(keep)
+    pts, area, laid, u = pts[k2], np.add.reduceat(area, k2[:-1]), laid[k2[:-1]], u[k2]
     if not laid.any():
-        return None
-    d = np.diff(s.pts, axis=0)
-    seg = np.linalg.norm(d, axis=1)
-    keep = [0]
-    for i in range(1, len(seg)):
-        j = keep[-1]
-        # the running piece is pts[j] -> pts[i]; piece i is pts[i] -> pts[i + 1]
-        a, b = s.pts[i] - s.pts[j], d[i]
-        straight = abs(a[0] * b[1] - a[1] * b[0]) <= sin_tol * np.linalg.norm(a) * seg[i] and a @ b > 0
-        same = (laid[i] == laid[i - 1]) and (not laid[i] or abs(s.width[i] - s.width[i - 1])
-                                              <= rel_width * s.width[i - 1])
-        if not (straight and same):
-            keep.append(i)
-    keep.append(len(seg))
-    idx = np.array(keep)
-    pts = s.pts[idx]
-    e = np.add.reduceat(s.e, idx[:-1])
-    area_len = np.add.reduceat(s.width * seg, idx[:-1])       # width x length = area per layer
-    length = np.linalg.norm(np.diff(pts, axis=0), axis=1)
-    width = np.where(e > 0, area_len / np.maximum(length, 1e-12), 0.0)
-    v = s.v[idx[:-1]].copy()
-    v[width > 0] = speed_of(width[width > 0])
-    out = _straighten_crossings(Section(s.kind, pts, e, v, width), chord)
-    if not closed:
-        on = np.flatnonzero(out.e > 0)
-        a, b = on[0], on[-1] + 1
-        out = Section(s.kind, out.pts[a:b + 1], out.e[a:b], out.v[a:b], out.width[a:b])
-    return out
+        return None, None
+    L = np.linalg.norm(np.diff(pts, axis=0), axis=1)
+    width = np.where(laid, area / np.maximum(L, 1e-12), 0.0)
+    v = np.where(laid, _speeds(width, o, flow), o.travel_speed)
+    if o.block_rate:                                # a head only passing through: slower, not cut up
+        v = np.where(laid, v, np.minimum(v, np.maximum(L * o.block_rate, o.min_speed)))
+    e = np.where(laid, area * o.layer_height / o.filament_area, 0.0)
+    return Section(kind, pts, e, v, width, u), None
 
 
-def _straighten_crossings(s: Section, chord: float) -> Section:
-    """Where nothing is laid (the walls merge) the head only has to get through. Along a curve
-    (a cylinder's middle, 0.4 mm pieces) a run of unlaid pieces is thinned to pieces of about
-    `chord` mm: Marlin plans 14 blocks ahead, so 0.4 mm pieces cap the head at
-    sqrt(2 a 14 x 0.4) (106 mm/s at 1000 mm/s^2), while longer chords turn by more at each
-    junction, where junction deviation allows about sqrt(8 a JD) R / chord. Both exceed a
-    150 mm/s travel at about 1.2 mm on a 26 mm radius, whatever the acceleration; such a chord
-    strays 0.007 mm from the circle."""
-    laid = s.e > 0
-    if laid.all():
-        return s
-    seg = np.linalg.norm(np.diff(s.pts, axis=0), axis=1)
-    keep = np.ones(len(s.pts), bool)
-    i, n = 0, len(laid)
-    while i < n:
-        if laid[i]:
-            i += 1
+def _trim(s: Section) -> Section:
+    """An open path without its unlaid ends."""
+    on = np.flatnonzero(s.e > 0)
+    a, b = on[0], on[-1] + 1
+    return Section(s.kind, s.pts[a:b + 1], s.e[a:b], s.v[a:b], s.width[a:b], s.u[a:b + 1])
+
+
+def _layer_paths(o: LithoOptions, fld: Field, k: int, wall_q, mid_q, counts: dict):
+    """Walls and mid-line(s) of layer k, each a band between offsets from the back face on every
+    sample's probe: back wall [0, ww], mid-line [ww, t - ww], front wall [t - ww, t]. ww is a line
+    width, or where the gap t - 2 w is narrower than a mid-line (n x min_line with n lines), a line
+    width plus half the gap: the walls widen and share it. A mid-line piece narrower than
+    min_line (next to where the walls share) gives its area to the two walls, half each, and
+    the head moves on along the middle there. Returns (walls, mids, gm, ww)."""
+    t = fld.t[k].astype(float)
+    n = len(t)
+    w, nl = o.line_width, int(fld.lines[k])
+    lmin = o.line_min()
+    planar = o.shape == "planar"
+    g = np.maximum(t - 2 * w, 0.0)
+    share = (g > 1e-9) & (g < nl * lmin - 1e-9)
+    ww = np.where(share, w + g / 2, w)
+    gm = t - 2 * ww
+    if planar:
+        # the mid-line runs between the end walls (x = w .. X - w), the walls' centre lines from
+        # x = w / 2 to X - w / 2: the samples inside, and the ends
+        X = fld.s[-1]
+        ends = lambda a: np.concatenate([[a], fld.s[(fld.s > a + 1e-9) & (fld.s < X - a - 1e-9)], [X - a]])
+        xm = ends(w)
+        um = xm / (X / (n - 1))
+        wwm = np.interp(xm, fld.s, ww)
+        gmm = np.interp(xm, fld.s, t) - 2 * wwm
+        band = _Band(o, fld, k, xm)
+    else:
+        wwm, gmm, band = ww, gm, _Band(o, fld, k)
+        um = np.arange(n + 1, dtype=float)
+    # the walls: centre lines half their band in from each face
+    if planar:
+        xw = ends(w / 2)
+        uw = xw / (X / (n - 1))
+        tw, wwv = np.interp(xw, fld.s, t), np.interp(xw, fld.s, ww)
+        bw = _Band(o, fld, k, xw)
+        move_w = lambda a: np.diff(np.interp(xw, xm, np.concatenate([[0.0], np.cumsum(a)])))
+        move_m = lambda a: np.diff(np.interp(xm, xw, np.concatenate([[0.0], np.cumsum(a)])))
+    else:
+        uw, tw, wwv, bw = um, t, ww, band
+        move_w = move_m = lambda a: a
+    back_p, front_p = bw.points(wwv / 2), bw.points(tw - wwv / 2)
+    back_a, front_a = bw.area(np.zeros(len(wwv)), wwv), bw.area(tw - wwv, tw)
+    # A wall along a slope is longer than its band is wide: at its own width it lays a little
+    # more than the band, taken from the mid-line beside it, so that the walls keep one speed.
+    wbar = (wwv + np.roll(wwv, -1))[: len(back_a)] / 2
+    want = [np.maximum(wbar * np.linalg.norm(np.diff(p_, axis=0), axis=1) - a_, 0.0)
+            for p_, a_ in ((back_p, back_a), (front_p, front_a))]
+    mid_w = move_w(band.area(wwm, wwm + gmm))
+    take = want[0] + want[1]
+    scale = np.where(take > mid_w, mid_w / np.maximum(take, 1e-12), 1.0)
+    back_a, front_a = back_a + want[0] * scale, front_a + want[1] * scale
+    taken = move_m(take * scale)
+    given = np.zeros(len(um) - 1)                   # mid-line area per piece given to the walls
+    mids = []
+    for i in range(nl):
+        lo, hi = wwm + gmm * i / nl, wwm + gmm * (i + 1) / nl
+        pts = band.points((lo + hi) / 2)
+        area = np.maximum(band.area(lo, hi) - taken / nl, 0.0)
+        L = np.linalg.norm(np.diff(pts, axis=0), axis=1)
+        laid = area >= lmin * L * (1 - 1e-6)
+        while True:
+            sec, lonely = _pieces("mid-line", pts, area, laid, um, o, mid_q)
+            if lonely is None:
+                break
+            laid = laid & ~lonely                   # runs too short for the block rate: to the walls
+        given += np.where(laid, 0.0, area)
+        if sec is None:                             # the walls merge all along
             continue
-        j = i
-        while j < n and not laid[j]:
-            j += 1
-        step = max(1, int(round(chord / max(float(seg[i:j].mean()), 1e-9))))
-        if step > 1 and j - i > 1:                       # pieces i..j-1, points i..j
-            keep[i + 1:j] = False
-            keep[i + step:j:step] = True
-        i = j
-    if keep.all():
-        return s
-    idx = np.flatnonzero(keep)
-    # each kept piece starts at a kept point; the unlaid pieces between kept points become one
-    return Section(s.kind, s.pts[idx], s.e[idx[:-1]], s.v[idx[:-1]], s.width[idx[:-1]])
+        if not band.closed:
+            sec = _trim(sec)
+            if i % 2:                               # serpentine: odd lines run back
+                sec = _reverse(sec)
+        mids.append(sec)
+    counts["shared_mm3"] += float(given.sum() * o.layer_height)
+    g_w = move_w(given)
+    back_a, front_a = back_a + g_w / 2, front_a + g_w / 2
+    if planar:
+        # one loop, counter-clockwise: back left to right, up the right end, front right to
+        # left, down the left end; the ends are plain lines of one line width
+        nw = len(xw)
+        pts = np.vstack([back_p, front_p[::-1], back_p[:1]])
+        end_a = np.linalg.norm(pts[[nw, 2 * nw]] - pts[[nw - 1, 2 * nw - 1]], axis=1) * w
+        area = np.concatenate([back_a, [end_a[0]], front_a[::-1], [end_a[1]]])
+        uu = np.concatenate([uw, uw[::-1], uw[:1]])
+        walls, _ = _pieces("wall", pts, area, np.ones(len(area), bool), uu, o, wall_q)
+        walls = [walls]
+    else:
+        lay = np.ones(n, bool)
+        outer, _ = _pieces("wall", front_p, front_a, lay, uw, o, wall_q)
+        if np.all(ww == w) and np.all(g_w == 0):
+            # a plain circle: chords of as many samples as the chord tolerance allows
+            r, step = band.r_in + w / 2, 1
+            # a chord over k samples strays from the points it drops by r (cos(a) - cos(k dth / 2)),
+            # a the angle of the point nearest its middle
+            while step < n // 3 and r * (math.cos(((step + 1) % 2) * band.dth / 2)
+                                         - math.cos((step + 1) * band.dth / 2)) <= CHORD_TOL:
+                step += 1
+            keep = np.unique(np.append(np.arange(0, n + 1, step), n))
+            inner, _ = _pieces("wall", back_p[keep][::-1], np.add.reduceat(back_a, keep[:-1])[::-1],
+                               np.ones(len(keep) - 1, bool), uw[keep][::-1], o, wall_q, merge=False)
+        else:
+            inner, _ = _pieces("wall", back_p[::-1], back_a[::-1], lay, uw[::-1], o, wall_q)
+        walls = [outer, inner]                      # outer counter-clockwise, inner clockwise
+    return walls, mids, gm, ww
 
 
 def _reverse(s: Section) -> Section:
-    return Section(s.kind, s.pts[::-1].copy(), s.e[::-1].copy(), s.v[::-1].copy(), s.width[::-1].copy())
+    u = None if s.u is None else s.u[::-1].copy()
+    return Section(s.kind, s.pts[::-1].copy(), s.e[::-1].copy(), s.v[::-1].copy(), s.width[::-1].copy(), u)
 
 
-def _rotate_loop(s: Section, near) -> Section:
-    """A closed loop started at its vertex nearest `near`."""
+def _rotate_loop(s: Section, near, o: LithoOptions | None = None) -> Section:
+    """A closed loop started at its point nearest `near`: a vertex, or a new one on a long piece
+    (split in two, each part laying its share), so that the way there is short."""
+    a, b = s.pts[:-1], s.pts[1:]
+    d = b - a
+    L2 = np.maximum((d * d).sum(axis=1), 1e-24)
+    f = np.clip(((near - a) * d).sum(axis=1) / L2, 0.0, 1.0)
+    q = a + d * f[:, None]
+    j = int(np.argmin(np.linalg.norm(q - near, axis=1)))
+    Lj = math.sqrt(L2[j])
+    need = MIN_MOVE if o is None else max(MIN_MOVE, s.v[j] / o.block_rate if o.block_rate else 0.0)
+    if f[j] * Lj >= need and (1 - f[j]) * Lj >= need:         # split piece j at q
+        fj = f[j]
+        pts = np.vstack([s.pts[:j + 1], q[j:j + 1], s.pts[j + 1:]])
+        ins = lambda x, y0, y1: np.concatenate([x[:j], [y0, y1], x[j + 1:]])
+        e = ins(s.e, s.e[j] * fj, s.e[j] * (1 - fj))
+        s = Section(s.kind, pts, e, ins(s.v, s.v[j], s.v[j]), ins(s.width, s.width[j], s.width[j]),
+                    None if s.u is None else np.concatenate([s.u[:j + 1], [s.u[j] + (s.u[j + 1] - s.u[j]) * fj],
+                                                              s.u[j + 1:]]))
+        i = j + 1
+    else:
+        i = j if f[j] < 0.5 else j + 1
     pts = s.pts[:-1]
-    i = int(np.argmin(np.linalg.norm(pts - near, axis=1)))
+    i %= len(pts)
     if i == 0:
         return s
     pts = np.vstack([pts[i:], pts[:i], pts[i:i + 1]])
     roll = lambda x: np.concatenate([x[i:], x[:i]])
-    return Section(s.kind, pts, roll(s.e), roll(s.v), roll(s.width))
+    u = None if s.u is None else np.concatenate([s.u[i:-1], s.u[:i], s.u[i:i + 1]])
+    return Section(s.kind, pts, roll(s.e), roll(s.v), roll(s.width), u)
 
 
 def _orient(s: Section, near) -> Section:
@@ -542,57 +638,66 @@ def _orient(s: Section, near) -> Section:
     return s
 
 
+def _join(s: Section, at, o: LithoOptions, flow) -> Section:
+    """A section started from `at` when the way there is too short for a move of its own (under
+    MIN_MOVE, or under its speed / block rate): its first piece begins at `at` and lays the same
+    volume over the longer way (no extra filament at the join)."""
+    d = float(np.linalg.norm(s.pts[0] - at))
+    if d <= 1e-6 or d >= o.retract_min:
+        return s
+    need = max(MIN_MOVE, s.v[0] / o.block_rate if o.block_rate else 0.0)
+    if d >= need:
+        return s                                    # a connector of its own (_Writer)
+    pts = s.pts.copy()
+    pts[0] = at
+    e, v, width = s.e.copy(), s.v.copy(), s.width.copy()
+    L = float(np.linalg.norm(pts[1] - pts[0]))
+    if e[0] > 0:
+        width[0] = width[0] * np.linalg.norm(s.pts[1] - s.pts[0]) / max(L, 1e-12)
+        v[0] = float(_speeds(np.array([width[0]]), o, flow)[0])
+    return Section(s.kind, pts, e, v, width, s.u)
+
+
 def plan_lithophane(image, o: LithoOptions | None = None, progress=None) -> Plan:
     """Paths for every layer. `progress(done, total)` is called now and then."""
-    from shapely.geometry.polygon import orient
-
     o = o or LithoOptions()
     fld = image if isinstance(image, Field) else thickness_field(image, o)   # a Field: calibration_field
     _check_fits(o, fld)
     plan = Plan(o, fld)
-    plan.counts.update(sliver_added_mm3=0.0, sliver_left_mm3=0.0)
-    H, w = o.layer_height, o.line_width
+    plan.counts.update(shared_mm3=0.0)
+    H = o.layer_height
     pos = None
     capped = 0
     for k in range(fld.layers):
-        first = k == 0
-        wall_v = o.first_layer_speed if first else o.wall_speed
-        flow = o.mid_flow * (o.first_layer_speed / o.wall_speed if first else 1.0)
-        P = _layer_polygon(o, fld, k)
-        # bevel joins: GEOS's mitre joins lost the hole of some rings (a cylinder layer came out
-        # as one polygon without its inside)
-        walls = orient(P.buffer(-w / 2, join_style="bevel"), 1.0)
-        region = P.buffer(-w, join_style="bevel")
-        holes = 1 if o.shape == "cylinder" else 0
-        if walls.geom_type != "Polygon" or walls.is_empty or len(walls.interiors) != holes:
-            raise LithoError(f"layer {k + 1}: the walls' centre line is not one {'ring pair' if holes else 'loop'} "
-                             f"({walls.geom_type}, {len(getattr(walls, 'interiors', []))} holes)")
-        rings = [walls.exterior] + list(walls.interiors)
-        wall_secs = [_wall_section(r, o, wall_v) for r in rings]
-        mids, g, pm = _mid_sections(o, fld, k, region, flow, plan.counts)
+        ratio = o.first_layer_speed / o.wall_speed if k == 0 else 1.0
+        wall_q, mid_q = o.wall_flow * ratio, o.mid_flow * ratio
+        walls, mids, gm, ww = _layer_paths(o, fld, k, wall_q, mid_q, plan.counts)
         if pos is None:
-            pos = wall_secs[0].pts[0]
+            pos = walls[0].pts[0]
         secs = []
+        flows = []
         if o.shape == "planar":
             # one loop round the plate, then the mid-line(s) from the end nearer the loop's start
-            loop = _rotate_loop(wall_secs[0], pos)
-            secs.append(loop)
+            secs.append(_rotate_loop(walls[0], pos, o))
+            flows.append(wall_q)
             for m in mids:
-                m = _orient(m, secs[-1].pts[-1])
-                secs.append(m)
+                secs.append(_orient(m, secs[-1].pts[-1]))
+                flows.append(mid_q)
         else:
             # inner wall, mid-line loop(s), outer wall (odd layers outside in): each loop starts at
             # the seam, next to where the last one ended, so a layer needs no travel
-            inner, outer = wall_secs[1], wall_secs[0]
-            order = [inner] + mids + [outer]
+            order = [(walls[1], wall_q)] + [(m, mid_q) for m in mids] + [(walls[0], wall_q)]
             if k % 2:
                 order = order[::-1]
-            for s in order:
-                s = _rotate_loop(s, pos if not secs else secs[-1].pts[-1])
-                secs.append(s)
-        plan.layers.append(Layer(z=(k + 1) * H, sections=secs, gap=g, probe_mid=pm))
+            for s, q in order:
+                secs.append(_rotate_loop(s, pos if not secs else secs[-1].pts[-1], o))
+                flows.append(q)
+        # the first part joins where the layer below ended, the others the part before them
+        ends = [pos] + [p.pts[-1] for p in secs[:-1]]
+        secs = [_join(s, at, o, q) for s, at, q in zip(secs, ends, flows)]
+        plan.layers.append(Layer(z=(k + 1) * H, sections=secs, gap=gm, wall=ww))
         pos = secs[-1].pts[-1]
-        capped += sum(int(np.sum(_capped(s, o, flow))) for s in mids)
+        capped += sum(int(np.sum(_capped(s, o, mid_q))) for s in secs if s.kind == "mid-line")
         if progress and (k % 25 == 0 or k == fld.layers - 1):
             progress(k + 1, fld.layers)
     plan.counts["capped_pieces"] = capped
@@ -655,21 +760,46 @@ def _fmt(v: float, nd: int) -> str:
     return "0" if s in ("-0", "") else s
 
 
+def _words(letter: str, a: np.ndarray, nd: int) -> list:
+    """`letter` + each value to nd decimals (Python's shortest repr of the rounded value: fast,
+    exact to the decimals asked, no trailing zeros but a whole number's ".0")."""
+    r = np.round(a, nd) + 0.0                       # + 0.0: no "-0.0"
+    out = [f"{letter}{x!r}" for x in r.tolist()]
+    small = np.flatnonzero((np.abs(r) < 1e-4) | (np.abs(r) >= 1e15))
+    for i in small.tolist():                        # repr would use an exponent there
+        out[i] = letter + _fmt(float(r[i]), nd)
+    return out
+
+
 class _Writer:
     """Writes one of the two G-code files. `mode`: "litho" (width mode: M723 sets the extruder
     rate, the firmware picks each piece's speed) or "stock" (eq. 2: explicit F per piece so that
-    E * F / L is the same rate, for stock firmware)."""
+    E * F / L is the same rate, for stock firmware). `items` holds the file as lines, and each
+    section's moves as (text, estimate.MoveBlock), so the estimate need not parse them again."""
 
     def __init__(self, plan: Plan, mode: str):
         self.p, self.o, self.mode = plan, plan.options, mode
-        self.lines: list[str] = []
+        self.items: list = []
         self.x = self.y = None
         self.f = None
         self.retracted = False
         self.flow = None
 
     def out(self, s):
-        self.lines.append(s)
+        self.items.append(s)
+
+    def text(self):
+        """The file's text in pieces (one per line or section)."""
+        for it in self.items:
+            yield (it if isinstance(it, str) else it[0]) + "\n"
+
+    def lines(self):
+        """The file for the estimator: lines, and MoveBlocks for the sections' moves."""
+        for it in self.items:
+            if isinstance(it, str):
+                yield from it.split("\n")
+            else:
+                yield it[1]
 
     def move(self, x, y, e=None, f=None, w=None):
         ox, oy = self.p.origin
@@ -709,6 +839,8 @@ class _Writer:
             self.flow = q
 
     def section(self, s: Section, wall_flow, mid_flow):
+        from .estimate import MoveBlock
+
         o = self.o
         start = s.pts[0]
         if self.x is None or math.hypot(start[0] - self.x, start[1] - self.y) > 1e-6:
@@ -725,12 +857,24 @@ class _Writer:
         self.prime()
         self.out(f";TYPE:{s.kind}")
         self.set_flow(wall_flow if s.kind == "wall" else mid_flow)
-        for i in range(len(s.e)):
-            x, y = s.pts[i + 1]
-            if s.e[i] > 0:
-                self._piece(x, y, s.e[i], s.v[i], s.width[i])
-            else:                                        # no line here: the head moves on
-                self.move(x, y, f=o.travel_speed)
+        # every piece at once: X Y, E (or W) where laid, F where it changes
+        ox, oy = self.p.origin
+        X, Y = np.round(s.pts[1:, 0] + ox, 3), np.round(s.pts[1:, 1] + oy, 3)
+        laid = s.e > 0
+        F = np.round(s.v * 60, 1)
+        use_w = self.mode == "litho" and o.words == "w"
+        E = np.where(laid, np.round(s.e, 5), 0.0)
+        Wd = np.where(laid, np.round(s.width, 4), 0.0) if use_w else None
+        prev = np.concatenate([[self.f if self.f is not None else -1.0], F[:-1]])
+        newf = np.abs(F - prev) > 1e-6
+        xs, ys, fs = _words("X", X, 3), _words("Y", Y, 3), _words("F", F, 1)
+        amount = _words("W", Wd, 4) if use_w else _words("E", E, 5)
+        text = "\n".join(
+            f"G1 {x} {y}" + (f" {a}" if on else "") + (f" {f}" if nf else "")
+            for x, y, a, f, on, nf in zip(xs, ys, amount, fs, laid.tolist(), newf.tolist()))
+        self.items.append((text, MoveBlock(X, Y, E, F, Wd)))
+        self.f = float(F[-1])
+        self.x, self.y = s.pts[-1]
 
     def _piece(self, x, y, e, v, width):
         if self.mode == "stock":
@@ -743,7 +887,11 @@ class _Writer:
             self.move(x, y, e=e, f=v)
 
 
-def write_gcode(plan: Plan, path, mode: str, name: str = "lithophane") -> None:
+def write_gcode(plan: Plan, path, mode: str, name: str = "lithophane", estimate_with=()) -> list:
+    """Write one G-code file, and return its estimated print time (s, from the moves as
+    written) for every estimate.Machine in `estimate_with`."""
+    from . import progress as pg
+
     o = plan.options
     w = _Writer(plan, mode)
     fill = lambda text: text.replace("{temp}", str(o.temp)).replace("{bed_temp}", str(o.bed_temp))
@@ -769,20 +917,32 @@ def write_gcode(plan: Plan, path, mode: str, name: str = "lithophane") -> None:
               f"L{_fmt(o.min_speed, 3)} U{_fmt(o.max_speed, 3)} ; width mode: extruder at one rate")
         w.flow = o.wall_flow
     ratio = o.first_layer_speed / o.wall_speed
-    for k, L in enumerate(plan.layers):
-        w.out(f";LAYER:{k}")
-        w.out(f"G1 Z{_fmt(L.z, 3)} F{_fmt(o.z_speed * 60, 1)}")
-        w.f = o.z_speed * 60
-        wall_q = o.wall_flow * (ratio if k == 0 else 1.0)
-        mid_q = o.mid_flow * (ratio if k == 0 else 1.0)
-        for s in L.sections:
-            w.section(s, wall_q, mid_q)
-    if mode == "litho":
-        w.out("M723 S0 ; width mode off")
-    if o.retract > 0:
-        w.out(f"G1 E-{_fmt(o.retract, 4)} F{_fmt(o.retract_speed * 60, 1)}")
-    w.out(fill(end).rstrip("\n"))
-    _write_atomic(path, "\n".join(w.lines) + "\n")
+    n = len(plan.layers)
+    with pg.phase(f"writing {Path(path).name}", n, unit="layers"):
+        for k, L in enumerate(plan.layers):
+            w.out(f";LAYER:{k}")
+            w.out(f"G1 Z{_fmt(L.z, 3)} F{_fmt(o.z_speed * 60, 1)}")
+            w.f = o.z_speed * 60
+            wall_q = o.wall_flow * (ratio if k == 0 else 1.0)
+            mid_q = o.mid_flow * (ratio if k == 0 else 1.0)
+            for s in L.sections:
+                w.section(s, wall_q, mid_q)
+            if k % 16 == 0:
+                pg.tick(k)
+        if mode == "litho":
+            w.out("M723 S0 ; width mode off")
+        if o.retract > 0:
+            w.out(f"G1 E-{_fmt(o.retract, 4)} F{_fmt(o.retract_speed * 60, 1)}")
+        w.out(fill(end).rstrip("\n"))
+        _write_atomic(path, w.text())
+    from . import estimate
+
+    out = []
+    for m in estimate_with:
+        every = "" if m.min_segment_steps else ", every move planned"
+        with pg.phase(f"estimating {Path(path).name}{every}", 1, unit="estimates"):
+            out.append(estimate.estimate_lines(w.lines(), m, source=os.fspath(path)).total_s)
+    return out
 
 
 def _read_text(path, opt):
@@ -805,12 +965,16 @@ def _umask() -> int:
 
 
 def _write_atomic(path, data, binary=False):
-    """Write all of it or nothing: a temporary file in the same folder, renamed over the target."""
+    """Write all of it or nothing: a temporary file in the same folder, renamed over the target.
+    `data`: str or bytes, or an iterable of them (written piece by piece)."""
     path = Path(path)
     fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".part", dir=path.parent)
     try:
         with os.fdopen(fd, "wb" if binary else "w") as f:
-            f.write(data)
+            if isinstance(data, (str, bytes)):
+                f.write(data)
+            else:
+                f.writelines(data)
         os.chmod(tmp, 0o666 & ~_umask())
         os.replace(tmp, path)
     except BaseException:
@@ -848,12 +1012,14 @@ def body_mesh(plan: Plan) -> tuple[np.ndarray, np.ndarray]:
         c, sn = np.cos(fld.s), np.sin(fld.s)
         Z = np.broadcast_to(zs[:, None], (R, C))
         front = np.stack([(r_in + T) * c, (r_in + T) * sn, Z], axis=-1)
-        back = np.stack([np.broadcast_to(r_in * c, (R, C)), np.broadcast_to(r_in * sn, (R, C)), Z], axis=-1)
+        # the back is a plain cylinder: its bottom and top rows are all it needs
+        zb = np.broadcast_to(zs[[0, -1], None], (2, C))
+        back = np.stack([np.broadcast_to(r_in * c, (2, C)), np.broadcast_to(r_in * sn, (2, C)), zb], axis=-1)
         closed = True
     V = np.concatenate([front.reshape(-1, 3), back.reshape(-1, 3)])
     nf = R * C
     idx_f = np.arange(nf).reshape(R, C)
-    idx_b = idx_f + nf
+    idx_b = np.arange(nf, len(V)).reshape(-1, C)
     faces = []
 
     def grid(idx, flip):
@@ -907,21 +1073,70 @@ def write_stl(V: np.ndarray, F: np.ndarray, path, name="bulgekit lithophane") ->
     rec = np.zeros(len(F), dtype=[("n", "<f4", 3), ("v", "<f4", (3, 3)), ("attr", "<u2")])
     rec["n"], rec["v"] = n, tri
     head = name.encode()[:80].ljust(80, b" ")
-    _write_atomic(path, head + np.uint32(len(F)).tobytes() + rec.tobytes(), binary=True)
+    _write_atomic(path, [head, np.uint32(len(F)).tobytes(), memoryview(rec).cast("B")], binary=True)
 
 
 # --- predicted look and statistics ---------------------------------------------------------
 
 def printed_thickness(plan: Plan) -> np.ndarray:
-    """Thickness as laid down, per image layer and sample: two walls plus the mid-line's probe
-    extent where a mid-line was laid (0 where the walls merge). A planar plate's end columns,
-    closer to the end than a line width, are the end walls: solid through the plate's thickness."""
+    """Thickness as laid down, per image layer and sample: the two walls' bands (a line width
+    each, more where they share a narrow gap) plus the mid-line's band. A planar plate's end
+    columns, closer to the end than a line width, are the end walls: solid through the plate."""
     o, fld = plan.options, plan.field
-    t = np.array([2 * o.line_width + L.gap for L in plan.layers[fld.n_foot:]])
+    t = np.array([2 * L.wall + L.gap for L in plan.layers[fld.n_foot:]])
     if o.shape == "planar":
         ends = (fld.s < o.line_width - 1e-9) | (fld.s > fld.s[-1] - o.line_width + 1e-9)
         t[:, ends] = fld.t[fld.n_foot:, ends]
     return t
+
+
+def laid_area(plan: Plan, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """Area (mm^2) laid by layer k's walls and mid-line(s) over each interval between
+    neighbouring samples, and the body's area there (as the STL has it). A merged piece is spread
+    over the stretch along the layer it spans (in samples, Section.u), a piece across the layer
+    (a planar end wall) goes to the interval it stands in; joins laid as connectors of their own
+    are not counted."""
+    o, fld = plan.options, plan.field
+    t = fld.t[k]
+    n = len(t)
+    closed = o.shape == "cylinder"
+    m = n if closed else n - 1
+    lo_all, hi_all, a_all = [], [], []
+    for s in plan.layers[k].sections:
+        on = s.e > 0
+        a = (s.e * o.filament_area / o.layer_height)[on]
+        ua, ub = s.u[:-1][on], s.u[1:][on]
+        if closed:                                  # across the seam: unwrap
+            ub = np.where(ub - ua > n / 2, ub - n, np.where(ua - ub > n / 2, ub + n, ub))
+        lo_all.append(np.minimum(ua, ub)), hi_all.append(np.maximum(ua, ub)), a_all.append(a)
+    lo, hi, a = (np.concatenate(x) for x in (lo_all, hi_all, a_all))
+    if closed:
+        lo, hi = lo % n, lo % n + (hi - lo)
+    laid = np.zeros(m + (1 if not closed else n))
+    point = hi - lo < 1e-9
+    np.add.at(laid, np.minimum(np.floor(lo[point]).astype(int), m - 1), a[point])
+    lo, hi, a = lo[~point], hi[~point], a[~point]
+    # each piece lays evenly along [lo, hi]: the laid area up to u is piecewise linear in u
+    ev = np.concatenate([lo, hi])
+    slope = np.concatenate([a / (hi - lo), -a / (hi - lo)])
+    order = np.argsort(ev, kind="stable")
+    ev, slope = ev[order], np.cumsum(slope[order])
+    cum = np.concatenate([[0.0], np.cumsum(slope[:-1] * np.diff(ev))])
+    q = np.arange(len(laid) + 1, dtype=float)
+    F = np.interp(q, ev, cum, left=0.0, right=cum[-1])
+    laid = laid + np.diff(F)
+    if closed:
+        laid = laid[:n] + np.concatenate([laid[n:], np.zeros(n - len(laid[n:]))])
+        r_in = o.diameter / 2 - o.max_thickness
+        r2 = (r_in + t) ** 2 - r_in ** 2
+        body = (r2 + np.roll(r2, -1)) / 4 * (2 * math.pi / n)
+    else:
+        laid = laid[:m]
+        body = (t[:-1] + t[1:]) / 2 * np.diff(fld.s)
+        if k < fld.n_foot:
+            body = np.full(m, o.foot) * np.diff(fld.s)
+    return laid, body
+
 
 
 def look(plan: Plan):
@@ -1017,15 +1232,13 @@ def plan_stats(plan: Plan, stl_volume: float) -> dict:
             "capped_time_share": round(capped_t / total_mid_t, 4) if total_mid_t else 0.0,
             "capped_length_share": round(capped_len / mid_len, 4) if mid_len else 0.0,
             "capped_pieces": plan.counts.get("capped_pieces", 0),
-            "slivers_widened_to_min_line_mm3": round(plan.counts.get("sliver_added_mm3", 0.0), 2),
-            "slivers_left_open_mm3": round(plan.counts.get("sliver_left_mm3", 0.0), 2),
+            "given_to_walls_mm3": round(plan.counts.get("shared_mm3", 0.0), 2),
             "layers_with_two_or_more": int((fld.lines > 1).sum()),
             "max_lines_per_layer": int(fld.lines.max()),
         },
         "gaps": {
-            "snapped_to_walls": fld.snapped_down,
-            "snapped_up_to_min_line": fld.snapped_up,
-            "snapped_share": round((fld.snapped_down + fld.snapped_up) / samples, 4),
+            "shared_by_walls": fld.shared,
+            "shared_share": round(fld.shared / samples, 4),
             "min_line_mm": round(o.line_min(), 4), "max_line_mm": o.max_line,
             "printed_vs_planned_thickness_max_mm": round(float(np.abs(t_print - pic).max()), 3),
         },
@@ -1045,10 +1258,16 @@ class LithoResult:
     stats: dict
 
 
-def make(image, outdir, name: str | None = None, progress=None, **opts) -> LithoResult:
+def make(image, outdir, name: str | None = None, progress=None, machine=None, **opts) -> LithoResult:
     """Everything `bulgekit litho` writes, from a picture: NAME.litho.gcode, NAME.stock.gcode,
     NAME.stl, NAME.transmission.png, NAME.litho.json. Options: the fields of LithoOptions.
-    image None: the calibration plate (calibration_field), NAME "calibration" by default."""
+    image None: the calibration plate (calibration_field), NAME "calibration" by default.
+    `progress(done, total)` hears the planning; the later phases (writing each file, the
+    estimate) are reported through bulgekit.progress. `machine`: the estimate's
+    estimate.Machine (default: Marlin's RAMPS defaults)."""
+    from . import estimate
+    from . import progress as pg
+
     o = opts.pop("options", None) or LithoOptions(**opts)
     calibration = None
     if image is None:                                   # the calibration plate
@@ -1060,31 +1279,34 @@ def make(image, outdir, name: str | None = None, progress=None, **opts) -> Litho
     paths = {"gcode": out / f"{name}.litho.gcode", "stock": out / f"{name}.stock.gcode",
              "stl": out / f"{name}.stl", "png": out / f"{name}.transmission.png",
              "json": out / f"{name}.litho.json"}
-    V, F = body_mesh(plan)
-    write_stl(V, F, paths["stl"], name=f"bulgekit lithophane {name}")
-    write_gcode(plan, paths["gcode"], "litho", name)
-    write_gcode(plan, paths["stock"], "stock", name)
+    m = machine or estimate.Machine()
+    with pg.phase(f"writing {paths['stl'].name}", 1, unit="files"):
+        V, F = body_mesh(plan)
+        write_stl(V, F, paths["stl"], name=f"bulgekit lithophane {name}")
+        stl_volume = mesh_volume(V, F)
+        del V, F
+    times = {}
+    # the litho file also with every move planned (Klipper, RepRapFirmware): nothing dropped
+    every = dataclasses.replace(m, min_segment_steps=0)
+    times["gcode"], times["every"] = write_gcode(plan, paths["gcode"], "litho", name, estimate_with=[m, every])
+    times["stock"], = write_gcode(plan, paths["stock"], "stock", name, estimate_with=[m])
     write_transmission_png(plan, paths["png"])
-    stats = plan_stats(plan, mesh_volume(V, F))
+    stats = plan_stats(plan, stl_volume)
     stats["name"] = name
     stats["image"] = None if calibration else os.fspath(image)
     if calibration:
         stats["calibration"] = calibration
     stats["options"] = _options_dict(o)
-    stats.update(_estimated(paths))
+    stats["estimate"] = {"estimated_time_s_gcode": round(times["gcode"], 1),
+                         "estimated_time_s_stock": round(times["stock"], 1),
+                         "estimated_time_s_gcode_every_move_planned": round(times["every"], 1),
+                         "machine": machine_words(m)}
     _write_atomic(paths["json"], json.dumps(stats, indent=2) + "\n")
     return LithoResult(plan, paths, stats)
 
 
-def _estimated(paths) -> dict:
-    """Print time of both files by the Marlin-style estimator, when it is there."""
-    try:
-        from . import estimate
-    except ImportError:
-        return {}
-    m = estimate.Machine()
-    out = {}
-    for key in ("gcode", "stock"):
-        r = estimate.estimate_file(paths[key], m)
-        out[f"estimated_time_s_{key}"] = round(r.total_s, 1)
-    return {"estimate": out}
+def machine_words(m) -> dict:
+    """What an estimate assumes, as the JSON and the CLI name it."""
+    return {"accel_mm_s2": m.accel, "travel_accel_mm_s2": m.travel_accel,
+            "junction_deviation_mm": m.junction_deviation, "classic_jerk": m.jerk,
+            "lookahead_blocks": m.lookahead, "min_segment_steps": m.min_segment_steps}

@@ -56,15 +56,16 @@ def count_lines(path) -> int:
 
 
 @contextmanager
-def phase(label: str, total_lines: int | None = None, path=None):
-    """A pass over a file: shown while it runs, then closed with its time."""
+def phase(label: str, total_lines: int | None = None, path=None, unit: str = "lines"):
+    """A pass over a file (or over other units of work): shown while it runs, then closed with
+    its time."""
     global _state
     heard = _listener()
     if _stream is None and heard is None:
         yield
         return
     total = total_lines if total_lines is not None else (count_lines(path) if path else 0)
-    _state = [label, max(total, 1), time.perf_counter(), 0.0]
+    _state = [label, max(total, 1), time.perf_counter(), 0.0, unit]
     if heard is not None:
         heard(label, 0, _state[1])
     try:
@@ -87,7 +88,7 @@ def tick(done: int) -> None:
     if now - _state[3] < 0.2:
         return
     _state[3] = now
-    label, total, t0, _ = _state
+    label, total, t0, _, unit = _state
     heard = _listener()
     if heard is not None:
         heard(label, min(done, total), total)
@@ -95,6 +96,6 @@ def tick(done: int) -> None:
         return
     rate = done / max(now - t0, 1e-9)
     left = max(total - done, 0) / rate if rate > 0 else 0.0
-    _stream.write(f"\r{label}: {min(100, 100 * done // total):3d} % ({done:,} of {total:,} lines), "
-                  f"{rate:,.0f} lines/s, {left:.0f} s left ")
+    _stream.write(f"\r{label}: {min(100, 100 * done // total):3d} % ({done:,} of {total:,} {unit}), "
+                  f"{rate:,.0f} {unit}/s, {left:.0f} s left ")
     _stream.flush()

@@ -74,27 +74,160 @@ def test_transmission_curve_is_linear_in_luminance(tmp_path):
     assert T == pytest.approx(T_lo + b * (T_hi - T_lo), rel=1e-6)
 
 
-def test_narrow_gaps_snap_to_merged_walls_or_the_narrowest_line(tmp_path):
+def test_narrow_gaps_are_shared_by_the_walls(tmp_path):
     # default narrowest line: what 8 mm^3/s lays at 150 mm/s, 8 / (150 x 0.2) = 0.267 mm.
-    # --curve linear, darkness 0.05 -> t = 0.88 (gap 0.08 < 0.133: walls merge); 0.1 -> t = 0.96
-    # (gap 0.16: up)
+    # darkness 0.05 -> t = 0.88 (gap 0.08), 0.1 -> t = 0.96 (gap 0.16): no mid-line there, the
+    # two walls widen by half the gap each and run slower at the walls' rate
     p = picture(tmp_path, w=30, h=10, boxes=[(0, 0, 10, 10, round(255 * 0.95)), (10, 0, 20, 10, round(255 * 0.9))])
     o = opts(width=30.0, height=2.0, curve="linear")
     assert o.line_min() == pytest.approx(8 / (150 * 0.2))
     f = lt.thickness_field(p, o)
-    assert f.t[2, 10] == pytest.approx(0.8)
-    assert f.t[2, 40] == pytest.approx(0.8 + 8 / 30)
-    assert f.snapped_down > 0 and f.snapped_up > 0
-    gap = f.t - 0.8
-    assert not np.any((gap > 1e-9) & (gap < o.line_min() - 1e-9))
-    # given, --min-line wins (and below q / (U H) the narrow pieces are capped, and counted)
-    f2 = lt.thickness_field(p, opts(width=30.0, height=2.0, min_line=0.1, curve="linear"))
-    assert f2.t[2, 40] == pytest.approx(0.96, abs=0.01)
-    plan = lt.plan_lithophane(p, opts(width=30.0, height=2.0, min_line=0.1, curve="linear"))
-    V, F = lt.body_mesh(plan)
-    assert lt.plan_stats(plan, lt.mesh_volume(V, F))["mid_line"]["capped_time_share"] > 0.5
-    # the paper's rate (3.2 mm^3/s) lays 0.107 mm at 150 mm/s: half a line (0.2 mm) is the floor
-    assert opts(paper_rate=True).line_min() == pytest.approx(0.2)
+    assert f.t[2, 10] == pytest.approx(0.8 + 1.6 * (1 - round(255 * 0.95) / 255))    # not snapped
+    assert f.t[2, 40] == pytest.approx(0.8 + 1.6 * (1 - round(255 * 0.9) / 255))
+    assert f.shared > 0
+    plan = lt.plan_lithophane(p, o)
+    L = plan.layers[2]
+    for i in (10, 40):
+        assert L.wall[i] == pytest.approx(W + (f.t[2, i] - 2 * W) / 2)
+        assert L.gap[i] == pytest.approx(0.0, abs=1e-9)
+    assert lt.printed_thickness(plan) == pytest.approx(f.t, abs=1e-9)
+    loop = L.sections[0]
+    x0, x1 = loop.pts[:-1, 0], loop.pts[1:, 0]
+    on = (np.minimum(x0, x1) < 2) & (np.maximum(x0, x1) > 2) & (loop.pts[:-1, 1] < 0.3)   # back wall at x = 2
+    w_back = np.median(loop.width[on])
+    assert w_back == pytest.approx(W + 0.04, rel=0.01)
+    assert np.median(loop.v[on]) == pytest.approx(o.wall_flow / (w_back * H), rel=1e-3)
+    mids = [s for s in L.sections if s.kind == "mid-line"]
+    assert all(s.pts[s.e > 0][:, 0].min() > 7.9 for s in mids)        # laid only right of the 0.96 part
+    # the laid volume per sample interval is the body's (the bands add up to it)
+    laid, body = lt.laid_area(plan, 2)
+    assert laid[2:-2] == pytest.approx(body[2:-2], rel=0.005)
+
+
+def test_grey_ramp_prints_monotonic_without_jumps(tmp_path):
+    """A linear grey ramp, white to black, at the defaults: no sample snapped, the printed
+    thickness rises monotonically with no step over 0.02 mm, and the laid volume follows it."""
+    a = np.tile(np.arange(255, -1, -1).astype(np.uint8), (12, 1))
+    p = tmp_path / "ramp.png"
+    Image.fromarray(a).save(p)
+    # one sample per tone: 256 samples 0.4 mm apart, each the average of one pixel column
+    plan = lt.plan_lithophane(p, lt.LithoOptions(width=255 * 0.4 * 256 / 255, height=2.4, pitch=0.4 * 256 / 255))
+    t = lt.printed_thickness(plan)
+    assert t == pytest.approx(plan.field.t, abs=1e-9)
+    assert plan.field.shared > 0                                   # the light end passes through it
+    d = np.diff(t, axis=1)
+    assert d.min() >= -1e-9 and d.max() <= 0.02
+    for k in (3, 8):
+        laid, body = lt.laid_area(plan, k)
+        per_mm = laid / np.diff(plan.field.s)
+        assert np.all(np.diff(per_mm[3:-3]) > -0.02)               # monotonic within a few hundredths
+        assert laid.sum() == pytest.approx(body.sum(), rel=0.005)
+
+
+def noisy(tmp_path, w=60, h=20, seed=1, sigma=20):
+    """A photo-like picture: smooth shading plus noise, every sample a different grey."""
+    rng = np.random.default_rng(seed)
+    x = np.linspace(0, 1, w)[None, :] * np.linspace(0.3, 1, h)[:, None]
+    a = np.clip(255 * (0.2 + 0.7 * x) + rng.normal(0, sigma, (h, w)), 0, 255).astype(np.uint8)
+    p = tmp_path / "noisy.png"
+    Image.fromarray(a).save(p)
+    return p
+
+
+@pytest.fixture(scope="module")
+def noisy_made(tmp_path_factory):
+    d = tmp_path_factory.mktemp("noisy")
+    return lt.make(noisy(d), d / "out", options=lt.LithoOptions(width=24.0, height=4.0), name="noisy")
+
+
+def shortest_extruding_moves(path):
+    prev, short = None, []
+    for x, y, e, f, w_, kind in moves(path):
+        if prev is not None and (e > 0 or w_):
+            L = math.hypot(x - prev[0], y - prev[1])
+            if L < 0.075:
+                short.append((L, kind))
+        prev = (x, y)
+    return short
+
+
+def test_no_extruding_move_shorter_than_the_firmware_runs(noisy_made):
+    """6 steps at 80 steps/mm: Marlin drops shorter moves, Klipper plans them; neither file has one,
+    and the estimate with every move planned is within 2 % of Marlin's."""
+    from bulgekit import estimate as es
+
+    for key in ("gcode", "stock"):
+        ms = moves(noisy_made.paths[key])
+        prev = None
+        short = []
+        for x, y, e, f, w_, kind in ms:
+            if prev is not None and (e > 0 or w_):
+                L = math.hypot(x - prev[0], y - prev[1])
+                if L < 0.075:
+                    short.append((L, kind))
+            prev = (x, y)
+        assert not short, short[:5]
+    est = noisy_made.stats["estimate"]
+    assert est["estimated_time_s_gcode_every_move_planned"] == pytest.approx(est["estimated_time_s_gcode"], rel=0.02)
+    r6 = es.estimate_file(noisy_made.paths["stock"], es.Machine())
+    r0 = es.estimate_file(noisy_made.paths["stock"], es.Machine(min_segment_steps=0))
+    assert r0.total_s == pytest.approx(r6.total_s, rel=0.02)
+    # the JSON's times come from the moves handed over as numbers: the same as parsing the files
+    assert est["estimated_time_s_stock"] == pytest.approx(r6.total_s, abs=0.06)
+    parsed = es.estimate_file(noisy_made.paths["gcode"], es.Machine(min_segment_steps=0)).total_s
+    assert est["estimated_time_s_gcode_every_move_planned"] == pytest.approx(parsed, abs=0.06)
+    m = est["machine"]
+    assert m["accel_mm_s2"] == 3000 and m["junction_deviation_mm"] == 0.013 and m["lookahead_blocks"] == 16
+
+
+def test_block_rate_budget(tmp_path):
+    """No laid piece is shorter than its speed / block rate (a head only passing through runs no
+    faster than that), and merging keeps the volume of every layer."""
+    p = noisy(tmp_path)
+    plans = {}
+    for rate in (200.0, 1000.0):
+        plan = plans[rate] = lt.plan_lithophane(p, lt.LithoOptions(width=24.0, height=4.0, block_rate=rate))
+        for k, L in enumerate(plan.layers):
+            for s in L.sections:
+                seg = np.linalg.norm(np.diff(s.pts, axis=0), axis=1)
+                laid = s.e > 0
+                assert np.all(seg[laid] >= np.maximum(lt.MIN_MOVE, s.v[laid] / rate) - 1e-6), (rate, k, s.kind)
+                assert np.all(s.v[~laid] <= seg[~laid] * rate + 1e-6)
+            laid_a, body = lt.laid_area(plan, k)
+            assert laid_a.sum() == pytest.approx(body.sum(), rel=0.005)
+    # without a budget the pieces are shorter, and each sample's volume is the body's
+    plan0 = lt.plan_lithophane(p, lt.LithoOptions(width=24.0, height=4.0, block_rate=0))
+    n0 = sum(int((s.e > 0).sum()) for L in plan0.layers for s in L.sections)
+    n200 = sum(int((s.e > 0).sum()) for L in plans[200.0].layers for s in L.sections)
+    assert n200 < n0
+    for k in range(1, len(plan0.layers)):
+        laid_a, body = lt.laid_area(plan0, k)
+        assert laid_a[2:-2] == pytest.approx(body[2:-2], rel=0.005)
+
+
+def test_merged_pieces_and_the_plain_inner_circle(tmp_path):
+    """Pieces that run on straight at one width are one move: a cylinder's inner wall (a plain
+    circle) has as few pieces as a 0.01 mm chord tolerance allows, and the whole part has at
+    least 40 % fewer extruding moves than one piece per sample per line."""
+    a = np.full((16, 120), 255, np.uint8)              # white sky, a dark box, a shaded third
+    a[4:12, 10:40] = 40
+    a[:, 80:] = np.linspace(150, 20, 40).round().astype(np.uint8)
+    p = tmp_path / "scene.png"
+    Image.fromarray(a).save(p)
+    o = lt.LithoOptions(shape="cylinder", diameter=30.0, height=3.0)
+    plan = lt.plan_lithophane(p, o)
+    r_in = o.diameter / 2 - o.max_thickness + W / 2
+    n = len(plan.field.s)
+    per_sample = circles = 0
+    for L in plan.layers:
+        inner = [s for s in L.sections if s.kind == "wall" and np.linalg.norm(s.pts, axis=1).max() < r_in + 0.01]
+        if inner and np.allclose(L.wall, W):
+            chord = 2 * math.sqrt(2 * r_in * lt.CHORD_TOL)           # its sagitta is the tolerance
+            assert len(inner[0].e) <= math.ceil(2 * math.pi * r_in / chord * 1.35) + 2
+            circles += 1
+        per_sample += n * (2 + int(plan.field.lines[0]))
+    moves_ = sum(int((s.e > 0).sum()) for L in plan.layers for s in L.sections)
+    assert circles == len(plan.layers) and moves_ <= 0.6 * per_sample
 
 
 def test_frame_is_full_thickness(tmp_path):
@@ -137,10 +270,16 @@ def test_one_mid_line_centred_and_as_wide_as_the_gap(step_plan):
     for x0, thick in ((5.0, t[12]), (15.0, t[37])):
         i = np.flatnonzero((np.minimum(m.pts[:-1, 0], m.pts[1:, 0]) <= x0)
                            & (np.maximum(m.pts[:-1, 0], m.pts[1:, 0]) > x0))[0]
-        assert m.pts[i:i + 2, 1] == pytest.approx(thick / 2, abs=1e-6)   # centre of the plate
-        assert m.width[i] == pytest.approx(thick - 2 * W, abs=1e-6)
-    # the mid-line runs from end wall to end wall (its end probes just inside R)
-    assert sorted([m.pts[0, 0], m.pts[-1, 0]]) == pytest.approx([W, 20.0 - W], abs=1e-3)
+        assert m.pts[i + 1, 1] == pytest.approx(thick / 2, abs=1e-6)   # centre of the plate
+        if i == 0:          # it starts from where the loop ended: the same volume over a longer way
+            assert m.width[i] == pytest.approx(thick - 2 * W, rel=0.03)
+        else:
+            assert m.pts[i, 1] == pytest.approx(thick / 2, abs=1e-6)
+            assert m.width[i] == pytest.approx(thick - 2 * W, abs=1e-6)
+    # the mid-line runs from end wall to end wall (its start joined to the loop's end)
+    ends = sorted([m.pts[0, 0], m.pts[-1, 0]])
+    assert ends[0] == pytest.approx(W, abs=0.75) and ends[1] == pytest.approx(20.0 - W, abs=1e-6) or \
+        ends[0] == pytest.approx(W, abs=1e-6) and ends[1] == pytest.approx(20.0 - W, abs=0.75)
 
 
 def test_nothing_outside_the_body(step_plan):
@@ -152,20 +291,25 @@ def test_nothing_outside_the_body(step_plan):
         for s in step_plan.layers[k].sections:
             for x, y in s.pts:
                 assert P.buffer(1e-6).contains(Point(x, y)), (k, s.kind, x, y)
-            # a line's half width stays inside too: walls half a line in, mid-line half its width
+            # a line's half width stays inside too: walls half a line in across the layer, which
+            # on a slope of dt/ds is (W / 2) cos(atan(dt/ds)) from the face (the step's sample
+            # between black and grey is their average in linear light: the steepest slope)
             if s.kind == "wall":
-                assert min(P.exterior.distance(Point(p)) for p in s.pts[::7]) == pytest.approx(W / 2, abs=1e-6)
+                slope = np.abs(np.diff(f.t[k]) / np.diff(f.s)).max()
+                d = min(P.exterior.distance(Point(p)) for p in s.pts)
+                assert W / 2 / math.hypot(1, slope) - 1e-6 <= d <= W / 2 + 1e-6
 
 
 def test_head_crosses_merged_walls_in_the_middle(tmp_path):
     """Black, white (walls merge: no mid-line), black: the head crosses the white part without
-    laying, along the plate's middle."""
+    laying, along the plate's middle (down the steps' slopes, then straight)."""
     p = picture(tmp_path, boxes=[(0, 0, 10, 16, 0), (30, 0, 40, 16, 0)])
     plan = lt.plan_lithophane(p, opts())
     m = [s for s in plan.layers[4].sections if s.kind == "mid-line"][0]
     hop = np.flatnonzero(m.e == 0)
-    assert len(hop) == 1                                          # one straight move across
-    a, b = m.pts[hop[0]], m.pts[hop[0] + 1]
+    assert np.all(np.diff(hop) == 1) and len(hop) <= 3              # one run of moves across
+    long = hop[np.argmax(np.abs(m.pts[hop + 1, 0] - m.pts[hop, 0]))]
+    a, b = m.pts[long], m.pts[long + 1]
     assert a[1] == pytest.approx(0.4) and b[1] == pytest.approx(0.4)   # middle of the 0.8 mm plate
     assert abs(b[0] - a[0]) > 9.0
 
@@ -235,7 +379,7 @@ def test_stock_file_keeps_one_extruder_rate_on_the_mid_line(made):
                 rates.append(e * f / 60 / L)
         prev = (x, y)
     rates = np.array(rates[len(rates) // 15:])                   # skip the first layer's half rate
-    assert len(rates) > 50
+    assert len(rates) > 30
     assert np.median(rates) == pytest.approx(r, rel=1e-3)
     assert np.mean(np.abs(rates / r - 1) < 0.01) > 0.95            # 5-decimal E, 1-decimal F
 
@@ -297,28 +441,46 @@ def test_cylinder_layers_are_joined_loops(cyl):
         assert kinds in (["wall", "mid-line", "wall"],)
         for a, b in zip(L.sections, L.sections[1:]):
             assert np.linalg.norm(a.pts[-1] - b.pts[0]) < 2.0          # joined, no travel
-        for s in L.sections:
-            assert np.allclose(s.pts[0], s.pts[-1])                     # closed loops
+        for prev, s in zip([None] + L.sections, L.sections):
+            # closed loops; a loop may start from where the one before ended, when that is too
+            # close for a move of its own (a join under the block-rate budget)
+            assert np.allclose(s.pts[0], s.pts[-1]) or (
+                prev is not None and np.allclose(s.pts[0], prev.pts[-1])
+                and np.linalg.norm(s.pts[0] - s.pts[-1]) < s.v[0] / cyl.plan.options.block_rate + 1e-6)
     text = cyl.paths["gcode"].read_text()
     body = text[text.index(";LAYER:1"):]
     assert ";TYPE:travel" not in body and "E-" not in body.split("M723 S0")[0]
 
 
 def test_cylinder_crossings_are_chords_near_the_middle(cyl):
-    """Where the walls merge the head moves on in chords of 3 samples (about 1.2 mm), not in
-    single-sample pieces, and stays within the chord's sagitta of the plate's middle circle."""
+    """Where the walls merge the head moves on in chords (not in single-sample pieces) that stay
+    within the chord tolerance of the plate's middle circle."""
     o = cyl.plan.options
     r_mid = o.diameter / 2 - o.max_thickness + 0.4          # middle of a 0.8 mm (white) plate
     m = [s for s in cyl.plan.layers[4].sections if s.kind == "mid-line"][0]
     hop = np.flatnonzero(m.e == 0)
-    assert len(hop) > 10
+    assert len(hop) > 5
     lengths = np.linalg.norm(m.pts[hop + 1] - m.pts[hop], axis=1)
     piece = 2 * math.pi * r_mid / len(cyl.plan.field.s)   # one sample step on the middle circle
-    assert np.median(lengths) == pytest.approx(3 * piece, rel=0.02)
+    assert np.median(lengths) > 1.8 * piece
     inner = hop[np.isin(hop - 1, hop) & np.isin(hop + 1, hop)]   # not the joins to laid pieces
     mids = (m.pts[inner + 1] + m.pts[inner]) / 2
-    sag = lengths.max() ** 2 / (8 * r_mid)
-    assert np.abs(np.linalg.norm(mids, axis=1) - r_mid).max() < sag + 0.01
+    assert np.abs(np.linalg.norm(mids, axis=1) - r_mid).max() < 2 * lt.CHORD_TOL
+
+
+def test_cylinder_has_no_short_extruding_move(cyl, tmp_path):
+    """Layer to layer, wall to mid-line to wall: no join shorter than a move the firmware runs."""
+    for key in ("gcode", "stock"):
+        assert not shortest_extruding_moves(cyl.paths[key])
+    plan = lt.plan_lithophane(noisy(tmp_path, w=90, h=40), lt.LithoOptions(shape="cylinder", diameter=30.0,
+                                                                           height=8.0))
+    end = None
+    for L in plan.layers:
+        for s in L.sections:
+            if end is not None:
+                d = np.linalg.norm(s.pts[0] - end)
+                assert d < 1e-9 or d >= lt.MIN_MOVE
+            end = s.pts[-1]
 
 
 def test_cylinder_seam(cyl):
@@ -327,7 +489,9 @@ def test_cylinder_seam(cyl):
     # samples start at the back (+Y) and run counter-clockwise: the picture's left edge is at
     # 90 degrees, its right edge just before it; thick on one side of the seam, thin on the other
     assert f.s[0] == pytest.approx(math.pi / 2)
-    assert f.t[3, 0] == pytest.approx(2.4) and f.t[3, -1] == pytest.approx(0.8)
+    light = lt.tone.thickness(lt.tone.grey_to_luminance(np.array([250 / 255])), "perceptual", 0.8, 2.4, 1.5)
+    assert f.t[3, 0] == pytest.approx(2.4) and f.t[3, -1] == pytest.approx(float(light[0]))
+    assert f.t[3, -1] < 0.85
     outer = cyl.plan.layers[3].sections
     ow = [s for s in outer if s.kind == "wall" and np.linalg.norm(s.pts, axis=1).max() > r_in + 1][0]
     rad = np.linalg.norm(ow.pts, axis=1)
@@ -355,6 +519,27 @@ def test_cli_writes_everything(tmp_path):
     for ext in (".litho.gcode", ".stock.gcode", ".stl", ".transmission.png", ".litho.json"):
         assert (tmp_path / "out" / f"p{ext}").exists()
     assert "fill ratio" in r.output
+    assert "acceleration 3000 mm/s², junction deviation 0.013 mm, look-ahead 16 blocks" in r.output
+
+
+def test_every_phase_reports_progress(tmp_path):
+    """Planning through the callback; writing each file and the estimates through
+    bulgekit.progress (what the CLI draws and the studio listens to)."""
+    from bulgekit import progress
+
+    heard, planned = [], []
+    progress.listen(lambda label, done, total: heard.append((label, done, total)))
+    try:
+        lt.make(picture(tmp_path), tmp_path / "o", options=opts(), name="p",
+                progress=lambda done, total: planned.append((done, total)))
+    finally:
+        progress.listen(None)
+    assert planned[-1] == (15, 15)
+    labels = {h[0] for h in heard}
+    assert {"writing p.stl", "writing p.litho.gcode", "writing p.stock.gcode", "estimating p.litho.gcode",
+            "estimating p.stock.gcode"} <= labels
+    ends = [h for h in heard if h[1] == h[2]]
+    assert {h[0] for h in ends} == labels                          # every phase closes
 
 
 @pytest.mark.parametrize("args, message", [
@@ -434,3 +619,18 @@ def test_extruder_rate_through_the_core(bkcore, made, which):
     assert t_in == pytest.approx(t_all)
     if which == "gcode":
         assert "M723" in made.paths[which].read_text()
+
+
+def test_estimate_in_chunks_is_the_whole_plan(noisy_made, monkeypatch):
+    """A large file is planned a chunk of blocks at a time (with the braking distance on both
+    sides); the speeds are those of planning it at once, with a lookahead or without."""
+    from bulgekit import estimate as es
+
+    for la in (16, None):
+        whole = es.estimate_file(noisy_made.paths["gcode"], es.Machine(lookahead=la))
+        monkeypatch.setattr(es, "CHUNK", 64)
+        part = es.estimate_file(noisy_made.paths["gcode"], es.Machine(lookahead=la))
+        monkeypatch.setattr(es, "CHUNK", 1 << 16)
+        assert len(whole.blocks) > 10 * 64
+        assert part.blocks["entry_speed"] == pytest.approx(whole.blocks["entry_speed"], abs=1e-6)
+        assert part.total_s == pytest.approx(whole.total_s, rel=1e-9)
