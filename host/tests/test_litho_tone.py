@@ -112,18 +112,19 @@ def wedge(tmp_path):
 def test_wedge_steps_within_one_L(tmp_path, curve, within):
     """16-step grey wedge at the defaults: the perceptual curve puts every step's predicted L*
     within 1 of its target (the grey's L* on the plate's range); the other two do not. Measured on
-    the curve's thickness: --min-line 0.001 snaps no gap of this wedge (the snapping of narrow
-    gaps is not the tone curve's; tools/litho_wedge.py shows both)."""
+    the planned thickness and on the thickness as printed (the walls share gaps narrower than a
+    mid-line: nothing is snapped)."""
     p, codes = wedge(tmp_path)
-    o = lt.LithoOptions(curve=curve, height=2.0, min_line=1e-3)
-    f = lt.thickness_field(p, o)
+    o = lt.LithoOptions(curve=curve, height=2.0)
+    plan = lt.plan_lithophane(p, o)
+    f = plan.field
     cols = [int(round((i + 0.5) * (len(f.s) - 1) / 16)) for i in range(16)]
-    t = f.t[5, cols]
-    pred = tone.lightness(tone.plate_luminance(t, 1.5, 0.8))
     L_lo = tone.lightness(np.exp(-1.5 * 1.6))
     target = L_lo + (100 - L_lo) * lib_L(np.repeat(codes[:, None] / 255, 3, axis=1)) / 100
-    err = np.abs(pred - target).max()
-    assert (err <= 1.0) == within, err
+    for t in (f.t[f.n_foot + 5, cols], lt.printed_thickness(plan)[5, cols]):
+        pred = tone.lightness(tone.plate_luminance(t, 1.5, 0.8))
+        err = np.abs(pred - target).max()
+        assert (err <= 1.0) == within, err
 
 
 def test_gamma_and_invert_on_the_perceptual_curve():
