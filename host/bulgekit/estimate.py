@@ -107,6 +107,21 @@ class Result:
         return f"{int(h)}h {int(rem // 60):02d}m {rem % 60:04.1f}s"
 
 
+@dataclass
+class MoveBlock:
+    """Moves a program already holds as numbers, given to estimate_lines in place of their text
+    (which it then need not parse): G1 to absolute X, Y (mm) with relative E (mm) or W words,
+    F (mm/min) per move, all as the text has them (rounded alike). Needs G90 and M83 in force."""
+    x: np.ndarray
+    y: np.ndarray
+    e: np.ndarray
+    f: np.ndarray
+    w: np.ndarray | None = None
+
+    def __len__(self):
+        return len(self.x)
+
+
 BLOCK_DTYPE = [("line", "i8"), ("feature", "i4"), ("layer", "i4"), ("dx", "f8"), ("dy", "f8"), ("dz", "f8"),
                ("de", "f8"), ("length", "f8"), ("nominal_speed", "f8"), ("accel", "f8"),
                ("entry_speed", "f8"), ("exit_speed", "f8"), ("cruise_speed", "f8"),
@@ -133,6 +148,7 @@ class _Parser:
         self.width = None                       # width mode: dict(r=, D=, H=, L=, U=) when on
         self.w_state = dict(q=None, r=None, D=1.75, H=0.0, L=5.0, U=150.0)
         self.rows = []                          # (line, feat, layer, dx, dy, dz, de, v, accel, brk, jd, jerk)
+        self.parts = []                         # rows turned into column arrays, and MoveBlocks' columns
         self.brk = True                         # the next block starts from rest
         self.pending = [0.0, 0.0, 0.0, 0.0]     # distance of dropped tiny moves
         self.dwell = 0.0
@@ -305,7 +321,7 @@ class _Parser:
         if xyz == 0:
             # E alone: whole steps from the planner's position (the fraction carried matters)
             steps[3] = abs(e_to - self.e_at)
-        if max(steps) < m.min_segment_steps:               # Marlin drops it; the distance carries on
+        if max(steps) < m.min_segment_steps or max(steps) == 0:   # Marlin drops it; the distance carries on
             self.pending = d
             return
         self.pending = [0.0, 0.0, 0.0, 0.0]
@@ -325,6 +341,60 @@ class _Parser:
                           tuple(self.max_accel[a] for a in AXES), tuple(self.max_fr[a] for a in AXES),
                           n_e, self.spm["E"]))
         self.brk = False
+
+    def flush(self):
+        if self.rows:
+            self.parts.append(_columns(self.rows))
+            self.rows = []
+
+    def block(self, n, mb: MoveBlock):
+        """A MoveBlock: the same blocks as its lines would give, computed on whole arrays."""
+        k = len(mb)
+        if k == 0:
+            return
+        m, s = self.m, self.w_state
+        x = np.concatenate([[self.pos[0]], mb.x])
+        y = np.concatenate([[self.pos[1]], mb.y])
+        dx, dy = np.diff(x), np.diff(y)
+        L = np.hypot(dx, dy)
+        de = np.asarray(mb.e, float)
+        if mb.w is not None:
+            de = np.where(mb.w > 0, mb.w * s["H"] * L / (math.pi * s["D"] ** 2 / 4), de)
+        spm = self.spm
+        steps = np.maximum(np.maximum(np.abs(dx) * spm["X"], np.abs(dy) * spm["Y"]), np.abs(de) * spm["E"])
+        if (self.rel[0] or self.rel[1] or not self.rel[3] or any(self.pending)
+                or np.any(steps < max(m.min_segment_steps, 1e-12)) or np.any(L == 0)):
+            for i in range(k):                          # as the text: move by move
+                w = {"X": float(mb.x[i]), "Y": float(mb.y[i]), "F": float(mb.f[i])}
+                if mb.w is not None and mb.w[i] > 0:
+                    w["W"] = float(mb.w[i])
+                elif mb.e[i] != 0:
+                    w["E"] = float(mb.e[i])
+                self.move(n + i, w)
+            return
+        self.flush()
+        v = np.asarray(mb.f, float) / 60 * self.pct / 100
+        if self.width:
+            ext = de > 0
+            with np.errstate(divide="ignore", invalid="ignore"):
+                vw = np.clip(L * self._rate() / de, s["L"], s["U"])
+            v = np.where(ext, vw, v)
+        brk = np.zeros(k, bool)
+        brk[0] = self.brk
+        full = lambda val: np.full(k, val)
+        self.parts.append({
+            "line": n + np.arange(k), "feature": full(self.fidx[self.feature]), "layer": full(self.layer),
+            "dx": dx, "dy": dy, "dz": np.zeros(k), "de": de, "v": v,
+            "accel": np.where(de != 0, self.accel, self.travel_accel), "brk": brk, "jd": full(self.jd),
+            "jerk": None if self.jerk is None else np.tile([self.jerk[a] for a in AXES], (k, 1)),
+            "amax": np.tile([self.max_accel[a] for a in AXES], (k, 1)),
+            "vmax": np.tile([self.max_fr[a] for a in AXES], (k, 1)),
+            "n_e": np.zeros(k), "spm_e": full(spm["E"])})
+        self.brk = False
+        self.f = float(mb.f[-1]) / 60
+        e_end = float(np.cumsum(np.concatenate([[self.pos[3]], de]))[-1])     # summed as the text's moves
+        self.pos = [float(mb.x[-1]), float(mb.y[-1]), self.pos[2], e_end]
+        self.e_at = _lround(self.pos[3] * spm["E"])
 
     def arc(self, n, cw, w):
         if "R" in w:
@@ -499,51 +569,120 @@ def _plan_segment(b, maxentry2, m: Machine):
     b["t_accel"], b["t_cruise"], b["t_decel"] = ta, tc, td
 
 
-def estimate_lines(lines, machine: Machine | None = None, source: str = "<gcode>") -> Result:
-    m = machine or Machine()
-    p = _Parser(m, source)
-    count = 0
-    for count, raw in enumerate(lines, 1):
-        p.line(count, raw)
-    rows = p.rows
-    b = np.zeros(len(rows), dtype=BLOCK_DTYPE)
-    if rows:
-        cols = list(zip(*rows))
-        for k, name in enumerate(("line", "feature", "layer", "dx", "dy", "dz", "de")):
-            b[name] = cols[k]
-        v = np.array(cols[7], float)
-        b["accel"] = cols[8]
-        brk = np.array(cols[9], bool)
-        jd = np.array(cols[10], float)
-        jerk = cols[11]
-        amax = np.array(cols[12], float)
-        vmax = np.array(cols[13], float)
-        d = np.column_stack([b["dx"], b["dy"], b["dz"], b["de"]])
+def _columns(rows) -> dict:
+    """The parser's rows (tuples) as column arrays."""
+    cols = list(zip(*rows))
+    out = {name: np.array(cols[k]) for k, name in enumerate(("line", "feature", "layer", "dx", "dy", "dz", "de"))}
+    out.update(v=np.array(cols[7], float), accel=np.array(cols[8], float), brk=np.array(cols[9], bool),
+               jd=np.array(cols[10], float), amax=np.array(cols[12], float), vmax=np.array(cols[13], float),
+               jerk=None if cols[11][0] is None else np.array(cols[11], float),
+               n_e=np.array(cols[14], float), spm_e=np.array(cols[15], float))
+    return out
+
+
+CHUNK = 1 << 16          # blocks computed at once (a large file's temporaries stay small)
+
+
+def _plan_parts(p: "_Parser", m: Machine, source: str) -> np.ndarray:
+    """The parser's columns -> planned blocks, a chunk of blocks at a time."""
+    parts, p.parts = p.parts, None
+    n = sum(len(q["v"]) for q in parts)
+    b = np.zeros(n, dtype=BLOCK_DTYPE)
+    if not n:
+        return b
+    v, jd, brk = np.empty(n), np.empty(n), np.empty(n, bool)
+    amax, vmax = np.empty((n, 4)), np.empty((n, 4))
+    n_e, spm_e = np.empty(n), np.empty(n)
+    jerk = None if parts[0]["jerk"] is None else np.empty((n, 4))
+    off = 0
+    while parts:                                    # copied in, each part dropped once copied
+        q = parts.pop(0)
+        k = len(q["v"])
+        sl = slice(off, off + k)
+        for name in ("line", "feature", "layer", "dx", "dy", "dz", "de", "accel"):
+            b[name][sl] = q[name]
+        v[sl], jd[sl], brk[sl], amax[sl], vmax[sl] = q["v"], q["jd"], q["brk"], q["amax"], q["vmax"]
+        n_e[sl], spm_e[sl] = q["n_e"], q["spm_e"]
+        if jerk is not None:
+            jerk[sl] = q["jerk"]
+        off += k
+    for c0 in range(0, n, CHUNK):
+        c = slice(c0, min(n, c0 + CHUNK))
+        bc = b[c]
+        d = np.column_stack([bc["dx"], bc["dy"], bc["dz"], bc["de"]])
         xyz = np.linalg.norm(d[:, :3], axis=1)
         L = np.where(xyz > 0, xyz, np.abs(d[:, 3]))
-        b["length"] = L
+        b["length"][c] = L
         # per-axis limits: speed so no axis exceeds its M203, accel so none exceeds its M201
         with np.errstate(divide="ignore", invalid="ignore"):
             ratio = np.abs(d) / L[:, None]
-            vlim = np.where(ratio > 0, vmax / ratio, np.inf).min(axis=1)
-            alim = np.where(ratio[:, :4] > 0, amax / ratio, np.inf).min(axis=1)
-        b["nominal_speed"] = np.minimum(v, vlim)
-        b["accel"] = np.where(xyz > 0, np.minimum(b["accel"], alim), b["accel"])
-        if np.any(b["nominal_speed"] <= 0):
-            i = int(np.argmax(b["nominal_speed"] <= 0))
-            raise EstimateError(f"{source}:{b['line'][i]}: move with feed rate 0")
-        jerk_arr = None if jerk[0] is None else np.array(jerk, float)
-        maxentry2 = _junctions(b, jd, jerk_arr, amax, m)
-        starts = np.flatnonzero(brk)
-        if len(starts) == 0 or starts[0] != 0:
-            starts = np.concatenate([[0], starts])
-        bounds = list(starts) + [len(b)]
-        for s, e in zip(bounds[:-1], bounds[1:]):
-            if e > s:
-                seg = b[s:e]
-                _plan_segment(seg, maxentry2[s:e], m)
-                b[s:e] = seg
-        _slow_e_only(b, xyz, np.array(cols[14], float), np.array(cols[15], float))
+            vlim = np.where(ratio > 0, vmax[c] / ratio, np.inf).min(axis=1)
+            alim = np.where(ratio > 0, amax[c] / ratio, np.inf).min(axis=1)
+        b["nominal_speed"][c] = np.minimum(v[c], vlim)
+        b["accel"][c] = np.where(xyz > 0, np.minimum(bc["accel"], alim), bc["accel"])
+    del v, vmax
+    if np.any(b["nominal_speed"] <= 0):
+        i = int(np.argmax(b["nominal_speed"] <= 0))
+        raise EstimateError(f"{source}:{b['line'][i]}: move with feed rate 0")
+    # junctions: each block's only with the one before (chunks overlap by one block)
+    maxentry2 = np.zeros(n)
+    for c0 in range(0, n, CHUNK):
+        lo, hi = max(0, c0 - 1), min(n, c0 + CHUNK)
+        part = _junctions(b[lo:hi], jd[lo:hi], None if jerk is None else jerk[lo:hi], amax[lo:hi], m)
+        maxentry2[c0:hi] = part[c0 - lo:]
+    del jd, amax, jerk
+    starts = np.flatnonzero(brk)
+    if len(starts) == 0 or starts[0] != 0:
+        starts = np.concatenate([[0], starts])
+    bounds = list(starts) + [n]
+    for s0, e0 in zip(bounds[:-1], bounds[1:]):
+        if e0 > s0:
+            _plan_long(b, s0, e0, maxentry2, m)
+    _slow_e_only(b, (b["dx"] == 0) & (b["dy"] == 0) & (b["dz"] == 0), n_e, spm_e)
+    return b
+
+
+def _plan_long(b, s0, e0, maxentry2, m: Machine) -> None:
+    """_plan_segment on blocks s0..e0 (no stop between them), a chunk at a time. A block's speeds
+    depend only on blocks within the distance the head needs to reach or lose its highest
+    speed (v^2 / 2a), so each chunk is planned with that much on both sides and only its own
+    blocks are kept: the same result as planning the whole run at once."""
+    n = e0 - s0
+    if n <= 2 * CHUNK:
+        seg = b[s0:e0]
+        _plan_segment(seg, maxentry2[s0:e0], m)
+        b[s0:e0] = seg
+        return
+    L = b["length"][s0:e0]
+    cum = np.concatenate([[0.0], np.cumsum(L)])
+    reach = float((b["nominal_speed"][s0:e0] ** 2).max() / (2 * b["accel"][s0:e0].min())) * 1.5 + 1.0
+    for c0 in range(0, n, CHUNK):
+        c1 = min(n, c0 + CHUNK)
+        lo = int(np.searchsorted(cum, cum[c0] - reach, side="right")) - 1
+        hi = int(np.searchsorted(cum, cum[c1] + reach, side="left")) + 1
+        lo, hi = max(0, lo - m.lookahead if m.lookahead else lo), min(n, hi + (m.lookahead or 0))
+        seg = b[s0 + lo:s0 + hi].copy()              # its edges are planned wrongly: not kept
+        me = maxentry2[s0 + lo:s0 + hi]
+        _plan_segment(seg, me, m)
+        keep = slice(c0 - lo, c1 - lo)
+        for f in ("entry_speed", "exit_speed", "cruise_speed", "t_accel", "t_cruise", "t_decel"):
+            b[f][s0 + c0:s0 + c1] = seg[f][keep]
+
+
+def estimate_lines(lines, machine: Machine | None = None, source: str = "<gcode>") -> Result:
+    """Items of `lines`: G-code lines, or MoveBlocks standing for the lines of their moves."""
+    m = machine or Machine()
+    p = _Parser(m, source)
+    count = 0
+    for raw in lines:
+        if isinstance(raw, MoveBlock):
+            p.block(count + 1, raw)
+            count += len(raw)
+        else:
+            count += 1
+            p.line(count, raw)
+    p.flush()
+    b = _plan_parts(p, m, source)
     t = b["t_accel"] + b["t_cruise"] + b["t_decel"]
     feats = p.features
     by = {}
@@ -561,11 +700,11 @@ def _lround(v: float) -> int:
     return int(math.floor(v + 0.5)) if v >= 0 else -int(math.floor(-v + 0.5))
 
 
-def _slow_e_only(b, xyz, steps_e, spm_e) -> None:
+def _slow_e_only(b, e_alone, steps_e, spm_e) -> None:
     """Moves of E alone whose step rate is under MINIMAL_STEP_RATE: 1/120 + (n - 1)/r s, all at
     their speed (see the module's doc); faster ones keep their trapezoid, which is n/r plus the
     ramp."""
-    sel = np.flatnonzero((xyz == 0) & (b["de"] != 0))
+    sel = np.flatnonzero(e_alone & (b["de"] != 0))
     if not len(sel):
         return
     n = steps_e[sel]
