@@ -905,7 +905,7 @@ def scan_m92(path) -> list[tuple[int, float]]:
         with data:
             line, pos = 1, 0
             for mt in _M92_RX.finditer(data):
-                line += data.count(b"\n", pos, mt.start())
+                line += data[pos:mt.start()].count(b"\n")     # (mmap has no count before 3.13)
                 pos = mt.start()
                 e = _m92_e(mt.group(1))
                 if e is not None:
@@ -1144,7 +1144,12 @@ def rewrite_file(src, dst, bmap: mapformat.BulgeMap, settings: Settings,
     def plain(data, source):                  # run with open_checked's checks, on the bytes
         nonlocal byte_path
         byte_path = byte_path and _plain_lines(data)
-    _, lines = open_checked(src, checks=(check_not_processed, plain))     # streamed, not held
+    kept = movescan.kept(src)                 # build's one scan: checked, and its lines known
+    if kept is not None:
+        byte_path = byte_path and kept.plain_lines
+        lines = kept.text_lines()
+    else:
+        _, lines = open_checked(src, checks=(check_not_processed, plain))     # streamed, not held
     tmp = f"{os.fspath(dst)}.part"
     try:
         done = False
@@ -1152,8 +1157,8 @@ def rewrite_file(src, dst, bmap: mapformat.BulgeMap, settings: Settings,
             def fast(chunks):
                 r = RewriteResult()
                 with open(tmp, "wb") as f, open(src, "rb") as g:
-                    _rewrite_records(g, f, chunks, bmap, settings, str(src), r, stops,
-                                     scan_m92(src) if stops.stop == STOP_MOVE else None)
+                    m92 = None if stops.stop != STOP_MOVE else kept.m92 if kept else scan_m92(src)
+                    _rewrite_records(g, f, chunks, bmap, settings, str(src), r, stops, m92)
                 return r
             try:
                 res = movescan.run(src, fast, fast=True)
