@@ -195,6 +195,19 @@ static int parse_words(Scanner *s, const char *p, const char *end, Words *w) {
             frac = (int)(q - f0);
         }
         if (q != p || (lead == 0 && frac == 0)) return unsupported(s);
+        if (lead + frac <= 15) {
+            /* Up to 15 digits: the digits as an integer (< 2^53, exact) over a power of ten
+             * (<= 1e15, exact): one correctly rounded division, strtod's result (Clinger). */
+            static const double p10[16] = {1e0, 1e1, 1e2, 1e3, 1e4, 1e5, 1e6, 1e7, 1e8,
+                                           1e9, 1e10, 1e11, 1e12, 1e13, 1e14, 1e15};
+            uint64_t m = 0;
+            for (const char *c = d0; c < p; c++)
+                if (*c != '.') m = m * 10 + (uint64_t)(*c - '0');
+            double val = (double)m / p10[frac];
+            w->v[ch - 'A'] = (*v == '-') ? -val : val;
+            w->have |= 1u << (ch - 'A');
+            continue;
+        }
         char buf[64];
         if (p - v >= (Py_ssize_t)sizeof buf) return unsupported(s);
         memcpy(buf, v, (size_t)(p - v));

@@ -166,7 +166,6 @@ class Scan:
 
     def __init__(self, path, source: str | None = None):
         from . import fallback
-        import codecs
         import os
         import tempfile
 
@@ -184,7 +183,6 @@ class Scan:
                                gcode.ARC_CHORD_MM)
             self.roles = sc.roles
         n_cr = n_crlf = nl = 0
-        utf8 = codecs.getincrementaldecoder("utf-8")()
         plain = True
         last = b""
         with open(self.path, "rb") as f:
@@ -221,12 +219,12 @@ class Scan:
                 gcode._refuse_processed(part, self.source, nl, at)
                 n_cr += part.count(b"\r")
                 n_crlf += part.count(b"\r\n") + (last[-1:] == b"\r" and part[:1] == b"\n")
-                if plain:
-                    try:
-                        utf8.decode(part, final=final)
+                if plain and not part.isascii():
+                    try:                               # parts end at line ends: no character cut
+                        part.decode("utf-8")
                     except UnicodeDecodeError:
                         plain = False
-                if b"92" in part:
+                if gcode.might_hold(part, (b"M92", b"m92")):
                     for mt in fallback._M92_RX.finditer(part, at):
                         e = fallback._m92_e(mt.group(1))
                         if e is not None:
