@@ -136,6 +136,7 @@ class _Parser:
         self.pos = [0.0, 0.0, 0.0, 0.0]
         self.rel = [False, False, False, False]
         self.f = 1500.0 / 60                    # Marlin's power-on feedrate, mm/s
+        self.F = 1500.0                         # the same as written (mm/min): the scanner's
         self.pct = 100.0
         self.feature, self.features, self.fidx = "", [""], {"": 0}
         self.layer = -1
@@ -299,6 +300,7 @@ class _Parser:
     def move(self, n, w, f_override=None):
         if w.get("F"):
             self.f = w["F"] / 60
+            self.F = w["F"]
         target = list(self.pos)
         for i, a in enumerate(AXES):
             v = w.get(a)
@@ -392,6 +394,7 @@ class _Parser:
             "n_e": np.zeros(k), "spm_e": full(spm["E"])})
         self.brk = False
         self.f = float(mb.f[-1]) / 60
+        self.F = float(mb.f[-1])
         e_end = float(np.cumsum(np.concatenate([[self.pos[3]], de]))[-1])     # summed as the text's moves
         self.pos = [float(mb.x[-1]), float(mb.y[-1]), self.pos[2], e_end]
         self.e_at = _lround(self.pos[3] * spm["E"])
@@ -402,6 +405,7 @@ class _Parser:
         x0, y0 = self.pos[0], self.pos[1]
         if w.get("F"):
             self.f = w["F"] / 60
+            self.F = w["F"]
         x1 = (x0 + w["X"] if self.rel[0] else w["X"]) if w.get("X") is not None else x0
         y1 = (y0 + w["Y"] if self.rel[1] else w["Y"]) if w.get("Y") is not None else y0
         z1 = (self.pos[2] + w["Z"] if self.rel[2] else w["Z"]) if w.get("Z") is not None else self.pos[2]
@@ -682,7 +686,10 @@ def estimate_lines(lines, machine: Machine | None = None, source: str = "<gcode>
             count += 1
             p.line(count, raw)
     p.flush()
-    b = _plan_parts(p, m, source)
+    return _result(p, _plan_parts(p, m, source), count)
+
+
+def _result(p: _Parser, b: np.ndarray, count: int) -> Result:
     t = b["t_accel"] + b["t_cruise"] + b["t_decel"]
     feats = p.features
     by = {}
@@ -717,13 +724,228 @@ def _slow_e_only(b, e_alone, steps_e, spm_e) -> None:
     b["t_cruise"][k] = 1 / MINIMAL_STEP_RATE + (n[slow] - 1) / rate[slow]
 
 
-def estimate_file(path, machine: Machine | None = None) -> Result:
+def estimate_file(path, machine: Machine | None = None, scanned: bool | None = None) -> Result:
+    """The file's estimate: from the compiled scanner's move records (movescan, events mode)
+    when it is built, else (or scanned=False) from its lines; both give the same blocks
+    (host/tests/test_estimate_scan.py)."""
+    from . import movescan
     path = os.fspath(path)
     try:
+        if scanned is None:
+            scanned = movescan.available()
+        if scanned:
+            try:
+                return _estimate_scanned(path, machine or Machine(), path)
+            except movescan.Unsupported:
+                pass                                   # a line only the text parser takes
         with open(path, encoding="utf-8", errors="replace") as f:
             return estimate_lines(f, machine, source=path)
     except OSError as e:
         raise EstimateError(f"{path}: {e.strerror or e}") from None
+
+
+# Lines the estimator reads itself (the scanner's events) that leave the position alone: the moves
+# on either side of them are taken as arrays with the state these set.
+_SOFT = frozenset(("G90", "G91", "M82", "M83", "G4", "M400", "M109", "M190", "M116", "M0", "M1",
+                   "M201", "M203", "M204", "M205", "M220"))
+
+
+def _command(raw: str) -> str | None:
+    """The command of a line as _Parser.line reads it (None: a comment or blank)."""
+    toks = raw.partition(";")[0].split()
+    if not toks:
+        return None
+    if toks[0][0] in "Nn" and len(toks) > 1:
+        toks = toks[1:]
+    return toks[0].upper()
+
+
+def _estimate_scanned(path: str, m: Machine, source: str) -> Result:
+    """estimate_lines on the file, its plain moves taken from the scanner's records as arrays
+    (what _Parser.move and emit would compute, operation for operation) and every other line
+    (the scanner's events: comments with TYPE:/LAYER, other commands, odd moves) given to
+    _Parser.line in order. A move whose start is not where the parser stands (after a G28, a bare
+    G92 ...: the scanner does not follow those) is read from its text too."""
+    from . import movescan
+    p = _Parser(m, source)
+    if movescan._scan is None:
+        raise movescan.Unsupported("bulgekit._scan is not built")
+    sc = movescan._scan.Scanner((), (), movescan._classify, 1.0, events=True)
+    carry = None                                        # (record, its line's text): a chunk's last move
+    base, buf = 0, b""
+
+    def text_at(off: int) -> str:
+        i = off - base
+        ends = [k for k in (buf.find(b"\n", i), buf.find(b"\r", i)) if k >= 0]
+        return buf[i:min(ends, default=len(buf))].decode("utf-8", "replace")
+
+    try:
+        with open(path, "rb") as f:
+            while True:
+                data = f.read(movescan.CHUNK_BYTES)
+                final = not data
+                buf = buf + data if buf else data
+                recs, used = sc.feed(buf, final, base)
+                a = np.frombuffer(recs, dtype=movescan.RECORD)
+                texts = {}
+                if carry is not None:
+                    a = np.concatenate([carry[0], a])
+                    texts[int(carry[0]["line_no"][0])] = carry[1]
+                    carry = None
+                if not final and len(a) and not a["flags"][-1] & _EVENT:
+                    # its end E is the next record's start: it waits for the next chunk
+                    carry = (a[-1:].copy(), text_at(int(a["offset"][-1])))
+                    a = a[:-1]
+                _take(p, a, lambda r: texts.get(int(r["line_no"])) or text_at(int(r["offset"])))
+                progress_tick(sc.lines)
+                base += used
+                buf = buf[used:]
+                if final:
+                    break
+    except movescan._scan.ScanUnsupported:
+        raise movescan.Unsupported("the scanner refused a line") from None
+    p.flush()
+    return _result(p, _plan_parts(p, m, source), sc.lines)
+
+
+_EVENT = 16                                             # the scanner's flag for an event record
+_ABS_XYZ, _ABS_E = 4, 8                                 # movescan.ABS_XYZ, ABS_E
+
+
+def progress_tick(n: int) -> None:
+    from . import progress
+    progress.tick(n)
+
+
+def _take(p: _Parser, a: np.ndarray, text) -> None:
+    """One chunk of records (see _estimate_scanned). Moves are gathered in ranges while only
+    lines that leave the position alone come between them (_SOFT, comments), each range with the
+    parser's state at its start, and taken as arrays when another line comes (or the chunk ends)."""
+    n = len(a)
+    if not n:
+        return
+    ev = np.flatnonzero(a["flags"] & _EVENT)
+    # a move's end E is the next record's start E (an event's record holds the state before it)
+    e_next = np.append(a["e_start"][1:], a["e_start"][-1] + a["e"][-1])
+    ranges = []
+    i = k = 0
+    while i < n:
+        while k < len(ev) and ev[k] < i:
+            k += 1
+        j = int(ev[k]) if k < len(ev) else n
+        if j > i:                                       # moves i .. j-1
+            if not ranges and not _in_step(p, a[i]):
+                p.line(int(a[i]["line_no"]), text(a[i]))     # from its text until in step again
+                i += 1
+                continue
+            ranges.append((i, j, _state(p)))
+            p.brk = False                               # taken by the range's first block (or carried)
+            i = j
+            continue
+        raw = text(a[j])
+        cmd = _command(raw)
+        if ranges and cmd is not None and cmd not in _SOFT:
+            _vector_moves(p, a, e_next, ranges)
+            ranges = []
+        p.line(int(a[j]["line_no"]), raw)
+        i = j + 1
+    if ranges:
+        _vector_moves(p, a, e_next, ranges)
+
+
+def _in_step(p: _Parser, r) -> bool:
+    """Whether the parser stands where the record starts, in its modes, at its feed rate."""
+    fl = int(r["flags"])
+    return (not p.width and p.pos[0] == r["x0"] and p.pos[1] == r["y0"] and p.pos[2] == r["z0"]
+            and p.pos[3] == r["e_start"] and p.F == r["f"] and p.rel[0] == (not fl & _ABS_XYZ)
+            and p.rel[1] == p.rel[2] == p.rel[0] and p.rel[3] == (not fl & _ABS_E))
+
+
+def _lround_array(v: np.ndarray) -> np.ndarray:
+    return np.where(v >= 0, np.floor(v + 0.5), -np.floor(-v + 0.5)).astype(np.int64)
+
+
+def _vector_moves(p: _Parser, a: np.ndarray, e_next: np.ndarray, ranges) -> None:
+    """_Parser.move + emit for the moves of `ranges`, as arrays (see _take)."""
+    m = p.m
+    counts = [e - s for s, e, _ in ranges]
+    idx = np.concatenate([np.arange(s, e) for s, e, _ in ranges])
+    k = len(idx)
+    r = a[idx]
+    states = [st for _, _, st in ranges]
+    col = lambda c: np.repeat(np.array([st[c] for st in states]), counts, axis=0)
+    starts = np.cumsum([0] + counts[:-1])
+    brk_in = np.zeros(k, bool)
+    brk_in[starts] = [st[10] for st in states]
+    sx, sy, sz, se = (p.spm[ax] for ax in AXES)
+    D = np.column_stack([r["x1"] - r["x0"], r["y1"] - r["y0"], r["z1"] - r["z0"], r["e"]])
+    ea = e_next[idx]
+    e_to = _lround_array(ea * se)
+    e_prev = np.concatenate([[p.e_at], e_to[:-1]])
+    xyz = np.sqrt(D[:, 0] * D[:, 0] + D[:, 1] * D[:, 1] + D[:, 2] * D[:, 2])
+    st_e = np.where(xyz == 0, np.abs(e_to - e_prev), np.abs(D[:, 3]) * se)
+    mx = np.maximum(np.maximum(np.abs(D[:, 0]) * sx, np.abs(D[:, 1]) * sy), np.maximum(np.abs(D[:, 2]) * sz, st_e))
+    ne = np.where(xyz == 0, st_e, 0.0)
+    emitted = np.ones(k, bool)
+    # dropped moves (too few steps, Marlin's rule) and the ones after them: one at a time
+    todo = list(np.flatnonzero((mx < m.min_segment_steps) | (mx == 0)))
+    if any(p.pending) and (not todo or todo[0] != 0):
+        todo.insert(0, 0)
+    nxt, last_pend = 0, [0.0, 0.0, 0.0, 0.0]
+    for j in todo:
+        if j < nxt:
+            continue
+        pend, e_at = (list(p.pending), p.e_at) if j == 0 else ([0.0, 0.0, 0.0, 0.0], int(e_to[j - 1]))
+        while j < k:
+            d = [float(D[j, c]) + pend[c] for c in range(4)]
+            steps = [abs(d[0]) * sx, abs(d[1]) * sy, abs(d[2]) * sz, abs(d[3]) * se]
+            xj = math.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
+            et = int(e_to[j])
+            if xj == 0:
+                steps[3] = abs(et - e_at)
+            j += 1
+            if max(steps) < m.min_segment_steps or max(steps) == 0:
+                emitted[j - 1] = False
+                pend = d
+                continue
+            D[j - 1] = d
+            ne[j - 1] = steps[3] if xj == 0 else 0
+            e_at, pend = et, [0.0, 0.0, 0.0, 0.0]
+            break
+        nxt = j
+        last_pend = pend if j == k else [0.0, 0.0, 0.0, 0.0]
+    p.pending = last_pend if nxt == k else [0.0, 0.0, 0.0, 0.0]
+    E = np.flatnonzero(emitted)
+    cs = np.cumsum(brk_in)
+    if len(E):
+        before = np.concatenate([[0], cs[E[:-1]]])
+        brk = (cs[E] - before) > 0
+        p.brk = p.brk or bool(cs[-1] - cs[E[-1]] > 0)
+        p.e_at = int(e_to[E[-1]])
+        DE = D[E]
+        xyzE = np.sqrt(DE[:, 0] * DE[:, 0] + DE[:, 1] * DE[:, 1] + DE[:, 2] * DE[:, 2])
+        sel = lambda c: col(c)[E]
+        acc = np.where(xyzE > 0, np.where(DE[:, 3] != 0, sel(3), sel(4)), sel(5))
+        p.flush()
+        p.parts.append({
+            "line": r["line_no"][E].astype(np.int64), "feature": sel(0), "layer": sel(1),
+            "dx": DE[:, 0], "dy": DE[:, 1], "dz": DE[:, 2], "de": DE[:, 3],
+            "v": r["f"][E] / 60 * sel(2) / 100, "accel": acc.astype(float), "brk": brk,
+            "jd": sel(6).astype(float), "jerk": None if p.jerk is None else sel(7).astype(float),
+            "amax": sel(8).astype(float), "vmax": sel(9).astype(float),
+            "n_e": ne[E].astype(float), "spm_e": np.full(len(E), float(se))})
+    else:
+        p.brk = p.brk or bool(cs[-1] > 0)
+    last = r[-1]
+    p.pos = [float(last["x1"]), float(last["y1"]), float(last["z1"]), float(ea[-1])]
+    p.F = float(last["f"])
+    p.f = p.F / 60
+
+
+def _state(p: _Parser) -> tuple:
+    return (p.fidx[p.feature], p.layer, p.pct, p.accel, p.travel_accel, p.retract_accel, p.jd,
+            None if p.jerk is None else tuple(p.jerk[a] for a in AXES),
+            tuple(p.max_accel[a] for a in AXES), tuple(p.max_fr[a] for a in AXES), p.brk)
 
 
 def block_times(res: Result) -> np.ndarray:
