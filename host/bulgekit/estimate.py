@@ -54,6 +54,7 @@ from __future__ import annotations
 
 import math
 import os
+import re
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -156,6 +157,8 @@ class _Parser:
         self.dwell_by_feature: dict[str, float] = {}
         self.spm = dict(m.steps_per_mm)         # M92 in the file changes it
         self.e_at = 0                           # the planner's E position, whole steps
+        self.g92_at = None                      # _take: e_at as a G92 between two ranges set it
+        self.g92_lines = []                     # _take: G92s after the last range gathered
 
     def err(self, n, msg):
         raise EstimateError(f"{self.src}:{n}: {msg}")
@@ -744,10 +747,13 @@ def estimate_file(path, machine: Machine | None = None, scanned: bool | None = N
         raise EstimateError(f"{path}: {e.strerror or e}") from None
 
 
-# Lines the estimator reads itself (the scanner's events) that leave the position alone: the moves
-# on either side of them are taken as arrays with the state these set.
-_SOFT = frozenset(("G90", "G91", "M82", "M83", "G4", "M400", "M109", "M190", "M116", "M0", "M1",
-                   "M201", "M203", "M204", "M205", "M220"))
+# Lines the estimator reads itself (the scanner's events) that move the head or set its position
+# as the scanner may not (G28, a bare G92, arcs ...): the moves gathered before them are taken
+# first. Every other event (comments, feed and acceleration settings, dwells, G90/M83 ...)
+# leaves the position alone, and the moves on either side of it are taken together, each with
+# the state it set; so does a G92 of numbers, which the scanner sets alike.
+_HARD = frozenset(("G0", "G1", "G00", "G01", "G2", "G3", "G02", "G03", "G92", "G28", "M92", "M723"))
+_G92_WORD = re.compile(r"[XYZEF][-+]?(?:\d+\.?\d*|\.\d+)$")
 
 
 def _command(raw: str) -> str | None:
@@ -776,8 +782,10 @@ def _estimate_scanned(path: str, m: Machine, source: str) -> Result:
 
     def text_at(off: int) -> str:
         i = off - base
-        ends = [k for k in (buf.find(b"\n", i), buf.find(b"\r", i)) if k >= 0]
-        return buf[i:min(ends, default=len(buf))].decode("utf-8", "replace")
+        j = buf.find(b"\n", i)
+        j = len(buf) if j < 0 else j
+        r = buf.find(b"\r", i, j)
+        return buf[i:j if r < 0 else r].decode("utf-8", "replace")
 
     try:
         with open(path, "rb") as f:
@@ -838,19 +846,40 @@ def _take(p: _Parser, a: np.ndarray, text) -> None:
                 p.line(int(a[i]["line_no"]), text(a[i]))     # from its text until in step again
                 i += 1
                 continue
-            ranges.append((i, j, _state(p)))
+            # the E steps a range starts from: the first one's are the parser's now (a G92
+            # gathered later sets p.e_at), a later one's are its last block's unless a G92 set them
+            at = p.e_at if not ranges and p.g92_at is None else p.g92_at
+            ranges.append((i, j, _state(p), at))
+            p.g92_at = None
+            p.g92_lines = []
             p.brk = False                               # taken by the range's first block (or carried)
             i = j
             continue
         raw = text(a[j])
         cmd = _command(raw)
-        if ranges and cmd is not None and cmd not in _SOFT:
+        if ranges and cmd in _HARD:
+            if cmd == "G92" and _plain_g92(raw):
+                p.line(int(a[j]["line_no"]), raw)
+                p.g92_at = p.e_at                       # the E steps the next range starts from
+                p.g92_lines.append((int(a[j]["line_no"]), raw))   # again once the moves are taken
+                i = j + 1
+                continue
             _vector_moves(p, a, e_next, ranges)
             ranges = []
         p.line(int(a[j]["line_no"]), raw)
         i = j + 1
     if ranges:
         _vector_moves(p, a, e_next, ranges)
+
+
+def _plain_g92(raw: str) -> bool:
+    """A G92 that sets E, and only axes given as numbers (as the scanner sets them)."""
+    toks = raw.partition(";")[0].split()
+    if toks and toks[0][0] in "Nn" and len(toks) > 1:
+        toks = toks[1:]
+    words = [t.upper() for t in toks[1:]]
+    return (any(w[0] == "E" for w in words) and all(_G92_WORD.match(w) and w[0] != "F" for w in words)
+            and "*" not in raw and "(" not in raw)
 
 
 def _in_step(p: _Parser, r) -> bool:
@@ -868,20 +897,27 @@ def _lround_array(v: np.ndarray) -> np.ndarray:
 def _vector_moves(p: _Parser, a: np.ndarray, e_next: np.ndarray, ranges) -> None:
     """_Parser.move + emit for the moves of `ranges`, as arrays (see _take)."""
     m = p.m
-    counts = [e - s for s, e, _ in ranges]
-    idx = np.concatenate([np.arange(s, e) for s, e, _ in ranges])
+    counts = [e - s for s, e, _, _ in ranges]
+    idx = np.concatenate([np.arange(s, e) for s, e, _, _ in ranges])
     k = len(idx)
     r = a[idx]
-    states = [st for _, _, st in ranges]
-    col = lambda c: np.repeat(np.array([st[c] for st in states]), counts, axis=0)
+    states = [st for _, _, st, _ in ranges]
+    # the states as one matrix, a row per range: feature, layer, M220, accel x3, jd, jerk x4,
+    # M201 x4, M203 x4, brk
+    S = np.array([st[:7] + (st[7] or (0.0,) * 4) + st[8] + st[9] + (st[10],) for st in states], float)
     starts = np.cumsum([0] + counts[:-1])
     brk_in = np.zeros(k, bool)
-    brk_in[starts] = [st[10] for st in states]
+    brk_in[starts] = S[:, 19] != 0
     sx, sy, sz, se = (p.spm[ax] for ax in AXES)
     D = np.column_stack([r["x1"] - r["x0"], r["y1"] - r["y0"], r["z1"] - r["z0"], r["e"]])
     ea = e_next[idx]
     e_to = _lround_array(ea * se)
     e_prev = np.concatenate([[p.e_at], e_to[:-1]])
+    reset = np.zeros(k, bool)                      # a G92 before it set the E steps
+    for q, (_, _, _, g92) in enumerate(ranges):
+        if g92 is not None:
+            e_prev[starts[q]] = g92
+            reset[starts[q]] = True
     xyz = np.sqrt(D[:, 0] * D[:, 0] + D[:, 1] * D[:, 1] + D[:, 2] * D[:, 2])
     st_e = np.where(xyz == 0, np.abs(e_to - e_prev), np.abs(D[:, 3]) * se)
     mx = np.maximum(np.maximum(np.abs(D[:, 0]) * sx, np.abs(D[:, 1]) * sy), np.maximum(np.abs(D[:, 2]) * sz, st_e))
@@ -895,8 +931,10 @@ def _vector_moves(p: _Parser, a: np.ndarray, e_next: np.ndarray, ranges) -> None
     for j in todo:
         if j < nxt:
             continue
-        pend, e_at = (list(p.pending), p.e_at) if j == 0 else ([0.0, 0.0, 0.0, 0.0], int(e_to[j - 1]))
+        pend, e_at = (list(p.pending) if j == 0 else [0.0, 0.0, 0.0, 0.0]), int(e_prev[j])
         while j < k:
+            if reset[j]:
+                e_at = int(e_prev[j])
             d = [float(D[j, c]) + pend[c] for c in range(4)]
             steps = [abs(d[0]) * sx, abs(d[1]) * sy, abs(d[2]) * sz, abs(d[3]) * se]
             xj = math.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
@@ -924,15 +962,16 @@ def _vector_moves(p: _Parser, a: np.ndarray, e_next: np.ndarray, ranges) -> None
         p.e_at = int(e_to[E[-1]])
         DE = D[E]
         xyzE = np.sqrt(DE[:, 0] * DE[:, 0] + DE[:, 1] * DE[:, 1] + DE[:, 2] * DE[:, 2])
-        sel = lambda c: col(c)[E]
-        acc = np.where(xyzE > 0, np.where(DE[:, 3] != 0, sel(3), sel(4)), sel(5))
+        X = np.repeat(np.arange(len(states)), counts)[E]   # each emitted block's range
+        SE = S[X]
+        acc = np.where(xyzE > 0, np.where(DE[:, 3] != 0, SE[:, 3], SE[:, 4]), SE[:, 5])
         p.flush()
         p.parts.append({
-            "line": r["line_no"][E].astype(np.int64), "feature": sel(0), "layer": sel(1),
-            "dx": DE[:, 0], "dy": DE[:, 1], "dz": DE[:, 2], "de": DE[:, 3],
-            "v": r["f"][E] / 60 * sel(2) / 100, "accel": acc.astype(float), "brk": brk,
-            "jd": sel(6).astype(float), "jerk": None if p.jerk is None else sel(7).astype(float),
-            "amax": sel(8).astype(float), "vmax": sel(9).astype(float),
+            "line": r["line_no"][E].astype(np.int64), "feature": SE[:, 0].astype(np.int64),
+            "layer": SE[:, 1].astype(np.int64), "dx": DE[:, 0], "dy": DE[:, 1], "dz": DE[:, 2],
+            "de": DE[:, 3], "v": r["f"][E] / 60 * SE[:, 2] / 100, "accel": acc, "brk": brk,
+            "jd": SE[:, 6], "jerk": None if p.jerk is None else SE[:, 7:11],
+            "amax": SE[:, 11:15], "vmax": SE[:, 15:19],
             "n_e": ne[E].astype(float), "spm_e": np.full(len(E), float(se))})
     else:
         p.brk = p.brk or bool(cs[-1] > 0)
@@ -940,6 +979,9 @@ def _vector_moves(p: _Parser, a: np.ndarray, e_next: np.ndarray, ranges) -> None
     p.pos = [float(last["x1"]), float(last["y1"]), float(last["z1"]), float(ea[-1])]
     p.F = float(last["f"])
     p.f = p.F / 60
+    for n, raw in p.g92_lines:                    # G92s after the last range: on the position now
+        p.line(n, raw)
+    p.g92_lines, p.g92_at = [], None
 
 
 def _state(p: _Parser) -> tuple:
