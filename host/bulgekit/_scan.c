@@ -539,6 +539,11 @@ static PyObject *Scanner_lines(Scanner *s, void *c) {
     return PyLong_FromLong(s->line_no);
 }
 
+static PyObject *Scanner_e(Scanner *s, void *c) {
+    (void)c;
+    return PyFloat_FromDouble(s->e);
+}
+
 static PyMethodDef Scanner_methods[] = {
     {"feed", (PyCFunction)Scanner_feed, METH_VARARGS,
      "feed(data, final=False, base=0) -> (records, used): move records of data's complete lines"},
@@ -547,6 +552,7 @@ static PyMethodDef Scanner_methods[] = {
 static PyGetSetDef Scanner_getset[] = {
     {"roles", (getter)Scanner_roles, NULL, "role names by index (lower case)", NULL},
     {"lines", (getter)Scanner_lines, NULL, "lines scanned so far", NULL},
+    {"e", (getter)Scanner_e, NULL, "E position after the lines scanned so far", NULL},
     {NULL, NULL, NULL, NULL, NULL}};
 
 static PyTypeObject ScannerType = {

@@ -800,11 +800,13 @@ def _estimate_scanned(path: str, m: Machine, source: str) -> Result:
                     a = np.concatenate([carry[0], a])
                     texts[int(carry[0]["line_no"][0])] = carry[1]
                     carry = None
-                if not final and len(a) and not a["flags"][-1] & _EVENT:
-                    # its end E is the next record's start: it waits for the next chunk
+                e_last = sc.e                           # the E the chunk ends at: the next record's start
+                if not final and len(a):
+                    # the chunk's last record waits for the next chunk, where its end E is
                     carry = (a[-1:].copy(), text_at(int(a["offset"][-1])))
+                    e_last = float(a["e_start"][-1])
                     a = a[:-1]
-                _take(p, a, lambda r: texts.get(int(r["line_no"])) or text_at(int(r["offset"])))
+                _take(p, a, lambda r: texts.get(int(r["line_no"])) or text_at(int(r["offset"])), e_last)
                 progress_tick(sc.lines)
                 base += used
                 buf = buf[used:]
@@ -825,7 +827,7 @@ def progress_tick(n: int) -> None:
     progress.tick(n)
 
 
-def _take(p: _Parser, a: np.ndarray, text) -> None:
+def _take(p: _Parser, a: np.ndarray, text, e_last: float) -> None:
     """One chunk of records (see _estimate_scanned). Moves are gathered in ranges while only
     lines that leave the position alone come between them (_SOFT, comments), each range with the
     parser's state at its start, and taken as arrays when another line comes (or the chunk ends)."""
@@ -834,7 +836,7 @@ def _take(p: _Parser, a: np.ndarray, text) -> None:
         return
     ev = np.flatnonzero(a["flags"] & _EVENT)
     # a move's end E is the next record's start E (an event's record holds the state before it)
-    e_next = np.append(a["e_start"][1:], a["e_start"][-1] + a["e"][-1])
+    e_next = np.append(a["e_start"][1:], e_last)
     ranges = []
     i = k = 0
     while i < n:
