@@ -53,6 +53,7 @@ typedef struct {
     double chord;
     int events;        /* estimate.py's mode: see event_line() */
     int quiet;         /* the line is an event: its moves change the state, no records */
+    long flagged;      /* lines that may be gcode.check_not_processed's or an M92 (see flag()) */
     /* output */
     Record *out;
     Py_ssize_t n, cap;
@@ -391,13 +392,34 @@ static int do_line(Scanner *s, const char *p, const char *end) {
     return rc;
 }
 
+/* Counts the lines the regexes of gcode.check_not_processed and fallback.scan_m92 may match, so
+ * that Python runs them only on parts of a file that hold one: comments starting "; bulgekit",
+ * commands M[0...]72x / M[0...]92 (after any line number), and lines with bytes >= 0x80. A
+ * superset: the regexes decide. */
+static void flag(Scanner *s, const char *p, const char *end) {
+    if (*p == ';') {
+        if (end - p >= 10 && memcmp(p, "; bulgekit", 10) == 0) s->flagged++;
+        return;
+    }
+    if (*p == 'N' || *p == 'n') {
+        while (p < end && !is_ws((unsigned char)*p)) p++;
+        while (p < end && is_ws((unsigned char)*p)) p++;
+    }
+    if (p < end && (*p == 'M' || *p == 'm')) {
+        p++;
+        while (p < end && *p == '0') p++;
+        if (end - p >= 2 && (p[0] == '7' || p[0] == '9') && p[1] == '2') s->flagged++;
+    }
+}
+
 static int do_line_state(Scanner *s, const char *p, const char *end) {
     const char *line = p;
     for (const char *q = p; q < end; q++)
-        if ((unsigned char)*q >= 0x80) return foreign_line(s, p, end);
+        if ((unsigned char)*q >= 0x80) { s->flagged++; return foreign_line(s, p, end); }
     while (p < end && is_ws((unsigned char)*p)) p++;
     while (end > p && is_ws((unsigned char)end[-1])) end--;
     if (p == end) return 0;
+    flag(s, p, end);
     if (*p == ';') return comment_role(s, p + 1, end);
     for (const char *q = p; q < end; q++)
         if (*q == ';' || *q == '*' || *q == '(') { end = q; break; }
@@ -498,6 +520,7 @@ static int Scanner_init(Scanner *s, PyObject *args, PyObject *kw) {
         return -1;
     s->events = events;
     s->quiet = 0;
+    s->flagged = 0;
     s->x = s->y = s->z = s->e = 0.0;
     s->f = 1500.0;
     s->abs_xyz = s->abs_e = 1;
@@ -539,6 +562,11 @@ static PyObject *Scanner_lines(Scanner *s, void *c) {
     return PyLong_FromLong(s->line_no);
 }
 
+static PyObject *Scanner_flagged(Scanner *s, void *c) {
+    (void)c;
+    return PyLong_FromLong(s->flagged);
+}
+
 static PyObject *Scanner_e(Scanner *s, void *c) {
     (void)c;
     return PyFloat_FromDouble(s->e);
@@ -553,6 +581,7 @@ static PyGetSetDef Scanner_getset[] = {
     {"roles", (getter)Scanner_roles, NULL, "role names by index (lower case)", NULL},
     {"lines", (getter)Scanner_lines, NULL, "lines scanned so far", NULL},
     {"e", (getter)Scanner_e, NULL, "E position after the lines scanned so far", NULL},
+    {"flagged", (getter)Scanner_flagged, NULL, "lines so far that may be bulgekit's or an M92", NULL},
     {NULL, NULL, NULL, NULL, NULL}};
 
 static PyTypeObject ScannerType = {

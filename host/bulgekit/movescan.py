@@ -200,9 +200,12 @@ class Scan:
                     head += data[:ENDS - len(head)]
                 buf = buf + data if buf else data
                 used = len(buf)
+                look = True                            # whether the part may hold what the regexes find
                 if sc is not None:
+                    flagged = sc.flagged
                     try:
                         recs, used = sc.feed(buf, final, base)
+                        look = sc.flagged != flagged
                     except _scan.ScanUnsupported:
                         sc, self.fast = None, False        # the Python parser does it below
                     else:
@@ -216,7 +219,8 @@ class Scan:
                 # the checks, on whole lines (a \r\n cut between two parts counted once)
                 # (a part after a lone \r does not start a line for the regexes' ^, as in one piece)
                 at = 0 if not last or last == b"\n" else 1
-                gcode._refuse_processed(part, self.source, nl, at)
+                if look:
+                    gcode._refuse_processed(part, self.source, nl, at)
                 n_cr += part.count(b"\r")
                 n_crlf += part.count(b"\r\n") + (last[-1:] == b"\r" and part[:1] == b"\n")
                 if plain and not part.isascii():
@@ -224,7 +228,7 @@ class Scan:
                         part.decode("utf-8")
                     except UnicodeDecodeError:
                         plain = False
-                if gcode.might_hold(part, (b"M92", b"m92")):
+                if look and gcode.might_hold(part, (b"M92", b"m92")):
                     for mt in fallback._M92_RX.finditer(part, at):
                         e = fallback._m92_e(mt.group(1))
                         if e is not None:

@@ -47,6 +47,7 @@ def test_build_opens_the_file_three_times_and_scans_it_once(tmp_path, monkeypatc
 
             roles = property(lambda self: self._s.roles)
             lines = property(lambda self: self._s.lines)
+            flagged = property(lambda self: self._s.flagged)
 
         class Proxy:
             Scanner = Counting
@@ -94,11 +95,15 @@ def test_scan_keeps_what_the_passes_would_read(name, tmp_path, monkeypatch):
         assert movescan.Scan(src).plain_lines is fallback._plain_lines(mixed) is plain
 
 
-@pytest.mark.parametrize("case", ["processed-late", "cut-off", "empty", "blank", "binary"])
+@pytest.mark.parametrize("case", ["processed-late", "processed-comment", "processed-numbered", "processed-accent",
+                                  "cut-off", "empty", "blank", "binary"])
 def test_scan_refuses_as_the_checks_do(case, tmp_path, monkeypatch):
     monkeypatch.setattr(movescan, "CHUNK_BYTES", 4096)
     body = (DATA / "prusa_cyl.gcode").read_bytes()
     data = {"processed-late": body + b"G1 X1\nM721 X\n",
+            "processed-comment": body + b"; bulgekit: start\nG1 X1\n",
+            "processed-numbered": body + b"N12 M0722 S1\nG1 X1\n",
+            "processed-accent": body + "\tM720 S1 ; é\n".encode(),
             "cut-off": body + b"G1 X119.5 E9",
             "empty": b"", "blank": b"\n  \n",
             "binary": b"G1 X1\n\0\0\n" + body}[case]
