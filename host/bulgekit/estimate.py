@@ -35,6 +35,17 @@ whole file, as slicers' estimators do. Both passes are solved in closed form wit
     forward:  v_i^2 = S_i + min_{k <= i} (b_k - S_k)
 Each block is then a trapezoid (accelerate, cruise, brake).
 
+A program that writes G-code can hand its moves over as numbers (MoveBlock items among the
+lines: `bulgekit litho` does), so they are not parsed again; the blocks are the same. Large files
+are planned a chunk of blocks at a time, each chunk with the braking distance of its fastest
+block on both sides (what decides a block's speeds lies within it): the same speeds in a fraction
+of the memory. `Machine(min_segment_steps=0)` plans every move, as Klipper and RepRapFirmware do.
+
+A file (estimate_file) is read by the compiled scanner when it is built (movescan, its events
+mode): the plain moves come as move records and are taken as arrays, operation for operation as
+the text parser below takes them, and every other line goes to the text parser in order; the
+blocks are the same to the bit (host/tests/test_estimate_scan.py).
+
 A move of E alone (a retraction, or a stop in a stock file, see fallback.py) runs n whole steps
 (n = lround(|dE| x M92 E)) at the block's rate r = ceil(n x speed / |dE|) steps/s. Below Marlin's
 MINIMAL_STEP_RATE (120 steps/s) the stepper starts and ends the block at 120 steps/s: it takes
