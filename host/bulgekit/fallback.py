@@ -141,6 +141,7 @@ class RefPlanner:
         self.stops: list[StopRecord] = []
         self.top_z: float | None = None   # highest z of an extruding XY move
         self._zs = [l.z_cmm for l in bmap.layers] if bmap else []
+        self._sorted = all(a <= b for a, b in zip(self._zs, self._zs[1:]))
         # extruding arc chords the firmware does not plan (bypass()), per end z
         # in 0.01 mm: [(x0, y0, x1, y1, line)]
         self.arcs: dict[int, list[tuple]] = {}
@@ -152,7 +153,11 @@ class RefPlanner:
     def _find(self, zc: int):
         best = None
         best_d = 0
-        for i, z in enumerate(self._zs):
+        # layers are in ascending z (else every one is looked at): the released ones, below the
+        # floor, are skipped by bisection rather than one by one (a file calls this per layer)
+        lo = bisect.bisect_left(self._zs, self.floor) if self._sorted and self.floor is not None else 0
+        for i in range(lo, len(self._zs)):
+            z = self._zs[i]
             if self.floor is not None and z < self.floor:
                 continue  # released
             d = z - zc
@@ -164,6 +169,12 @@ class RefPlanner:
         return best
 
     def _neighbors(self, z: int):
+        if self._sorted:
+            zs = self._zs
+            i = bisect.bisect_left(zs, z)
+            lo = 0 if self.floor is None else bisect.bisect_left(zs, self.floor)
+            j = max(bisect.bisect_right(zs, z), lo)
+            return (zs[i - 1] if i > lo else None), (zs[j] if j < len(zs) else None)
         live = [v for v in self._zs if self.floor is None or v >= self.floor]
         below = max((v for v in live if v < z), default=None)
         above = min((v for v in live if v > z), default=None)
