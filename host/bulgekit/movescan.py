@@ -1,8 +1,11 @@
-"""Moves of a G-code file as numpy record arrays, chunk by chunk, for the passes that need only
-moves (walls, statistics, the stock fallback, annotate's reach check): the compiled scanner (_scan.c) when it is built and takes the file,
-gcode.parse_lines otherwise. Both give the same numbers (host/tests/test_movescan.py).
+"""The G-code reader: moves of a file as numpy record arrays (RECORD, the one definition of the
+move records every pass reads), chunk by chunk: the compiled scanner (_scan.c) when it is built and
+takes the file, gcode.parse_lines otherwise. Both give the same numbers (host/tests/test_movescan.py).
+Walls, statistics, the stock fallback, annotate's reach check and the studio read them here; the
+estimator reads the scanner's records in its events mode (estimate.estimate_file).
 
     run(path, consume)      # consume(chunks) gets an iterator of RECORD arrays and the role names
+    with Scan(path).kept(): # build: the file checked and scanned once, every run() above replays it
 
 consume must start from nothing each time it is called: when the compiled scanner meets a line it
 leaves to the Python parser (a command with non-ASCII bytes, a value or arc gcode.py refuses),
@@ -13,7 +16,10 @@ message naming the file and line.
 """
 from __future__ import annotations
 
+import contextlib
 import io
+import os
+import tempfile
 from typing import Callable, Iterator, TypeVar
 
 import numpy as np
@@ -165,10 +171,6 @@ class Scan:
     """
 
     def __init__(self, path, source: str | None = None):
-        from . import fallback
-        import os
-        import tempfile
-
         self.path = os.fspath(path)
         self.source = source or self.path
         self.fast = _scan is not None          # records from the compiled scanner (with offsets)
@@ -177,6 +179,14 @@ class Scan:
         self.m92: list[tuple[int, float]] = []
         self.lines = 0
         self._store = tempfile.TemporaryFile()
+        try:
+            self._read()
+        except BaseException:
+            self._store.close()
+            raise
+
+    def _read(self) -> None:
+        from . import fallback                 # (it imports this module)
         sc = None
         if self.fast:
             sc = _scan.Scanner(sorted(gcode.OUTER_ROLES), sorted(gcode._S3D_ROLES), _classify,
@@ -294,7 +304,6 @@ class Scan:
 
     def kept(self):
         """Context: while in it, passes over this file use this scan (see the class comment)."""
-        import contextlib
 
         @contextlib.contextmanager
         def ctx():
@@ -316,7 +325,6 @@ _KEPT: dict[str, Scan] = {}
 
 
 def _key(path) -> str:
-    import os
     return os.path.realpath(os.fspath(path))
 
 
