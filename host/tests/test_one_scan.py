@@ -115,3 +115,31 @@ def test_scan_refuses_as_the_checks_do(case, tmp_path, monkeypatch):
     with pytest.raises(gcode.GcodeError) as new:
         movescan.Scan(src)
     assert str(new.value) == str(old.value)
+
+
+def _build_hashes(src, out):
+    import hashlib
+    api.build(src, text_strokes("HI", 6.0, u0=5, v0=3), out, write_fallback=True)
+    return {p.name.split(".", 1)[1]: hashlib.sha256(p.read_bytes()).hexdigest() for p in sorted(out.iterdir())}
+
+
+def test_a_file_the_scanner_leaves_to_python_builds_as_without_the_one_scan(tmp_path, monkeypatch):
+    import contextlib
+    src = (DATA / "prusa_cyl.gcode").read_bytes()
+    i = src.index(b"\nG1 ", len(src) // 2) + 1
+    odd = tmp_path / "odd.gcode"
+    odd.write_bytes(src[:i] + "G1 F1800 (vitesse é)\n".encode() + src[i:])    # non-ASCII command line
+    sc = movescan.Scan(odd)
+    assert not sc.fast                                     # the Python parser's records
+    sc.close()
+    one = _build_hashes(odd, tmp_path / "one")
+    monkeypatch.setattr(movescan.Scan, "kept", lambda self: (self.close(), contextlib.nullcontext())[1])
+    assert _build_hashes(odd, tmp_path / "each") == one    # every pass reading the file itself
+
+
+def test_without_the_compiled_scanner_build_writes_the_same_bytes(tmp_path, monkeypatch):
+    import json
+    ref = json.loads((DATA / "build_outputs.json").read_text())["prusa_cyl-move"]
+    monkeypatch.setattr(movescan, "_scan", None)
+    got = _build_hashes(DATA / "prusa_cyl.gcode", tmp_path / "out")
+    assert got == {k.split(".", 1)[1]: v for k, v in ref.items()}
