@@ -818,7 +818,7 @@ def _estimate_scanned(path: str, m: Machine, source: str) -> Result:
                     e_last = float(a["e_start"][-1])
                     a = a[:-1]
                 _take(p, a, lambda r: texts.get(int(r["line_no"])) or text_at(int(r["offset"])), e_last)
-                progress_tick(sc.lines)
+                _progress_tick(sc.lines)
                 base += used
                 buf = buf[used:]
                 if final:
@@ -833,7 +833,7 @@ _EVENT = 16                                             # the scanner's flag for
 _ABS_XYZ, _ABS_E = 4, 8                                 # movescan.ABS_XYZ, ABS_E
 
 
-def progress_tick(n: int) -> None:
+def _progress_tick(n: int) -> None:
     from . import progress
     progress.tick(n)
 
