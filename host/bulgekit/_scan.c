@@ -51,6 +51,9 @@ typedef struct {
     PyObject *classify;     /* callable(str) -> (has_code: bool, role: str | None) */
     PyObject *hypot;        /* math.hypot */
     double chord;
+    int events;        /* estimate.py's mode: see event_line() */
+    int quiet;         /* the line is an event: its moves change the state, no records */
+    long flagged;      /* lines that may be gcode.check_not_processed's or an M92 (see flag()) */
     /* output */
     Record *out;
     Py_ssize_t n, cap;
@@ -195,6 +198,19 @@ static int parse_words(Scanner *s, const char *p, const char *end, Words *w) {
             frac = (int)(q - f0);
         }
         if (q != p || (lead == 0 && frac == 0)) return unsupported(s);
+        if (lead + frac <= 15) {
+            /* Up to 15 digits: the digits as an integer (< 2^53, exact) over a power of ten
+             * (<= 1e15, exact): one correctly rounded division, strtod's result (Clinger). */
+            static const double p10[16] = {1e0, 1e1, 1e2, 1e3, 1e4, 1e5, 1e6, 1e7, 1e8,
+                                           1e9, 1e10, 1e11, 1e12, 1e13, 1e14, 1e15};
+            uint64_t m = 0;
+            for (const char *c = d0; c < p; c++)
+                if (*c != '.') m = m * 10 + (uint64_t)(*c - '0');
+            double val = (double)m / p10[frac];
+            w->v[ch - 'A'] = (*v == '-') ? -val : val;
+            w->have |= 1u << (ch - 'A');
+            continue;
+        }
         char buf[64];
         if (p - v >= (Py_ssize_t)sizeof buf) return unsupported(s);
         memcpy(buf, v, (size_t)(p - v));
@@ -230,8 +246,60 @@ static int emit(Scanner *s, const char *line, double x, double y, double z, doub
     r.role = (int16_t)s->role;
     r.flags = (uint8_t)((s->outer ? 1 : 0) | (arc ? 2 : 0) | (s->abs_xyz ? 4 : 0) | (s->abs_e ? 8 : 0));
     r.pad = 0;
-    if (push(s, &r) < 0) return -1;
+    if (!s->quiet && push(s, &r) < 0) return -1;
     s->x = x; s->y = y; s->z = z; s->e = e;
+    return 0;
+}
+
+/* Events mode (estimate.py): a line the estimator reads itself gets a record of its own, flags
+ * 16, at its offset and line, holding the state before it (no move: x1.. = x0.., e = 0). Plain
+ * moves keep their records: G0/G1/G00/G01 whose words, split at blanks, are each one letter of
+ * X Y Z E F and a number as gcode._NUM takes it (so float() reads the same), F not 0, no '*' or
+ * '(', and whose comment, if any, is not one the estimator reads (TYPE:, LAYER...). Every other
+ * line with a command, and such comments, are events. */
+static int is_event(Scanner *s, const char *p, const char *end) {
+    const char *semi = memchr(p, ';', (size_t)(end - p));
+    if (semi) {
+        const char *c = semi + 1;
+        while (c < end && is_ws((unsigned char)*c)) c++;
+        if ((end - c >= 5 && memcmp(c, "TYPE:", 5) == 0) || (end - c >= 5 && memcmp(c, "LAYER", 5) == 0))
+            return 1;
+        end = semi;
+    }
+    while (p < end && is_ws((unsigned char)*p)) p++;
+    while (end > p && is_ws((unsigned char)end[-1])) end--;
+    if (p == end) return 0;                          /* blank or a comment the estimator skips */
+    for (const char *q = p; q < end; q++)
+        if (*q == '*' || *q == '(') return 1;
+    const char *h = p;
+    while (p < end && !is_ws((unsigned char)*p)) p++;
+    if (*h == 'N' || *h == 'n') {                    /* a line number: the next word is the command */
+        while (p < end && is_ws((unsigned char)*p)) p++;
+        if (p == end) return 1;
+        h = p;
+        while (p < end && !is_ws((unsigned char)*p)) p++;
+    }
+    Py_ssize_t hl = p - h;
+    if (!((*h == 'G' || *h == 'g') && ((hl == 2 && (h[1] == '0' || h[1] == '1')) ||
+                                       (hl == 3 && h[1] == '0' && (h[2] == '0' || h[2] == '1')))))
+        return 1;
+    while (p < end) {
+        while (p < end && is_ws((unsigned char)*p)) p++;
+        if (p == end) break;
+        char L = *p;
+        if (L >= 'a' && L <= 'z') L = (char)(L - 32);
+        if (L != 'X' && L != 'Y' && L != 'Z' && L != 'E' && L != 'F') return 1;
+        const char *q = ++p;
+        if (q < end && (*q == '-' || *q == '+')) q++;
+        int digits = 0, nonzero = 0, dot = 0;
+        for (; q < end && !is_ws((unsigned char)*q); q++) {
+            if (*q >= '0' && *q <= '9') { digits++; nonzero |= *q != '0'; }
+            else if (*q == '.' && !dot) dot = 1;
+            else return 1;
+        }
+        if (!digits || (L == 'F' && !nonzero)) return 1;
+        p = q;
+    }
     return 0;
 }
 
@@ -295,13 +363,63 @@ static int arc(Scanner *s, const char *line, Words *w, int cw) {
 }
 
 /* One line without its line end (gcode.split_code + parse_lines). */
+static int do_line_state(Scanner *s, const char *p, const char *end);
+
 static int do_line(Scanner *s, const char *p, const char *end) {
+    if (!s->events) return do_line_state(s, p, end);
+    int ascii = 1;
+    for (const char *q = p; q < end; q++)
+        if ((unsigned char)*q >= 0x80) { ascii = 0; break; }
+    if (ascii && !is_event(s, p, end)) return do_line_state(s, p, end);
+    Record r;
+    memset(&r, 0, sizeof r);
+    r.x0 = r.x1 = s->x; r.y0 = r.y1 = s->y; r.z0 = r.z1 = s->z;
+    r.e_start = s->e;
+    r.f = s->f;
+    r.offset = (int64_t)(s->base_offset + (p - s->base));
+    r.line_no = (int32_t)s->line_no;
+    r.role = -1;
+    r.flags = (uint8_t)(16 | (s->abs_xyz ? 4 : 0) | (s->abs_e ? 8 : 0));
+    if (push(s, &r) < 0) return -1;
+    if (!ascii) return 0;                  /* the state is the estimator's to follow */
+    s->quiet = 1;                          /* the line's own state changes, without records */
+    int rc = do_line_state(s, p, end);
+    s->quiet = 0;
+    if (rc < 0 && PyErr_ExceptionMatches(ScanUnsupported)) {
+        PyErr_Clear();                     /* the estimator reads (or refuses) it */
+        rc = 0;
+    }
+    return rc;
+}
+
+/* Counts the lines the regexes of gcode.check_not_processed and fallback.scan_m92 may match, so
+ * that Python runs them only on parts of a file that hold one: comments starting "; bulgekit",
+ * commands M[0...]72x / M[0...]92 (after any line number), and lines with bytes >= 0x80. A
+ * superset: the regexes decide. */
+static void flag(Scanner *s, const char *p, const char *end) {
+    if (*p == ';') {
+        if (end - p >= 10 && memcmp(p, "; bulgekit", 10) == 0) s->flagged++;
+        return;
+    }
+    if (*p == 'N' || *p == 'n') {
+        while (p < end && !is_ws((unsigned char)*p)) p++;
+        while (p < end && is_ws((unsigned char)*p)) p++;
+    }
+    if (p < end && (*p == 'M' || *p == 'm')) {
+        p++;
+        while (p < end && *p == '0') p++;
+        if (end - p >= 2 && (p[0] == '7' || p[0] == '9') && p[1] == '2') s->flagged++;
+    }
+}
+
+static int do_line_state(Scanner *s, const char *p, const char *end) {
     const char *line = p;
     for (const char *q = p; q < end; q++)
-        if ((unsigned char)*q >= 0x80) return foreign_line(s, p, end);
+        if ((unsigned char)*q >= 0x80) { s->flagged++; return foreign_line(s, p, end); }
     while (p < end && is_ws((unsigned char)*p)) p++;
     while (end > p && is_ws((unsigned char)end[-1])) end--;
     if (p == end) return 0;
+    flag(s, p, end);
     if (*p == ';') return comment_role(s, p + 1, end);
     for (const char *q = p; q < end; q++)
         if (*q == ';' || *q == '*' || *q == '(') { end = q; break; }
@@ -393,11 +511,16 @@ static PyObject *Scanner_feed(Scanner *s, PyObject *args) {
 }
 
 static int Scanner_init(Scanner *s, PyObject *args, PyObject *kw) {
-    static char *kwlist[] = {"outer_roles", "s3d_roles", "classify", "chord", NULL};
+    static char *kwlist[] = {"outer_roles", "s3d_roles", "classify", "chord", "events", NULL};
     PyObject *outer, *s3d, *classify;
     double chord = 0.5;
-    if (!PyArg_ParseTupleAndKeywords(args, kw, "OOO|d", kwlist, &outer, &s3d, &classify, &chord))
+    int events = 0;
+    if (!PyArg_ParseTupleAndKeywords(args, kw, "OOO|dp", kwlist, &outer, &s3d, &classify, &chord,
+                                     &events))
         return -1;
+    s->events = events;
+    s->quiet = 0;
+    s->flagged = 0;
     s->x = s->y = s->z = s->e = 0.0;
     s->f = 1500.0;
     s->abs_xyz = s->abs_e = 1;
@@ -439,6 +562,16 @@ static PyObject *Scanner_lines(Scanner *s, void *c) {
     return PyLong_FromLong(s->line_no);
 }
 
+static PyObject *Scanner_flagged(Scanner *s, void *c) {
+    (void)c;
+    return PyLong_FromLong(s->flagged);
+}
+
+static PyObject *Scanner_e(Scanner *s, void *c) {
+    (void)c;
+    return PyFloat_FromDouble(s->e);
+}
+
 static PyMethodDef Scanner_methods[] = {
     {"feed", (PyCFunction)Scanner_feed, METH_VARARGS,
      "feed(data, final=False, base=0) -> (records, used): move records of data's complete lines"},
@@ -447,6 +580,8 @@ static PyMethodDef Scanner_methods[] = {
 static PyGetSetDef Scanner_getset[] = {
     {"roles", (getter)Scanner_roles, NULL, "role names by index (lower case)", NULL},
     {"lines", (getter)Scanner_lines, NULL, "lines scanned so far", NULL},
+    {"e", (getter)Scanner_e, NULL, "E position after the lines scanned so far", NULL},
+    {"flagged", (getter)Scanner_flagged, NULL, "lines so far that may be bulgekit's or an M92", NULL},
     {NULL, NULL, NULL, NULL, NULL}};
 
 static PyTypeObject ScannerType = {

@@ -110,8 +110,15 @@ def build(gcode, strokes: Sequence[Stroke], outdir, *, name: str | None = None,
     """Strokes + sliced G-code -> <name>.bkm, <name>.bulge.gcode, <name>.stats.txt
     (and <name>.stock.gcode with write_fallback) in outdir."""
     gcode = Path(gcode)
-    from .gcode import check_input_file
-    check_input_file(gcode, str(gcode))         # each pass below reads the file itself
+    from . import movescan
+    # checked once and scanned once: every pass below works from this scan's move records
+    with movescan.Scan(gcode, str(gcode)).kept():
+        return _build(gcode, strokes, outdir, name, geometric, spacing, line_width, layer_height,
+                      ref_angle_deg, settings, stream, arena, write_fallback, quantum_um, stops)
+
+
+def _build(gcode: Path, strokes, outdir, name, geometric, spacing, line_width, layer_height,
+           ref_angle_deg, settings, stream, arena, write_fallback, quantum_um, stops) -> BuildOutput:
     outdir = Path(outdir)
     name = name or gcode.stem
     if settings is None:

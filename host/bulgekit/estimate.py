@@ -41,6 +41,11 @@ are planned a chunk of blocks at a time, each chunk with the braking distance of
 block on both sides (what decides a block's speeds lies within it): the same speeds in a fraction
 of the memory. `Machine(min_segment_steps=0)` plans every move, as Klipper and RepRapFirmware do.
 
+A file (estimate_file) is read by the compiled scanner when it is built (movescan, its events
+mode): the plain moves come as move records and are taken as arrays, operation for operation as
+the text parser below takes them, and every other line goes to the text parser in order; the
+blocks are the same to the bit (host/tests/test_estimate_scan.py).
+
 A move of E alone (a retraction, or a stop in a stock file, see fallback.py) runs n whole steps
 (n = lround(|dE| x M92 E)) at the block's rate r = ceil(n x speed / |dE|) steps/s. Below Marlin's
 MINIMAL_STEP_RATE (120 steps/s) the stepper starts and ends the block at 120 steps/s: it takes
@@ -60,6 +65,7 @@ from __future__ import annotations
 
 import math
 import os
+import re
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -142,6 +148,7 @@ class _Parser:
         self.pos = [0.0, 0.0, 0.0, 0.0]
         self.rel = [False, False, False, False]
         self.f = 1500.0 / 60                    # Marlin's power-on feedrate, mm/s
+        self.F = 1500.0                         # the same as written (mm/min): the scanner's
         self.pct = 100.0
         self.feature, self.features, self.fidx = "", [""], {"": 0}
         self.layer = -1
@@ -161,6 +168,8 @@ class _Parser:
         self.dwell_by_feature: dict[str, float] = {}
         self.spm = dict(m.steps_per_mm)         # M92 in the file changes it
         self.e_at = 0                           # the planner's E position, whole steps
+        self.g92_at = None                      # _take: e_at as a G92 between two ranges set it
+        self.g92_lines = []                     # _take: G92s after the last range gathered
 
     def err(self, n, msg):
         raise EstimateError(f"{self.src}:{n}: {msg}")
@@ -305,6 +314,7 @@ class _Parser:
     def move(self, n, w, f_override=None):
         if w.get("F"):
             self.f = w["F"] / 60
+            self.F = w["F"]
         target = list(self.pos)
         for i, a in enumerate(AXES):
             v = w.get(a)
@@ -369,7 +379,7 @@ class _Parser:
         spm = self.spm
         steps = np.maximum(np.maximum(np.abs(dx) * spm["X"], np.abs(dy) * spm["Y"]), np.abs(de) * spm["E"])
         if (self.rel[0] or self.rel[1] or not self.rel[3] or any(self.pending)
-                or np.any(steps < max(m.min_segment_steps, 1e-12))):
+                or np.any(steps < max(m.min_segment_steps, 1e-12)) or np.any(L == 0)):
             for i in range(k):                          # as the text: move by move
                 w = {"X": float(mb.x[i]), "Y": float(mb.y[i]), "F": float(mb.f[i])}
                 if mb.w is not None and mb.w[i] > 0:
@@ -395,11 +405,13 @@ class _Parser:
             "jerk": None if self.jerk is None else np.tile([self.jerk[a] for a in AXES], (k, 1)),
             "amax": np.tile([self.max_accel[a] for a in AXES], (k, 1)),
             "vmax": np.tile([self.max_fr[a] for a in AXES], (k, 1)),
-            "n_e": np.zeros(k), "spm_e": full(self.spm["E"])})    # every move has X/Y steps
+            "n_e": np.zeros(k), "spm_e": full(spm["E"])})
         self.brk = False
         self.f = float(mb.f[-1]) / 60
-        self.pos = [float(mb.x[-1]), float(mb.y[-1]), self.pos[2], self.pos[3] + float(de.sum())]
-        self.e_at = _lround(self.pos[3] * self.spm["E"])
+        self.F = float(mb.f[-1])
+        e_end = float(np.cumsum(np.concatenate([[self.pos[3]], de]))[-1])     # summed as the text's moves
+        self.pos = [float(mb.x[-1]), float(mb.y[-1]), self.pos[2], e_end]
+        self.e_at = _lround(self.pos[3] * spm["E"])
 
     def arc(self, n, cw, w):
         if "R" in w:
@@ -407,6 +419,7 @@ class _Parser:
         x0, y0 = self.pos[0], self.pos[1]
         if w.get("F"):
             self.f = w["F"] / 60
+            self.F = w["F"]
         x1 = (x0 + w["X"] if self.rel[0] else w["X"]) if w.get("X") is not None else x0
         y1 = (y0 + w["Y"] if self.rel[1] else w["Y"]) if w.get("Y") is not None else y0
         z1 = (self.pos[2] + w["Z"] if self.rel[2] else w["Z"]) if w.get("Z") is not None else self.pos[2]
@@ -595,8 +608,9 @@ def _plan_parts(p: "_Parser", m: Machine, source: str) -> np.ndarray:
     b = np.zeros(n, dtype=BLOCK_DTYPE)
     if not n:
         return b
-    v, jd, brk, n_e, spm_e = np.empty(n), np.empty(n), np.empty(n, bool), np.empty(n), np.empty(n)
+    v, jd, brk = np.empty(n), np.empty(n), np.empty(n, bool)
     amax, vmax = np.empty((n, 4)), np.empty((n, 4))
+    n_e, spm_e = np.empty(n), np.empty(n)
     jerk = None if parts[0]["jerk"] is None else np.empty((n, 4))
     off = 0
     while parts:                                    # copied in, each part dropped once copied
@@ -642,8 +656,7 @@ def _plan_parts(p: "_Parser", m: Machine, source: str) -> np.ndarray:
     for s0, e0 in zip(bounds[:-1], bounds[1:]):
         if e0 > s0:
             _plan_long(b, s0, e0, maxentry2, m)
-    xyz = np.sqrt(b["dx"] ** 2 + b["dy"] ** 2 + b["dz"] ** 2)
-    _slow_e_only(b, xyz, n_e, spm_e)
+    _slow_e_only(b, (b["dx"] == 0) & (b["dy"] == 0) & (b["dz"] == 0), n_e, spm_e)
     return b
 
 
@@ -687,7 +700,10 @@ def estimate_lines(lines, machine: Machine | None = None, source: str = "<gcode>
             count += 1
             p.line(count, raw)
     p.flush()
-    b = _plan_parts(p, m, source)
+    return _result(p, _plan_parts(p, m, source), count)
+
+
+def _result(p: _Parser, b: np.ndarray, count: int) -> Result:
     t = b["t_accel"] + b["t_cruise"] + b["t_decel"]
     feats = p.features
     by = {}
@@ -705,11 +721,11 @@ def _lround(v: float) -> int:
     return int(math.floor(v + 0.5)) if v >= 0 else -int(math.floor(-v + 0.5))
 
 
-def _slow_e_only(b, xyz, steps_e, spm_e) -> None:
+def _slow_e_only(b, e_alone, steps_e, spm_e) -> None:
     """Moves of E alone whose step rate is under MINIMAL_STEP_RATE: 1/120 + (n - 1)/r s, all at
     their speed (see the module's doc); faster ones keep their trapezoid, which is n/r plus the
     ramp."""
-    sel = np.flatnonzero((xyz == 0) & (b["de"] != 0))
+    sel = np.flatnonzero(e_alone & (b["de"] != 0))
     if not len(sel):
         return
     n = steps_e[sel]
@@ -722,13 +738,269 @@ def _slow_e_only(b, xyz, steps_e, spm_e) -> None:
     b["t_cruise"][k] = 1 / MINIMAL_STEP_RATE + (n[slow] - 1) / rate[slow]
 
 
-def estimate_file(path, machine: Machine | None = None) -> Result:
+def estimate_file(path, machine: Machine | None = None, scanned: bool | None = None) -> Result:
+    """The file's estimate: from the compiled scanner's move records (movescan, events mode)
+    when it is built, else (or scanned=False) from its lines; both give the same blocks
+    (host/tests/test_estimate_scan.py)."""
+    from . import movescan
     path = os.fspath(path)
     try:
+        if scanned is None:
+            scanned = movescan.available()
+        if scanned:
+            try:
+                return _estimate_scanned(path, machine or Machine(), path)
+            except movescan.Unsupported:
+                pass                                   # a line only the text parser takes
         with open(path, encoding="utf-8", errors="replace") as f:
             return estimate_lines(f, machine, source=path)
     except OSError as e:
         raise EstimateError(f"{path}: {e.strerror or e}") from None
+
+
+# Lines the estimator reads itself (the scanner's events) that move the head or set its position
+# as the scanner may not (G28, a bare G92, arcs ...): the moves gathered before them are taken
+# first. Every other event (comments, feed and acceleration settings, dwells, G90/M83 ...)
+# leaves the position alone, and the moves on either side of it are taken together, each with
+# the state it set; so does a G92 of numbers, which the scanner sets alike.
+_HARD = frozenset(("G0", "G1", "G00", "G01", "G2", "G3", "G02", "G03", "G92", "G28", "M92", "M723"))
+_G92_WORD = re.compile(r"[XYZEF][-+]?(?:\d+\.?\d*|\.\d+)$")
+
+
+def _command(raw: str) -> str | None:
+    """The command of a line as _Parser.line reads it (None: a comment or blank)."""
+    toks = raw.partition(";")[0].split()
+    if not toks:
+        return None
+    if toks[0][0] in "Nn" and len(toks) > 1:
+        toks = toks[1:]
+    return toks[0].upper()
+
+
+def _estimate_scanned(path: str, m: Machine, source: str) -> Result:
+    """estimate_lines on the file, its plain moves taken from the scanner's records as arrays
+    (what _Parser.move and emit would compute, operation for operation) and every other line
+    (the scanner's events: comments with TYPE:/LAYER, other commands, odd moves) given to
+    _Parser.line in order. A move whose start is not where the parser stands (after a G28, a bare
+    G92 ...: the scanner does not follow those) is read from its text too."""
+    from . import movescan
+    p = _Parser(m, source)
+    if movescan._scan is None:
+        raise movescan.Unsupported("bulgekit._scan is not built")
+    sc = movescan._scan.Scanner((), (), movescan._classify, 1.0, events=True)
+    carry = None                                        # (record, its line's text): a chunk's last move
+    base, buf = 0, b""
+
+    def text_at(off: int) -> str:
+        i = off - base
+        j = buf.find(b"\n", i)
+        j = len(buf) if j < 0 else j
+        r = buf.find(b"\r", i, j)
+        return buf[i:j if r < 0 else r].decode("utf-8", "replace")
+
+    try:
+        with open(path, "rb") as f:
+            while True:
+                data = f.read(movescan.CHUNK_BYTES)
+                final = not data
+                buf = buf + data if buf else data
+                recs, used = sc.feed(buf, final, base)
+                a = np.frombuffer(recs, dtype=movescan.RECORD)
+                texts = {}
+                if carry is not None:
+                    a = np.concatenate([carry[0], a])
+                    texts[int(carry[0]["line_no"][0])] = carry[1]
+                    carry = None
+                e_last = sc.e                           # the E the chunk ends at: the next record's start
+                if not final and len(a):
+                    # the chunk's last record waits for the next chunk, where its end E is
+                    carry = (a[-1:].copy(), text_at(int(a["offset"][-1])))
+                    e_last = float(a["e_start"][-1])
+                    a = a[:-1]
+                _take(p, a, lambda r: texts.get(int(r["line_no"])) or text_at(int(r["offset"])), e_last)
+                _progress_tick(sc.lines)
+                base += used
+                buf = buf[used:]
+                if final:
+                    break
+    except movescan._scan.ScanUnsupported:
+        raise movescan.Unsupported("the scanner refused a line") from None
+    p.flush()
+    return _result(p, _plan_parts(p, m, source), sc.lines)
+
+
+_EVENT = 16                                             # the scanner's flag for an event record
+_ABS_XYZ, _ABS_E = 4, 8                                 # movescan.ABS_XYZ, ABS_E
+
+
+def _progress_tick(n: int) -> None:
+    from . import progress
+    progress.tick(n)
+
+
+def _take(p: _Parser, a: np.ndarray, text, e_last: float) -> None:
+    """One chunk of records (see _estimate_scanned). Moves are gathered in ranges while only
+    lines that leave the position alone come between them (_SOFT, comments), each range with the
+    parser's state at its start, and taken as arrays when another line comes (or the chunk ends)."""
+    n = len(a)
+    if not n:
+        return
+    ev = np.flatnonzero(a["flags"] & _EVENT)
+    # a move's end E is the next record's start E (an event's record holds the state before it)
+    e_next = np.append(a["e_start"][1:], e_last)
+    ranges = []
+    i = k = 0
+    while i < n:
+        while k < len(ev) and ev[k] < i:
+            k += 1
+        j = int(ev[k]) if k < len(ev) else n
+        if j > i:                                       # moves i .. j-1
+            if not ranges and not _in_step(p, a[i]):
+                p.line(int(a[i]["line_no"]), text(a[i]))     # from its text until in step again
+                i += 1
+                continue
+            # the E steps a range starts from: the first one's are the parser's now (a G92
+            # gathered later sets p.e_at), a later one's are its last block's unless a G92 set them
+            at = p.e_at if not ranges and p.g92_at is None else p.g92_at
+            ranges.append((i, j, _state(p), at))
+            p.g92_at = None
+            p.g92_lines = []
+            p.brk = False                               # taken by the range's first block (or carried)
+            i = j
+            continue
+        raw = text(a[j])
+        cmd = _command(raw)
+        if ranges and cmd in _HARD:
+            if cmd == "G92" and _plain_g92(raw):
+                p.line(int(a[j]["line_no"]), raw)
+                p.g92_at = p.e_at                       # the E steps the next range starts from
+                p.g92_lines.append((int(a[j]["line_no"]), raw))   # again once the moves are taken
+                i = j + 1
+                continue
+            _vector_moves(p, a, e_next, ranges)
+            ranges = []
+        p.line(int(a[j]["line_no"]), raw)
+        i = j + 1
+    if ranges:
+        _vector_moves(p, a, e_next, ranges)
+
+
+def _plain_g92(raw: str) -> bool:
+    """A G92 that sets E, and only axes given as numbers (as the scanner sets them)."""
+    toks = raw.partition(";")[0].split()
+    if toks and toks[0][0] in "Nn" and len(toks) > 1:
+        toks = toks[1:]
+    words = [t.upper() for t in toks[1:]]
+    return (any(w[0] == "E" for w in words) and all(_G92_WORD.match(w) and w[0] != "F" for w in words)
+            and "*" not in raw and "(" not in raw)
+
+
+def _in_step(p: _Parser, r) -> bool:
+    """Whether the parser stands where the record starts, in its modes, at its feed rate."""
+    fl = int(r["flags"])
+    return (not p.width and p.pos[0] == r["x0"] and p.pos[1] == r["y0"] and p.pos[2] == r["z0"]
+            and p.pos[3] == r["e_start"] and p.F == r["f"] and p.rel[0] == (not fl & _ABS_XYZ)
+            and p.rel[1] == p.rel[2] == p.rel[0] and p.rel[3] == (not fl & _ABS_E))
+
+
+def _lround_array(v: np.ndarray) -> np.ndarray:
+    return np.where(v >= 0, np.floor(v + 0.5), -np.floor(-v + 0.5)).astype(np.int64)
+
+
+def _vector_moves(p: _Parser, a: np.ndarray, e_next: np.ndarray, ranges) -> None:
+    """_Parser.move + emit for the moves of `ranges`, as arrays (see _take)."""
+    m = p.m
+    counts = [e - s for s, e, _, _ in ranges]
+    idx = np.concatenate([np.arange(s, e) for s, e, _, _ in ranges])
+    k = len(idx)
+    r = a[idx]
+    states = [st for _, _, st, _ in ranges]
+    # the states as one matrix, a row per range: feature, layer, M220, accel x3, jd, jerk x4,
+    # M201 x4, M203 x4, brk
+    S = np.array([st[:7] + (st[7] or (0.0,) * 4) + st[8] + st[9] + (st[10],) for st in states], float)
+    starts = np.cumsum([0] + counts[:-1])
+    brk_in = np.zeros(k, bool)
+    brk_in[starts] = S[:, 19] != 0
+    sx, sy, sz, se = (p.spm[ax] for ax in AXES)
+    D = np.column_stack([r["x1"] - r["x0"], r["y1"] - r["y0"], r["z1"] - r["z0"], r["e"]])
+    ea = e_next[idx]
+    e_to = _lround_array(ea * se)
+    e_prev = np.concatenate([[p.e_at], e_to[:-1]])
+    reset = np.zeros(k, bool)                      # a G92 before it set the E steps
+    for q, (_, _, _, g92) in enumerate(ranges):
+        if g92 is not None:
+            e_prev[starts[q]] = g92
+            reset[starts[q]] = True
+    xyz = np.sqrt(D[:, 0] * D[:, 0] + D[:, 1] * D[:, 1] + D[:, 2] * D[:, 2])
+    st_e = np.where(xyz == 0, np.abs(e_to - e_prev), np.abs(D[:, 3]) * se)
+    mx = np.maximum(np.maximum(np.abs(D[:, 0]) * sx, np.abs(D[:, 1]) * sy), np.maximum(np.abs(D[:, 2]) * sz, st_e))
+    ne = np.where(xyz == 0, st_e, 0.0)
+    emitted = np.ones(k, bool)
+    # dropped moves (too few steps, Marlin's rule) and the ones after them: one at a time
+    todo = list(np.flatnonzero((mx < m.min_segment_steps) | (mx == 0)))
+    if any(p.pending) and (not todo or todo[0] != 0):
+        todo.insert(0, 0)
+    nxt, last_pend = 0, [0.0, 0.0, 0.0, 0.0]
+    for j in todo:
+        if j < nxt:
+            continue
+        pend, e_at = (list(p.pending) if j == 0 else [0.0, 0.0, 0.0, 0.0]), int(e_prev[j])
+        while j < k:
+            if reset[j]:
+                e_at = int(e_prev[j])
+            d = [float(D[j, c]) + pend[c] for c in range(4)]
+            steps = [abs(d[0]) * sx, abs(d[1]) * sy, abs(d[2]) * sz, abs(d[3]) * se]
+            xj = math.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
+            et = int(e_to[j])
+            if xj == 0:
+                steps[3] = abs(et - e_at)
+            j += 1
+            if max(steps) < m.min_segment_steps or max(steps) == 0:
+                emitted[j - 1] = False
+                pend = d
+                continue
+            D[j - 1] = d
+            ne[j - 1] = steps[3] if xj == 0 else 0
+            e_at, pend = et, [0.0, 0.0, 0.0, 0.0]
+            break
+        nxt = j
+        last_pend = pend if j == k else [0.0, 0.0, 0.0, 0.0]
+    p.pending = last_pend if nxt == k else [0.0, 0.0, 0.0, 0.0]
+    E = np.flatnonzero(emitted)
+    cs = np.cumsum(brk_in)
+    if len(E):
+        before = np.concatenate([[0], cs[E[:-1]]])
+        brk = (cs[E] - before) > 0
+        p.brk = p.brk or bool(cs[-1] - cs[E[-1]] > 0)
+        p.e_at = int(e_to[E[-1]])
+        DE = D[E]
+        xyzE = np.sqrt(DE[:, 0] * DE[:, 0] + DE[:, 1] * DE[:, 1] + DE[:, 2] * DE[:, 2])
+        X = np.repeat(np.arange(len(states)), counts)[E]   # each emitted block's range
+        SE = S[X]
+        acc = np.where(xyzE > 0, np.where(DE[:, 3] != 0, SE[:, 3], SE[:, 4]), SE[:, 5])
+        p.flush()
+        p.parts.append({
+            "line": r["line_no"][E].astype(np.int64), "feature": SE[:, 0].astype(np.int64),
+            "layer": SE[:, 1].astype(np.int64), "dx": DE[:, 0], "dy": DE[:, 1], "dz": DE[:, 2],
+            "de": DE[:, 3], "v": r["f"][E] / 60 * SE[:, 2] / 100, "accel": acc, "brk": brk,
+            "jd": SE[:, 6], "jerk": None if p.jerk is None else SE[:, 7:11],
+            "amax": SE[:, 11:15], "vmax": SE[:, 15:19],
+            "n_e": ne[E].astype(float), "spm_e": np.full(len(E), float(se))})
+    else:
+        p.brk = p.brk or bool(cs[-1] > 0)
+    last = r[-1]
+    p.pos = [float(last["x1"]), float(last["y1"]), float(last["z1"]), float(ea[-1])]
+    p.F = float(last["f"])
+    p.f = p.F / 60
+    for n, raw in p.g92_lines:                    # G92s after the last range: on the position now
+        p.line(n, raw)
+    p.g92_lines, p.g92_at = [], None
+
+
+def _state(p: _Parser) -> tuple:
+    return (p.fidx[p.feature], p.layer, p.pct, p.accel, p.travel_accel, p.retract_accel, p.jd,
+            None if p.jerk is None else tuple(p.jerk[a] for a in AXES),
+            tuple(p.max_accel[a] for a in AXES), tuple(p.max_fr[a] for a in AXES), p.brk)
 
 
 def block_times(res: Result) -> np.ndarray:

@@ -141,6 +141,7 @@ class RefPlanner:
         self.stops: list[StopRecord] = []
         self.top_z: float | None = None   # highest z of an extruding XY move
         self._zs = [l.z_cmm for l in bmap.layers] if bmap else []
+        self._sorted = all(a <= b for a, b in zip(self._zs, self._zs[1:]))
         # extruding arc chords the firmware does not plan (bypass()), per end z
         # in 0.01 mm: [(x0, y0, x1, y1, line)]
         self.arcs: dict[int, list[tuple]] = {}
@@ -152,7 +153,11 @@ class RefPlanner:
     def _find(self, zc: int):
         best = None
         best_d = 0
-        for i, z in enumerate(self._zs):
+        # layers are in ascending z (else every one is looked at): the released ones, below the
+        # floor, are skipped by bisection rather than one by one (a file calls this per layer)
+        lo = bisect.bisect_left(self._zs, self.floor) if self._sorted and self.floor is not None else 0
+        for i in range(lo, len(self._zs)):
+            z = self._zs[i]
             if self.floor is not None and z < self.floor:
                 continue  # released
             d = z - zc
@@ -164,6 +169,12 @@ class RefPlanner:
         return best
 
     def _neighbors(self, z: int):
+        if self._sorted:
+            zs = self._zs
+            i = bisect.bisect_left(zs, z)
+            lo = 0 if self.floor is None else bisect.bisect_left(zs, self.floor)
+            j = max(bisect.bisect_right(zs, z), lo)
+            return (zs[i - 1] if i > lo else None), (zs[j] if j < len(zs) else None)
         live = [v for v in self._zs if self.floor is None or v >= self.floor]
         below = max((v for v in live if v < z), default=None)
         above = min((v for v in live if v > z), default=None)
@@ -926,7 +937,7 @@ def scan_m92(path) -> list[tuple[int, float]]:
         with data:
             line, pos = 1, 0
             for mt in _M92_RX.finditer(data):
-                line += data.count(b"\n", pos, mt.start())
+                line += data[pos:mt.start()].count(b"\n")     # (mmap has no count before 3.13)
                 pos = mt.start()
                 e = _m92_e(mt.group(1))
                 if e is not None:
@@ -1173,7 +1184,12 @@ def rewrite_file(src, dst, bmap: mapformat.BulgeMap, settings: Settings,
     def plain(data, source):                  # run with open_checked's checks, on the bytes
         nonlocal byte_path
         byte_path = byte_path and _plain_lines(data)
-    _, lines = open_checked(src, checks=(check_not_processed, plain))     # streamed, not held
+    kept = movescan.kept(src)                 # build's one scan: checked, and its lines known
+    if kept is not None:
+        byte_path = byte_path and kept.plain_lines
+        lines = kept.text_lines()
+    else:
+        _, lines = open_checked(src, checks=(check_not_processed, plain))     # streamed, not held
     tmp = f"{os.fspath(dst)}.part"
     try:
         done = False
@@ -1181,8 +1197,8 @@ def rewrite_file(src, dst, bmap: mapformat.BulgeMap, settings: Settings,
             def fast(chunks):
                 r = RewriteResult()
                 with open(tmp, "wb") as f, open(src, "rb") as g:
-                    _rewrite_records(g, f, chunks, bmap, settings, str(src), r, stops,
-                                     scan_m92(src) if stops.stop == STOP_MOVE else None)
+                    m92 = None if stops.stop != STOP_MOVE else kept.m92 if kept else scan_m92(src)
+                    _rewrite_records(g, f, chunks, bmap, settings, str(src), r, stops, m92)
                 return r
             try:
                 res = movescan.run(src, fast, fast=True)

@@ -337,6 +337,11 @@ def check_complete(text, source: str = "<gcode>") -> None:
         i = text.rfind("\n") + 1
         last = text[i:]
         nlines = text.count("\n") + 1
+    refuse_cut_off(last, nlines, source)
+
+
+def refuse_cut_off(last: str, nlines: int, source: str) -> None:
+    """check_complete's verdict on a file whose line `nlines`, `last`, has no line end."""
     code, _ = split_code(last.rstrip("\r"))
     if not code:
         return  # a comment or blank: nothing would be misread
@@ -356,10 +361,24 @@ def check_not_processed(data, source: str = "<gcode>") -> None:
     M720-M722 would switch the firmware's bulges on as well)."""
     if isinstance(data, str):
         data = data.encode("utf-8", "replace")
-    mt = _OURS_RX.search(data)
+    _refuse_processed(data, source, 0)
+
+
+def might_hold(data: bytes, words) -> bool:
+    """Whether `data` may hold a command or comment starting with one of `words` (b"M72" ...)
+    by the regexes here, which also take M072: a quick look before the regex, which at each
+    line's start is several times slower than bytes' own search."""
+    return any(w in data for w in words) or b"M0" in data or b"m0" in data
+
+
+def _refuse_processed(data: bytes, source: str, lines_before: int, at: int = 0) -> None:
+    """check_not_processed on a file's whole lines from `data[at]`, `lines_before` lines in."""
+    if not might_hold(data, (b"; bulgekit", b"M72", b"m72")):
+        return
+    mt = _OURS_RX.search(data, at)
     if mt is None:
         return
-    line = data.count(b"\n", 0, mt.start()) + 1
+    line = lines_before + data.count(b"\n", 0, mt.start()) + 1
     end = data.find(b"\n", mt.start())
     text = data[mt.start():end if end >= 0 else len(data)].decode("utf-8", "replace").strip()
     what = ("was already rewritten for stock firmware by `bulgekit fallback`"
@@ -373,7 +392,11 @@ def check_not_processed(data, source: str = "<gcode>") -> None:
 
 def check_input_file(path, source: str) -> None:
     """The checks every pass over a slicer's file starts with: text (check_text), and not
-    already processed by bulgekit (check_not_processed). Reads the file once."""
+    already processed by bulgekit (check_not_processed). Reads the file once; not at all when
+    it is the file a movescan.Scan in force checked (build: one check, one scan)."""
+    from . import movescan
+    if movescan.kept(path) is not None:
+        return
     with open(path, "rb") as f:
         data = f.read()
     check_text(data, source)
@@ -384,7 +407,12 @@ def open_checked(path, ends: int = 1 << 21, checks=()) -> tuple[str, "Iterator[s
     """Check a G-code file (check_complete: text, not cut off; and `checks`, each called with
     the bytes and the name), then stream it: returns the text of its two ends (`ends` bytes each,
     where slicers write their settings and time) and an iterator over its lines. The whole file
-    is never held as lines, only briefly as bytes."""
+    is never held as lines, only briefly as bytes. The file a movescan.Scan in force checked is
+    not read again: its ends come from the scan, and `checks` are ones it ran (build's)."""
+    from . import movescan
+    sc = movescan.kept(path)
+    if sc is not None and ends == movescan.ENDS:
+        return sc.ends, sc.text_lines()
     data = open(path, "rb").read()
     check_complete(data, str(path))
     for check in checks:

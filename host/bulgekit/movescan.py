@@ -1,8 +1,11 @@
-"""Moves of a G-code file as numpy record arrays, chunk by chunk, for the passes that need only
-moves (walls, statistics, the stock fallback, annotate's reach check): the compiled scanner (_scan.c) when it is built and takes the file,
-gcode.parse_lines otherwise. Both give the same numbers (host/tests/test_movescan.py).
+"""The G-code reader: moves of a file as numpy record arrays (RECORD, the one definition of the
+move records every pass reads), chunk by chunk: the compiled scanner (_scan.c) when it is built and
+takes the file, gcode.parse_lines otherwise. Both give the same numbers (host/tests/test_movescan.py).
+Walls, statistics, the stock fallback, annotate's reach check and the studio read them here; the
+estimator reads the scanner's records in its events mode (estimate.estimate_file).
 
     run(path, consume)      # consume(chunks) gets an iterator of RECORD arrays and the role names
+    with Scan(path).kept(): # build: the file checked and scanned once, every run() above replays it
 
 consume must start from nothing each time it is called: when the compiled scanner meets a line it
 leaves to the Python parser (a command with non-ASCII bytes, a value or arc gcode.py refuses),
@@ -13,7 +16,10 @@ message naming the file and line.
 """
 from __future__ import annotations
 
+import contextlib
 import io
+import os
+import tempfile
 from typing import Callable, Iterator, TypeVar
 
 import numpy as np
@@ -148,11 +154,196 @@ def _slow(path, source: str) -> Chunks:
     return Chunks(gen(), roles, lambda: count[0])
 
 
+ENDS = 1 << 21                 # bytes of each end kept as text (gcode.open_checked's default)
+
+
+class Scan:
+    """One reading of a G-code file that every pass of `build` works from: the checks
+    (gcode.check_complete: text, not cut off; gcode.check_not_processed) and the move records,
+    made in one pass over the file, 2 MB at a time. The records go to an unnamed temporary file
+    chunk by chunk (88 bytes a move: 100 MB of G-code gives about 300 MB of them, kept out of
+    memory) and are read back, in the same chunks, by each run(). Also kept: the text of the
+    file's two ends (gcode.open_checked's), whether its lines suit fallback's byte path
+    (fallback._plain_lines) and its M92 E words (fallback.scan_m92).
+
+        with movescan.Scan(path).kept():      # movescan.run, gcode.open_checked and
+            ...                               # check_input_file on path use it
+    """
+
+    def __init__(self, path, source: str | None = None):
+        self.path = os.fspath(path)
+        self.source = source or self.path
+        self.fast = _scan is not None          # records from the compiled scanner (with offsets)
+        self.roles: list[str] = []
+        self.chunks: list[tuple[int, int]] = []     # (records, lines read so far) per chunk
+        self.m92: list[tuple[int, float]] = []
+        self.lines = 0
+        self._store = tempfile.TemporaryFile()
+        try:
+            self._read()
+        except BaseException:
+            self._store.close()
+            raise
+
+    def _read(self) -> None:
+        from . import fallback                 # (it imports this module)
+        sc = None
+        if self.fast:
+            sc = _scan.Scanner(sorted(gcode.OUTER_ROLES), sorted(gcode._S3D_ROLES), _classify,
+                               gcode.ARC_CHORD_MM)
+            self.roles = sc.roles
+        n_cr = n_crlf = nl = 0
+        plain = True
+        last = b""
+        with open(self.path, "rb") as f:
+            size = os.fstat(f.fileno()).st_size
+            base, buf, first = 0, b"", True
+            while True:
+                data = f.read(CHUNK_BYTES)
+                final = not data
+                if first:
+                    gcode.check_text(data[:65537] if size > 65536 else data, self.source)
+                    head = b""
+                    whole = data if size <= len(data) else None
+                    first = False
+                if len(head) < ENDS:
+                    head += data[:ENDS - len(head)]
+                buf = buf + data if buf else data
+                used = len(buf)
+                look = True                            # whether the part may hold what the regexes find
+                if sc is not None:
+                    flagged = sc.flagged
+                    try:
+                        recs, used = sc.feed(buf, final, base)
+                        look = sc.flagged != flagged
+                    except _scan.ScanUnsupported:
+                        sc, self.fast = None, False        # the Python parser does it below
+                    else:
+                        if recs:
+                            self._store.write(recs)
+                        self.chunks.append((len(recs) // RECORD.itemsize, sc.lines))
+                        progress.tick(sc.lines)
+                if sc is None and not final:           # checks only: whole lines still
+                    used = buf.rfind(b"\n") + 1
+                part = buf[:used]
+                # the checks, on whole lines (a \r\n cut between two parts counted once)
+                # (a part after a lone \r does not start a line for the regexes' ^, as in one piece)
+                at = 0 if not last or last == b"\n" else 1
+                if look:
+                    gcode._refuse_processed(part, self.source, nl, at)
+                n_cr += part.count(b"\r")
+                n_crlf += part.count(b"\r\n") + (last[-1:] == b"\r" and part[:1] == b"\n")
+                if plain and not part.isascii():
+                    try:                               # parts end at line ends: no character cut
+                        part.decode("utf-8")
+                    except UnicodeDecodeError:
+                        plain = False
+                if look and gcode.might_hold(part, (b"M92", b"m92")):
+                    for mt in fallback._M92_RX.finditer(part, at):
+                        e = fallback._m92_e(mt.group(1))
+                        if e is not None:
+                            self.m92.append((nl + part.count(b"\n", 0, mt.start()) + 1, e))
+                nl += part.count(b"\n")
+                if part:
+                    last = part[-1:]
+                base += used
+                buf = buf[used:]
+                if final:
+                    break
+            tail = whole[-ENDS:] if whole is not None else b""
+            if whole is None:
+                f.seek(max(0, size - ENDS))
+                tail = f.read(ENDS)
+        self.plain_lines = plain and n_cr == n_crlf
+        self.nl = nl
+        self.ends = head.decode("utf-8", "replace") + "\n" + (tail.decode("utf-8", "replace") if size > ENDS else "")
+        self._complete(tail)
+        if sc is not None:
+            self.lines = sc.lines
+        else:                                  # the Python parser's records (no offsets)
+            self._store.seek(0)
+            self._store.truncate()
+            self.chunks = []
+            ch = _slow(self.path, self.source)
+            for a in ch:
+                self._store.write(a.tobytes())
+                self.chunks.append((len(a), ch.lines))
+            self.roles, self.lines = ch.roles, ch.lines
+
+    def _complete(self, tail: bytes) -> None:
+        """gcode.check_complete's line-end check, on the file's last bytes."""
+        if not tail or tail.endswith(b"\n"):
+            return
+        last = tail[tail.rfind(b"\n") + 1:].decode("utf-8", "replace")
+        gcode.refuse_cut_off(last, self.nl + 1, self.source)
+
+    def run(self, consume: Callable[[Chunks], T], fast: bool | None = None) -> T:
+        """As movescan.run on the file, from the kept records."""
+        if fast and not self.fast:
+            raise Unsupported("the compiled scanner left the file to the Python parser")
+        done = [0]
+
+        def gen():
+            self._store.seek(0)
+            for k, lines in self.chunks:
+                a = np.frombuffer(self._store.read(k * RECORD.itemsize), dtype=RECORD)
+                done[0] = lines
+                progress.tick(lines)
+                if k:
+                    yield a
+            done[0] = self.lines
+        return consume(Chunks(gen(), list(self.roles), lambda: done[0]))
+
+    def text_lines(self) -> Iterator[str]:
+        """The file's lines as text (what gcode.open_checked's iterator gives), opened lazily."""
+        with open(self.path, "r", encoding="utf-8", errors="replace", newline="") as f:
+            yield from f
+
+    def close(self) -> None:
+        self._store.close()
+
+    def kept(self):
+        """Context: while in it, passes over this file use this scan (see the class comment)."""
+
+        @contextlib.contextmanager
+        def ctx():
+            key = _key(self.path)
+            prev = _KEPT.get(key)
+            _KEPT[key] = self
+            try:
+                yield self
+            finally:
+                if prev is None:
+                    _KEPT.pop(key, None)
+                else:
+                    _KEPT[key] = prev
+                self.close()
+        return ctx()
+
+
+_KEPT: dict[str, Scan] = {}
+
+
+def _key(path) -> str:
+    return os.path.realpath(os.fspath(path))
+
+
+def kept(path) -> Scan | None:
+    """The Scan in force for the file at path, if any (bytes given in place of a path: None)."""
+    if not _KEPT or isinstance(path, (bytes, bytearray)):
+        return None
+    return _KEPT.get(_key(path))
+
+
 def run(path, consume: Callable[[Chunks], T], source: str | None = None,
         fast: bool | None = None) -> T:
     """consume(chunks) over the moves of the file at path (or of G-code bytes); see the module
     comment. fast=False forces the Python parser (tests compare the two); fast=True the compiled
-    one only (Unsupported when it leaves the file to the Python parser)."""
+    one only (Unsupported when it leaves the file to the Python parser). A file a Scan in force
+    has read is not read again (fast=False still reads it with the Python parser)."""
+    sc = kept(path)
+    if sc is not None and fast is not False:
+        return sc.run(consume, fast)
     source = source or ("<gcode>" if isinstance(path, (bytes, bytearray)) else str(path))
     if fast is None:
         use = _scan is not None

@@ -144,14 +144,19 @@ def _z_cmm(z: float) -> int:
     return int(v + 0.5) if v >= 0 else -int(0.5 - v)
 
 
+def _next(a: np.ndarray) -> np.ndarray:
+    """np.roll(a, -1) for 1-D a, without np.roll's overhead (called for every loop of a file)."""
+    return np.concatenate((a[1:], a[:1]))
+
+
 def _signed_area(xy: np.ndarray) -> float:
     x, y = xy[:, 0], xy[:, 1]
-    return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1)))
+    return 0.5 * float(np.dot(x, _next(y)) - np.dot(y, _next(x)))
 
 
 def _centroid(xy: np.ndarray) -> tuple[float, float]:
     x, y = xy[:, 0], xy[:, 1]
-    xn, yn = np.roll(x, -1), np.roll(y, -1)
+    xn, yn = _next(x), _next(y)
     cr = x * yn - xn * y
     a = cr.sum() / 2
     if abs(a) < 1e-12:

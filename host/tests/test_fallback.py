@@ -531,3 +531,40 @@ def test_stops_in_a_row_share_the_extra_they_are_owed():
     assert [n for ln, n, _ in made if ln in stop_lines(mv)] == [9, 9]
     assert sum(n for _, n, _ in made) == sum(n for _, n, _ in marlin_e(g4)) == 205
     assert mv[-1] == "G1 X10 Y10 E1.00645 F1200"         # 1.0 + 0.2 - 2 x 9 / 93
+
+
+def test_layer_search_by_bisection_finds_what_a_walk_finds():
+    """RefPlanner._find and _neighbors skip released layers by bisection; a walk over every
+    layer (the firmware's MapStore::find_layer) gives the same on random maps."""
+    import random as _random
+    from bulgekit.fallback import RefPlanner
+
+    def find_walk(p, zc):
+        best, best_d = None, 0
+        for i, z in enumerate(p._zs):
+            if p.floor is not None and z < p.floor:
+                continue
+            d = z - zc
+            if d > 0 and 2 * d > p.lh:
+                break
+            if 2 * abs(d) <= p.lh and (best is None or abs(d) < best_d):
+                best, best_d = i, abs(d)
+        return best
+
+    def neighbors_walk(p, z):
+        live = [v for v in p._zs if p.floor is None or v >= p.floor]
+        return max((v for v in live if v < z), default=None), min((v for v in live if v > z), default=None)
+
+    class Window:
+        pass
+    r = _random.Random(1)
+    for _ in range(5000):
+        p = Window()
+        p._zs = sorted(r.sample(range(0, 3000, r.choice([5, 10, 20, 30])), r.randint(0, 30)))
+        if p._zs and r.random() < 0.3:
+            p._zs.append(p._zs[-1])
+        p._sorted, p.lh = True, r.choice([20, 30])
+        p.floor = r.choice([None, r.randint(0, 3000)] + p._zs)
+        z = r.randint(-50, 3100)
+        assert RefPlanner._find(p, z) == find_walk(p, z)
+        assert RefPlanner._neighbors(p, z) == neighbors_walk(p, z)

@@ -148,3 +148,17 @@ def test_fallback_file_is_the_same_by_either_path(path, tmp_path, stops):
         (text_res.lines_in, text_res.moves_split, text_res.stops, text_res.stats, text_res.unreached)
     assert res.stock.summary() == text_res.stock.summary()
     assert vars(res.stock) == vars(text_res.stock)
+
+
+def test_scanner_numbers_are_floats_bit_for_bit():
+    """The scanner's short-number path (digits over a power of ten) and its strtod path give
+    float()'s double, sign of zero included, for values of 1 to 20 digits."""
+    rnd = random.Random(7)
+    vals = ["-0", "0", "+5", ".5", "-.25", "5.", "123456789012345", "1234567890.12345",
+            "1234567890123456", "0.30000000000000004", "9007199254740993"]
+    for _ in range(20000):
+        a, b = str(rnd.randint(0, 10 ** rnd.randint(0, 10))), str(rnd.randint(0, 10 ** rnd.randint(0, 9)))
+        vals.append(rnd.choice(["", "-"]) + a + rnd.choice(["", "." + b[:rnd.randint(0, 9)]]))
+    text = "".join(f"G1 X{v} Y1\n" for v in vals).encode()
+    got = movescan.run(text, lambda ch: np.concatenate(list(ch)), fast=True)["x1"]
+    assert np.array_equal(got.view(np.uint64), np.array([float(v) for v in vals]).view(np.uint64))

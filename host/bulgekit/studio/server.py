@@ -140,26 +140,26 @@ class Studio:
     # -- G-code
 
     def open_gcode(self, job: Job, path: Path, name: str) -> dict:
-        from ..gcode import check_input_file
+        from .. import movescan
         from .. import api
         job.label = "checking the file"
-        check_input_file(path, name)
-        from ..wall import WallError
-        try:
-            model = api.walls(path)
-        except WallError as e:
-            if "no outer-wall feature comments" not in str(e):
-                raise WallError(str(e).replace(str(path), name)) from None
-            # no comments to find the outer wall by: its outermost closed loop per layer is
-            # the wall in geometric mode (M720 S2), which the page then selects
-            job.log.append(f"{name}: no outer-wall feature comments; using geometric mode")
+        with movescan.Scan(path, name).kept():     # checked and scanned once: both tries use it
+            from ..wall import WallError
             try:
-                model = api.walls(path, geometric=True)
-            except WallError as e2:
-                raise WallError(f"{name}: no outer wall found: the file has no outer-wall feature "
-                                "comments (;TYPE:External perimeter, ;TYPE:Outer wall, ...) and no "
-                                "closed extruded loops to take as the wall instead "
-                                f"({str(e2).replace(str(path), name)}). Is it a sliced print?") from None
+                model = api.walls(path)
+            except WallError as e:
+                if "no outer-wall feature comments" not in str(e):
+                    raise WallError(str(e).replace(str(path), name)) from None
+                # no comments to find the outer wall by: its outermost closed loop per layer is
+                # the wall in geometric mode (M720 S2), which the page then selects
+                job.log.append(f"{name}: no outer-wall feature comments; using geometric mode")
+                try:
+                    model = api.walls(path, geometric=True)
+                except WallError as e2:
+                    raise WallError(f"{name}: no outer wall found: the file has no outer-wall feature "
+                                    "comments (;TYPE:External perimeter, ;TYPE:Outer wall, ...) and no "
+                                    "closed extruded loops to take as the wall instead "
+                                    f"({str(e2).replace(str(path), name)}). Is it a sliced print?") from None
         view = dz.wall_view(model)
         old = self.gcode
         self.gcode, self.gcode_name, self.view = path, name, view
