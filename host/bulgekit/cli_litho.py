@@ -50,8 +50,10 @@ def register(main):
                        "transmission and the predicted look.")
     @click.option("--frame", type=NONNEG, default=0.0, show_default=True,
                   help="Border at full thickness, mm (planar: all four sides; cylinder: top and bottom).")
-    @click.option("--foot", type=NONNEG, default=0.0, show_default=True,
-                  help="Planar: a foot block this deep (mm) under the plate so it stands (0: none).")
+    @click.option("--foot", type=NONNEG, default=None,
+                  help="Planar: depth of the foot block under the plate, mm (0: none). Default: an "
+                       "eighth of the picture's height, at least 6 mm, so the part stands; a "
+                       "cylinder stands by itself and gets none.")
     @click.option("--foot-height", type=NONNEG, default=3.0, show_default=True, help="Foot height, mm.")
     @click.option("--layer-height", type=POSITIVE, default=0.2, show_default=True, help="mm; one picture row per layer.")
     @click.option("--line-width", type=POSITIVE, default=0.4, show_default=True, help="Wall line width, mm.")

@@ -30,7 +30,7 @@ import json
 import math
 import os
 import tempfile
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -59,7 +59,7 @@ class LithoOptions:
     gamma: float = 1.0              # darkness ** gamma before the curve (contrast)
     attenuation: float = 1.5        # Beer-Lambert attenuation of the filament, 1/mm
     frame: float = 0.0              # border at full thickness, mm (0: none)
-    foot: float = 0.0               # planar: depth of a foot block, mm (0: none)
+    foot: float | None = None       # planar: depth of a foot block, mm (0: none; None: foot_depth())
     foot_height: float = 3.0        # mm
     layer_height: float = 0.2
     line_width: float = 0.4
@@ -129,8 +129,8 @@ def check_options(o: LithoOptions) -> None:
             bad(k, f"must be a number > 0, got {v}")
     if o.height is not None and not (math.isfinite(o.height) and o.height > 0):
         bad("height", f"must be a number > 0, got {o.height}")
-    for k, v in {"frame": o.frame, "foot": o.foot, "foot-height": o.foot_height, "retract": o.retract,
-                 "retract-min": o.retract_min}.items():
+    for k, v in {"frame": o.frame, "foot": 0.0 if o.foot is None else o.foot, "foot-height": o.foot_height,
+                 "retract": o.retract, "retract-min": o.retract_min}.items():
         if not (math.isfinite(v) and v >= 0):
             bad(k, f"must be a number >= 0, got {v}")
     if o.retract > 0 and not (o.retract_speed > 0):
@@ -151,12 +151,27 @@ def check_options(o: LithoOptions) -> None:
     if o.shape == "cylinder":
         if o.diameter / 2 - o.max_thickness < 5 * o.line_width:
             bad("diameter", f"{o.diameter:g} mm leaves no room inside a {o.max_thickness:g} mm wall")
-        if o.foot > 0:
+        if o.foot:
             bad("foot", "a cylinder stands by itself; --foot is for planar plates")
-    if o.shape == "planar" and o.foot > 0 and o.foot < o.max_thickness:
+    if o.shape == "planar" and o.foot and o.foot < o.max_thickness:
         bad("foot", f"{o.foot:g} mm must be at least --max {o.max_thickness:g} mm deep")
     if len(o.bed) not in (2, 3) or not all(math.isfinite(b) and b > 0 for b in o.bed):
         bad("bed", f"expected X,Y[,Z] in mm > 0, got {o.bed}")
+
+
+FOOT_MIN = 6.0          # mm, the shallowest default footprint
+FOOT_SLOPE = 1 / 8      # default footprint depth per mm of plate height
+
+
+def foot_depth(o: LithoOptions, picture_height: float) -> float:
+    """The foot's depth: --foot, or by default (None) for a planar plate an eighth of its height
+    but at least FOOT_MIN and --max. The part's weight sits at about half its height, so it tips
+    only when leaned by atan(depth / height) = 7 degrees; a cylinder stands by itself (0)."""
+    if o.foot is not None:
+        return o.foot
+    if o.shape != "planar":
+        return 0.0
+    return max(FOOT_MIN, o.max_thickness, round(picture_height * FOOT_SLOPE, 1))
 
 
 # --- the thickness field -------------------------------------------------------------------
@@ -173,6 +188,7 @@ class Field:
     snapped_up: int          # samples whose gap was raised to min_line
     picture_mm: tuple        # (width or circumference, height) of the picture, mm
     inside: tuple            # (rows, samples) slices of the picture inside the frame
+    foot: float = 0.0        # depth of the foot, mm (0: none)
 
     @property
     def layers(self) -> int:
@@ -238,13 +254,15 @@ def thickness_field(image, o: LithoOptions) -> Field:
     up = low & ~down
     t = np.where(down, w2, np.where(up, w2 + thr, t))
     n_foot = 0
-    if o.shape == "planar" and o.foot > 0:
-        n_foot = int(round(o.foot_height / o.layer_height))
-        t = np.vstack([np.full((n_foot, n), o.foot), t])
-        foot_lines = max(1, math.ceil((o.foot - w2) / o.max_line - 1e-9))
+    foot = foot_depth(o, rows * o.layer_height)
+    if o.shape == "planar" and foot > 0 and o.foot_height > 0:
+        n_foot = max(1, int(round(o.foot_height / o.layer_height)))
+        t = np.vstack([np.full((n_foot, n), foot), t])
+        foot_lines = max(1, math.ceil((foot - w2) / o.max_line - 1e-9))
         lines = np.concatenate([np.full(n_foot, foot_lines), lines])
     return Field(t=t, bright=bright, s=s, n_foot=n_foot, lines=lines, snapped_down=int(down.sum()),
-                 snapped_up=int(up.sum()), picture_mm=(pic_w, rows * o.layer_height), inside=inside)
+                 snapped_up=int(up.sum()), picture_mm=(pic_w, rows * o.layer_height), inside=inside,
+                 foot=foot if n_foot else 0.0)
 
 
 # --- per-layer paths -----------------------------------------------------------------------
@@ -511,6 +529,7 @@ def plan_lithophane(image, o: LithoOptions | None = None, progress=None) -> Plan
 
     o = o or LithoOptions()
     fld = thickness_field(image, o)
+    o = replace(o, foot=fld.foot)          # the plan and its files carry the depth in use
     _check_fits(o, fld)
     plan = Plan(o, fld)
     plan.counts.update(sliver_added_mm3=0.0, sliver_left_mm3=0.0)
@@ -1027,7 +1046,7 @@ def make(image, outdir, name: str | None = None, progress=None, **opts) -> Litho
     stats = plan_stats(plan, mesh_volume(V, F))
     stats["name"] = name
     stats["image"] = os.fspath(image)
-    stats["options"] = _options_dict(o)
+    stats["options"] = _options_dict(plan.options)
     stats.update(_estimated(paths))
     _write_atomic(paths["json"], json.dumps(stats, indent=2) + "\n")
     return LithoResult(plan, paths, stats)

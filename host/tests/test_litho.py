@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import math
 import re
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -29,7 +30,7 @@ def picture(tmp_path, name="p.png", w=40, h=16, fill=255, boxes=()):
 
 
 def opts(**kw):
-    base = dict(width=20.0, height=3.0, pitch=0.4)
+    base = dict(width=20.0, height=3.0, pitch=0.4, foot=0.0)     # the plate alone; feet: test_foot_*
     base.update(kw)
     return lt.LithoOptions(**base)
 
@@ -208,6 +209,46 @@ def test_foot_and_frame(tmp_path):
     assert res.stats["look"]["correlation"] > 0.9                 # measured inside the frame
 
 
+def stands(stl):
+    """(footprint depth across the plate in mm, the angle in degrees the part can lean before its
+    centre of mass leaves the footprint) of a watertight STL standing on z = 0."""
+    import trimesh
+    m = trimesh.load(stl)
+    assert m.is_watertight and m.is_winding_consistent and m.is_volume
+    base = m.vertices[np.abs(m.vertices[:, 2]) < 1e-6]
+    lo, hi = base[:, 1].min(), base[:, 1].max()
+    c = m.center_mass
+    return hi - lo, math.degrees(math.atan(min(c[1] - lo, hi - c[1]) / c[2]))
+
+
+def test_foot_by_default_so_the_plate_stands(tmp_path):
+    # a 92 mm tall plate 0.8-2.4 mm thick (the issue's case): an eighth of its height, 11.5 mm
+    p = picture(tmp_path, w=50, h=46, boxes=[(0, 0, 25, 46, 0), (25, 0, 50, 23, 128)])
+    o = lt.LithoOptions(width=100.0, pitch=2.0, layer_height=0.4, line_width=0.8, min_thickness=1.6,
+                        max_thickness=2.4)
+    assert o.foot is None
+    res = lt.make(p, tmp_path / "o", options=o)
+    assert res.plan.field.picture_mm[1] == pytest.approx(92.0)
+    assert res.plan.options.foot == pytest.approx(11.5) and res.plan.field.n_foot == 8   # 3 mm / 0.4
+    depth, lean = stands(res.paths["stl"])                        # what the slicers get
+    assert depth == pytest.approx(11.5, abs=1e-3) and lean > 5
+    assert json.loads(res.paths["json"].read_text())["options"]["foot"] == pytest.approx(11.5)
+    assert 0.98 <= res.stats["fill_ratio"] <= 1.02                # the foot is printed and counted
+    off = lt.make(p, tmp_path / "off", options=replace(o, foot=0.0))
+    assert off.plan.field.n_foot == 0
+    depth, lean = stands(off.paths["stl"])
+    assert depth == pytest.approx(2.4, abs=1e-3) and lean < 1.5   # on its edge alone
+
+
+def test_foot_default_is_at_least_6_mm_and_none_on_a_cylinder(tmp_path):
+    p = picture(tmp_path)
+    assert lt.thickness_field(p, lt.LithoOptions(width=20.0, height=3.0)).foot == 6.0
+    assert lt.thickness_field(p, lt.LithoOptions(width=20.0, height=3.0, max_thickness=7.0)).foot == 7.0
+    assert lt.thickness_field(p, lt.LithoOptions(width=20.0, height=3.0, foot=0.0)).n_foot == 0
+    cyl = lt.thickness_field(p, lt.LithoOptions(shape="cylinder", diameter=30.0, height=2.0))
+    assert cyl.n_foot == 0 and cyl.foot == 0.0
+
+
 # --- the two G-code files ------------------------------------------------------------------
 
 @pytest.fixture(scope="module")
@@ -357,13 +398,14 @@ def test_cli_writes_everything(tmp_path):
 @pytest.mark.parametrize("args, message", [
     (["--min", "2", "--max", "1"], "--max: 1 mm must be more than --min 2 mm"),
     (["--min", "0.6"], "--min: 0.6 mm is thinner than two wall lines"),
-    (["--width", "300"], "--bed: the part is 300.0 x 2.4 mm and does not fit a 220 x 220 mm bed"),
-    (["--bed", "220,220,2"], "--bed: the part is 3.0 mm tall, more than the printer's 2 mm"),
+    (["--width", "300"], "--bed: the part is 300.0 x 6.0 mm and does not fit a 220 x 220 mm bed"),
+    (["--bed", "220,220,2"], "--bed: the part is 6.0 mm tall, more than the printer's 2 mm"),
     (["--bed", "220"], "expected two or three sizes"),
     (["--max", "nan"], "is not a finite number"),
     (["--shape", "cylinder", "--foot", "5"], "--foot: a cylinder stands by itself"),
 ])
 def test_cli_bad_options(tmp_path, args, message):
+    # the default foot (6 mm deep, 3 mm tall) counts: 300 x 6 mm, 3 + 3 mm tall
     p = picture(tmp_path)
     r = run(p, "-o", tmp_path / "out", "--width", 20, "--height", 3, *args)
     assert r.exit_code != 0
