@@ -6,6 +6,7 @@ cli.py calls register(main) to add it to the bulgekit command group.
 from __future__ import annotations
 
 import math
+import signal
 
 import click
 
@@ -21,6 +22,10 @@ def _bed(ctx, param, value):
     if len(parts) not in (2, 3) or not all(math.isfinite(p) and p > 0 for p in parts):
         raise click.BadParameter(f"expected two or three sizes > 0 mm (X,Y[,Z]), got {value!r}")
     return tuple(parts)
+
+
+def _terminated(signum, frame):
+    raise SystemExit(128 + signum)
 
 
 def register(main):
@@ -128,7 +133,12 @@ def register(main):
             if progress.enabled():
                 click.echo(f"\rplanning layers: {done}/{total}", err=True, nl=done == total)
 
-        res = lt.make(image, outdir, name=name, progress=show, options=opts)
+        # SIGTERM ends the run as Ctrl-C does, so make() removes its temporary files
+        old = signal.signal(signal.SIGTERM, _terminated)
+        try:
+            res = lt.make(image, outdir, name=name, progress=show, options=opts)
+        finally:
+            signal.signal(signal.SIGTERM, old)
         s = res.stats
         click.echo(summary(s))
         for key in ("gcode", "stock", "stl", "png", "json"):

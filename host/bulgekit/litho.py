@@ -26,6 +26,7 @@ Gaps the method cannot fill as asked are handled, and counted in the stats:
 """
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import os
@@ -786,18 +787,34 @@ def _umask() -> int:
     return m
 
 
+@contextlib.contextmanager
+def _held():
+    """SIGINT and SIGTERM held back (delivered at the end) in this thread, where available."""
+    import signal
+    block = getattr(signal, "pthread_sigmask", None)
+    old = block(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM}) if block else None
+    try:
+        yield
+    finally:
+        if block:
+            block(signal.SIG_SETMASK, old)
+
+
 def _write_atomic(path, data, binary=False):
     """Write all of it or nothing: a temporary file in the same folder, renamed over the target."""
     path = Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".part", dir=path.parent)
+    tmp = None
     try:
+        with _held():                                 # the file is made and its name kept
+            fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".part", dir=path.parent)
         with os.fdopen(fd, "wb" if binary else "w") as f:
             f.write(data)
         os.chmod(tmp, 0o666 & ~_umask())
         os.replace(tmp, path)
     except BaseException:
         try:
-            os.unlink(tmp)
+            if tmp is not None:
+                os.unlink(tmp)
         except OSError:
             pass
         raise
@@ -1035,21 +1052,65 @@ def make(image, outdir, name: str | None = None, progress=None, **opts) -> Litho
     out = Path(outdir)
     plan = plan_lithophane(image, o, progress=progress)
     out.mkdir(parents=True, exist_ok=True)
-    paths = {"gcode": out / f"{name}.litho.gcode", "stock": out / f"{name}.stock.gcode",
+    final = {"gcode": out / f"{name}.litho.gcode", "stock": out / f"{name}.stock.gcode",
              "stl": out / f"{name}.stl", "png": out / f"{name}.transmission.png",
              "json": out / f"{name}.litho.json"}
-    V, F = body_mesh(plan)
-    write_stl(V, F, paths["stl"], name=f"bulgekit lithophane {name}")
-    write_gcode(plan, paths["gcode"], "litho", name)
-    write_gcode(plan, paths["stock"], "stock", name)
-    write_transmission_png(plan, paths["png"])
-    stats = plan_stats(plan, mesh_volume(V, F))
-    stats["name"] = name
-    stats["image"] = os.fspath(image)
-    stats["options"] = _options_dict(plan.options)
-    stats.update(_estimated(paths))
-    _write_atomic(paths["json"], json.dumps(stats, indent=2) + "\n")
-    return LithoResult(plan, paths, stats)
+    with _Staged(final) as paths:                     # all five files or none
+        V, F = body_mesh(plan)
+        write_stl(V, F, paths["stl"], name=f"bulgekit lithophane {name}")
+        write_gcode(plan, paths["gcode"], "litho", name)
+        write_gcode(plan, paths["stock"], "stock", name)
+        write_transmission_png(plan, paths["png"])
+        stats = plan_stats(plan, mesh_volume(V, F))
+        stats["name"] = name
+        stats["image"] = os.fspath(image)
+        stats["options"] = _options_dict(plan.options)
+        stats.update(_estimated(paths))
+        _write_atomic(paths["json"], json.dumps(stats, indent=2) + "\n")
+    return LithoResult(plan, final, stats)
+
+
+class _Staged:
+    """Outputs written under temporary names beside their targets (NAME.EXT.xxxx.part) and
+    renamed over them together at the end, with SIGINT and SIGTERM held back while renaming: a
+    run that fails or is interrupted leaves no new file and the earlier ones intact."""
+
+    def __init__(self, final: dict):
+        self.final, self.tmp = final, {}
+
+    def __enter__(self) -> dict:
+        try:
+            with _held():                             # no file made and not yet recorded
+                for k, p in self.final.items():
+                    fd, t = tempfile.mkstemp(prefix=p.name + ".", suffix=".part", dir=p.parent)
+                    os.close(fd)
+                    self.tmp[k] = Path(t)
+        except BaseException:
+            self._discard()
+            raise
+        return dict(self.tmp)
+
+    def __exit__(self, exc_type, exc, tb) -> bool:
+        if exc_type is not None:
+            self._discard()
+            return False
+        try:
+            with _held():
+                for k in list(self.tmp):
+                    os.replace(self.tmp[k], self.final[k])
+                    del self.tmp[k]
+        except BaseException:
+            self._discard()
+            raise
+        return False
+
+    def _discard(self) -> None:
+        for t in self.tmp.values():
+            try:
+                os.unlink(t)
+            except OSError:
+                pass
+        self.tmp.clear()
 
 
 def _estimated(paths) -> dict:

@@ -5,8 +5,14 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import re
+import signal
+import subprocess
+import sys
+import time
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -378,6 +384,66 @@ def test_cylinder_seam(cyl):
     m = trimesh.load(cyl.paths["stl"])
     assert m.is_watertight and m.is_winding_consistent and m.volume > 0
     assert 0.98 <= cyl.stats["fill_ratio"] <= 1.02
+
+
+# --- all outputs or none ----------------------------------------------------------------------
+
+OUTPUTS = (".litho.gcode", ".stock.gcode", ".stl", ".transmission.png", ".litho.json")
+
+
+def folder(d):
+    """Every file in d with its bytes."""
+    return {p.name: p.read_bytes() for p in sorted(d.iterdir())}
+
+
+def test_a_failing_last_writer_leaves_the_earlier_outputs(tmp_path, monkeypatch):
+    p = picture(tmp_path, boxes=[(0, 0, 20, 16, 0)])
+    out = tmp_path / "o"
+    lt.make(p, out, options=opts(), name="p")
+    before = folder(out)
+    assert sorted(before) == sorted(f"p{x}" for x in OUTPUTS)
+    p2 = picture(tmp_path, "p2.png", boxes=[(20, 0, 40, 16, 0)])     # other files would come out
+    write = lt._write_atomic
+
+    def interrupted(path, *a, **kw):
+        if Path(path).name.startswith("p.litho.json"):               # the last of the five
+            raise KeyboardInterrupt
+        return write(path, *a, **kw)
+
+    monkeypatch.setattr(lt, "_write_atomic", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        lt.make(p2, out, options=opts(), name="p")
+    assert folder(out) == before                                     # nothing new, nothing left over
+    monkeypatch.setattr(lt, "_write_atomic", write)
+    lt.make(p2, out, options=opts(), name="p")
+    after = folder(out)
+    assert sorted(after) == sorted(before)
+    assert all(after[k] != before[k] for k in after if not k.endswith(".json"))
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_a_killed_run_leaves_no_new_file(tmp_path, sig):
+    """`bulgekit litho` killed while it writes (its temporary files are there): the earlier
+    outputs of the same name stay as they were, and no file is added."""
+    p = picture(tmp_path, w=200, h=40, boxes=[(0, 0, 100, 40, 0)])
+    out = tmp_path / "o"
+    args = [p, "-o", out, "--name", "p", "--width", 100, "--height", 20, "--foot", 0, "-q"]
+    assert run(*args).exit_code == 0
+    before = folder(out)
+    p.write_bytes((tmp_path / picture(tmp_path, "q.png", w=200, h=40, boxes=[(100, 0, 200, 40, 0)]))
+                  .read_bytes())                                     # the next run's files differ
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(sys.path))
+    proc = subprocess.Popen([sys.executable, "-m", "bulgekit.cli", "litho", *map(str, args)],
+                            env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    t0 = time.monotonic()
+    while not any(f.name.endswith(".part") for f in out.iterdir()):
+        assert proc.poll() is None, "the run ended before it wrote anything"
+        assert time.monotonic() - t0 < 120
+        time.sleep(0.002)
+    proc.send_signal(sig)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode != 0, err
+    assert folder(out) == before
 
 
 # --- CLI ---------------------------------------------------------------------------------------
