@@ -373,7 +373,16 @@ def main(argv=None) -> int:
     ap.add_argument("--accel", type=float, nargs="+", default=[1000.0, 3000.0])
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--cura-defs")
+    ap.add_argument("--report-only", action="store_true",
+                    help="print the tables again from OUT/results.json (no slicing, no timing)")
     a = ap.parse_args(argv)
+    if a.report_only:
+        try:
+            saved = json.loads((a.out / "results.json").read_text())
+        except (OSError, ValueError) as e:
+            sys.exit(f"litho_bench: --report-only: {a.out / 'results.json'}: {e}")
+        print(report(saved["bodies"], saved["results"], a.accel))
+        return 0
     for tool in ("CuraEngine", "prusa-slicer"):
         if not shutil.which(tool):
             sys.exit(f"litho_bench: {tool} not found: apt-get install cura-engine prusa-slicer")
