@@ -153,7 +153,7 @@ def summary(s: dict) -> str:
     ml, gp, lk = s["mid_line"], s["gaps"], s["look"]
     return "\n".join([
         f"{s['name']}: {s['shape']}, {s['layers']} layers, picture {s['size_mm']['picture_width']:g} x "
-        f"{s['size_mm']['picture_height']:g} mm",
+        f"{s['size_mm']['picture_height']:g} mm" + _foot(s.get("options", {})),
         f"  estimated time {tt}, filament {s['filament_mm'] / 1000:.2f} m, fill ratio {s['fill_ratio']:.3f}, "
         f"{s['extruding_moves']} extruding moves",
         f"  mid-line at {s['rates']['mid_line_mm3_s']:g} mm^3/s: capped at --max-speed "
@@ -162,3 +162,9 @@ def summary(s: dict) -> str:
         f"  gaps snapped (narrower than --min-line): {100 * gp['snapped_share']:.2f} % of samples",
         f"  predicted look vs picture: correlation {lk['correlation']:.3f}, SSIM {lk['ssim']:.3f}",
     ])
+
+
+def _foot(o: dict) -> str:
+    if not o.get("foot") or not o.get("foot_height"):
+        return ""
+    return f", on a foot {o['foot']:g} mm deep and {o['foot_height']:g} mm tall (--foot 0: none)"

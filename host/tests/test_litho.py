@@ -21,6 +21,7 @@ from PIL import Image
 
 from bulgekit import litho as lt
 from bulgekit.cli import main
+from bulgekit.cli_litho import summary
 
 W, H = 0.4, 0.2
 
@@ -239,6 +240,7 @@ def test_foot_by_default_so_the_plate_stands(tmp_path):
     depth, lean = stands(res.paths["stl"])                        # what the slicers get
     assert depth == pytest.approx(11.5, abs=1e-3) and lean > 5
     assert json.loads(res.paths["json"].read_text())["options"]["foot"] == pytest.approx(11.5)
+    assert "on a foot 11.5 mm deep and 3 mm tall" in summary(res.stats)
     assert 0.98 <= res.stats["fill_ratio"] <= 1.02                # the foot is printed and counted
     off = lt.make(p, tmp_path / "off", options=replace(o, foot=0.0))
     assert off.plan.field.n_foot == 0
