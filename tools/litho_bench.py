@@ -2,8 +2,13 @@
 """Lithophane benchmark: `bulgekit litho` against CuraEngine 4.13 and PrusaSlicer 2.5 on the same
 bodies, every file timed by one estimator (bulgekit.estimate). Results: DIR/results.md, .json.
 
-    python3 tools/litho_bench.py --out /tmp/lb                # 3 pictures x planar, cylinder
-    python3 tools/litho_bench.py --out /tmp/lb --images examples/litho/wedge.png --shapes planar
+    python3 tools/litho_bench.py --out /tmp/lb                # 3 samples + 3 photos x planar, cylinder
+    python3 tools/litho_bench.py --out /tmp/lb --images examples/litho/wedge.png --photos --shapes planar
+
+Pictures: the samples drawn here (examples/litho/) and real photographs as scikit-image's wheel
+ships them (skimage.data: astronaut, a portrait; camera, a man with a camera; coffee, a cup on a
+table), written as PNGs into OUT/photos/ for this run only (nothing downloaded, nothing kept in
+the repository). `--photos` with names picks some of them, `--photos` alone none.
 
 Needs: Debian's `cura-engine` and `prusa-slicer`, and CuraEngine's machine definitions from
 Debian's `cura` package (not installed, only unpacked: `apt-get download cura && dpkg-deb -x
@@ -24,6 +29,9 @@ Terms (issue 18), the same for every method:
   metrics      time; fill ratio = filament laid by extruding moves x filament area / STL volume;
                extruding moves; filament; E-rate spread = share of extruding time within +-5 % of
                the median extruder rate. Best baseline = fastest baseline with fill ratio >= 0.95.
+  rules        (issue 24, per body and acceleration) speed: on photographs (and pictures named
+               by --photo-like) ours >= 25 % shorter than the best baseline; bound: on every
+               picture the saving within 3 points of the no-acceleration bound; fill: ours 0.98-1.02.
 """
 from __future__ import annotations
 
@@ -102,8 +110,41 @@ CURA = {
     "cura 1 wall + lines": {"wall_line_count": 1, "wall_thickness": 0.4, "infill_pattern": "lines"},
     "cura 0 walls + zigzag": {"wall_line_count": 0, "wall_thickness": 0, "infill_pattern": "zigzag"},
 }
+# photographs from scikit-image's wheel: these three load without a network (others need pooch)
+PHOTOS = {"astronaut": "a portrait (colour)", "camera": "a man with a camera (grey)",
+          "coffee": "a cup of coffee (colour)"}
+SPEED_GOAL, BOUND_POINTS, FILL = 25.0, 3.0, (0.98, 1.02)
 OURS = "ours: width mode (bulgekit litho)"
 PAPER = "ours at the paper's rate (--paper-rate)"
+
+
+def write_photos(names, d: Path) -> list[Path]:
+    """The named skimage.data photographs as PNGs in d (the wheel's own files, decoded and saved)."""
+    try:
+        import skimage.data
+    except ImportError:
+        sys.exit("litho_bench: --photos needs scikit-image (pip install scikit-image)")
+    from PIL import Image
+
+    d.mkdir(parents=True, exist_ok=True)
+    out = []
+    for n in names:
+        if n not in PHOTOS:
+            sys.exit(f"litho_bench: --photos: {n!r} is not one of {', '.join(PHOTOS)}")
+        p = d / f"{n}.png"
+        Image.fromarray(getattr(skimage.data, n)()).save(p)
+        out.append(p)
+    return out
+
+
+def tone_error(stats: dict):
+    """Mean |delta L*| between the picture and the predicted look, from the JSON's `look` block,
+    if the generator reports one (None otherwise)."""
+    import re
+    for k, v in stats.get("look", {}).items():
+        if isinstance(v, (int, float)) and re.search(r"mean.*(delta|d)_?l|(delta|d)_?l.*mean", k, re.I):
+            return float(v)
+    return None
 
 
 def cura_defs(arg: str | None) -> Path:
@@ -190,7 +231,7 @@ def _mid_rate(gcode: Path) -> float:
     return q / FIL_AREA
 
 
-def body_job(image: Path, shape: str, d: Path) -> dict:
+def body_job(image: Path, shape: str, d: Path, kind: str = "drawn sample", photo: bool = False) -> dict:
     """Our two files and the STL for one body."""
     d.mkdir(parents=True, exist_ok=True)
     (d / "start.g").write_text(START)
@@ -203,7 +244,7 @@ def body_job(image: Path, shape: str, d: Path) -> dict:
     litho.make(image, d / "paper", name=name, paper_rate=True, **kw)
     return {"name": name, "stl": str(res.paths["stl"]), "stl_volume": res.stats["stl_volume_mm3"],
             "ours": str(res.paths["gcode"]), "paper": str(d / "paper" / f"{name}.litho.gcode"),
-            "layers": res.stats["layers"], "stats": res.stats}
+            "layers": res.stats["layers"], "stats": res.stats, "kind": kind, "photo": photo}
 
 
 def method_job(method: str, body: dict, d: Path, defs: Path, accels) -> tuple[str, str, dict]:
@@ -228,10 +269,50 @@ def fmt_t(s: float) -> str:
     return f"{int(s // 3600)}:{int(s % 3600 // 60):02d}:{int(s % 60):02d}"
 
 
+def best_baseline(r: dict, a: str):
+    ok = {k: v[a] for k, v in r.items() if k not in (OURS, PAPER) and v[a]["fill_ratio"] >= 0.95}
+    return (min(ok, key=lambda k: ok[k]["time_s"]), ok) if ok else (None, ok)
+
+
+def bound_saving(o: dict, best_time: float) -> float:
+    """Our saving, % of the best baseline, if every move of ours ran at its own speed end to end."""
+    fi = o["by_feature_ideal_s"]
+    ideal = fi.get("wall", 0) + fi.get("mid-line", 0) + sum(fi.get(k, 0) for k in ("connector", "travel", ""))
+    return 100 * (1 - ideal / best_time)
+
+
+def verdicts(bodies: list, res: dict, a: str) -> list[str]:
+    """The issue's three rules per body: one row each, with pass/fail."""
+    lines = [f"### The rules at {a} mm/s² (speed: photographs ≥ {SPEED_GOAL:g} %; bound: saving within "
+             f"{BOUND_POINTS:g} points of it; fill {FILL[0]}–{FILL[1]})\n",
+             "| body | picture | ours | best baseline | saving | bound | bound − saving | fill | mean abs ΔL* | speed | bound | fill |",
+             "|---|---|---:|---|---:|---:|---:|---:|---:|---|---|---|"]
+    for b in bodies:
+        r = res[b["name"]]
+        best, ok = best_baseline(r, a)
+        o = r[OURS][a]
+        if best is None:
+            lines.append(f"| {b['name']} | {b['kind']} | {fmt_t(o['time_s'])} | none with fill ≥ 0.95 | | | | | | | | |")
+            continue
+        bt = ok[best]["time_s"]
+        saving, bound = 100 * (1 - o["time_s"] / bt), bound_saving(o, bt)
+        fill = o["fill_ratio"]
+        dl = tone_error(b["stats"])
+        speed = ("pass" if saving >= SPEED_GOAL else "FAIL") if b["photo"] else "–"
+        near = "pass" if bound - saving <= BOUND_POINTS else "FAIL"
+        fok = "pass" if FILL[0] <= fill <= FILL[1] else "FAIL"
+        lines.append(f"| {b['name']} | {b['kind']} | {fmt_t(o['time_s'])} | {best} | {saving:.1f} % | "
+                     f"{bound:.1f} % | {bound - saving:.1f} | {fill:.3f} | "
+                     f"{'n/a' if dl is None else f'{dl:.2f}'} | {speed} | {near} | {fok} |")
+    lines.append("")
+    return lines
+
+
 def report(bodies: list, res: dict, accels) -> str:
     lines = []
     for a in map(lambda x: str(int(x)), accels):
         lines.append(f"## Acceleration {a} mm/s²\n")
+        lines += verdicts(bodies, res, a)
         lines.append("| body | ours | best baseline (fill ≥ 0.95) | its time | saving | paper's rate | saving | Arachne 3p | saving |")
         lines.append("|---|---:|---|---:|---:|---:|---:|---:|---:|")
         for b in bodies:
@@ -284,21 +365,37 @@ def main(argv=None) -> int:
     ap.add_argument("--out", type=Path, required=True)
     ap.add_argument("--images", type=Path, nargs="+",
                     default=[ROOT / "examples/litho" / f"{n}.png" for n in ("wedge", "text", "drawing")])
+    ap.add_argument("--photos", nargs="*", default=list(PHOTOS), metavar="NAME",
+                    help=f"scikit-image photographs to run besides --images ({', '.join(PHOTOS)}; default all)")
+    ap.add_argument("--photo-like", nargs="*", default=[], metavar="STEM",
+                    help="stems of --images that are photographs or photo-like (the speed rule applies)")
     ap.add_argument("--shapes", nargs="+", default=["planar", "cylinder"], choices=["planar", "cylinder"])
     ap.add_argument("--accel", type=float, nargs="+", default=[1000.0, 3000.0])
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--cura-defs")
+    ap.add_argument("--report-only", action="store_true",
+                    help="print the tables again from OUT/results.json (no slicing, no timing)")
     a = ap.parse_args(argv)
+    if a.report_only:
+        try:
+            saved = json.loads((a.out / "results.json").read_text())
+        except (OSError, ValueError) as e:
+            sys.exit(f"litho_bench: --report-only: {a.out / 'results.json'}: {e}")
+        print(report(saved["bodies"], saved["results"], a.accel))
+        return 0
     for tool in ("CuraEngine", "prusa-slicer"):
         if not shutil.which(tool):
             sys.exit(f"litho_bench: {tool} not found: apt-get install cura-engine prusa-slicer")
     defs = cura_defs(a.cura_defs)
     a.out.mkdir(parents=True, exist_ok=True)
+    pictures = [(img, "photo-like" if img.stem in a.photo_like else "drawn sample", img.stem in a.photo_like)
+                for img in a.images]
+    pictures += [(p, f"photograph: {PHOTOS[p.stem]}", True) for p in write_photos(a.photos, a.out / "photos")]
     t0 = time.time()
     methods = [OURS, PAPER] + list(CURA) + list(PRUSA)
     with cf.ProcessPoolExecutor(a.jobs) as ex:
-        jobs = {ex.submit(body_job, img, sh, a.out / f"{img.stem}_{sh}"): (img, sh)
-                for img in a.images for sh in a.shapes}
+        jobs = {ex.submit(body_job, img, sh, a.out / f"{img.stem}_{sh}", kind, photo): (img, sh)
+                for img, kind, photo in pictures for sh in a.shapes}
         bodies = []
         for f in cf.as_completed(jobs):
             bodies.append(f.result())
@@ -314,8 +411,9 @@ def main(argv=None) -> int:
                   file=sys.stderr)
     (a.out / "results.json").write_text(json.dumps({"bodies": bodies, "results": res}, indent=1))
     md = report(bodies, res, a.accel)
-    (a.out / "results.md").write_text(f"# litho_bench results\n\nRun: `python3 tools/litho_bench.py "
-                                      f"--out {a.out}` ({time.time() - t0:.0f} s, {a.jobs} jobs)\n\n" + md)
+    run = " ".join(["python3", "tools/litho_bench.py", *(argv if argv is not None else sys.argv[1:])])
+    (a.out / "results.md").write_text(f"# litho_bench results\n\nRun: `{run}` ({time.time() - t0:.0f} s, "
+                                      f"{a.jobs} jobs)\n\n" + md)
     print(md)
     print(f"wrote {a.out / 'results.md'} and results.json ({time.time() - t0:.0f} s)", file=sys.stderr)
     return 0

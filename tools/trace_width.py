@@ -11,8 +11,10 @@ L3/L1 Z, A4/A6 E0); GCODE is the file that was sent. Reported:
             count reached the move's end: consecutive mid-line moves are gathered into windows
             of at least --window ms (a 0.4 mm piece carries only 5-20 E steps, too few to time
             one by one) and each window's E rate (steps / 500 per mm / time) is compared with
-            the set rate (--rate, default: the file's own M723 Q / filament area). The share
-            of mid-line time in windows within +-5 % is printed, and the mean rate over all.
+            the set rate (--rate, default: the file's own M723 Q / filament area; in a file
+            without M723, a stock-firmware file, the median E x F / length of its mid-line
+            moves after the first layer, the rate eq. 2 sets). The share of mid-line time in
+            windows within +-5 % is printed, and the mean rate over all.
 
 Reads only bksim's trace format and G-code text; it builds nothing.
 """
@@ -24,15 +26,20 @@ import math
 import sys
 from pathlib import Path
 
+import numpy as np
+
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from trace_stops import F_CPU, STEPS, Run, words  # noqa: E402
 
 
 def mid_line_moves(path):
-    """(layer, E steps at the move's end, is mid-line) per move that changes E, in file order.
-    E is followed as Marlin does (M82/M83, G90 resets E to absolute, G92 E)."""
+    """("move", layer, kind, E, M723 rate in force, E x F / length) per move that changes E, in
+    file order (the last is None for a move without X/Y motion), and ("g92", ...) where G92 sets E.
+    E is followed as Marlin does (M82/M83, G90 resets E to absolute, G92 E); X/Y and F as well
+    (G90/G91), for the eq. 2 rate of a file without M723."""
     out, kind, layer = [], None, -1
     e_rel, e, rate = False, 0.0, None
+    xy_rel, x, y, f = False, 0.0, 0.0, None
     area = math.pi * 1.75 ** 2 / 4
     for raw in open(path, encoding="utf-8", errors="replace"):
         if raw.startswith(";TYPE:"):
@@ -47,6 +54,10 @@ def mid_line_moves(path):
             e_rel = True
         elif head in ("M82", "G90"):
             e_rel = False
+            if head == "G90":
+                xy_rel = False
+        elif head == "G91":
+            xy_rel = e_rel = True
         elif head == "G92" and "E" in w:
             e_base = w["E"]
             out.append(("g92", e, e_base))             # the count goes on; only the frame moves
@@ -56,10 +67,17 @@ def mid_line_moves(path):
                 area = math.pi * w["D"] ** 2 / 4
             if "Q" in w:
                 rate = w["Q"] / area                   # the rate in force for what follows
-        elif head in ("G0", "G1") and "E" in w:
-            new = e + w["E"] if e_rel else w["E"]
-            out.append(("move", layer, kind, new - e, rate))
-            e = new
+        elif head in ("G0", "G1"):
+            f = w.get("F", f)
+            nx = x + w.get("X", 0.0) if xy_rel else w.get("X", x)
+            ny = y + w.get("Y", 0.0) if xy_rel else w.get("Y", y)
+            length = math.hypot(nx - x, ny - y)
+            x, y = nx, ny
+            if "E" in w:
+                new = e + w["E"] if e_rel else w["E"]
+                eq2 = (new - e) * f / 60 / length if f and length > 1e-9 else None
+                out.append(("move", layer, kind, new - e, rate, eq2))
+                e = new
     return out
 
 
@@ -77,11 +95,14 @@ def analyse(trace: str, gcode: str, rate: float | None = None, window_ms: float 
     i = 0
     windows, cur = [], None
     mid_rate = None
+    eq2_rates = []
     prev_t, prev_n = run.first, 0
     for item in mid_line_moves(gcode):
         if item[0] == "g92":
             continue
-        _, layer, kind, de, r = item
+        _, layer, kind, de, r, eq2 = item
+        if kind == "mid-line" and layer >= 1 and de > 0 and eq2 is not None:
+            eq2_rates.append(eq2)
         target += de
         want = round(target * STEPS["E"])
         # the first step at which the count equals the target, searching forward
@@ -106,6 +127,9 @@ def analyse(trace: str, gcode: str, rate: float | None = None, window_ms: float 
             cur = None
         prev_t, prev_n = t_end, want
     ref = rate if rate is not None else mid_rate
+    source = "--rate" if rate is not None else "M723 Q" if mid_rate is not None else None
+    if ref is None and eq2_rates:
+        ref, source = float(np.median(eq2_rates)), "E x F / length (no M723)"
     t_in = t_all = steps_all = 0.0
     for t0, t1, n0, n1 in windows:
         dt = (t1 - t0) / F_CPU
@@ -118,7 +142,8 @@ def analyse(trace: str, gcode: str, rate: float | None = None, window_ms: float 
             t_in += dt
     return {"time_s": round(total, 3), "mid_line_windows": len(windows),
             "mid_line_time_s": round(t_all, 3),
-            "set_rate_mm_s": ref, "mean_rate_mm_s": (steps_all / STEPS["E"] / t_all) if t_all else None,
+            "set_rate_mm_s": ref, "set_rate_from": source,
+            "mean_rate_mm_s": (steps_all / STEPS["E"] / t_all) if t_all else None,
             "share_within_5pct": (t_in / t_all) if t_all else None}
 
 
@@ -130,14 +155,21 @@ def main(argv=None) -> int:
     ap.add_argument("--window", type=float, default=40.0, help="ms per rate window (default 40)")
     ap.add_argument("--json", action="store_true")
     a = ap.parse_args(argv)
+    if a.rate is not None and not (math.isfinite(a.rate) and a.rate > 0):
+        ap.error(f"--rate: must be a number > 0, got {a.rate}")
     r = analyse(a.trace, a.gcode, a.rate, a.window)
+    if r["mid_line_time_s"] and r["set_rate_mm_s"] is None:
+        print(f"trace_width.py: {a.gcode}: no M723 Q and no mid-line move with E, F and a length to "
+              "take the set rate from; give --rate MM_S", file=sys.stderr)
+        return 2
     if a.json:
         print(json.dumps(r, indent=1))
     else:
         print(f"motion time {r['time_s']:.2f} s")
         if r["mid_line_time_s"]:
             print(f"mid-line after layer 1: {r['mid_line_time_s']:.2f} s in {r['mid_line_windows']} windows; "
-                  f"mean E rate {r['mean_rate_mm_s']:.4f} mm/s against {r['set_rate_mm_s']:.4f}; "
+                  f"mean E rate {r['mean_rate_mm_s']:.4f} mm/s against {r['set_rate_mm_s']:.4f} "
+                  f"({r['set_rate_from']}); "
                   f"{100 * r['share_within_5pct']:.1f} % of the time within 5 %")
     return 0
 

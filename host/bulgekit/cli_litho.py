@@ -6,6 +6,7 @@ cli.py calls register(main) to add it to the bulgekit command group.
 from __future__ import annotations
 
 import math
+import signal
 
 import click
 
@@ -21,6 +22,10 @@ def _bed(ctx, param, value):
     if len(parts) not in (2, 3) or not all(math.isfinite(p) and p > 0 for p in parts):
         raise click.BadParameter(f"expected two or three sizes > 0 mm (X,Y[,Z]), got {value!r}")
     return tuple(parts)
+
+
+def _terminated(signum, frame):
+    raise SystemExit(128 + signum)
 
 
 def register(main):
@@ -56,8 +61,10 @@ def register(main):
                        "and transmission curves and the predicted look; measure it with --calibration.")
     @click.option("--frame", type=NONNEG, default=0.0, show_default=True,
                   help="Border at full thickness, mm (planar: all four sides; cylinder: top and bottom).")
-    @click.option("--foot", type=NONNEG, default=0.0, show_default=True,
-                  help="Planar: a foot block this deep (mm) under the plate so it stands (0: none).")
+    @click.option("--foot", type=NONNEG, default=None,
+                  help="Planar: depth of the foot block under the plate, mm (0: none). Default: an "
+                       "eighth of the picture's height, at least 6 mm, so the part stands; a "
+                       "cylinder stands by itself and gets none.")
     @click.option("--foot-height", type=NONNEG, default=3.0, show_default=True, help="Foot height, mm.")
     @click.option("--layer-height", type=POSITIVE, default=0.2, show_default=True, help="mm; one picture row per layer.")
     @click.option("--line-width", type=POSITIVE, default=0.4, show_default=True, help="Wall line width, mm.")
@@ -148,7 +155,12 @@ def register(main):
             if progress.enabled():
                 click.echo(f"\rplanning layers: {done}/{total}", err=True, nl=done == total)
 
-        res = lt.make(image, outdir, name=name, progress=show, options=opts)
+        # SIGTERM ends the run as Ctrl-C does, so make() removes its temporary files
+        old = signal.signal(signal.SIGTERM, _terminated)
+        try:
+            res = lt.make(image, outdir, name=name, progress=show, options=opts)
+        finally:
+            signal.signal(signal.SIGTERM, old)
         s = res.stats
         click.echo(summary(s))
         if "calibration" in s:
@@ -171,7 +183,7 @@ def summary(s: dict) -> str:
     ml, gp, lk = s["mid_line"], s["gaps"], s["look"]
     return "\n".join([
         f"{s['name']}: {s['shape']}, {s['layers']} layers, picture {s['size_mm']['picture_width']:g} x "
-        f"{s['size_mm']['picture_height']:g} mm",
+        f"{s['size_mm']['picture_height']:g} mm" + _foot(s.get("options", {})),
         f"  estimated time {tt}",
         f"  filament {s['filament_mm'] / 1000:.2f} m, fill ratio {s['fill_ratio']:.3f}, "
         f"{s['extruding_moves']} extruding moves",
@@ -193,3 +205,9 @@ def calibration_table(s: dict) -> str:
         rows.append(f"  {st['step']:>4}  {st['planned_mm']:>12.2f}  {st['relative_luminance']:>24.3f}  "
                     f"{st['predicted_L']:>6.1f}")
     return "\n".join(rows)
+
+
+def _foot(o: dict) -> str:
+    if not o.get("foot") or not o.get("foot_height"):
+        return ""
+    return f", on a foot {o['foot']:g} mm deep and {o['foot_height']:g} mm tall (--foot 0: none)"

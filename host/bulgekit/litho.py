@@ -31,6 +31,7 @@ piece lays its band's area (width = area / length: the filament is the body's vo
 """
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
 import math
@@ -66,7 +67,7 @@ class LithoOptions:
     gamma: float = 1.0              # darkness ** gamma before the curve (contrast)
     attenuation: float = 1.5        # Beer-Lambert attenuation of the filament, 1/mm
     frame: float = 0.0              # border at full thickness, mm (0: none)
-    foot: float = 0.0               # planar: depth of a foot block, mm (0: none)
+    foot: float | None = None       # planar: depth of a foot block, mm (0: none; None: foot_depth())
     foot_height: float = 3.0        # mm
     layer_height: float = 0.2
     line_width: float = 0.4
@@ -137,8 +138,8 @@ def check_options(o: LithoOptions) -> None:
             bad(k, f"must be a number > 0, got {v}")
     if o.height is not None and not (math.isfinite(o.height) and o.height > 0):
         bad("height", f"must be a number > 0, got {o.height}")
-    for k, v in {"block-rate": o.block_rate, "frame": o.frame, "foot": o.foot, "foot-height": o.foot_height, "retract": o.retract,
-                 "retract-min": o.retract_min}.items():
+    for k, v in {"block-rate": o.block_rate, "frame": o.frame, "foot": 0.0 if o.foot is None else o.foot,
+                 "foot-height": o.foot_height, "retract": o.retract, "retract-min": o.retract_min}.items():
         if not (math.isfinite(v) and v >= 0):
             bad(k, f"must be a number >= 0, got {v}")
     if o.retract > 0 and not (o.retract_speed > 0):
@@ -159,12 +160,27 @@ def check_options(o: LithoOptions) -> None:
     if o.shape == "cylinder":
         if o.diameter / 2 - o.max_thickness < 5 * o.line_width:
             bad("diameter", f"{o.diameter:g} mm leaves no room inside a {o.max_thickness:g} mm wall")
-        if o.foot > 0:
+        if o.foot:
             bad("foot", "a cylinder stands by itself; --foot is for planar plates")
-    if o.shape == "planar" and o.foot > 0 and o.foot < o.max_thickness:
+    if o.shape == "planar" and o.foot and o.foot < o.max_thickness:
         bad("foot", f"{o.foot:g} mm must be at least --max {o.max_thickness:g} mm deep")
     if len(o.bed) not in (2, 3) or not all(math.isfinite(b) and b > 0 for b in o.bed):
         bad("bed", f"expected X,Y[,Z] in mm > 0, got {o.bed}")
+
+
+FOOT_MIN = 6.0          # mm, the shallowest default footprint
+FOOT_SLOPE = 1 / 8      # default footprint depth per mm of plate height
+
+
+def foot_depth(o: LithoOptions, picture_height: float) -> float:
+    """The foot's depth: --foot, or by default (None) for a planar plate an eighth of its height
+    but at least FOOT_MIN and --max. The part's weight sits at about half its height, so it tips
+    only when leaned by atan(depth / height) = 7 degrees; a cylinder stands by itself (0)."""
+    if o.foot is not None:
+        return o.foot
+    if o.shape != "planar":
+        return 0.0
+    return max(FOOT_MIN, o.max_thickness, round(picture_height * FOOT_SLOPE, 1))
 
 
 # --- the thickness field -------------------------------------------------------------------
@@ -181,6 +197,7 @@ class Field:
     shared: int              # picture samples whose gap is narrower than a mid-line: the walls share it
     picture_mm: tuple        # (width or circumference, height) of the picture, mm
     inside: tuple            # (rows, samples) slices of the picture inside the frame
+    foot: float = 0.0        # depth of the foot, mm (0: none)
 
     @property
     def layers(self) -> int:
@@ -239,13 +256,14 @@ def _field(t: np.ndarray, bright: np.ndarray, s: np.ndarray, o: LithoOptions, pi
     thr = (lines * o.line_min())[:, None]
     shared = (gap > 1e-9) & (gap < thr - 1e-9)
     n_foot = 0
-    if o.shape == "planar" and o.foot > 0:
-        n_foot = int(round(o.foot_height / o.layer_height))
-        t = np.vstack([np.full((n_foot, n), o.foot), t])
-        foot_lines = max(1, math.ceil((o.foot - w2) / o.max_line - 1e-9))
+    foot = foot_depth(o, rows * o.layer_height)
+    if o.shape == "planar" and foot > 0 and o.foot_height > 0:
+        n_foot = max(1, int(round(o.foot_height / o.layer_height)))
+        t = np.vstack([np.full((n_foot, n), foot), t])
+        foot_lines = max(1, math.ceil((foot - w2) / o.max_line - 1e-9))
         lines = np.concatenate([np.full(n_foot, foot_lines), lines])
     return Field(t=t, bright=bright, s=s, n_foot=n_foot, lines=lines, shared=int(shared.sum()),
-                 picture_mm=(pic_w, rows * o.layer_height), inside=inside)
+                 picture_mm=(pic_w, rows * o.layer_height), inside=inside, foot=foot if n_foot else 0.0)
 
 
 def calibration_field(o: LithoOptions) -> tuple[Field, dict]:
@@ -662,6 +680,7 @@ def plan_lithophane(image, o: LithoOptions | None = None, progress=None) -> Plan
     """Paths for every layer. `progress(done, total)` is called now and then."""
     o = o or LithoOptions()
     fld = image if isinstance(image, Field) else thickness_field(image, o)   # a Field: calibration_field
+    o = replace(o, foot=fld.foot)          # the plan and its files carry the depth in use
     _check_fits(o, fld)
     plan = Plan(o, fld)
     plan.counts.update(shared_mm3=0.0)
@@ -918,7 +937,7 @@ def write_gcode(plan: Plan, path, mode: str, name: str = "lithophane", estimate_
         w.flow = o.wall_flow
     ratio = o.first_layer_speed / o.wall_speed
     n = len(plan.layers)
-    with pg.phase(f"writing {Path(path).name}", n, unit="layers"):
+    with pg.phase(f"writing {_shown(path)}", n, unit="layers"):
         for k, L in enumerate(plan.layers):
             w.out(f";LAYER:{k}")
             w.out(f"G1 Z{_fmt(L.z, 3)} F{_fmt(o.z_speed * 60, 1)}")
@@ -940,7 +959,7 @@ def write_gcode(plan: Plan, path, mode: str, name: str = "lithophane", estimate_
     out = []
     for m in estimate_with:
         every = "" if m.min_segment_steps else ", every move planned"
-        with pg.phase(f"estimating {Path(path).name}{every}", 1, unit="estimates"):
+        with pg.phase(f"estimating {_shown(path)}{every}", 1, unit="estimates"):
             out.append(estimate.estimate_lines(w.lines(), m, source=os.fspath(path)).total_s)
     return out
 
@@ -964,12 +983,27 @@ def _umask() -> int:
     return m
 
 
+@contextlib.contextmanager
+def _held():
+    """SIGINT and SIGTERM held back (delivered at the end) in this thread, where available."""
+    import signal
+    block = getattr(signal, "pthread_sigmask", None)
+    old = block(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM}) if block else None
+    try:
+        yield
+    finally:
+        if block:
+            block(signal.SIG_SETMASK, old)
+
+
 def _write_atomic(path, data, binary=False):
     """Write all of it or nothing: a temporary file in the same folder, renamed over the target.
     `data`: str or bytes, or an iterable of them (written piece by piece)."""
     path = Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".part", dir=path.parent)
+    tmp = None
     try:
+        with _held():                                 # the file is made and its name kept
+            fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".part", dir=path.parent)
         with os.fdopen(fd, "wb" if binary else "w") as f:
             if isinstance(data, (str, bytes)):
                 f.write(data)
@@ -979,7 +1013,8 @@ def _write_atomic(path, data, binary=False):
         os.replace(tmp, path)
     except BaseException:
         try:
-            os.unlink(tmp)
+            if tmp is not None:
+                os.unlink(tmp)
         except OSError:
             pass
         raise
@@ -1276,33 +1311,83 @@ def make(image, outdir, name: str | None = None, progress=None, machine=None, **
     out = Path(outdir)
     plan = plan_lithophane(image, o, progress=progress)
     out.mkdir(parents=True, exist_ok=True)
-    paths = {"gcode": out / f"{name}.litho.gcode", "stock": out / f"{name}.stock.gcode",
+    final = {"gcode": out / f"{name}.litho.gcode", "stock": out / f"{name}.stock.gcode",
              "stl": out / f"{name}.stl", "png": out / f"{name}.transmission.png",
              "json": out / f"{name}.litho.json"}
     m = machine or estimate.Machine()
-    with pg.phase(f"writing {paths['stl'].name}", 1, unit="files"):
-        V, F = body_mesh(plan)
-        write_stl(V, F, paths["stl"], name=f"bulgekit lithophane {name}")
-        stl_volume = mesh_volume(V, F)
-        del V, F
-    times = {}
-    # the litho file also with every move planned (Klipper, RepRapFirmware): nothing dropped
-    every = dataclasses.replace(m, min_segment_steps=0)
-    times["gcode"], times["every"] = write_gcode(plan, paths["gcode"], "litho", name, estimate_with=[m, every])
-    times["stock"], = write_gcode(plan, paths["stock"], "stock", name, estimate_with=[m])
-    write_transmission_png(plan, paths["png"])
-    stats = plan_stats(plan, stl_volume)
-    stats["name"] = name
-    stats["image"] = None if calibration else os.fspath(image)
-    if calibration:
-        stats["calibration"] = calibration
-    stats["options"] = _options_dict(o)
-    stats["estimate"] = {"estimated_time_s_gcode": round(times["gcode"], 1),
-                         "estimated_time_s_stock": round(times["stock"], 1),
-                         "estimated_time_s_gcode_every_move_planned": round(times["every"], 1),
-                         "machine": machine_words(m)}
-    _write_atomic(paths["json"], json.dumps(stats, indent=2) + "\n")
-    return LithoResult(plan, paths, stats)
+    with _Staged(final) as paths:                     # all five files or none
+        with pg.phase(f"writing {final['stl'].name}", 1, unit="files"):
+            V, F = body_mesh(plan)
+            write_stl(V, F, paths["stl"], name=f"bulgekit lithophane {name}")
+            stl_volume = mesh_volume(V, F)
+            del V, F
+        times = {}
+        # the litho file also with every move planned (Klipper, RepRapFirmware): nothing dropped
+        every = dataclasses.replace(m, min_segment_steps=0)
+        times["gcode"], times["every"] = write_gcode(plan, paths["gcode"], "litho", name, estimate_with=[m, every])
+        times["stock"], = write_gcode(plan, paths["stock"], "stock", name, estimate_with=[m])
+        write_transmission_png(plan, paths["png"])
+        stats = plan_stats(plan, stl_volume)
+        stats["name"] = name
+        stats["image"] = None if calibration else os.fspath(image)
+        if calibration:
+            stats["calibration"] = calibration
+        stats["options"] = _options_dict(plan.options)
+        stats["estimate"] = {"estimated_time_s_gcode": round(times["gcode"], 1),
+                             "estimated_time_s_stock": round(times["stock"], 1),
+                             "estimated_time_s_gcode_every_move_planned": round(times["every"], 1),
+                             "machine": machine_words(m)}
+        _write_atomic(paths["json"], json.dumps(stats, indent=2) + "\n")
+    return LithoResult(plan, final, stats)
+
+
+def _shown(path) -> str:
+    """A file's name as the user will see it: without _Staged's temporary suffix."""
+    name = Path(path).name
+    return name.rsplit(".", 2)[0] if name.endswith(".part") else name
+
+
+class _Staged:
+    """Outputs written under temporary names beside their targets (NAME.EXT.xxxx.part) and
+    renamed over them together at the end, with SIGINT and SIGTERM held back while renaming: a
+    run that fails or is interrupted leaves no new file and the earlier ones intact."""
+
+    def __init__(self, final: dict):
+        self.final, self.tmp = final, {}
+
+    def __enter__(self) -> dict:
+        try:
+            with _held():                             # no file made and not yet recorded
+                for k, p in self.final.items():
+                    fd, t = tempfile.mkstemp(prefix=p.name + ".", suffix=".part", dir=p.parent)
+                    os.close(fd)
+                    self.tmp[k] = Path(t)
+        except BaseException:
+            self._discard()
+            raise
+        return dict(self.tmp)
+
+    def __exit__(self, exc_type, exc, tb) -> bool:
+        if exc_type is not None:
+            self._discard()
+            return False
+        try:
+            with _held():
+                for k in list(self.tmp):
+                    os.replace(self.tmp[k], self.final[k])
+                    del self.tmp[k]
+        except BaseException:
+            self._discard()
+            raise
+        return False
+
+    def _discard(self) -> None:
+        for t in self.tmp.values():
+            try:
+                os.unlink(t)
+            except OSError:
+                pass
+        self.tmp.clear()
 
 
 def machine_words(m) -> dict:

@@ -5,7 +5,14 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import re
+import signal
+import subprocess
+import sys
+import time
+from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -14,6 +21,7 @@ from PIL import Image
 
 from bulgekit import litho as lt
 from bulgekit.cli import main
+from bulgekit.cli_litho import summary
 
 W, H = 0.4, 0.2
 
@@ -29,7 +37,7 @@ def picture(tmp_path, name="p.png", w=40, h=16, fill=255, boxes=()):
 
 
 def opts(**kw):
-    base = dict(width=20.0, height=3.0, pitch=0.4)
+    base = dict(width=20.0, height=3.0, pitch=0.4, foot=0.0)     # the plate alone; feet: test_foot_*
     base.update(kw)
     return lt.LithoOptions(**base)
 
@@ -111,7 +119,8 @@ def test_grey_ramp_prints_monotonic_without_jumps(tmp_path):
     p = tmp_path / "ramp.png"
     Image.fromarray(a).save(p)
     # one sample per tone: 256 samples 0.4 mm apart, each the average of one pixel column
-    plan = lt.plan_lithophane(p, lt.LithoOptions(width=255 * 0.4 * 256 / 255, height=2.4, pitch=0.4 * 256 / 255))
+    plan = lt.plan_lithophane(p, lt.LithoOptions(width=255 * 0.4 * 256 / 255, height=2.4, pitch=0.4 * 256 / 255,
+                                                foot=0))
     t = lt.printed_thickness(plan)
     assert t == pytest.approx(plan.field.t, abs=1e-9)
     assert plan.field.shared > 0                                   # the light end passes through it
@@ -355,6 +364,47 @@ def test_foot_and_frame(tmp_path):
     assert res.stats["look"]["correlation"] > 0.9                 # measured inside the frame
 
 
+def stands(stl):
+    """(footprint depth across the plate in mm, the angle in degrees the part can lean before its
+    centre of mass leaves the footprint) of a watertight STL standing on z = 0."""
+    import trimesh
+    m = trimesh.load(stl)
+    assert m.is_watertight and m.is_winding_consistent and m.is_volume
+    base = m.vertices[np.abs(m.vertices[:, 2]) < 1e-6]
+    lo, hi = base[:, 1].min(), base[:, 1].max()
+    c = m.center_mass
+    return hi - lo, math.degrees(math.atan(min(c[1] - lo, hi - c[1]) / c[2]))
+
+
+def test_foot_by_default_so_the_plate_stands(tmp_path):
+    # a 92 mm tall plate 0.8-2.4 mm thick (the issue's case): an eighth of its height, 11.5 mm
+    p = picture(tmp_path, w=50, h=46, boxes=[(0, 0, 25, 46, 0), (25, 0, 50, 23, 128)])
+    o = lt.LithoOptions(width=100.0, pitch=2.0, layer_height=0.4, line_width=0.8, min_thickness=1.6,
+                        max_thickness=2.4)
+    assert o.foot is None
+    res = lt.make(p, tmp_path / "o", options=o)
+    assert res.plan.field.picture_mm[1] == pytest.approx(92.0)
+    assert res.plan.options.foot == pytest.approx(11.5) and res.plan.field.n_foot == 8   # 3 mm / 0.4
+    depth, lean = stands(res.paths["stl"])                        # what the slicers get
+    assert depth == pytest.approx(11.5, abs=1e-3) and lean > 5
+    assert json.loads(res.paths["json"].read_text())["options"]["foot"] == pytest.approx(11.5)
+    assert "on a foot 11.5 mm deep and 3 mm tall" in summary(res.stats)
+    assert 0.98 <= res.stats["fill_ratio"] <= 1.02                # the foot is printed and counted
+    off = lt.make(p, tmp_path / "off", options=replace(o, foot=0.0))
+    assert off.plan.field.n_foot == 0
+    depth, lean = stands(off.paths["stl"])
+    assert depth == pytest.approx(2.4, abs=1e-3) and lean < 1.5   # on its edge alone
+
+
+def test_foot_default_is_at_least_6_mm_and_none_on_a_cylinder(tmp_path):
+    p = picture(tmp_path)
+    assert lt.thickness_field(p, lt.LithoOptions(width=20.0, height=3.0)).foot == 6.0
+    assert lt.thickness_field(p, lt.LithoOptions(width=20.0, height=3.0, max_thickness=7.0)).foot == 7.0
+    assert lt.thickness_field(p, lt.LithoOptions(width=20.0, height=3.0, foot=0.0)).n_foot == 0
+    cyl = lt.thickness_field(p, lt.LithoOptions(shape="cylinder", diameter=30.0, height=2.0))
+    assert cyl.n_foot == 0 and cyl.foot == 0.0
+
+
 # --- the two G-code files ------------------------------------------------------------------
 
 @pytest.fixture(scope="module")
@@ -506,6 +556,66 @@ def test_cylinder_seam(cyl):
     assert 0.98 <= cyl.stats["fill_ratio"] <= 1.02
 
 
+# --- all outputs or none ----------------------------------------------------------------------
+
+OUTPUTS = (".litho.gcode", ".stock.gcode", ".stl", ".transmission.png", ".litho.json")
+
+
+def folder(d):
+    """Every file in d with its bytes."""
+    return {p.name: p.read_bytes() for p in sorted(d.iterdir())}
+
+
+def test_a_failing_last_writer_leaves_the_earlier_outputs(tmp_path, monkeypatch):
+    p = picture(tmp_path, boxes=[(0, 0, 20, 16, 0)])
+    out = tmp_path / "o"
+    lt.make(p, out, options=opts(), name="p")
+    before = folder(out)
+    assert sorted(before) == sorted(f"p{x}" for x in OUTPUTS)
+    p2 = picture(tmp_path, "p2.png", boxes=[(20, 0, 40, 16, 0)])     # other files would come out
+    write = lt._write_atomic
+
+    def interrupted(path, *a, **kw):
+        if Path(path).name.startswith("p.litho.json"):               # the last of the five
+            raise KeyboardInterrupt
+        return write(path, *a, **kw)
+
+    monkeypatch.setattr(lt, "_write_atomic", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        lt.make(p2, out, options=opts(), name="p")
+    assert folder(out) == before                                     # nothing new, nothing left over
+    monkeypatch.setattr(lt, "_write_atomic", write)
+    lt.make(p2, out, options=opts(), name="p")
+    after = folder(out)
+    assert sorted(after) == sorted(before)
+    assert all(after[k] != before[k] for k in after if not k.endswith(".json"))
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_a_killed_run_leaves_no_new_file(tmp_path, sig):
+    """`bulgekit litho` killed while it writes (its temporary files are there): the earlier
+    outputs of the same name stay as they were, and no file is added."""
+    p = picture(tmp_path, w=200, h=40, boxes=[(0, 0, 100, 40, 0)])
+    out = tmp_path / "o"
+    args = [p, "-o", out, "--name", "p", "--width", 100, "--height", 20, "--foot", 0, "-q"]
+    assert run(*args).exit_code == 0
+    before = folder(out)
+    p.write_bytes((tmp_path / picture(tmp_path, "q.png", w=200, h=40, boxes=[(100, 0, 200, 40, 0)]))
+                  .read_bytes())                                     # the next run's files differ
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(sys.path))
+    proc = subprocess.Popen([sys.executable, "-m", "bulgekit.cli", "litho", *map(str, args)],
+                            env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    t0 = time.monotonic()
+    while not any(f.name.endswith(".part") for f in out.iterdir()):
+        assert proc.poll() is None, "the run ended before it wrote anything"
+        assert time.monotonic() - t0 < 120
+        time.sleep(0.002)
+    proc.send_signal(sig)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode != 0, err
+    assert folder(out) == before
+
+
 # --- CLI ---------------------------------------------------------------------------------------
 
 def run(*args):
@@ -545,13 +655,14 @@ def test_every_phase_reports_progress(tmp_path):
 @pytest.mark.parametrize("args, message", [
     (["--min", "2", "--max", "1"], "--max: 1 mm must be more than --min 2 mm"),
     (["--min", "0.6"], "--min: 0.6 mm is thinner than two wall lines"),
-    (["--width", "300"], "--bed: the part is 300.0 x 2.4 mm and does not fit a 220 x 220 mm bed"),
-    (["--bed", "220,220,2"], "--bed: the part is 3.0 mm tall, more than the printer's 2 mm"),
+    (["--width", "300"], "--bed: the part is 300.0 x 6.0 mm and does not fit a 220 x 220 mm bed"),
+    (["--bed", "220,220,2"], "--bed: the part is 6.0 mm tall, more than the printer's 2 mm"),
     (["--bed", "220"], "expected two or three sizes"),
     (["--max", "nan"], "is not a finite number"),
     (["--shape", "cylinder", "--foot", "5"], "--foot: a cylinder stands by itself"),
 ])
 def test_cli_bad_options(tmp_path, args, message):
+    # the default foot (6 mm deep, 3 mm tall) counts: 300 x 6 mm, 3 + 3 mm tall
     p = picture(tmp_path)
     r = run(p, "-o", tmp_path / "out", "--width", 20, "--height", 3, *args)
     assert r.exit_code != 0

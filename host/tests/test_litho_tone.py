@@ -186,7 +186,7 @@ def test_end_columns_print_what_the_picture_says(tmp_path):
     plan = lt.plan_lithophane(tmp_path / "noisy.png", lt.LithoOptions(width=40.0, height=8.0))
     o = plan.options
     L = lambda t: tone.lightness(tone.plate_luminance(t, o.attenuation, o.min_thickness))
-    dL = L(lt.printed_thickness(plan)) - L(plan.field.t)
+    dL = L(lt.printed_thickness(plan)) - L(plan.field.t[plan.field.n_foot:])
     edges = dL[:, [0, 1, -2, -1]]
     inner = dL[:, 2:-2]
     assert np.abs(edges).max() <= max(2.0, np.abs(inner).max())
@@ -209,7 +209,8 @@ def test_calibration_plate(tmp_path):
     assert planned[0] == 0.8 and planned[-1] == 2.4 and np.all(np.diff(planned) > 0)
     assert "2.40" in r.output and "36.1" in r.output              # the table: thickest step, its L*
     # each label strip carries the digits of its step's planned thickness, raised to --max
-    fld, info = lt.calibration_field(lt.LithoOptions())
+    fld, info = lt.calibration_field(lt.LithoOptions(foot=0))
+    assert lt.calibration_field(lt.LithoOptions())[0].n_foot > 0           # it stands on a foot
     X, Z = np.meshgrid(fld.s, (np.arange(fld.t.shape[0]) + 0.5) * 0.2)
     labels = [f"{st['planned_mm']:.2f}" for st in info["steps"]]
     for i, ((a0, a1, b0, b1), (c0, c1, d0, d1)) in enumerate(tone.calibration_layout()):

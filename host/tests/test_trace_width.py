@@ -65,3 +65,30 @@ def test_a_slow_move_falls_outside(tmp_path):
     # windows close at move ends; each move is one window here (300+ ms each)
     assert r["share_within_5pct"] == pytest.approx(t_fast / (t_fast + t_slow), rel=5e-3)
     assert r["mean_rate_mm_s"] == pytest.approx(2 / (t_fast + t_slow), rel=5e-3)
+
+
+def test_a_stock_file_without_m723_takes_the_rate_of_eq_2(tmp_path, capsys):
+    """A stock-firmware file has no M723: the set rate is E x F / length of its mid-line moves."""
+    tr, _, _ = write(tmp_path, [RATE, RATE / 2])
+    f = RATE * 60 * 10 / 1                       # 10 mm pieces laying 1 mm of filament each
+    stock = GCODE.replace("M723 S1 Q8 D1.75 H0.2\n", "").replace("G1 X20 E1\n", f"G1 X20 E1 F{f:.1f}\n")
+    (tmp_path / "s.gcode").write_text(stock)
+    r = trace_width.analyse(tr, str(tmp_path / "s.gcode"), window_ms=40)
+    assert r["set_rate_mm_s"] == pytest.approx(RATE, rel=1e-4)
+    assert r["set_rate_from"] == "E x F / length (no M723)"
+    t_fast, t_slow = 1 / RATE, 2 / RATE
+    assert r["share_within_5pct"] == pytest.approx(t_fast / (t_fast + t_slow), rel=5e-3)
+    assert trace_width.main([tr, str(tmp_path / "s.gcode")]) == 0
+    assert "against 3.3260 (E x F / length (no M723))" in capsys.readouterr().out
+
+
+def test_no_rate_to_be_had_is_a_message_not_a_traceback(tmp_path, capsys):
+    tr, _, _ = write(tmp_path, [RATE, RATE])
+    # no M723, and mid-line moves of E alone: nothing to take a rate from
+    (tmp_path / "n.gcode").write_text(GCODE.replace("M723 S1 Q8 D1.75 H0.2\n", "")
+                                      .replace("G1 X20 E1\nG1 X30 E1\n", "G1 E1\nG1 E1\n"))
+    assert trace_width.main([tr, str(tmp_path / "n.gcode")]) == 2
+    err = capsys.readouterr().err
+    assert f"{tmp_path / 'n.gcode'}: no M723 Q" in err and "give --rate MM_S" in err
+    assert trace_width.main([tr, str(tmp_path / "n.gcode"), "--rate", str(RATE)]) == 0
+    assert "100.0 % of the time within 5 %" in capsys.readouterr().out
