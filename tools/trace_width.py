@@ -34,7 +34,8 @@ from trace_stops import F_CPU, STEPS, Run, words  # noqa: E402
 
 def mid_line_moves(path):
     """("move", layer, kind, E, M723 rate in force, E x F / length) per move that changes E, in
-    file order (the last is None for a move without X/Y motion), and ("g92", ...) where G92 sets E.
+    file order (the last is None for a move without X/Y motion), ("dry", layer, kind) per G0/G1
+    without E, and ("g92", ...) where G92 sets E.
     E is followed as Marlin does (M82/M83, G90 resets E to absolute, G92 E); X/Y and F as well
     (G90/G91), for the eq. 2 rate of a file without M723."""
     out, kind, layer = [], None, -1
@@ -78,6 +79,8 @@ def mid_line_moves(path):
                 eq2 = (new - e) * f / 60 / length if f and length > 1e-9 else None
                 out.append(("move", layer, kind, new - e, rate, eq2))
                 e = new
+            elif length > 1e-9 or "Z" in w:
+                out.append(("dry", layer, kind))       # no E steps mark its end: see analyse
     return out
 
 
@@ -97,8 +100,18 @@ def analyse(trace: str, gcode: str, rate: float | None = None, window_ms: float 
     mid_rate = None
     eq2_rates = []
     prev_t, prev_n = run.first, 0
+    dry = False
     for item in mid_line_moves(gcode):
         if item[0] == "g92":
+            continue
+        if item[0] == "dry":
+            # a move without E (a travel, or a gap the walls fill inside a mid-line): its time
+            # is no extruder time. It ends a window, and the next move's time starts at its first
+            # E step, not at the last step before the dry move.
+            if cur is not None and (cur[1] - cur[0]) / F_CPU * 1e3 >= window_ms / 2:
+                windows.append(cur)
+            cur = None
+            dry = True
             continue
         _, layer, kind, de, r, eq2 = item
         if kind == "mid-line" and layer >= 1 and de > 0 and eq2 is not None:
@@ -111,6 +124,14 @@ def analyse(trace: str, gcode: str, rate: float | None = None, window_ms: float 
         if i >= len(cum):
             break
         t_end = cyc[i]
+        if dry and de > 0:
+            # the move's first E step (prev_n + 1), found between the previous target and this one
+            j = i
+            while j > 0 and cum[j - 1] > prev_n:
+                j -= 1
+            if cum[j] == prev_n + 1:
+                prev_t, prev_n = cyc[j], prev_n + 1
+        dry = False
         if kind == "mid-line" and layer >= 1 and de > 0:
             if r is not None:
                 mid_rate = r

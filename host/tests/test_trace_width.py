@@ -67,6 +67,24 @@ def test_a_slow_move_falls_outside(tmp_path):
     assert r["mean_rate_mm_s"] == pytest.approx(2 / (t_fast + t_slow), rel=5e-3)
 
 
+def test_a_move_without_e_inside_the_mid_line_is_not_extruder_time(tmp_path):
+    """Where the walls take a narrow gap the mid-line crosses it without E: the head's time there
+    is neither in the mid-line's time nor in its rate."""
+    lines = ["0 A6 1"]
+    first, t = e_steps(0.0, 500, 1.0)
+    lines += first
+    more, t = e_steps(t, 500, RATE)
+    lines += more
+    more, t = e_steps(t + 0.25, 500, RATE)      # a 0.25 s dry move, then the next piece
+    lines += more
+    (tmp_path / "tr.txt").write_text("\n".join(lines) + "\n")
+    (tmp_path / "a.gcode").write_text(GCODE.replace("G1 X20 E1\n", "G1 X20 E1\nG1 X25 F9000\n"))
+    r = trace_width.analyse(str(tmp_path / "tr.txt"), str(tmp_path / "a.gcode"), window_ms=40)
+    assert r["mid_line_time_s"] == pytest.approx(2 / RATE, rel=3e-3)
+    assert r["share_within_5pct"] == pytest.approx(1.0)
+    assert r["mean_rate_mm_s"] == pytest.approx(RATE, rel=3e-3)
+
+
 def test_a_stock_file_without_m723_takes_the_rate_of_eq_2(tmp_path, capsys):
     """A stock-firmware file has no M723: the set rate is E x F / length of its mid-line moves."""
     tr, _, _ = write(tmp_path, [RATE, RATE / 2])
