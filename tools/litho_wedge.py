@@ -6,8 +6,9 @@ wedge (sRGB values 0, 17, ..., 255, black on the left), planar, the given option
 For every step (its middle sample, middle layer): the target L* (the grey's L* scaled onto what the
 plate shows, L* of the thickest plate .. 100) and the predicted L* of
   - the curve's thickness (what the tone curve asks for; the field with --min-line 0.001, which
-    snaps nothing on this wedge),
-  - the planned thickness at the defaults (after narrow gaps are snapped, litho.thickness_field),
+    has no gap the walls share on this wedge),
+  - the planned thickness at the defaults (litho.thickness_field; nothing is snapped, so it is
+    the curve's),
   - the printed thickness (two walls + the mid-line's gap, litho.printed_thickness).
 
     python3 tools/litho_wedge.py                       # markdown tables on stdout
@@ -55,7 +56,8 @@ def step_errors(o: lt.LithoOptions, picture, printed: bool = True) -> dict:
     curve = lt.thickness_field(picture, replace(o, min_line=1e-3))
     n = len(fld.s)
     cols = [int(round((i + 0.5) * (n - 1) / STEPS)) for i in range(STEPS)]
-    k = fld.t.shape[0] // 2
+    kp = (fld.t.shape[0] - fld.n_foot) // 2             # the middle picture layer (the foot's below)
+    k = fld.n_foot + kp
     L_lo, _ = tone.plate_range(o.attenuation, o.min_thickness, o.max_thickness)
     grey_L = tone.lightness(tone.grey_to_luminance(codes / 255.0))
     target = tone.target_lightness(grey_L, L_lo, o.invert)
@@ -65,8 +67,8 @@ def step_errors(o: lt.LithoOptions, picture, printed: bool = True) -> dict:
     if printed:
         plan = lt.plan_lithophane(picture, o)
         pt = lt.printed_thickness(plan)
-        out["t_printed"] = pt[k, cols]
-        out["printed"] = to_L(pt[k, cols])
+        out["t_printed"] = pt[kp, cols]
+        out["printed"] = to_L(pt[kp, cols])
     return out
 
 
@@ -75,7 +77,7 @@ def look_table(a) -> None:
     from skimage import data
 
     print()
-    print("| picture | curve | mean abs dL* | SSIM on L* | samples snapped | time s |")
+    print("| picture | curve | mean abs dL* | SSIM on L* | samples shared by the walls | time s |")
     print("|---|---|---:|---:|---:|---:|")
     with tempfile.TemporaryDirectory() as d:
         for pic in a.look:
@@ -92,9 +94,9 @@ def look_table(a) -> None:
                 target, pred = (x[plan.field.inside] for x in lt.look(plan))
                 sim = tone.similarity(target, pred)
                 f = plan.field
-                snapped = (f.snapped_down + f.snapped_up) / f.t[f.n_foot:].size
+                shared = f.shared / f.t[f.n_foot:].size
                 print(f"| {Path(pic).name} | {c} | {sim['mean_abs_dL']:.2f} | {sim['ssim_L']:.3f} | "
-                      f"{100 * snapped:.1f} % | {time.time() - t0:.0f} |", flush=True)
+                      f"{100 * shared:.1f} % | {time.time() - t0:.0f} |", flush=True)
 
 
 def edges_table() -> None:
@@ -160,7 +162,7 @@ def main(argv=None):
     print(f"16-step grey wedge, planar 100 x 2 mm, --attenuation {a.attenuation:g}, --min {a.min_thickness:g}, "
           f"--max {a.max_thickness:g}, --gamma {a.gamma:g}")
     print()
-    print("| curve | max abs dL*, curve's thickness | mean | max abs dL*, planned (snapped) | mean | "
+    print("| curve | max abs dL*, curve's thickness | mean | max abs dL*, planned | mean | "
           "max abs dL*, printed | mean |")
     print("|---|---:|---:|---:|---:|---:|---:|")
     rows = {}
