@@ -1,6 +1,6 @@
-"""The package's one compiled part: the G-code move scanner (bulgekit/_scan.c). It is optional:
+"""The package's one compiled part: the G-code move scanner (bulgekit/gcode/_scan.c). It is optional:
 without a C compiler the package installs and reads G-code with the pure-Python parser
-(slower; `python3 -m bulgekit.movescan` says which one is in use).
+(slower; `python3 -m bulgekit.gcode.movescan` says which one is in use).
 
 Building the package also puts the studio's front-end libraries in place (web/build.py: three.js
 from npm, pinned by web/package-lock.json), so that a wheel carries them."""
@@ -21,5 +21,5 @@ class BuildPy(build_py):
 
 
 setup(cmdclass={"build_py": BuildPy},
-      ext_modules=[Extension("bulgekit._scan", ["bulgekit/_scan.c"], optional=True,
+      ext_modules=[Extension("bulgekit.gcode._scan", ["bulgekit/gcode/_scan.c"], optional=True,
                              extra_compile_args=["-O2"])])

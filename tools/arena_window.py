@@ -16,8 +16,8 @@ import sys
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "host"))
 
-from bulgekit import annotate, mapformat  # noqa: E402
-from bulgekit.fallback import MODE_GEOMETRIC, Settings  # noqa: E402
+from bulgekit.bulge import annotate, mapformat  # noqa: E402
+from bulgekit.bulge.fallback import MODE_GEOMETRIC, Settings  # noqa: E402
 
 
 def largest_record() -> int:

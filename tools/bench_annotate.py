@@ -25,10 +25,10 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "host"))
 
-from bulgekit import mapformat  # noqa: E402
-from bulgekit.annotate import annotate_file  # noqa: E402
-from bulgekit.fallback import Settings  # noqa: E402
-from bulgekit.wall import walls_from_gcode  # noqa: E402
+from bulgekit.bulge import mapformat  # noqa: E402
+from bulgekit.bulge.annotate import annotate_file  # noqa: E402
+from bulgekit.bulge.fallback import Settings  # noqa: E402
+from bulgekit.bulge.wall import walls_from_gcode  # noqa: E402
 
 SRC = ROOT / "host" / "tests" / "data" / "prusa_cyl_m83.gcode"
 _Z = re.compile(r"^(G1 [^;\n]*?Z)([-+]?[0-9]*\.?[0-9]+)", re.M)

@@ -1,6 +1,6 @@
 #!/usr/bin/env python3
 """Lithophane benchmark: `bulgekit litho` against CuraEngine 4.13 and PrusaSlicer 2.5 on the same
-bodies, every file timed by one estimator (bulgekit.estimate). Results: DIR/results.md, .json.
+bodies, every file timed by one estimator (bulgekit.gcode.estimate). Results: DIR/results.md, .json.
 
     python3 tools/litho_bench.py --out /tmp/lb                # 3 samples + 3 photos x planar, cylinder
     python3 tools/litho_bench.py --out /tmp/lb --images examples/litho/wedge.png --photos --shapes planar
@@ -49,7 +49,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "host"))
 
-from bulgekit import estimate as es  # noqa: E402
+from bulgekit.gcode import estimate as es  # noqa: E402
 from bulgekit import litho  # noqa: E402
 
 START = "G90\nM83\n"

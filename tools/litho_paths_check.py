@@ -19,7 +19,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "host"))
 
-from bulgekit import estimate as es  # noqa: E402
+from bulgekit.gcode import estimate as es  # noqa: E402
 from bulgekit import litho as lt  # noqa: E402
 
 

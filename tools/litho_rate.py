@@ -6,7 +6,7 @@
 For the width-mode file the firmware core (bkcore, tools/bkcore) runs the file as the Marlin
 adapter would: M723 retimes every extruding move. Its output (one line per move: X Y Z, the
 move's filament and the speed the core chose) is turned back into G-code, each move tagged with
-the ;TYPE: of the G1 it came from, and timed by the Marlin-style estimator (bulgekit.estimate)
+the ;TYPE: of the G1 it came from, and timed by the Marlin-style estimator (bulgekit.gcode.estimate)
 with acceleration and junction deviation. A stock file is timed as it is (eq. 2: its F already
 holds the speed). Printed per file, over the mid-line after the first layer:
 
@@ -30,7 +30,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "host"))
 
-from bulgekit import estimate  # noqa: E402
+from bulgekit.gcode import estimate  # noqa: E402
 
 _LINE = re.compile(r"^line X(\S+) Y(\S+) Z(\S+) E(\S+) F(\S+)$")
 

@@ -31,7 +31,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "host"))
 
 from bulgekit import litho as lt  # noqa: E402
-from bulgekit import litho_tone as tone  # noqa: E402
+from bulgekit.litho import tone  # noqa: E402
 
 STEPS = 16
 STEP_PX = 20

@@ -105,10 +105,10 @@ def cut(args):
 
 
 def _mapformat():
-    """The host package's map module (bulgekit.mapformat), from this checkout."""
+    """The host package's map module (bulgekit.bulge.mapformat), from this checkout."""
     import os
     sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "host"))
-    from bulgekit import mapformat
+    from bulgekit.bulge import mapformat
     return mapformat
 
 

@@ -9,12 +9,13 @@ from __future__ import annotations
 
 __version__ = "0.1.0"
 
-# Function names differ from the module names (annotate.py, fallback.py,
-# stats.py) so that `from bulgekit import annotate` keeps meaning the module.
-from .api import (BuildOutput, annotate_gcode, build, build_map, bulge_stats, fallback_gcode,
+# Function names differ from the module names (bulge/annotate.py, bulge/fallback.py,
+# bulge/stats.py) so that `from bulgekit.bulge import annotate` keeps meaning the module.
+from .bulge.api import (BuildOutput, annotate_gcode, build, build_map, bulge_stats, fallback_gcode,
                   load_strokes, walls)
-from .fallback import MODE_GEOMETRIC, MODE_MARKED, MODE_OFF, Settings, StockStops
-from .strokes import BulgekitError, InputError, Stroke, text_strokes
+from .bulge.fallback import MODE_GEOMETRIC, MODE_MARKED, MODE_OFF, Settings, StockStops
+from .errors import BulgekitError, InputError
+from .bulge.strokes import Stroke, text_strokes
 
 __all__ = [
     "BuildOutput", "BulgekitError", "InputError", "MODE_GEOMETRIC", "MODE_MARKED", "MODE_OFF",

@@ -2,7 +2,7 @@
 (test_e2e_bkcore.py, the firmware core against RefPlanner), the property
 test (test_planner_properties.py, RefPlanner on its own) and the cross-target
 vectors (tools/vectors/gen_vectors.py, test/test_planner_streams)."""
-from bulgekit.fallback import Settings
+from bulgekit.bulge.fallback import Settings
 from bulgekit.gcode import Move
 
 

@@ -97,7 +97,7 @@ static void test_varint_and_zigzag(void) {
 
 static void test_error_texts(void) {
   char t[40];
-  // The texts are the Python codes (host/bulgekit/mapformat.py), so both sides name an error alike.
+  // The texts are the Python codes (host/bulgekit/bulge/mapformat.py), so both sides name an error alike.
   TEST_ASSERT_EQUAL_INT(10, map_error_copy(MAP_ERR_RECORD_CRC, t, sizeof t));
   TEST_ASSERT_EQUAL_STRING("record_crc", t);
   map_error_copy(MAP_OK, t, sizeof t);

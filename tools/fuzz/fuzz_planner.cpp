@@ -26,7 +26,7 @@
 //   - width mode: a move it leaves alone keeps its feed bit for bit, a retimed
 //     one gets a feed within [L, U].
 // The exact place of each stop is the differential check's (against the
-// host's RefPlanner, host/tests/test_e2e_bkcore.py).
+// host's RefPlanner, host/tests/bulge/test_e2e_bkcore.py).
 // Build with -DFUZZ_DEBUG to print each move, stop and layer count.
 #include <math.h>
 #include <stdint.h>

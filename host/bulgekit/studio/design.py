@@ -28,12 +28,12 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import api, mapformat, stats as _stats
-from ..fallback import (DEFAULT_DWELL_MS, DEFAULT_E_STEPS, DEFAULT_EXTRA_E_MM, DEFAULT_TOLERANCE_MM,
+from ..bulge import api, mapformat, stats as _stats
+from ..bulge.fallback import (DEFAULT_DWELL_MS, DEFAULT_E_STEPS, DEFAULT_EXTRA_E_MM, DEFAULT_TOLERANCE_MM,
                         MODE_GEOMETRIC, MODE_MARKED, Settings, StockStops)
-from ..mapbuild import DEFAULT_LINE_WIDTH, BuildError
-from ..placement import PlacementError, dump_placement, load_placement
-from ..strokes import BulgekitError, InputError
+from ..bulge.mapbuild import DEFAULT_LINE_WIDTH, BuildError
+from ..bulge.placement import PlacementError, dump_placement, load_placement
+from ..errors import BulgekitError, InputError
 
 _ENTRY_RX = re.compile(r"(?:^|: )((text|strokes)\[(\d+)\])")   # a placement entry, "text[0]"
 # Fields the page may set per item kind, as the placement file names them.
@@ -343,7 +343,7 @@ def export(design: dict, assets: dict[str, Asset], gcode: Path, folder: Path, na
     folder.zip: placement.toml and its drawing files, then exactly what `bulgekit build GCODE
     --placement placement.toml --fallback --preview-3d --name NAME -o folder` writes, made by
     the same calls."""
-    from .. import preview as pv
+    from ..bulge import preview as pv
     # a drawing file keeps its name unless an output would take it
     # (compared without case: macOS and Windows file systems)
     taken = {"placement.toml"} | {f"{name}{ext}".lower() for ext in (".bkm", ".bulge.gcode", ".stock.gcode",

@@ -33,7 +33,7 @@ from pathlib import Path
 from aiohttp import web
 
 from .. import progress
-from ..strokes import BulgekitError
+from ..errors import BulgekitError
 from . import design as dz
 
 STATIC = Path(__file__).resolve().parent / "static"
@@ -140,11 +140,11 @@ class Studio:
     # -- G-code
 
     def open_gcode(self, job: Job, path: Path, name: str) -> dict:
-        from .. import movescan
-        from .. import api
+        from ..gcode import movescan
+        from ..bulge import api
         job.label = "checking the file"
         with movescan.Scan(path, name).kept():     # checked and scanned once: both tries use it
-            from ..wall import WallError
+            from ..bulge.wall import WallError
             try:
                 model = api.walls(path)
             except WallError as e:
@@ -191,7 +191,7 @@ class Studio:
     # -- drawing files
 
     def add_asset(self, name: str, data: bytes) -> dict:
-        from ..strokes import load_json, load_svg
+        from ..bulge.strokes import load_json, load_svg
         ext = Path(name).suffix.lower()
         if ext not in dz.DRAWING_EXT:
             raise dz.DesignError(f"{name}: not a drawing file this studio reads "
@@ -240,8 +240,8 @@ class Studio:
 
     def model_for(self, d: dict):
         """The walls in the design's mode (the export reads them that way too)."""
-        from .. import api
-        from ..wall import WallError
+        from ..bulge import api
+        from ..bulge.wall import WallError
         geometric = bool(dz.bulges(d).get("geometric", False))
         if geometric not in self.models:
             try:
@@ -336,8 +336,8 @@ class Studio:
         return made["paths"]["gcode" if which == "litho" else "stock"]
 
     def send(self, job: Job, key: str, which: str, port: str, baud: int, litho: bool = False) -> dict:
-        from ..cli_io import annotated_arena, check_printer_arena
-        from ..sender import Sender, read_gcode
+        from ..cli.io import annotated_arena, check_printer_arena
+        from ..printer.sender import Sender, read_gcode
         import click
         path = self._litho_file(key, which) if litho else self._export_file(key, which)
         lines = read_gcode(path)
@@ -418,7 +418,8 @@ def _b64(a) -> str:
 def _predicted_look(plan):
     """The predicted backlit look on the layer x sample grid, bottom row first, as the sRGB values
     0..1 of the look PNG's unstretched panel (litho.look() gives L*)."""
-    from .. import litho as lt, litho_tone as tone
+    from .. import litho as lt
+    from ..litho import tone
     return tone.to_srgb(tone.luminance(lt.look(plan)[1]))
 
 
@@ -600,7 +601,7 @@ def make_app(st: Studio, port_ref: dict) -> web.Application:
                             headers={"Content-Security-Policy": csp})
 
     async def state(request):
-        from ..strokes import font_names
+        from ..bulge.strokes import font_names
         return web.json_response({
             "gcode": st.gcode_state(), "assets": st.asset_kinds, "design": st.design,
             "design_gcode": st.design_gcode, "fonts": font_names(),

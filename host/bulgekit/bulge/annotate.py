@@ -1,0 +1,282 @@
+"""Annotate sliced G-code for the bulgekit firmware.
+
+The host's moves are left exactly as the slicer wrote them.  Added:
+  * at the top: M720 (settings), M721 X, then the M721 upload of the map
+    (all of it, or as many layer records as the arena takes);
+  * M722 S1 / M722 S0 after each slicer feature comment that enters / leaves
+    the outer wall (marked mode; none in geometric mode, M720 S2);
+  * M721 ... A1 appends of the next layer records just before the first
+    layer that needs one that is not on the printer yet;
+  * at the end: M722 S0 (if still inside), M720 S0 and M721 X.
+
+Streaming model (mirrors src/bulge_planner.cpp): when the nozzle first
+extrudes in a new record's layer window the firmware releases the records
+below it.  At an append point the host therefore counts as resident every
+record sent whose z is at or above the record of the layer printed last,
+and sends only what fits in the rest of the arena (BK_MAP_ARENA_BYTES).
+
+The scan is a few regular-expression passes over the whole file (no per-line
+Python work), so 100 MB annotate in a few seconds.  The check that every map
+point is reached (check_reach, on by default) runs the reference planner on the
+moves that can stop or change its state (fallback.Skipper), read by the
+compiled scanner (movescan): a few seconds per 100 MB as well.
+"""
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass, field
+
+from . import mapformat
+from .fallback import MODE_GEOMETRIC, Settings
+from ..gcode import check_complete, check_not_processed, feature_of_comment, is_outer
+from ..errors import BulgekitError
+
+ARENA_BYTES = mapformat.ARENA_BYTES
+
+
+class AnnotateError(BulgekitError):
+    pass
+
+
+# The scans look for a literal first (';', 'Z', 'G9') so the regex engine can
+# skip through the file at C speed, then check the line around each hit.
+# feature_of_comment() has the final word on a feature comment, so the
+# annotator and the parser (fallback, walls) agree on every line.
+_FEATURE_RX = re.compile(
+    rb";[ \t]*(?:TYPE:|FEATURE:|outer perimeter|inner perimeter|infill|solid layer|"
+    rb"support|dense support|skirt|raft|bridge|gap fill|prime pillar|ooze shield)[^\n]*")
+_Z_RX = re.compile(rb"Z[ \t]*([-+]?[0-9]*\.?[0-9]+)")
+_G9X_RX = re.compile(rb"G9([01])\b")
+# A move that extrudes in XY (X or Y and E on a G0/G1 line), at a line start.
+_EXTRUDE_RX = re.compile(rb"\n[ \t]*G0?[01][ \t](?=[^\n;]*[XY])[^\n;]*E")
+_MOVE_HEAD = re.compile(rb"[ \t]*G0?[01][ \t]")
+
+
+def _line_start(data: bytes, pos: int) -> int:
+    return data.rfind(b"\n", 0, pos) + 1
+
+
+def _feature_comments(data: bytes):
+    """(end of line offset, role) of every whole-line feature comment."""
+    for mt in _FEATURE_RX.finditer(data):
+        ls = _line_start(data, mt.start())
+        if data[ls:mt.start()].strip(b" \t"):
+            continue  # a comment after a command, not a feature tag
+        role = feature_of_comment(mt.group(0).decode("utf-8", "replace")[1:])
+        if role is not None:
+            yield mt.end(), role
+
+
+@dataclass
+class AnnotateResult:
+    lines_added: int = 0
+    markers: int = 0
+    initial_records: int = 0
+    appends: list[tuple[float, int, int]] = field(default_factory=list)  # (at z, records, bytes)
+    outer_sections: int = 0
+    features_seen: int = 0
+    notes: list[str] = field(default_factory=list)
+
+
+def _record_bytes(bm: mapformat.BulgeMap) -> list[bytes]:
+    return [mapformat.encode_record(l, bm.has_weights) for l in bm.layers]
+
+
+def _z_events(data: bytes):
+    """[(offset, z_cmm)] for each G0/G1 Z move followed by XY extrusion
+    before the next Z move (real layer changes; z-hops are skipped)."""
+    # G90/G91 switch Z between absolute and relative (end G-code often lifts
+    # with G91 / G1 Z10 / G90)
+    modes = [(m.start(), m.group(1) == b"0") for m in _G9X_RX.finditer(data)
+             if not data[_line_start(data, m.start()):m.start()].strip(b" \t")]
+    mi = 0
+    absolute = True
+    z = 0.0
+    zlines = []
+    for mt in _Z_RX.finditer(data):
+        pos = mt.start()
+        ls = _line_start(data, pos)
+        if not _MOVE_HEAD.match(data, ls):
+            continue
+        if data.find(b";", ls, pos) >= 0:
+            continue  # Z inside a comment
+        while mi < len(modes) and modes[mi][0] < pos:
+            absolute = modes[mi][1]
+            mi += 1
+        v = float(mt.group(1))
+        z = v if absolute else z + v
+        zlines.append((ls, mt.end(), z))
+    zs = []
+    n = len(zlines)
+    for k, (start, end, zz) in enumerate(zlines):
+        stop = zlines[k + 1][0] if k + 1 < n else len(data)
+        # the Z line itself, or a later line before the next Z move, extrudes
+        if _EXTRUDE_RX.match(data, start - 1 if start else 0) or \
+                _EXTRUDE_RX.search(data, end, stop):
+            zc = round(zz * 100)
+            if not zs or zs[-1][1] != zc:
+                zs.append((start, zc))
+    return zs
+
+
+def annotate_bytes(data: bytes, map_bytes: bytes, settings: Settings,
+                   arena: int = ARENA_BYTES, stream: bool = True, source: str = "<gcode>",
+                   result: AnnotateResult | None = None) -> bytes:
+    res = result if result is not None else AnnotateResult()
+    bm = mapformat.decode_map(map_bytes, source="map")
+    geometric = settings.mode == MODE_GEOMETRIC
+    recs = _record_bytes(bm)
+    zrec = [l.z_cmm for l in bm.layers]
+    h = bm.layer_height_cmm
+    header = bytes(map_bytes[:mapformat.HEADER_BYTES])
+    eol = b"\r\n" if b"\r\n" in data[:4096] else b"\n"
+
+    # ---- initial upload: the header (kept beside the arena by the firmware)
+    # and as many records as the arena takes
+    k = 0
+    size = 0
+    while k < len(recs) and size + len(recs[k]) <= arena:
+        size += len(recs[k])
+        k += 1
+    if k < len(recs) and not stream:
+        over = ", ".join(f"z {zrec[i] / 100:.2f} mm" for i in range(k, len(recs)))
+        raise AnnotateError(
+            f"the map's layer records need {sum(map(len, recs))} bytes but the printer's arena "
+            f"holds {arena}: layers {over} do not fit. Annotate with streaming (the default) to "
+            "send them as appends while printing.")
+    res.initial_records = k
+    first = header + b"".join(recs[:k])
+    top = [f"; bulgekit: {len(recs)} layers, {bm.point_count} points, "
+           f"{len(header) + sum(map(len, recs))} bytes, arena {arena}"
+           + ("" if k == len(recs) else f", {len(recs) - k} layers streamed") , settings.m720(),
+           "M721 X"]
+    top += mapformat.upload_lines(first)
+    inserts: list[tuple[int, int, bytes]] = []   # (offset, order, text)
+    inserts.append((0, 0, eol.join(t.encode() for t in top) + eol))
+
+    # ---- markers
+    if not geometric:
+        inside = False
+        for eol_at, role in _feature_comments(data):
+            res.features_seen += 1
+            outer = is_outer(role)
+            if outer != inside:
+                inside = outer
+                end = data.find(b"\n", eol_at)
+                pos = len(data) if end < 0 else end + 1
+                txt = b"M722 S1" if outer else b"M722 S0"
+                if end < 0:
+                    txt = eol + txt
+                inserts.append((pos, 1, txt + eol))
+                res.markers += 1
+                res.outer_sections += outer
+        if res.features_seen == 0:
+            raise AnnotateError(
+                f"{source}: no slicer feature comments found, so the outer wall cannot be "
+                "marked. Slice with feature comments (;TYPE:...), or annotate with --geometric "
+                "(M720 S2: every extruding move near a map point bulges, no markers).")
+        if res.outer_sections == 0:
+            raise AnnotateError(
+                f"{source}: feature comments found but none marks the outer wall "
+                "(;TYPE:External perimeter, ;TYPE:Outer wall, ;TYPE:WALL-OUTER, ; outer perimeter). "
+                "Use --geometric (M720 S2) to annotate without markers.")
+        tail_inside = inside
+    else:
+        tail_inside = False
+
+    # ---- appends before the layers that need records not yet sent
+    if k < len(recs):
+        sent_until = k                 # records [0, sent_until) were sent
+        last_layer_z = None            # z (cmm) of the layer printed last
+        for off, zc in _z_events(data):
+            if sent_until < len(recs) and 2 * (zrec[sent_until] - zc) <= h:
+                # resident: sent records at or above the record found for the
+                # layer printed last (or everything when none was found yet)
+                floor = None
+                if last_layer_z is not None:
+                    for i in range(sent_until - 1, -1, -1):
+                        if 2 * (zrec[i] - last_layer_z) <= h:
+                            floor = zrec[i]
+                            break
+                resident = sum(len(recs[i]) for i in range(sent_until)
+                               if floor is None or zrec[i] >= floor)
+                free = arena - resident
+                j = sent_until
+                size = 0
+                while j < len(recs) and size + len(recs[j]) <= free:
+                    size += len(recs[j])
+                    j += 1
+                if j == sent_until:
+                    raise AnnotateError(
+                        f"record z {zrec[j] / 100:.2f} mm ({len(recs[j])} bytes) does not fit the "
+                        f"{free} bytes free at z {zc / 100:.2f} mm")
+                payload = b"".join(recs[sent_until:j])
+                txt = [f"; bulgekit: layers {zrec[sent_until] / 100:.2f}..{zrec[j - 1] / 100:.2f} mm"]
+                txt += mapformat.upload_lines(payload, append=True, has_weights=bm.has_weights)
+                inserts.append((off, 2, eol.join(t.encode() for t in txt) + eol))
+                res.appends.append((zc / 100, j - sent_until, len(payload)))
+                sent_until = j
+            last_layer_z = zc
+        if sent_until < len(recs):
+            raise AnnotateError(
+                f"{source}: the print never reaches z {zrec[sent_until] / 100:.2f} mm; "
+                "the map does not belong to this G-code")
+
+    tail = []
+    if tail_inside:
+        tail.append(b"M722 S0")
+    tail += [b"; bulgekit: end", b"M720 S0", b"M721 X"]
+    pre = b"" if data.endswith(b"\n") or not data else eol
+    inserts.append((len(data), 3, pre + eol.join(tail) + eol))
+
+    inserts.sort(key=lambda t: (t[0], t[1]))
+    parts = []
+    pos = 0
+    for off, _, txt in inserts:
+        parts.append(data[pos:off])
+        parts.append(txt)
+        res.lines_added += txt.count(b"\n")
+        pos = off
+    parts.append(data[pos:])
+    return b"".join(parts)
+
+
+def check_reach(gcode, map_bytes: bytes, settings: Settings, source: str) -> str | None:
+    """Run the G-code (a path, or its bytes) through the reference planner: a message naming
+    the map points no move reaches (the map is for another file? arcs?), or None. G2/G3 arcs
+    count for nothing, as in the firmware (RefPlanner.bypass). Only the moves that can change
+    the planner's work go through its Python code (fallback.Skipper)."""
+    from ..gcode import movescan
+    from .fallback import RefPlanner, plan_records, unreached_message
+    bm = mapformat.decode_map(map_bytes, source="map")
+
+    def run(chunks):
+        planner = RefPlanner(bm, settings)
+        plan_records(planner, chunks, arcs_bypass=True)
+        return unreached_message(planner, source)
+    return movescan.run(gcode, run, source)
+
+
+def annotate_file(src, dst, map_bytes: bytes, settings: Settings, arena: int = ARENA_BYTES,
+                  stream: bool = True, check: bool = True,
+                  allow_unreached: bool = False) -> AnnotateResult:
+    """Annotate src into dst.  With check (default) the file is also run
+    through the reference planner, and map points no move reaches are an
+    error unless allow_unreached (then the message is in result.notes)."""
+    from ..gcode import movescan
+    with open(src, "rb") as f:
+        data = f.read()
+    if movescan.kept(src) is None:            # build's one scan checked it already
+        check_complete(data, str(src))
+        check_not_processed(data, str(src))
+    res = AnnotateResult()
+    out = annotate_bytes(data, map_bytes, settings, arena, stream, str(src), res)
+    if check:
+        msg = check_reach(src, map_bytes, settings, str(src))
+        if msg and not allow_unreached:
+            raise AnnotateError(msg)
+        if msg:
+            res.notes.append(msg)
+    with open(dst, "wb") as f:
+        f.write(out)
+    return res

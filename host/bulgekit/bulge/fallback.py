@@ -1,0 +1,1182 @@
+"""Stock-firmware rewrite (Takahashi & Miyashita, sec. 5.3) and the reference
+planner the firmware path is checked against.
+
+`RefPlanner` mirrors src/bulge_planner.cpp decision for decision, in float32
+where the firmware computes in float, so that the same map, settings and
+G-code give the same stops:
+  * a move qualifies when it extrudes with XY motion, the mode allows it
+    (marked mode: inside the outer wall; geometric: any) and a map layer lies
+    within half a layer height of its end z;
+  * every unfired point of that layer within the tolerance of the segment
+    stops the head at its projection, in order along the move;
+  * a point whose foot lies beyond the move's end is left to the next move:
+    if that one continues the wall from the end, it stops the point at its
+    foot there (within the tolerance) or at its start; any other motion from
+    the end stops it at the end first; a move that starts elsewhere leaves
+    it unfired;
+  * a piece shorter than BK_MIN_PIECE_MM is not cut: the stop happens where
+    the head already is (or at the move end);
+  * the piece after a stop carries the extra filament; a stop at the last
+    vertex hands it to the next move if that move qualifies, else it is lost.
+
+`rewrite()` turns those actions back into plain G-code for stock firmware:
+G1 pieces with E proportional to their length (eq. 1), a stop at each point
+(an E-only move of whole steps timed to the dwell, StockStops; or G4 P<ms>,
+the paper's), the extra E added to the next piece and a G92 E that puts the
+host's E back (M82), or relative pieces (M83) which need no G92.
+"""
+from __future__ import annotations
+
+import bisect
+import math
+import re
+from dataclasses import dataclass, field
+from typing import Iterable, Iterator
+
+import numpy as np
+
+from . import mapformat
+from ..gcode import movescan
+from ..gcode import GcodeState, Line, Move, parse_lines
+from ..errors import BulgekitError
+from ..gcode import _M92_RX, _m92_e, _plain_lines, scan_m92
+
+
+class UnreachedError(BulgekitError):
+    """Map points that no move of the G-code reaches: the map was probably
+    made for another file."""
+
+f32 = np.float32
+
+# Mirrors of config/bulgekit_config.h
+DEFAULT_DWELL_MS = 100
+DEFAULT_EXTRA_E_MM = 0.1
+DEFAULT_TOLERANCE_MM = 0.25
+MIN_PIECE_MM = 0.1
+MAX_DWELL_MS = 2000
+MAX_EXTRA_E_MM = 1.0
+MAX_TOLERANCE_MM = 2.0
+
+MODE_OFF, MODE_MARKED, MODE_GEOMETRIC = 0, 1, 2
+
+
+@dataclass(frozen=True)
+class Settings:
+    """M720 settings."""
+    mode: int = MODE_MARKED
+    dwell_ms: int = DEFAULT_DWELL_MS
+    extra_e: float = DEFAULT_EXTRA_E_MM
+    tolerance: float = DEFAULT_TOLERANCE_MM
+
+    def __post_init__(self):
+        if self.mode not in (0, 1, 2):
+            raise ValueError(f"mode {self.mode} must be 0, 1 or 2")
+        if not 0 <= self.dwell_ms <= MAX_DWELL_MS or int(self.dwell_ms) != self.dwell_ms:
+            raise ValueError(f"dwell {self.dwell_ms} ms outside 0..{MAX_DWELL_MS} (whole ms)")
+        if not 0 <= self.extra_e <= MAX_EXTRA_E_MM:
+            raise ValueError(f"extra E {self.extra_e} mm outside 0..{MAX_EXTRA_E_MM}")
+        if not 0.01 <= self.tolerance <= MAX_TOLERANCE_MM:
+            raise ValueError(f"tolerance {self.tolerance} mm outside 0.01..{MAX_TOLERANCE_MM}")
+
+    def m720(self) -> str:
+        return f"M720 S{self.mode} P{self.dwell_ms} E{self.extra_e:.3f} T{self.tolerance:.3f}"
+
+
+@dataclass
+class Action:
+    kind: str           # "line" or "dwell"
+    x: float = 0.0
+    y: float = 0.0
+    z: float = 0.0
+    e: float = 0.0      # filament of this piece, extra included
+    ms: int = 0
+    t: float = 1.0      # parameter along the host move (1 = its end)
+    # for the stock writer (they change nothing the planner decides):
+    extra: float = 0.0  # line: the extra filament in e; dwell: the extra owed after the stop
+    dropped: float = 0.0  # line: extra owed before this move that it dropped
+
+
+@dataclass
+class StopRecord:
+    """One stop as it happens: where, how long, which map point."""
+    line_no: int
+    x: float
+    y: float
+    z: float
+    ms: int
+    point: tuple[int, int]   # map point in quanta
+    layer_z_cmm: int
+
+
+@dataclass
+class PlanStats:
+    moves_split: int = 0
+    points_fired: int = 0
+    extra_applied: float = 0.0
+    extra_dropped: float = 0.0
+    layers_loaded: int = 0
+    dwell_ms_total: int = 0
+
+
+def _bits(v) -> int:
+    return int(np.array(v, dtype=np.float32).view(np.uint32))
+
+
+class RefPlanner:
+    """Python mirror of bk::BulgePlanner (no arena: the whole map is present)."""
+
+    def __init__(self, bmap: mapformat.BulgeMap | None, settings: Settings):
+        self.map = bmap
+        self.s = settings
+        self.q_um = bmap.quantum_um if bmap else 50
+        self.lh = bmap.layer_height_cmm if bmap else 30
+        self.q_mm = f32(self.q_um) * f32(0.001)
+        self.tol2 = f32(settings.tolerance) * f32(settings.tolerance)
+        self.layer = None          # (z_cmm, pts sorted [(x,y,w)], fired list)
+        self.miss_z = None
+        self.below = None          # z of the records next to the loaded layer
+        self.above = None
+        self.floor = None          # layers below it are released in the firmware
+        self.carry = f32(0)
+        self.stop_ms = 0           # dwell given at the current stop (merged points)
+        self.stats = PlanStats()
+        self.stops: list[StopRecord] = []
+        self.top_z: float | None = None   # highest z of an extruding XY move
+        self._zs = [l.z_cmm for l in bmap.layers] if bmap else []
+        self._sorted = all(a <= b for a, b in zip(self._zs, self._zs[1:]))
+        # extruding arc chords the firmware does not plan (bypass()), per end z
+        # in 0.01 mm: [(x0, y0, x1, y1, line)]
+        self.arcs: dict[int, list[tuple]] = {}
+        self._boxes = None
+        self.deferred: set[int] = set()   # points whose feet lay beyond the last move's end
+        self.last_end = None       # float bits of that move's x1, y1
+
+    # -- layer window (MapStore::find_layer + BulgePlanner::window)
+    def _find(self, zc: int):
+        best = None
+        best_d = 0
+        # layers are in ascending z (else every one is looked at): the released ones, below the
+        # floor, are skipped by bisection rather than one by one (a file calls this per layer)
+        lo = bisect.bisect_left(self._zs, self.floor) if self._sorted and self.floor is not None else 0
+        for i in range(lo, len(self._zs)):
+            z = self._zs[i]
+            if self.floor is not None and z < self.floor:
+                continue  # released
+            d = z - zc
+            if d > 0 and 2 * d > self.lh:
+                break
+            d = abs(d)
+            if 2 * d <= self.lh and (best is None or d < best_d):
+                best, best_d = i, d
+        return best
+
+    def _neighbors(self, z: int):
+        if self._sorted:
+            zs = self._zs
+            i = bisect.bisect_left(zs, z)
+            lo = 0 if self.floor is None else bisect.bisect_left(zs, self.floor)
+            j = max(bisect.bisect_right(zs, z), lo)
+            return (zs[i - 1] if i > lo else None), (zs[j] if j < len(zs) else None)
+        live = [v for v in self._zs if self.floor is None or v >= self.floor]
+        below = max((v for v in live if v < z), default=None)
+        above = min((v for v in live if v > z), default=None)
+        return below, above
+
+    def _keeps(self, zc: int) -> bool:
+        """The loaded layer is the one for zc (no search needed)."""
+        if self.layer is not None:
+            d = zc - self.layer[0]
+            if d == 0:
+                return True
+            if d > 0 and 2 * d <= self.lh and (self.above is None or d <= self.above - zc):
+                return True
+            if d < 0 and -2 * d <= self.lh and (self.below is None or -d < zc - self.below):
+                return True
+        return False
+
+    @staticmethod
+    def _cmm(z) -> int:
+        v = float(f32(z) * f32(100.0))
+        return int(v + 0.5) if v >= 0 else -int(0.5 - v)
+
+    def _window(self, zc: int) -> bool:
+        if self._keeps(zc):
+            return True
+        if self.map is None or not self.map.layers:
+            return False
+        if self.miss_z is not None and zc == self.miss_z:
+            return False
+        i = self._find(zc)
+        if i is None:
+            self.miss_z = zc
+            return False
+        self.miss_z = None
+        rec = self.map.layers[i]
+        old = self.layer
+        w = rec.weights or (255,) * len(rec.points)
+        pts = sorted(((x, y, ww) for (x, y), ww in zip(rec.points, w)),
+                     key=lambda p: (p[0], p[1]))
+        self.below, self.above = self._neighbors(rec.z_cmm)
+        if old is not None and old[0] == rec.z_cmm:
+            self.layer = (rec.z_cmm, pts, old[2])  # the same layer again keeps its marks
+            return True
+        self.layer = (rec.z_cmm, pts, [False] * len(pts))
+        self.stats.layers_loaded += 1
+        if old is None or rec.z_cmm > old[0]:
+            self.floor = rec.z_cmm
+        return True
+
+    def _eligible(self, m: Move, outer: bool) -> bool:
+        if self.s.mode == MODE_OFF or (self.s.mode == MODE_MARKED and not outer):
+            return False
+        if not (f32(m.e) > 0 and (f32(m.x0) != f32(m.x1) or f32(m.y0) != f32(m.y1))):
+            return False
+        return self._window(self._cmm(m.z1)) and len(self.layer[1]) > 0
+
+    def _foot(self, i: int, x0, y0, fdx, fdy, len2):
+        """Point i against the segment from (x0, y0) along (fdx, fdy), in
+        float32 as BulgePlanner::exact: (t of its foot, raised to 0 but not
+        capped at 1; whether it lies within the tolerance of the segment)."""
+        px, py, _ = self.layer[1][i]
+        ux = f32(px) * self.q_mm - x0
+        uy = f32(py) * self.q_mm - y0
+        t = max((ux * fdx + uy * fdy) / len2, f32(0))
+        tc = min(t, f32(1))
+        ex, ey = ux - tc * fdx, uy - tc * fdy
+        return t, ex * ex + ey * ey <= self.tol2
+
+    def bypass(self, m: Move) -> None:
+        """A chord of a G2/G3 arc as the bulgekit firmware sees it: not at all.
+        Marlin cuts arcs into segments that go straight to its planner, so
+        nothing on an arc is split and the core's state is untouched (the next
+        G1 starts where the arc ended). Extruding chords are kept to name the
+        arcs when points are missed."""
+        if not (m.e > 0) or self.map is None:
+            return
+        zc = round(m.z1 * 100)
+        # only chords that can come within the tolerance of a point of a layer
+        # near their z (a map's bounding box per layer): few, even in a long file
+        if self._boxes is None:
+            t, q = self.s.tolerance, self.q_um / 1000
+            self._boxes = [(l.z_cmm, min(x for x, _ in l.points) * q - t, min(y for _, y in l.points) * q - t,
+                            max(x for x, _ in l.points) * q + t, max(y for _, y in l.points) * q + t)
+                           for l in self.map.layers if l.points]
+        k = bisect.bisect_left(self._boxes, (zc - self.lh / 2,))
+        for z, bx0, by0, bx1, by1 in self._boxes[k:k + 2]:
+            if (abs(z - zc) * 2 <= self.lh and max(m.x0, m.x1) >= bx0 and min(m.x0, m.x1) <= bx1
+                    and max(m.y0, m.y1) >= by0 and min(m.y0, m.y1) <= by1):
+                self.arcs.setdefault(zc, []).append((m.x0, m.y0, m.x1, m.y1, m.line_no))
+                return
+
+    def plan(self, m: Move, outer: bool | None = None) -> list[Action]:
+        """Actions for one G0/G1 move (or one arc chord)."""
+        if outer is None:
+            outer = m.outer
+        if m.e > 0 and (m.x0 != m.x1 or m.y0 != m.y1) and (self.top_z is None or m.z1 > self.top_z):
+            self.top_z = m.z1
+        null = m.x0 == m.x1 and m.y0 == m.y1 and m.z0 == m.z1 and m.e == 0
+        actions: list[Action] = []
+        if self.deferred and not null:
+            self._flush(m, outer, actions)
+        if not self._eligible(m, outer):
+            # as the firmware: a move that moves nothing keeps the owed extra
+            dropped = 0.0
+            if not null:
+                self.stop_ms = 0
+                if self.carry != 0:
+                    dropped = float(self.carry)
+                    self.stats.extra_dropped += dropped
+                    self.carry = f32(0)
+            return actions + [Action("line", m.x1, m.y1, m.z1, m.e, dropped=dropped)]
+        self.last_end = (_bits(m.x1), _bits(m.y1))
+        x0, y0, z0 = f32(m.x0), f32(m.y0), f32(m.z0)
+        x1, y1, z1 = f32(m.x1), f32(m.y1), f32(m.z1)
+        fdx, fdy = x1 - x0, y1 - y0
+        len2 = fdx * fdx + fdy * fdy
+        pending = self.carry
+        self.carry = f32(0)
+        zc, pts, fired = self.layer
+        # all hits, nearest to the start first (ties: the sorted point order)
+        margin = self.s.tolerance + 3 * self.q_um / 1000
+        bx0, bx1 = min(m.x0, m.x1) - margin, max(m.x0, m.x1) + margin
+        by0, by1 = min(m.y0, m.y1) - margin, max(m.y0, m.y1) + margin
+        hits = []
+        for i, (px, py, w) in enumerate(pts):
+            if fired[i]:
+                continue
+            xm, ym = px * self.q_um / 1000, py * self.q_um / 1000
+            if xm < bx0 or xm > bx1 or ym < by0 or ym > by1:
+                continue
+            t, near = self._foot(i, x0, y0, fdx, fdy, len2)
+            if not near:
+                continue
+            if t > 1:
+                self.deferred.add(i)  # its foot is beyond the end: the next move decides
+                continue
+            hits.append((t, i))
+        if hits:
+            self.stats.moves_split += 1
+        ln = np.sqrt(len2, dtype=np.float32)
+        t_done = f32(0)
+
+        def line_to(t, t_prev):
+            nonlocal pending
+            # filament in double (the firmware's float differs by ~1e-7 relative);
+            # an unsplit move keeps the host's exact number
+            piece_e = m.e * (float(t) - float(t_prev))
+            if t >= 1:
+                a = Action("line", m.x1, m.y1, m.z1, 0.0, t=1.0)
+            else:
+                ax = x0 + t * (x1 - x0)
+                ay = y0 + t * (y1 - y0)
+                az = m.z1 if z0 == z1 else float(z0 + t * (z1 - z0))
+                a = Action("line", float(ax), float(ay), az, 0.0, t=float(t))
+            a.e = piece_e + float(pending)
+            a.extra = float(pending)
+            self.stats.extra_applied += float(pending)
+            pending = f32(0)
+            self.stop_ms = 0
+            actions.append(a)
+
+        # points that share a stop (no line between them) make one dwell, as
+        # the firmware's action lists do: a list only ends before a cut
+        hits.sort(key=lambda h: h[0])
+        for t, i in hits:
+            if (t - t_done) * ln < f32(MIN_PIECE_MM):
+                pass  # stop where the head already is
+            else:
+                if (f32(1) - t) * ln < f32(MIN_PIECE_MM):
+                    t = f32(1)
+                line_to(t, t_done)
+                t_done = t
+            pending = self._stop(m, i, actions, pending)
+        if t_done < 1:
+            line_to(f32(1), t_done)
+        else:
+            self.carry = self.carry + pending
+        return actions
+
+    def _stop(self, m: Move, i: int, actions: list[Action], pending):
+        """Point i of the layer stops where the head is now (BulgePlanner::stop);
+        returns the extra owed after it."""
+        zc, pts, fired = self.layer
+        fired[i] = True
+        self.stats.points_fired += 1
+        px, py, w = pts[i]
+        ms = (self.s.dwell_ms * w + 127) // 255
+        # one stop (merged points) never exceeds the per-point limits
+        ms = min(ms, MAX_DWELL_MS - self.stop_ms)
+        self.stop_ms += ms
+        if actions and actions[-1].kind == "dwell":
+            actions[-1].ms += ms
+        else:
+            actions.append(Action("dwell", ms=ms))
+        self.stats.dwell_ms_total += ms
+        # where the head stops: the end of the last line, or the move start
+        lx = next((a for a in reversed(actions) if a.kind == "line"), None)
+        sx, sy, sz = (lx.x, lx.y, lx.z) if lx else (m.x0, m.y0, m.z0)
+        self.stops.append(StopRecord(m.line_no, sx, sy, sz, ms, (px, py), zc))
+        extra = f32(self.s.extra_e)
+        room = f32(MAX_EXTRA_E_MM) - pending
+        if extra > room:
+            extra = room if room > 0 else f32(0)
+            self.stats.extra_dropped += float(f32(self.s.extra_e) - extra)
+        actions[-1].extra = float(pending + extra)
+        return pending + extra
+
+    def _flush(self, m: Move, outer: bool, actions: list[Action]) -> None:
+        """Points the last move deferred (BulgePlanner::flush): a move that
+        continues the wall from its end takes those within the tolerance; the
+        others stop at that end now; a move that starts elsewhere (the head
+        was moved meanwhile) leaves them unfired."""
+        deferred, self.deferred = sorted(self.deferred), set()
+        lx, ly = self.last_end
+        at_b = _bits(m.x0) == lx and _bits(m.y0) == ly
+        on = (at_b and self._keeps(self._cmm(m.z1)) and self.s.mode != MODE_OFF
+              and (self.s.mode != MODE_MARKED or outer) and f32(m.e) > 0
+              and (_bits(m.x0) != _bits(m.x1) or _bits(m.y0) != _bits(m.y1)))
+        if not at_b:
+            return
+        x0, y0 = f32(m.x0), f32(m.y0)
+        fdx, fdy = f32(m.x1) - x0, f32(m.y1) - y0
+        len2 = fdx * fdx + fdy * fdy
+        for i in deferred:
+            if on and len2 != 0 and self._foot(i, x0, y0, fdx, fdy, len2)[1]:
+                continue  # this move's own matching takes it
+            self.carry = self._stop(m, i, actions, self.carry)
+
+
+class Skipper:
+    """Which moves of a file can change what a RefPlanner does, so that only those go through
+    its Python code (a 100 MB file has three million moves; a map's points lie on a few
+    thousand). A move is planned when
+      - it is a candidate (eligible but for the layer window: mode, outer wall, extruding in
+        float32) whose z (0.01 mm, float32) differs from the last candidate's: only then can the
+        window load, switch or miss a layer (the same z gives the same window, see _window);
+      - it is a candidate whose box, widened by plan()'s own margin, holds a point of a map layer
+        within half a layer height of its z: only such moves stop or defer points;
+      - it is the first move after one of those that moves anything (null moves change nothing):
+        it flushes deferred points and takes or drops the extra filament still owed.
+    A skipped candidate would only lay its filament unchanged; a skipped other move would only
+    keep the state clean, which the moves planned before it already left so. top_z is set from
+    every extruding move. host/tests/gcode/test_movescan.py checks stops, extras and drops against
+    planning every move.
+
+    With arcs_bypass, arc chords are the firmware's (RefPlanner.bypass: not planned at all):
+    select() leaves them out, and plan_records() hands the extruding ones to bypass."""
+
+    def __init__(self, planner: RefPlanner, arcs_bypass: bool = False):
+        self.p = planner
+        self.arcs_bypass = arcs_bypass
+        s = planner.s
+        bm = planner.map
+        self.lh = planner.lh
+        self.margin = s.tolerance + 3 * planner.q_um / 1000 + 1e-6
+        pz, px, py = [], [], []
+        if bm is not None:
+            q = planner.q_um / 1000
+            for l in bm.layers:
+                for x, y in l.points:
+                    pz.append(l.z_cmm)
+                    px.append(x * q)
+                    py.append(y * q)
+        order = np.lexsort((np.array(px), np.array(pz))) if pz else np.empty(0, np.int64)
+        self.pz = np.array(pz, dtype=np.int64)[order]
+        self.px = np.array(px, dtype=np.float64)[order]
+        self.py = np.array(py, dtype=np.float64)[order]
+        self.last_zc = None        # the last candidate's z
+        self.owed = False          # a planned move still needs the next moving one planned
+        self.top_z = None
+
+    def select(self, a: np.ndarray) -> np.ndarray:
+        """Indices into the RECORD array a (one chunk, in file order) to plan."""
+        x0, y0, x1, y1, e = a["x0"], a["y0"], a["x1"], a["y1"], a["e"]
+        moved = (x0 != x1) | (y0 != y1)
+        ext = (e > 0) & moved
+        seen = np.ones(len(a), bool)            # moves the planner sees
+        if self.arcs_bypass:
+            seen = (a["flags"] & movescan.ARC) == 0
+            ext &= seen
+        if ext.any():
+            z = float(a["z1"][ext].max())
+            self.top_z = z if self.top_z is None else max(self.top_z, z)
+        null = ~moved & (a["z0"] == a["z1"]) & (e == 0)
+        mode = self.p.s.mode
+        if mode == MODE_OFF or len(self.pz) == 0:
+            cand = np.zeros(len(a), bool)
+        else:
+            f = np.float32
+            cand = (e.astype(f) > 0) & ((x0.astype(f) != x1.astype(f)) | (y0.astype(f) != y1.astype(f)))
+            if mode == MODE_MARKED:
+                cand &= (a["flags"] & movescan.OUTER) != 0
+            cand &= seen
+        pick = np.zeros(len(a), bool)
+        ci = np.flatnonzero(cand)
+        if len(ci):
+            zc = movescan.z_cmm(a["z1"][ci])
+            prev = np.concatenate([[self.last_zc if self.last_zc is not None else zc[0] + 1], zc[:-1]])
+            pick[ci[zc != prev]] = True
+            self.last_zc = int(zc[-1])
+            pick[ci[self._near(a[ci], zc)]] = True
+        # the first moving move after each picked one (and after the last chunk's)
+        moving = np.flatnonzero(~null & seen)
+        if self.owed and len(moving):
+            pick[moving[0]] = True
+        picked = np.flatnonzero(pick)              # all of them move (candidates, moving[0])
+        if len(picked):
+            k = np.searchsorted(moving, picked, side="right")
+            pick[moving[k[k < len(moving)]]] = True
+            self.owed = bool((k >= len(moving)).any())
+        return np.flatnonzero(pick)
+
+    def _near(self, c: np.ndarray, zc: np.ndarray) -> np.ndarray:
+        """Candidates (RECORD rows c, z in 0.01 mm) whose widened box holds a map point of a layer
+        within half a layer height of their z."""
+        half = self.lh / 2
+        lo = np.searchsorted(self.pz, zc - half, side="left")
+        hi = np.searchsorted(self.pz, zc + half, side="right")
+        out = np.zeros(len(c), bool)
+        span = hi - lo
+        has = np.flatnonzero(span > 0)
+        if not len(has):
+            return out
+        m = self.margin
+        bx0 = np.minimum(c["x0"], c["x1"]) - m
+        bx1 = np.maximum(c["x0"], c["x1"]) + m
+        by0 = np.minimum(c["y0"], c["y1"]) - m
+        by1 = np.maximum(c["y0"], c["y1"]) + m
+        # candidate x point pairs, a few million at a time
+        csum = np.cumsum(span[has])
+        start = 0
+        while start < len(has):
+            stop = int(np.searchsorted(csum, (csum[start - 1] if start else 0) + 4_000_000, side="right"))
+            stop = max(stop, start + 1)
+            sel = has[start:stop]
+            n = span[sel]
+            rep = np.repeat(sel, n)
+            off = np.arange(len(rep)) - np.repeat(np.cumsum(n) - n, n)
+            j = lo[rep] + off
+            px, py = self.px[j], self.py[j]
+            ok = (px >= bx0[rep]) & (px <= bx1[rep]) & (py >= by0[rep]) & (py <= by1[rep])
+            out[np.unique(rep[ok])] = True
+            start = stop
+        return out
+
+
+def record_move(r, index: int, roles) -> Move:
+    """One movescan RECORD row as a gcode.Move."""
+    role, fl = int(r["role"]), int(r["flags"])
+    return Move(index, int(r["line_no"]), float(r["x0"]), float(r["y0"]), float(r["z0"]),
+                float(r["x1"]), float(r["y1"]), float(r["z1"]), float(r["e"]), float(r["e_start"]),
+                float(r["f"]), bool(fl & movescan.OUTER), roles[role] if role >= 0 else None,
+                bool(fl & movescan.ARC))
+
+
+def plan_records(planner: RefPlanner, chunks, on_move=None, arcs_bypass: bool = False,
+                 on_chunk=None) -> None:
+    """Run a file's moves (movescan chunks) through the planner, skipping the moves that cannot
+    change what it does (Skipper). on_move(move, actions) is called for every planned move as it
+    is planned; on_chunk(chunk, moves before it, {row: (move, actions)}) after each chunk.
+    arcs_bypass: arc chords go to planner.bypass, as the firmware sees them."""
+    sk = Skipper(planner, arcs_bypass)
+    done = 0
+    for a in chunks:
+        planned = {}
+        for i in sk.select(a):
+            m = record_move(a[i], done + int(i), chunks.roles)
+            acts = planner.plan(m)
+            planned[int(i)] = (m, acts)
+            if on_move is not None:
+                on_move(m, acts)
+        if on_chunk is not None:
+            on_chunk(a, done, planned)
+        if arcs_bypass:
+            for i in np.flatnonzero(((a["flags"] & movescan.ARC) != 0) & (a["e"] > 0)):
+                planner.bypass(record_move(a[i], done + int(i), chunks.roles))
+        done += len(a)
+    if sk.top_z is not None and (planner.top_z is None or sk.top_z > planner.top_z):
+        planner.top_z = sk.top_z
+
+
+def unreached(planner: RefPlanner) -> list[tuple[int, int, int]]:
+    """Map points (layer z in 0.01 mm, x, y in quanta) the planner never stopped at."""
+    if planner.map is None:
+        return []
+    fired: dict[int, set] = {}
+    for s in planner.stops:
+        fired.setdefault(s.layer_z_cmm, set()).add(s.point)
+    return [(l.z_cmm, x, y) for l in planner.map.layers for (x, y) in l.points
+            if (x, y) not in fired.get(l.z_cmm, ())]
+
+
+def unreached_message(planner: RefPlanner, source: str) -> str | None:
+    """What is wrong when map points are never reached, or None."""
+    if planner.map is not None and not planner.map.layers:
+        return (f"{source}: the map has no points (a header only): nothing would bulge. "
+                "Use --allow-unreached to write the file anyway.")
+    miss = unreached(planner)
+    if not miss:
+        return None
+    bm = planner.map
+    per_layer: dict[int, int] = {}
+    for z, _, _ in miss:
+        per_layer[z] = per_layer.get(z, 0) + 1
+    whole = [z for l in bm.layers for z in [l.z_cmm] if per_layer.get(z) == len(l.points)]
+    part = [(z, n) for z, n in per_layer.items() if z not in whole]
+
+    def zl(zs):
+        zs = sorted(zs)
+        return ", ".join(f"{z / 100:.2f}" for z in zs[:6]) + (" ..." if len(zs) > 6 else "")
+    where = "outer-wall" if planner.s.mode == MODE_MARKED else "extruding"
+    out = [f"{source}: {len(miss)} of {bm.point_count} map points are not within "
+           f"{planner.s.tolerance:.2f} mm of any {where} move"]
+    if whole:
+        out.append(f"{len(whole)} layer(s) get no stop at all (z {zl(whole)} mm)")
+        top = planner.top_z
+        above = [z for z in whole if top is None or 2 * (z - round(top * 100)) > bm.layer_height_cmm]
+        if above:
+            out.append(f"{len(above)} of them above the print's last extrusion at "
+                       + (f"z {top:.2f} mm" if top is not None else "(none)"))
+    if part:
+        out.append(f"{sum(n for _, n in part)} point(s) missed on {len(part)} other layer(s) "
+                   f"(z {zl(z for z, _ in part)} mm)")
+    on_arcs = _on_arcs(planner, miss)
+    if on_arcs:
+        n, first = on_arcs
+        return ("; ".join(out) + f". {n} of them lie on G2/G3 arcs (the first on line {first}), "
+                "which the bulgekit firmware does not split at bulge points: turn off arc "
+                "fitting in the slicer (PrusaSlicer/Orca: arc fitting; or remove ArcWelder) and "
+                "slice again. Use --allow-unreached to write the file anyway.")
+    return ("; ".join(out) + ". Is the map made for this G-code (same slice, same "
+            "--geometric/tolerance)? Use --allow-unreached to write the file anyway.")
+
+
+def near_segments(px, py, segs, tol: float):
+    """Which points lie within tol of which segments, in float64: a (points x
+    segments) bool array. px, py: arrays of point coordinates (mm); segs: an
+    (n, 4+) array of x0, y0, x1, y1 rows. Each point is measured to the
+    segment's nearest point (a zero-length segment: its start)."""
+    x0, y0 = segs[:, 0], segs[:, 1]
+    dx, dy = segs[:, 2] - x0, segs[:, 3] - y0
+    l2 = dx * dx + dy * dy
+    ux = np.asarray(px, dtype=np.float64)[:, None] - x0[None, :]
+    uy = np.asarray(py, dtype=np.float64)[:, None] - y0[None, :]
+    t = np.clip(np.divide(ux * dx + uy * dy, l2, out=np.zeros_like(ux), where=l2 > 0), 0.0, 1.0)
+    return (ux - t * dx) ** 2 + (uy - t * dy) ** 2 <= tol * tol
+
+
+def _on_arcs(planner: RefPlanner, miss) -> tuple[int, int] | None:
+    """(how many of the missed points lie within the tolerance of an extruding
+    arc chord of their layer, the first such arc's line), or None."""
+    if not planner.arcs or not miss:
+        return None
+    q = planner.q_um / 1000
+    half = planner.lh / 2
+    by_layer: dict[int, list] = {}
+    for zc, px, py in miss:
+        by_layer.setdefault(zc, []).append((px * q, py * q))
+    n, first = 0, None
+    for zc, pts in by_layer.items():
+        chords = [c for z, cs in planner.arcs.items() if abs(z - zc) <= half for c in cs]
+        if not chords:
+            continue
+        c = np.array(chords, dtype=np.float64)
+        p = np.array(pts, dtype=np.float64)
+        near = near_segments(p[:, 0], p[:, 1], c, planner.s.tolerance)   # points x chords
+        hit = near.any(axis=1)
+        n += int(hit.sum())
+        if hit.any():
+            line = int(c[near.any(axis=0), 4].min())
+            first = line if first is None else min(first, line)
+    return (n, first) if n else None
+
+
+# --- stops for stock firmware -------------------------------------------------------------
+# A stop is written as an extruder-only move (--stop move, the default) or as G4 P<ms>
+# (--stop g4, the paper's rewrite). Marlin's G4 drains the planner queue before it dwells
+# (planner.synchronize()); a G1 of E alone is queued like any move, and the head stands still
+# while the extruder makes its steps. Measured in simulated stock Marlin 2.1.2.7 (issue 25,
+# docs/marlin-integration.md): with n whole E steps at r steps/s the head stands still for
+#     1/max(r, 120) + (n - 1)/r + 1/max(120, v k) s
+# where r is the block's nominal rate, ceil(n x feed / length) in whole steps/s, and 120 steps/s
+# Marlin's MINIMAL_STEP_RATE. The E move's first step comes 1/r after the last X/Y step (never
+# later than 1/120 s); the next X/Y move enters at v = min(r / E steps/mm, v_jd) (junction
+# deviation takes the E-only move as a 90 degree corner) and makes its first step 1/(v k) after
+# the last E step, k being its leading axis's steps per mm of path. Below v k = 120 this is
+# 1/120 + (n - 1)/r + 1/120 (issue 25's rule); short, fast stops end sooner than that rule says.
+STOP_MOVE, STOP_G4 = "move", "g4"
+DEFAULT_E_STEPS = 93.0         # E steps/mm of an Ender-3's stock extruder
+MIN_STEPS_PER_SEGMENT = 6      # Marlin drops a move with fewer steps on every axis
+MINIMAL_STEP_RATE = 120        # steps/s: Marlin's floor for a block's first and last step rate
+SLOWEST_STEP_RATE = 32         # steps/s: AVR stepper timer's longest interval (F_CPU / 500000)
+MAX_E_FEEDRATE = 25.0          # mm/s: Marlin's default M203 E; a faster E move is slowed
+XY_STEPS = 80.0                # steps/mm of X and Y (Marlin's RAMPS and Ender-3 defaults)
+V_JD = math.sqrt(3000 * 0.013 / (math.sqrt(2) - 1))   # mm/s: junction deviation's speed at a
+                               # 90 degree corner, sqrt(a JD sin / (1 - sin)), Marlin's defaults
+                               # 3000 mm/s^2 and 0.013 mm: 9.7 mm/s
+NEAREST_MS = 1.0               # a stop further than this from its dwell is counted as "nearest"
+MIN_AUTORETRACT = 0.1          # mm: with FWRETRACT autoretract on (M209 S1) Marlin turns a move of
+                               # E alone this long or longer into a firmware retract/recover
+G4_OVER_S = 0.017              # G4 P100 held the head 116.4-117.4 ms (issue 25): a move that would
+                               # miss its dwell by more than this is written as G4 instead
+
+
+@dataclass(frozen=True)
+class StockStops:
+    """How a stock file writes its stops. e_steps: the printer's E steps/mm until the file's own
+    M92 E changes it (the printer runs the file's M92, so that wins from its line on).
+    stop_e_steps: E steps laid during each stop (None: the fewest that make a move, 6, or more
+    when a long dwell needs them to keep the rate above SLOWEST_STEP_RATE); they are taken from
+    the stop's extra filament, the rest of which goes on the next piece as before."""
+    stop: str = STOP_MOVE
+    e_steps: float = DEFAULT_E_STEPS
+    stop_e_steps: int | None = None
+
+    def __post_init__(self):
+        if self.stop not in (STOP_MOVE, STOP_G4):
+            raise ValueError(f"stop {self.stop!r} must be {STOP_MOVE!r} or {STOP_G4!r}")
+        if not (math.isfinite(self.e_steps) and 1 <= self.e_steps <= 10000):
+            raise ValueError(f"E steps {self.e_steps} outside 1..10000 steps/mm")
+        if self.stop_e_steps is not None and not MIN_STEPS_PER_SEGMENT <= self.stop_e_steps <= 10000:
+            raise ValueError(f"stop E steps {self.stop_e_steps} outside {MIN_STEPS_PER_SEGMENT}..10000")
+
+
+def still_s(n: int, rate: int, spm: float | None = None, k: float = XY_STEPS) -> float:
+    """Seconds the head stands still for an E-only move of n steps at `rate` steps/s (the rule
+    above) at `spm` E steps/mm, the next move's leading axis making k steps per mm of its path.
+    Without spm: issue 25's rule (the next move starts at the 120 steps/s floor)."""
+    v = min(rate / spm, V_JD) if spm else 0.0
+    return 1 / max(rate, MINIMAL_STEP_RATE) + (n - 1) / rate + 1 / max(MINIMAL_STEP_RATE, v * k)
+
+
+@dataclass
+class StopMove:
+    """One stop as written: `g4` (a G4 P ms), or an E-only move of n steps at `rate` steps/s."""
+    ms: int
+    kind: str
+    n: int = 0
+    rate: int = 0
+    still: float = 0.0         # s the head stands still (G4: the dwell itself)
+    nearest: bool = False      # the dwell could not be made exactly (counted in the stats)
+    why: str = ""              # a move stop written as G4: "extra" (under 6 steps), "long"
+
+    def feed(self, spm: float) -> float:
+        """mm/min whose block rate, ceil(n x feed / length), is `rate`: the middle of the feeds
+        that give it, so float rounding in the firmware cannot change it."""
+        return (self.rate - 0.5) * 60 / spm
+
+
+def _min_steps_for(d: float) -> int:
+    """The fewest steps whose rate stays at or above SLOWEST_STEP_RATE for a stillness of d s."""
+    need = 1 + SLOWEST_STEP_RATE * (d - 2 / MINIMAL_STEP_RATE)
+    return max(MIN_STEPS_PER_SEGMENT, math.ceil(need - 1e-9))
+
+
+def plan_stop(ms: int, spm: float, owed_mm: float, steps: int | None = None,
+              k: float = XY_STEPS) -> StopMove:
+    """The E-only move for a stop of `ms`: n whole steps (`steps`, or the fewest that make it),
+    at most the whole steps of the extra owed at the stop, and the rate whose stillness is
+    nearest the dwell (k: the next move's leading-axis steps per mm of path, see still_s). Falls back to G4 when the owed extra is under MIN_STEPS_PER_SEGMENT steps
+    (a shorter E-only move is dropped by Marlin: the stop would be lost)."""
+    d = ms / 1000
+    if ms == 0:
+        return StopMove(0, "none")            # a weight-0 point: nothing to hold
+    want = steps if steps is not None else _min_steps_for(d)
+    avail = math.floor(owed_mm * spm + 1e-6)
+    if avail < MIN_STEPS_PER_SEGMENT:
+        return StopMove(ms, STOP_G4, still=d, why="extra")
+    best = None
+    # whole rates make the stillness come in quanta ((n - 1)/r^2 per step/s, large at low
+    # rates): unless the steps were given, a step or a few more are added when the fewest
+    # miss the dwell by more than NEAREST_MS
+    last = want if steps is not None else min(avail, 2 * want + 8)
+    for n in range(min(want, avail), max(min(want, avail), last) + 1):
+        cand = _rate_for(n, d, spm, k)
+        if best is None or abs(cand.still - d) < abs(best.still - d) - 1e-9:
+            best = cand
+        if abs(best.still - d) * 1000 <= NEAREST_MS:
+            break
+    best.ms = ms
+    if abs(best.still - d) > G4_OVER_S and best.still < d:
+        # too little extra for the slowest rate: G4 holds nearer the dwell, despite its drain
+        return StopMove(ms, STOP_G4, still=d, why="long")
+    best.nearest = abs(best.still - d) * 1000 > NEAREST_MS
+    return best
+
+
+def _rate_for(n: int, d: float, spm: float, k: float = XY_STEPS) -> StopMove:
+    """n steps at the whole rate whose stillness is nearest d s: a first guess from issue 25's
+    rule, then the whole rates around it by the full rule (stillness falls as the rate rises)."""
+    # above v_jd the E move would have to accelerate from the junction: the rule holds below it
+    r_max = max(int(min(MAX_E_FEEDRATE, V_JD) * spm), MINIMAL_STEP_RATE)
+    if d >= (n + 1) / MINIMAL_STEP_RATE:
+        r = (n - 1) / (d - 2 / MINIMAL_STEP_RATE)
+    elif d > 1 / MINIMAL_STEP_RATE:
+        r = n / (d - 1 / MINIMAL_STEP_RATE)
+    else:
+        r = float(r_max)
+    clamp = lambda q: min(max(q, SLOWEST_STEP_RATE), r_max)
+    still = lambda q: still_s(n, q, spm, k)
+    lo, hi = clamp(math.floor(r)), clamp(math.ceil(r))
+    # the full rule's stillness is at most the first guess's: slow down until it is not short
+    while lo > SLOWEST_STEP_RATE and still(lo) < d:
+        hi, lo = lo, clamp(max(SLOWEST_STEP_RATE, lo - max(1, lo // 16)))
+    while hi - lo > 1:                                   # bisect the whole rates between
+        mid = (lo + hi) // 2
+        lo, hi = (mid, hi) if still(mid) >= d else (lo, mid)
+    rate = min((lo, hi), key=lambda q: abs(still(q) - d))
+    return StopMove(0, STOP_MOVE, n, rate, still(rate))
+
+
+def _lround(v) -> int:
+    """C's lroundf: halves away from zero."""
+    v = float(v)
+    return int(math.floor(v + 0.5)) if v >= 0 else -int(math.floor(-v + 0.5))
+
+
+def _digits(value: float, ok) -> str:
+    """value with 6 or more decimals, as few as make ok(written value) true."""
+    for nd in range(6, 12):
+        txt = f"{value:.{nd}f}"
+        if ok(float(txt)):
+            break
+    return txt.rstrip("0").rstrip(".") if "." in txt else txt
+
+
+def stop_e_lines(e_pos: float, n: int, spm: float, abs_e: bool) -> tuple[list[str], str, float]:
+    """(lines before the stop, its E word, the filament it lays in host terms) for an E-only move
+    of exactly n steps from host E e_pos. Marlin plans a move to lround(E x steps/mm) steps, in
+    float. The target is put in the middle of a step, lround(e_pos x spm) + n, a whole number,
+    so that neither float32 nor the fraction carried from before changes the count:
+      - absolute E (M82): Marlin's position is the last E the file wrote, known here exactly:
+        the move goes to the target;
+      - relative E (M83): Marlin adds each E to its position in float32, which drifts from the
+        host's sum (0.1 mm over 1,400 mm of a file without G92 E0: ten steps at 93 steps/mm),
+        so the position is first set to the whole step nearest the host's (G92 E), and the move
+        is n steps from there.
+    The filament laid is target/spm - e_pos either way (the next piece lays the rest of the
+    extra, so the total is the host's); as many digits as the exact count needs."""
+    f = np.float32
+    spm32 = f(spm)
+    start = _lround(f(e_pos) * spm32)
+    target = start + n
+    if abs_e:
+        e = _digits(target / spm, lambda v: _lround(f(v) * spm32) == target)
+        return [], f"E{e}", float(e) - e_pos
+    base = _digits(start / spm, lambda v: _lround(f(v) * spm32) == start)
+    step = _digits(n / spm, lambda v: _lround(f(f(float(base)) + f(v)) * spm32) == target)
+    return [f"G92 E{base}"], f"E{step}", float(base) + float(step) - e_pos
+
+
+class StopWriter:
+    """Writes the stops of one stock file (used by rewrite() and the byte path alike) and counts
+    what it wrote. E laid during a stop is taken from the extra filament of the next piece
+    (`debt`); if that piece never comes (the extra is dropped at a wall's end), it stays laid."""
+
+    def __init__(self, stops: StockStops, m92: list[tuple[int, float]] | None = None):
+        self.cfg = stops
+        self.m92 = list(m92 or [])             # (line number, E steps/mm) of the file's M92 E
+        self.debt = 0.0
+        self.moves = 0                         # stops written as E-only moves
+        self.g4 = 0                            # stops written as G4 (--stop g4, or too little extra)
+        self.g4_why: dict[str, int] = {}       # --stop move, written as G4: why (StopMove.why)
+        self.nearest = 0                       # stops whose stillness is off their dwell (> 1 ms)
+        self.still_s = 0.0                     # stillness of the E-only stops, s
+        self.run_s = 0.0                       # their time as blocks: the stillness but the
+                                               # braking's last 1/120 s (gcode/estimate.py's model)
+        self.g4_s = 0.0                        # dwell of the G4 stops, s
+        self.stop_e_mm = 0.0                   # E laid during stops
+        self.unpaid_e_mm = 0.0                 # of that, not taken from a following piece
+        self.autoretract = 0                   # stops of MIN_AUTORETRACT or more (see there)
+
+    def spm_at(self, line_no: int) -> float:
+        k = bisect.bisect_left(self.m92, (line_no,))
+        return self.m92[k - 1][1] if k else self.cfg.e_steps
+
+    def note_m92(self, line_no: int, raw: str) -> None:
+        """rewrite()'s stream: an M92 line (the byte path scans the file for them first)."""
+        mt = _M92_RX.match(raw.encode("utf-8", "replace"))
+        v = _m92_e(mt.group(1)) if mt else None
+        if v is not None:
+            self.m92.append((line_no, v))
+
+    def plan(self, a: Action, line_no: int, k: float = XY_STEPS) -> StopMove:
+        """k: leading-axis steps per mm of the move the head goes on with (see still_s)."""
+        if self.cfg.stop == STOP_G4:
+            return StopMove(a.ms, STOP_G4, still=a.ms / 1000)
+        # the extra owed here, less what stops before it (not yet paid) laid already
+        return plan_stop(a.ms, self.spm_at(line_no), a.extra - self.debt, self.cfg.stop_e_steps, k)
+
+    def count(self, stop: StopMove, laid: float = 0.0) -> None:
+        if stop.kind == STOP_G4:
+            self.g4 += 1
+            self.g4_s += stop.still
+            if stop.why:
+                self.g4_why[stop.why] = self.g4_why.get(stop.why, 0) + 1
+            return
+        self.moves += 1
+        self.still_s += stop.still
+        self.run_s += stop.still - 1 / MINIMAL_STEP_RATE
+        self.nearest += stop.nearest
+        self.stop_e_mm += laid
+        self.debt += laid
+        self.autoretract += laid >= MIN_AUTORETRACT - 1e-9
+
+    def drop(self) -> None:
+        """The planner dropped the extra owed: E a stop laid stays laid."""
+        self.unpaid_e_mm += self.debt
+        self.debt = 0.0
+
+    def pay(self, a: Action) -> float:
+        """Filament to take off a line piece for E laid during the stops before it: the piece
+        that carries their extra (a stop's E may pass its whole steps of extra by the half step
+        it was aimed to the middle of: that comes off the piece's own filament)."""
+        if self.debt == 0 or a.extra <= 0:
+            return 0.0
+        take = min(self.debt, a.e)
+        self.unpaid_e_mm += self.debt - take
+        self.debt = 0.0
+        return take
+
+    def summary(self) -> str:
+        if self.cfg.stop == STOP_G4:
+            return f"stops as G4 P<ms>: {self.g4} ({self.g4_s:.1f} s dwell)"
+        out = (f"stops as E-only moves: {self.moves} ({self.still_s:.1f} s head still, "
+               f"{self.stop_e_mm:.3f} mm E in them)")
+        if self.g4_why.get("extra"):
+            out += f"; {self.g4_why['extra']} as G4 (extra under {MIN_STEPS_PER_SEGMENT} E steps)"
+        if self.g4_why.get("long"):
+            out += (f"; {self.g4_why['long']} as G4 (dwell too long for the extra's steps at "
+                    f"{SLOWEST_STEP_RATE} steps/s)")
+        if self.nearest:
+            out += f"; {self.nearest} not exactly as asked (nearest made)"
+        if self.unpaid_e_mm > 1e-9:
+            out += f"; {self.unpaid_e_mm:.3f} mm stop E beyond the extra (dropped at walls' ends)"
+        if self.autoretract:
+            out += (f"; {self.autoretract} lay {MIN_AUTORETRACT} mm or more: with FWRETRACT "
+                    "autoretract on (M209 S1) Marlin would make them recover moves")
+        return out
+
+
+def _fmt(v: float, nd: int = 5) -> str:
+    s = f"{v:.{nd}f}".rstrip("0").rstrip(".")
+    if s in ("-0", ""):
+        s = "0"
+    return s
+
+
+@dataclass
+class RewriteResult:
+    lines_in: int = 0
+    moves_split: int = 0
+    stops: list = field(default_factory=list)
+    stats: PlanStats | None = None
+    unreached: str | None = None     # message when map points get no stop
+    stock: StopWriter | None = None  # how the stops were written, and their counts
+
+
+def rewrite(lines: Iterable[str], bmap: mapformat.BulgeMap, settings: Settings,
+            source: str = "<gcode>", result: RewriteResult | None = None,
+            stops: StockStops = StockStops()) -> Iterator[str]:
+    """Yield the stock-firmware G-code (lines end with '\\n')."""
+    planner = RefPlanner(bmap, settings)
+    st = GcodeState()
+    res = result if result is not None else RewriteResult()
+    sw = res.stock = StopWriter(stops)
+    yield _header(bmap, settings, stops)
+    for ln in parse_lines(lines, source, st):
+        res.lines_in += 1
+        raw = ln.raw if ln.raw.endswith("\n") else ln.raw.rstrip("\r") + "\n"
+        if not ln.moves:
+            if ln.cmd == "M92":
+                sw.note_m92(ln.line_no, ln.raw)
+            yield raw
+            continue
+        per_move = [(m, planner.plan(m)) for m in ln.moves]
+        if all(_unchanged(m, a) for m, a in per_move):
+            if any(a.dropped for _, acts in per_move for a in acts):
+                sw.drop()
+            yield raw
+            continue
+        res.moves_split += 1
+        yield from _emit(ln, per_move, st, sw)
+    res.stops = planner.stops
+    res.stats = planner.stats
+    res.unreached = unreached_message(planner, source)
+
+
+def _unchanged(m: Move, actions: list[Action]) -> bool:
+    """The planner left the move as it was: one line to its end with its own filament."""
+    return (len(actions) == 1 and actions[0].kind == "line" and actions[0].t == 1.0
+            and abs(actions[0].e - m.e) < 1e-12)
+
+
+def _lead_steps(m: Move) -> float:
+    """Steps per mm of path of a move's leading X/Y axis: the head goes on along the move it
+    stopped on (a stop at a move's end is followed by the wall's next move, nearly as straight)."""
+    dx, dy = abs(m.x1 - m.x0), abs(m.y1 - m.y0)
+    length = math.hypot(dx, dy)
+    return XY_STEPS * max(dx, dy) / length if length > 1e-9 else XY_STEPS
+
+
+def _emit(ln: Line, per_move, st: GcodeState, sw: StopWriter) -> Iterator[str]:
+    """G-code for one source line whose moves were split or got extra E."""
+    w = ln.words or {}
+    comment = ""
+    i = ln.raw.find(";")
+    if i >= 0:
+        comment = ln.raw[i:].rstrip("\r\n")
+    abs_xyz, abs_e = st.abs_xyz, st.abs_e
+    first = True
+    # host positions before the line: the first move's start
+    m0 = per_move[0][0]
+    cx, cy, cz = m0.x0, m0.y0, m0.z0
+    e_host = m0.e_start            # host E at the start of the current move
+    e_out = m0.e_start             # E as written (absolute mode)
+    added = 0.0
+    feed = None                    # a stop move changed the feed: the feed to give back
+    for m, acts in per_move:
+        e_host = m.e_start
+        acc = 0.0                  # filament written for this move so far
+        for a in acts:
+            if a.dropped:
+                sw.drop()
+            if a.kind == "dwell":
+                stop = sw.plan(a, ln.line_no, _lead_steps(m))
+                if stop.kind == "none":
+                    continue
+                if stop.kind == STOP_G4:
+                    sw.count(stop)
+                    yield f"G4 P{a.ms}\n"
+                    continue
+                spm = sw.spm_at(ln.line_no)
+                before, word, laid = stop_e_lines(e_host + acc + added, stop.n, spm, abs_e)
+                sw.count(stop, laid)
+                acc += laid
+                feed = m.f
+                for b in before:
+                    yield b + "\n"
+                yield f"G1 {word} F{stop.feed(spm):.3f}\n"
+                continue
+            parts = ["G1"]
+            if a.t >= 1.0:
+                tx, ty, tz = m.x1, m.y1, m.z1
+            else:
+                tx, ty, tz = a.x, a.y, a.z
+            if abs_xyz:
+                if tx != cx or "X" in w or a.t < 1.0:
+                    parts.append(f"X{_fmt(tx, 4 if a.t < 1 else 5)}")
+                if ty != cy or "Y" in w or a.t < 1.0:
+                    parts.append(f"Y{_fmt(ty, 4 if a.t < 1 else 5)}")
+                if tz != cz or (first and "Z" in w):
+                    parts.append(f"Z{_fmt(tz, 4 if a.t < 1 else 5)}")
+            else:
+                if tx != cx:
+                    parts.append(f"X{_fmt(tx - cx, 4)}")
+                if ty != cy:
+                    parts.append(f"Y{_fmt(ty - cy, 4)}")
+                if tz != cz:
+                    parts.append(f"Z{_fmt(tz - cz, 4)}")
+            piece_e = a.e - sw.pay(a)     # E a stop laid comes off the extra this piece carries
+            acc += piece_e
+            if abs_e:
+                e_out = e_host + acc + added
+                parts.append(f"E{_fmt(e_out)}")
+            else:
+                parts.append(f"E{_fmt(piece_e)}")
+            if first and "F" in w:
+                parts.append(f"F{_fmt(w['F'], 3)}")
+            elif feed is not None:
+                parts.append(f"F{_fmt(m.f, 3)}")
+            feed = None
+            first = False
+            cx, cy, cz = tx, ty, tz
+            yield " ".join(parts) + "\n"
+        extra_here = acc - m.e
+        added += extra_here
+    if feed is not None:
+        yield f"G1 F{_fmt(per_move[-1][0].f, 3)}\n"   # the stop's feed must not carry on
+    if abs_e and abs(added) > 1e-9:
+        # put the host's E back where the original line left it
+        yield f"G92 E{_fmt(per_move[-1][0].e_start + per_move[-1][0].e)}\n"
+    if comment:
+        yield comment + "\n"
+
+
+def _header(bmap: mapformat.BulgeMap, settings: Settings, stops: StockStops) -> str:
+    how = ""
+    if stops.stop == STOP_MOVE:
+        how = (f", stops as E-only moves at {_fmt(stops.e_steps, 3)} E steps/mm"
+               " (or as M92 E in the file sets)"
+               + (f", {stops.stop_e_steps} E steps each" if stops.stop_e_steps else ""))
+    return (f"; bulgekit fallback: {len(bmap.layers)} layers, {bmap.point_count} points, "
+            f"dwell {settings.dwell_ms} ms, extra E {settings.extra_e:.3f} mm, "
+            f"tolerance {settings.tolerance:.3f} mm, mode {settings.mode}{how}\n")
+
+
+def _rewrite_records(src, out, chunks, bmap: mapformat.BulgeMap, settings: Settings,
+                     source: str, res: RewriteResult, stops: StockStops = StockStops(),
+                     m92: list | None = None) -> None:
+    """rewrite() on the compiled scanner's chunks: the same output, but lines that stay as they
+    are copied as bytes and only the moves that can change planned (Skipper). Needs a file
+    whose lines end in \n or \r\n and that is valid UTF-8 (rewrite_file checks)."""
+    from ..gcode import parse_words, split_code
+    planner = RefPlanner(bmap, settings)
+    sw = res.stock = StopWriter(stops, m92)
+    out.write(_header(bmap, settings, stops).encode())
+    pos = 0                                   # bytes of src copied so far
+
+    def emit_changed(a, done, planned):
+        nonlocal pos
+        lines = a["line_no"]
+        seen = set()
+        for i, (m, acts) in sorted(planned.items()):     # in file order, as rewrite() goes
+            ln_no = int(lines[i])
+            if ln_no in seen:
+                continue
+            if _unchanged(m, acts):
+                if acts[0].dropped:
+                    sw.drop()
+                continue
+            seen.add(ln_no)
+            idx = np.flatnonzero(lines == ln_no)      # the line's moves (an arc's chords)
+            r0 = a[idx[0]]
+            start = int(r0["offset"])
+            out.write(src.read(start - pos))
+            raw = src.readline()                  # the line, through its \n
+            pos = start + len(raw)
+            text = raw.decode("utf-8")
+            code, _ = split_code(text)
+            head = code.split(None, 1)
+            words = parse_words(head[1] if len(head) > 1 else "", f"{source}:{ln_no}")
+            per_move = []
+            for i in idx:
+                m = record_move(a[i], done + int(i), chunks.roles)
+                per_move.append(planned.get(int(i)) or (m, [Action("line", m.x1, m.y1, m.z1, m.e)]))
+            st = GcodeState()
+            st.abs_xyz = bool(int(r0["flags"]) & movescan.ABS_XYZ)
+            st.abs_e = bool(int(r0["flags"]) & movescan.ABS_E)
+            res.moves_split += 1
+            out.write("".join(_emit(Line(ln_no, text, head[0].upper(), words, [], None),
+                                    per_move, st, sw)).encode())
+    plan_records(planner, chunks, on_chunk=emit_changed)
+    rest = src.read()
+    out.write(rest)
+    if rest and not rest.endswith(b"\n"):
+        out.write(b"\n")                         # as rewrite(): every line ends in a line end
+    res.lines_in = chunks.lines
+    res.stops = planner.stops
+    res.stats = planner.stats
+    res.unreached = unreached_message(planner, source)
+
+
+def rewrite_file(src, dst, bmap: mapformat.BulgeMap, settings: Settings,
+                 allow_unreached: bool = False, stops: StockStops = StockStops()) -> RewriteResult:
+    """Rewrite src into dst.  Map points no move reaches are an error (the
+    map is likely for another file) unless allow_unreached; then the message
+    is in result.unreached.  dst is only written when the rewrite succeeds."""
+    import os
+    from ..gcode import check_not_processed, open_checked
+    res = RewriteResult()
+    byte_path = movescan.available()
+
+    def plain(data, source):                  # run with open_checked's checks, on the bytes
+        nonlocal byte_path
+        byte_path = byte_path and _plain_lines(data)
+    kept = movescan.kept(src)                 # build's one scan: checked, and its lines known
+    if kept is not None:
+        byte_path = byte_path and kept.plain_lines
+        lines = kept.text_lines()
+    else:
+        _, lines = open_checked(src, checks=(check_not_processed, plain))     # streamed, not held
+    tmp = f"{os.fspath(dst)}.part"
+    try:
+        done = False
+        if byte_path:
+            def fast(chunks):
+                r = RewriteResult()
+                with open(tmp, "wb") as f, open(src, "rb") as g:
+                    m92 = None if stops.stop != STOP_MOVE else kept.m92 if kept else scan_m92(src)
+                    _rewrite_records(g, f, chunks, bmap, settings, str(src), r, stops, m92)
+                return r
+            try:
+                res = movescan.run(src, fast, fast=True)
+                done = True
+            except movescan.Unsupported:
+                pass                          # a line the compiled scanner leaves to gcode/__init__.py
+        if not done:
+            with open(tmp, "w", encoding="utf-8", newline="") as f:
+                buf = []
+                for out in rewrite(lines, bmap, settings, str(src), res, stops):
+                    buf.append(out)
+                    if len(buf) >= 4096:
+                        f.write("".join(buf))
+                        buf.clear()
+                f.write("".join(buf))
+        if res.unreached and not allow_unreached:
+            raise UnreachedError(res.unreached)
+        os.replace(tmp, dst)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+    return res

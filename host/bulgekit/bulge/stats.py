@@ -1,0 +1,183 @@
+"""Stops, per-layer counts and the time bulges add to a print.
+
+Two levels: `map_stats` reads only the map (what was asked for);
+`print_stats` also runs the G-code through the reference planner
+(fallback.RefPlanner), so it counts the stops that will really happen and
+names the points no outer-wall move passes within the tolerance.
+"""
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass, field
+
+from . import mapformat
+from ..gcode import movescan
+from .fallback import RefPlanner, Settings, plan_records
+from ..gcode import open_checked
+
+ARENA_BYTES = mapformat.ARENA_BYTES
+
+
+@dataclass
+class LayerCount:
+    z: float
+    points: int
+    stops: int | None = None
+
+
+@dataclass
+class Stats:
+    layers: list[LayerCount]
+    points: int
+    map_bytes: int
+    arena: int
+    dwell_s: float                 # total dwell, weights applied
+    extra_e_mm: float              # total extra filament
+    settings: Settings
+    stops: int | None = None       # from the G-code run
+    missed: list[tuple[float, float, float]] = field(default_factory=list)  # (z, x, y)
+    extra_dropped_mm: float = 0.0
+    decel_s: float | None = None   # stop/start cost at the moves' feedrates
+    slicer_time_s: float | None = None
+    stock: object | None = None    # fallback.StopWriter of the stock file, when one was written
+
+    @property
+    def added_s(self) -> float:
+        return self.dwell_s + (self.decel_s or 0.0)
+
+    @property
+    def fits_arena(self) -> bool:
+        return self.map_bytes - mapformat.HEADER_BYTES <= self.arena
+
+    def text(self, per_layer: bool = True) -> str:
+        s = self.settings
+        out = [f"bulge map: {len(self.layers)} layers, {self.points} points, {self.map_bytes} bytes "
+               f"(printer arena {self.arena} bytes: "
+               + ("fits)" if self.fits_arena else "streamed as appends while printing)"),
+               f"settings: {s.m720()}"]
+        if self.stops is not None:
+            out.append(f"stops when printed: {self.stops} of {self.points} points")
+            if self.missed:
+                show = ", ".join(f"z {z:.2f} ({x:.2f}, {y:.2f})" for z, x, y in self.missed[:8])
+                more = f" and {len(self.missed) - 8} more" if len(self.missed) > 8 else ""
+                out.append(f"WARNING: {len(self.missed)} points are not within {s.tolerance:.2f} mm "
+                           f"of any {'outer-wall' if s.mode == 1 else 'extruding'} move: {show}{more}")
+            if self.extra_dropped_mm > 1e-9:
+                out.append(f"extra filament lost to stops at a wall's end: {self.extra_dropped_mm:.3f} mm")
+        out.append(f"extra filament: {self.extra_e_mm:.2f} mm")
+        t = f"added time: {_hms(self.dwell_s)} dwell"
+        if self.decel_s is not None:
+            t += f" + {_hms(self.decel_s)} stopping/starting = {_hms(self.added_s)}"
+        if self.slicer_time_s:
+            t += f" ({100 * self.added_s / self.slicer_time_s:.1f}% of the slicer's {_hms(self.slicer_time_s)})"
+        out.append(t)
+        if self.stock is not None:
+            # the stock file's stops as the printer runs them: an E-only stop is a block of
+            # its stillness less the braking's last step (counted in stopping/starting below),
+            # as bulgekit estimate times it; a G4 its dwell and the planner's drain
+            out.append(f"stock file: {self.stock.summary()}")
+            held = self.stock.run_s + self.stock.g4_s
+            t = f"stock file's added time: {_hms(held)} in the stops"
+            if self.decel_s is not None:
+                t += f" + {_hms(self.decel_s)} stopping/starting = {_hms(held + self.decel_s)}"
+            if self.stock.g4:
+                t += f" (and the planner's drain and refill at each of its {self.stock.g4} G4)"
+            out.append(t)
+        if per_layer:
+            out.append("per layer (z mm: points" + (" / stops" if self.stops is not None else "") + "):")
+            row = []
+            for lc in self.layers:
+                row.append(f"{lc.z:.2f}:{lc.points}" + (f"/{lc.stops}" if lc.stops is not None else ""))
+            for i in range(0, len(row), 8):
+                out.append("  " + "  ".join(row[i:i + 8]))
+        return "\n".join(out)
+
+
+def _hms(sec: float) -> str:
+    sec = float(sec)
+    if sec < 60:
+        return f"{sec:.1f} s"
+    m, s = divmod(round(sec), 60)
+    h, m = divmod(m, 60)
+    return f"{h}h{m:02d}m{s:02d}s" if h else f"{m}m{s:02d}s"
+
+
+def map_stats(map_bytes: bytes, settings: Settings, arena: int = ARENA_BYTES) -> Stats:
+    bm = mapformat.decode_map(map_bytes, source="map")
+    layers = []
+    dwell_ms = 0
+    for l in bm.layers:
+        layers.append(LayerCount(l.z_cmm / 100, len(l.points)))
+        ws = l.weights or (255,) * len(l.points)
+        dwell_ms += sum((settings.dwell_ms * w + 127) // 255 for w in ws)
+    n = bm.point_count
+    return Stats(layers, n, len(map_bytes), arena, dwell_ms / 1000, n * settings.extra_e, settings)
+
+
+_TIME_RX = (
+    (re.compile(r"^; estimated printing time \(normal mode\) = (.+)$", re.M), "dhms"),  # Prusa, Orca
+    (re.compile(r"^;TIME:(\d+)", re.M), "s"),                                         # Cura
+    (re.compile(r"^;\s*Build time: (\d+) hours? (\d+) minutes?", re.M), "hm"),         # Simplify3D
+)
+
+
+def slicer_time(text: str) -> float | None:
+    """The slicer's own print time estimate, seconds, if it wrote one."""
+    for rx, kind in _TIME_RX:
+        m = rx.search(text)
+        if not m:
+            continue
+        if kind == "s":
+            return float(m.group(1))
+        if kind == "hm":
+            return int(m.group(1)) * 3600 + int(m.group(2)) * 60
+        total = 0.0
+        for num, unit in re.findall(r"(\d+)([dhms])", m.group(1)):
+            total += int(num) * {"d": 86400, "h": 3600, "m": 60, "s": 1}[unit]
+        return total or None
+    return None
+
+
+def print_stats(gcode_path, map_bytes: bytes, settings: Settings, arena: int = ARENA_BYTES,
+                accel_mm_s2: float = 1000.0) -> Stats:
+    """map_stats plus a run of the G-code through the reference planner."""
+    st = map_stats(map_bytes, settings, arena)
+    bm = mapformat.decode_map(map_bytes)
+    ends, _ = open_checked(gcode_path)             # checked; its moves are scanned in chunks
+
+    def run(chunks):
+        planner = RefPlanner(bm, settings)
+        acc = {"stops": 0, "decel": 0.0}
+
+        def count(m, actions):
+            k = len(planner.stops) - acc["stops"]      # stops this move made
+            acc["stops"] = len(planner.stops)
+            if k:
+                # decelerating to a stop and back costs v/a over cruising
+                acc["decel"] += k * (m.f / 60.0) / accel_mm_s2
+        plan_records(planner, chunks, count)
+        return planner, acc["decel"]
+    planner, decel = movescan.run(gcode_path, run)
+    fired: dict[int, set] = {}
+    per_z: dict[int, int] = {}
+    dwell_ms = 0
+    for s in planner.stops:
+        fired.setdefault(s.layer_z_cmm, set()).add(s.point)
+        per_z[s.layer_z_cmm] = per_z.get(s.layer_z_cmm, 0) + 1
+    dwell_ms = planner.stats.dwell_ms_total
+    q = bm.quantum_um / 1000
+    missed = []
+    for l, lc in zip(bm.layers, st.layers):
+        lc.stops = per_z.get(l.z_cmm, 0)
+        done = fired.get(l.z_cmm, set())
+        for p in l.points:
+            if p not in done:
+                missed.append((l.z_cmm / 100, p[0] * q, p[1] * q))
+    st.stops = len(planner.stops)
+    st.missed = missed
+    st.extra_dropped_mm = planner.stats.extra_dropped
+    st.dwell_s = dwell_ms / 1000
+    st.extra_e_mm = planner.stats.extra_applied
+    st.decel_s = decel
+    st.slicer_time_s = slicer_time(ends)
+    return st

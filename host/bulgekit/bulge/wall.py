@@ -1,0 +1,389 @@
+"""Outer-wall toolpaths per layer, parameterised by arc length.
+
+A stroke is drawn on the unrolled outer wall: u (mm along the wall) and v
+(mm above the bed).  For each layer the wall is the outer-wall toolpath as
+the slicer printed it.  u = 0 is where a ray from the layer's centroid in
+a fixed reference direction (default: towards the front, -Y) meets the wall
+(the outermost crossing), and u grows counter-clockwise seen from above,
+i.e. left to right for someone looking at the wall from outside.  Using a
+fixed direction instead of the slicer's seam keeps u = 0 at the same place
+on every layer, so a stroke lands where it was drawn whatever the seam or
+print direction of each layer.
+
+Spiral (vase) walls are cut into layer windows of one layer height around
+the grid of layer heights, the same windows the firmware matches moves in.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Iterable
+
+import numpy as np
+
+from ..gcode import movescan
+from ..gcode import Move, header_layer_height, open_checked
+from ..errors import BulgekitError
+
+
+class WallError(BulgekitError):
+    """The G-code has no usable outer wall."""
+
+
+@dataclass
+class Wall:
+    """The outer wall of one layer: a polyline in print order."""
+    z: float                 # layer z, mm (0.01 mm grid)
+    xy: np.ndarray           # (N+1, 2) vertices in print order
+    s: np.ndarray            # (N+1,) arc length at the vertices
+    move_index: np.ndarray   # (N,) running move number of each segment
+    height: float = 0.0      # bead height (z - previous layer z)
+    ccw: bool = True         # printed counter-clockwise seen from above
+    s_ref: float = 0.0       # arc length (print order) where u == 0
+    centroid: tuple[float, float] = (0.0, 0.0)
+    closed: bool = True      # a loop; an open chain (top of a vase) has ends
+    turn: float = 0.0        # open chain: length of the nearest loop (u's period), 0 if none
+
+    @property
+    def length(self) -> float:
+        return float(self.s[-1])
+
+    # u <-> s: u runs counter-clockwise from the reference, s in print order
+    def s_of_u(self, u):
+        L = self.length
+        u = np.asarray(u, dtype=float)
+        s = self.s_ref + u if self.ccw else self.s_ref - u
+        # an open chain does not go round: u beyond its ends has no place
+        # (check with u_covered() first)
+        return np.mod(s, L) if self.closed else s
+
+    def u_covered(self) -> tuple[float, float]:
+        """u range the wall covers: one turn for a loop, the chain's ends else."""
+        if self.closed:
+            return (-math.inf, math.inf)
+        a, b = -self.s_ref, self.length - self.s_ref
+        return (a, b) if self.ccw else (-b, -a)
+
+    def place_run(self, umin: float, umax: float) -> float | None:
+        """Shift (a whole number of turns) that puts u umin..umax on the wall,
+        or None when the run leaves an open chain."""
+        if self.closed:
+            return 0.0
+        a, b = self.u_covered()
+        shifts = [0.0]
+        if self.turn > 0:
+            k = math.floor((umin - a) / self.turn)
+            shifts += [k * self.turn, (k + 1) * self.turn]
+        for d in shifts:
+            if umin - d >= a - 1e-6 and umax - d <= b + 1e-6:
+                return d
+        return None
+
+    def u_of_s(self, s):
+        L = self.length
+        s = np.asarray(s, dtype=float)
+        u = s - self.s_ref if self.ccw else self.s_ref - s
+        return np.mod(u, L)
+
+    def xy_of_s(self, s) -> np.ndarray:
+        s = np.atleast_1d(np.asarray(s, dtype=float))
+        x = np.interp(s, self.s, self.xy[:, 0])
+        y = np.interp(s, self.s, self.xy[:, 1])
+        return np.stack([x, y], axis=1)
+
+    def xy_of_u(self, u) -> np.ndarray:
+        return self.xy_of_s(self.s_of_u(u))
+
+    def project(self, x: float, y: float) -> tuple[float, float]:
+        """(s, distance) of the wall point nearest (x, y)."""
+        a = self.xy[:-1]
+        d = self.xy[1:] - a
+        l2 = np.einsum("ij,ij->i", d, d)
+        l2[l2 == 0] = 1e-18
+        t = np.clip(((x - a[:, 0]) * d[:, 0] + (y - a[:, 1]) * d[:, 1]) / l2, 0, 1)
+        px = a[:, 0] + t * d[:, 0]
+        py = a[:, 1] + t * d[:, 1]
+        dist = np.hypot(px - x, py - y)
+        i = int(np.argmin(dist))
+        return float(self.s[i] + t[i] * (self.s[i + 1] - self.s[i])), float(dist[i])
+
+
+@dataclass
+class WallModel:
+    walls: list[Wall]
+    layer_height: float
+    geometric: bool = False          # found without feature comments
+    source: str = ""
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def zs(self) -> np.ndarray:
+        return np.array([w.z for w in self.walls])
+
+    @property
+    def v_range(self) -> tuple[float, float]:
+        w0 = self.walls[0]
+        return (w0.z - w0.height, self.walls[-1].z)
+
+    def layer_of_v(self, v) -> np.ndarray:
+        """Index of the layer whose bead holds height v (-1 outside the wall)."""
+        v = np.atleast_1d(np.asarray(v, dtype=float))
+        zs = self.zs
+        bottoms = zs - np.array([w.height for w in self.walls])
+        i = np.searchsorted(zs, v - 1e-9, side="left")
+        out = np.full(v.shape, -1, dtype=int)
+        ok = i < len(zs)
+        ii = np.where(ok, i, 0)
+        inside = ok & (v >= bottoms[ii] - 1e-9)
+        out[inside] = ii[inside]
+        return out
+
+
+def _z_cmm(z: float) -> int:
+    v = float(np.float32(z) * np.float32(100.0))
+    return int(v + 0.5) if v >= 0 else -int(0.5 - v)
+
+
+def _next(a: np.ndarray) -> np.ndarray:
+    """np.roll(a, -1) for 1-D a, without np.roll's overhead (called for every loop of a file)."""
+    return np.concatenate((a[1:], a[:1]))
+
+
+def _signed_area(xy: np.ndarray) -> float:
+    x, y = xy[:, 0], xy[:, 1]
+    return 0.5 * float(np.dot(x, _next(y)) - np.dot(y, _next(x)))
+
+
+def _centroid(xy: np.ndarray) -> tuple[float, float]:
+    x, y = xy[:, 0], xy[:, 1]
+    xn, yn = _next(x), _next(y)
+    cr = x * yn - xn * y
+    a = cr.sum() / 2
+    if abs(a) < 1e-12:
+        return float(x.mean()), float(y.mean())
+    return float(((x + xn) * cr).sum() / (6 * a)), float(((y + yn) * cr).sum() / (6 * a))
+
+
+def _ray_hit(xy: np.ndarray, s: np.ndarray, c, direction) -> float:
+    """Arc length of the outermost crossing of the ray c + t*direction."""
+    cx, cy = c
+    dx, dy = direction
+    a = xy[:-1]
+    b = xy[1:]
+    ex = b[:, 0] - a[:, 0]
+    ey = b[:, 1] - a[:, 1]
+    den = dx * ey - dy * ex
+    with np.errstate(divide="ignore", invalid="ignore"):
+        wx = a[:, 0] - cx
+        wy = a[:, 1] - cy
+        t = (wx * ey - wy * ex) / den            # along the ray
+        w = (wx * dy - wy * dx) / den            # along the segment
+    ok = (np.abs(den) > 1e-12) & (t > 0) & (w >= 0) & (w <= 1)
+    if ok.any():
+        idx = np.nonzero(ok)[0]
+        k = idx[np.argmax(t[idx])]
+        return float(s[k] + w[k] * (s[k + 1] - s[k]))
+    # open gap or odd shape: the vertex best aligned with the direction
+    proj = (xy[:, 0] - cx) * dx + (xy[:, 1] - cy) * dy
+    return float(s[int(np.argmax(proj))])
+
+
+def _median_distance(pts: np.ndarray, poly: np.ndarray) -> float:
+    """Median distance from (up to 64 of) pts to the polyline poly."""
+    if len(pts) > 64:
+        pts = pts[np.linspace(0, len(pts) - 1, 64).astype(int)]
+    a = poly[:-1][None, :, :]
+    d = (poly[1:] - poly[:-1])[None, :, :]
+    p = pts[:, None, :]
+    l2 = np.maximum((d * d).sum(-1), 1e-18)
+    t = np.clip(((p - a) * d).sum(-1) / l2, 0, 1)
+    q = a + t[..., None] * d
+    return float(np.median(np.sqrt(((q - p) ** 2).sum(-1)).min(axis=1)))
+
+
+class _Chain:
+    """A run of eligible moves that join end to start at one layer bucket: its points are the
+    first move's start and every move's end (rows r0..r1-1 of the collected moves)."""
+    __slots__ = ("bucket", "r0", "r1", "_pts")
+
+    def __init__(self, bucket, r0, r1, ends):
+        self.bucket, self.r0, self.r1 = bucket, r0, r1
+        self._pts = ends
+
+    @property
+    def pts(self) -> np.ndarray:
+        e = self._pts
+        return np.concatenate([e[self.r0:self.r0 + 1, 0:2], e[self.r0:self.r1, 2:4]])
+
+
+def _closed(c: _Chain, gap: float) -> bool:
+    e = c._pts
+    x0, y0 = e[c.r0, 0], e[c.r0, 1]
+    x1, y1 = e[c.r1 - 1, 2], e[c.r1 - 1, 3]
+    return math.hypot(x1 - x0, y1 - y0) <= gap
+
+
+def extract_walls(moves: Iterable[Move], layer_height: float | None = None,
+                  geometric: bool = False, ref_angle_deg: float = -90.0,
+                  source: str = "<gcode>", header_height: float | None = None
+                  ) -> WallModel:
+    """Outer walls per layer from parsed moves.
+
+    geometric=False uses the moves the slicer tagged as outer wall;
+    geometric=True uses every extruding move and keeps, per layer, the closed
+    loop of largest area (the outermost one).
+    """
+    return walls_from_records(movescan.from_moves(moves), layer_height, geometric,
+                              ref_angle_deg, source, header_height)
+
+
+def walls_from_records(chunks: Iterable[np.ndarray], layer_height: float | None = None,
+                       geometric: bool = False, ref_angle_deg: float = -90.0,
+                       source: str = "<gcode>", header_height: float | None = None
+                       ) -> WallModel:
+    """extract_walls on the moves as movescan.RECORD arrays, chunk by chunk, without a Python
+    step per move: a 100 MB file has some three million."""
+    # Per chunk: the eligible moves' ends (x0 y0 x1 y1 z0 z1) and their move numbers; other
+    # moves that travel (or leave the outer wall) break a chain: a NaN row with number -1, one
+    # for a run of them.
+    parts: list[np.ndarray] = []
+    nums: list[np.ndarray] = []
+    planar_z: list[np.ndarray] = []
+    any_outer = False
+    last_was_break = False
+    done = 0                                   # moves before this chunk
+    for a in chunks:
+        x0, y0, x1, y1, e = a["x0"], a["y0"], a["x1"], a["y1"], a["e"]
+        outer = (a["flags"] & movescan.OUTER) != 0
+        any_outer = any_outer or bool(outer.any())
+        moved = (x0 != x1) | (y0 != y1)
+        ok = (e > 0.0) & moved
+        if not geometric:
+            ok &= outer
+        other = ~ok & (moved | (~outer if not geometric else False))
+        ev = np.flatnonzero(ok | other)
+        is_brk = other[ev]
+        prev = np.concatenate([[last_was_break], is_brk[:-1]])
+        ev = ev[~is_brk | ~prev]                 # a run of breaks makes one row
+        if len(ev):
+            last_was_break = bool(other[ev[-1]])
+        rows = np.stack([x0[ev], y0[ev], x1[ev], y1[ev], a["z0"][ev], a["z1"][ev]], axis=1)
+        brk = other[ev]
+        rows[brk] = np.nan
+        parts.append(rows)
+        nums.append(np.where(brk, -1, ev + done))
+        flat = ok & (np.abs(a["z1"] - a["z0"]) < 1e-6)
+        planar_z.append(movescan.z_cmm(a["z1"][flat]))
+        done += len(a)
+    if not geometric and not any_outer:
+        raise WallError(
+            f"{source}: no outer-wall feature comments found (;TYPE:External perimeter, "
+            ";TYPE:Outer wall, ;TYPE:WALL-OUTER, ; outer perimeter). Slice with feature "
+            "comments enabled, or use geometric mode (M720 S2): pass --geometric to take "
+            "the outermost closed loop of each layer as the wall.")
+    ends = np.concatenate(parts) if parts else np.empty((0, 6))
+    index = np.concatenate(nums) if nums else np.empty(0, np.int64)
+    del parts, nums
+    # A layer has many moves at its z; a spiral wall only now and then two
+    # consecutive moves at the same rounded z.
+    zp, counts = np.unique(np.concatenate(planar_z) if planar_z else np.empty(0, np.int64),
+                           return_counts=True)
+    zs_planar = [int(z) for z in zp[counts >= 4]]
+    if layer_height is not None and not (math.isfinite(layer_height) and 0 < layer_height <= 2.0):
+        raise WallError(f"{source}: layer height {layer_height} mm must be > 0 and <= 2 mm")
+    notes: list[str] = []
+    if header_height and layer_height is not None and abs(header_height - layer_height) > 1e-6:
+        notes.append(f"layer height {layer_height:g} mm given, but the G-code says "
+                     f"{header_height:g} mm: using the G-code's")
+    h = header_height or layer_height
+    if not h:
+        diffs = np.diff(np.array(zs_planar)) if len(zs_planar) > 1 else np.array([])
+        diffs = diffs[diffs >= 5]
+        h = float(np.bincount(diffs).argmax()) / 100 if len(diffs) else 0.2
+    h_cmm = max(1, round(h * 100))
+
+    # The bucket of each move: the firmware's reading of its z, its end z in 0.01 mm rounded in
+    # float32 (bulge_planner.cpp eligible()); a move off the planar layers (a spiral) snaps to
+    # the layer grid above the highest planar layer below, nearest grid z, the lower one on a
+    # tie (as MapStore::find_layer).
+    real = index >= 0
+    zc = np.zeros(len(index), np.int64)
+    zc[real] = movescan.z_cmm(ends[real, 5])
+    zsp = np.array(zs_planar, dtype=np.int64)
+    planar = real & (np.abs(ends[:, 5] - ends[:, 4]) < 1e-6) & np.isin(zc, zsp)
+    i = np.searchsorted(zsp, zc, side="right") - 1
+    base = np.where(i >= 0, zsp[np.maximum(i, 0)] if len(zsp) else 0, 0)
+    d = zc - base
+    bucket = np.where(planar, zc, base - ((h_cmm - 2 * d) // (2 * h_cmm)) * h_cmm)
+    # A chain starts after a break, or where a move does not start at the last one's end or
+    # lies in another bucket.
+    n = len(index)
+    start = real.copy()
+    if n > 1:
+        cont = (real[1:] & real[:-1] & (bucket[1:] == bucket[:-1])
+                & (np.abs(ends[:-1, 2] - ends[1:, 0]) <= 1e-4)
+                & (np.abs(ends[:-1, 3] - ends[1:, 1]) <= 1e-4))
+        start[1:] &= ~cont
+    starts = np.flatnonzero(start)
+    stops = np.flatnonzero(real & np.concatenate([~real[1:] | start[1:], [True]])) + 1
+    chains = [_Chain(int(bucket[r0]), int(r0), int(r1), ends) for r0, r1 in zip(starts, stops)]
+
+    by_bucket: dict[int, list[_Chain]] = {}
+    for c in chains:
+        if c.r1 - c.r0 >= 2:                    # three points or more
+            by_bucket.setdefault(c.bucket, []).append(c)
+    if not math.isfinite(ref_angle_deg):
+        raise WallError(f"{source}: reference angle {ref_angle_deg} is not a finite number")
+    direction = (math.cos(math.radians(ref_angle_deg)), math.sin(math.radians(ref_angle_deg)))
+    gap = max(2.0, 3 * h)
+    chosen: dict[int, _Chain] = {}
+    upper: np.ndarray | None = None
+    # Geometric mode goes top-down: the wall of a layer must lie near the wall
+    # of the layer above, which rejects a skirt (it stands off the part) even
+    # though it is the largest loop of the first layer.
+    order = sorted(by_bucket, reverse=geometric)
+    for b in order:
+        cands = by_bucket[b]
+        closed = [c for c in cands if _closed(c, gap)]
+        pool = closed or cands
+        if geometric and upper is not None:
+            near = [c for c in pool if _median_distance(np.array(c.pts), upper) <= max(1.0, 3 * h)]
+            pool = near or pool
+        best = max(pool, key=lambda c: abs(_signed_area(np.array(c.pts))))
+        if not closed:
+            notes.append(f"layer z {b / 100:.2f}: no closed outer loop, using the largest open one")
+        chosen[b] = best
+        upper = np.array(best.pts, dtype=float)
+    walls: list[Wall] = []
+    prev_z = None
+    for b in sorted(chosen):
+        best = chosen[b]
+        xy = np.array(best.pts, dtype=float)
+        seg = np.hypot(np.diff(xy[:, 0]), np.diff(xy[:, 1]))
+        s = np.concatenate([[0.0], np.cumsum(seg)])
+        area = _signed_area(xy)
+        cen = _centroid(xy)
+        z = b / 100
+        height = (z - prev_z) if prev_z is not None else min(z, h)
+        if prev_z is not None and height > 1.5 * h:
+            height = h  # a layer without wall in between
+        prev_z = z
+        w = Wall(z=z, xy=xy, s=s, move_index=index[best.r0:best.r1].copy(), height=height,
+                 ccw=area >= 0, centroid=cen, closed=_closed(best, gap))
+        w.s_ref = _ray_hit(xy, s, cen, direction)
+        walls.append(w)
+    loops = [w for w in walls if w.closed]
+    for w in walls:
+        if not w.closed and loops:
+            w.turn = min(loops, key=lambda c: abs(c.z - w.z)).length
+    if not walls:
+        what = "extruding closed loops" if geometric else "outer-wall extrusions"
+        raise WallError(f"{source}: no {what} found")
+    return WallModel(walls, h_cmm / 100, geometric, source, notes)
+
+
+def walls_from_gcode(path, layer_height: float | None = None, geometric: bool = False,
+                     ref_angle_deg: float = -90.0) -> WallModel:
+    ends, _ = open_checked(path)                    # checked; its moves are scanned in chunks
+    return movescan.run(path, lambda chunks: walls_from_records(
+        chunks, layer_height, geometric, ref_angle_deg, str(path), header_layer_height(ends)))

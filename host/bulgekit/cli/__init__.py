@@ -1,0 +1,435 @@
+"""bulgekit command line."""
+from __future__ import annotations
+
+import os
+import sys
+import time
+from pathlib import Path
+
+import click
+
+from ._util import FINITE, POSITIVE, Num, friendly, outdir_option, pair, progress_option
+from .. import __version__
+from ..bulge import mapformat
+from ..bulge.fallback import (DEFAULT_DWELL_MS, DEFAULT_E_STEPS, DEFAULT_EXTRA_E_MM, DEFAULT_TOLERANCE_MM,
+                       MIN_STEPS_PER_SEGMENT, MODE_GEOMETRIC, MODE_MARKED, Settings, StockStops)
+from ..errors import BulgekitError
+
+
+def _read_map(path) -> bytes:
+    """A map file's bytes, checked here so that a corrupt file is named in the message."""
+    data = Path(path).read_bytes()
+    mapformat.decode_map(data, source=str(path))
+    return data
+
+
+def _settings_options(fn):
+    fn = click.option("--geometric", is_flag=True,
+                      help="Geometric mode (M720 S2): no outer-wall markers; every extruding move "
+                           "near a point bulges. For G-code without feature comments.")(fn)
+    fn = click.option("--tolerance", type=FINITE, default=DEFAULT_TOLERANCE_MM, show_default=True,
+                      help="M720 T: how far (mm) a point may be from a move to stop it.")(fn)
+    fn = click.option("--extra", type=FINITE, default=DEFAULT_EXTRA_E_MM, show_default=True,
+                      help="M720 E: extra filament (mm) after each stop.")(fn)
+    fn = click.option("--dwell", type=int, default=DEFAULT_DWELL_MS, show_default=True,
+                      help="M720 P: dwell (ms) at each point, scaled by its weight/255.")(fn)
+    return fn
+
+
+def _stock_options(fn):
+    """How a stock file writes its stops (docs/host.md, "Stops on stock firmware")."""
+    fn = click.option("--stop-e-steps", type=click.IntRange(MIN_STEPS_PER_SEGMENT, 10000),
+                      help="Stock file: E steps laid during each stop, taken from its extra filament "
+                           "(the rest goes on the next piece) [the fewest that make a move: "
+                           f"{MIN_STEPS_PER_SEGMENT}, more for long dwells].")(fn)
+    fn = click.option("--e-steps", type=Num(1.0, 10000.0), default=DEFAULT_E_STEPS, show_default=True,
+                      help="Stock file: the printer's E steps/mm (M92 E), until an M92 E in the "
+                           "G-code changes it.")(fn)
+    fn = click.option("--stop", "stop_kind", type=click.Choice(["move", "g4"]), default="move",
+                      show_default=True,
+                      help="Stock file: each stop as an extruder-only move (queued, no planner "
+                           "drain, exact to the millisecond) or as G4 P<ms> (the paper's rewrite).")(fn)
+    return fn
+
+
+def _stops(stop_kind, e_steps, stop_e_steps) -> StockStops:
+    try:
+        return StockStops(stop_kind, e_steps, stop_e_steps)
+    except ValueError as e:        # values from a placement file's [bulges]
+        raise click.BadParameter(str(e), param_hint="'--stop', '--e-steps' or '--stop-e-steps'") from None
+
+
+def _arena_option(fn):
+    return click.option("--arena", type=click.IntRange(min=1), default=mapformat.ARENA_BYTES,
+                        show_default=True,
+                        help="Printer's map arena (BK_MAP_ARENA_BYTES), bytes.")(fn)
+
+
+def _allow_unreached_option(fn):
+    return click.option("--allow-unreached", is_flag=True,
+                        help="Write the file even if map points are not reached by any move "
+                             "(they will not bulge); default: error.")(fn)
+
+
+# Settings' messages start with the field's name; the option that sets it is named in the error.
+_SETTING_OPTION = {"dwell": "--dwell", "extra E": "--extra", "tolerance": "--tolerance"}
+
+
+def _settings(dwell, extra, tolerance, geometric) -> Settings:
+    try:
+        return Settings(MODE_GEOMETRIC if geometric else MODE_MARKED, dwell, extra, tolerance)
+    except ValueError as e:
+        opt = next((o for k, o in _SETTING_OPTION.items() if str(e).startswith(k)), None)
+        raise click.BadParameter(str(e), param_hint=f"'{opt}'" if opt else None) from None
+
+
+def _movescan_available() -> bool:
+    from ..gcode import movescan
+    return movescan.available()
+
+
+@click.group(context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})
+@click.version_option(__version__, prog_name="bulgekit",
+                      message="%(prog)s %(version)s (G-code scanner: " +
+                      ("compiled" if _movescan_available() else
+                       "Python only, bulgekit.gcode._scan not built: slower on large files") + ")")
+def main():
+    """Bulges on the outer wall of FDM prints (over-extrusion by dwell + extra filament).
+
+    \b
+    Typical use:
+      bulgekit build part.gcode --text "HELLO" --at 5,3 -o out/
+      -> out/part.bkm (bulge map), out/part.bulge.gcode (print this on bulgekit
+         firmware), out/part.stats.txt; --fallback adds out/part.stock.gcode for
+         stock firmware (G4 dwells + extra E + G92, the paper's rewrite).
+
+    Strokes are drawn on the unrolled outer wall: u = mm along the wall,
+    counter-clockwise (left to right seen from outside) from the front (-Y) of
+    each layer; v = mm above the bed. Run `bulgekit demo` for a worked example.
+    """
+
+
+@main.command(short_help="Strokes + sliced G-code -> map, annotated G-code, stats, preview.")
+@click.argument("gcode", type=click.Path(exists=True, dir_okay=False))
+@click.option("-s", "--strokes", "stroke_files", multiple=True, type=click.Path(exists=True, dir_okay=False),
+              help="Stroke file: .json stroke list, .svg drawing or an image (dots). Repeatable.")
+@click.option("--placement", type=click.Path(exists=True, dir_okay=False),
+              help="TOML placement file (text, strokes, [bulges] settings; see examples/placement.toml), "
+                   "as `post-process` reads it; options given here win over its [bulges].")
+@click.option("--text", help="Write this text on the wall (single-stroke font).")
+@click.option("--text-size", "--size", "text_size", type=POSITIVE, default=6.0, show_default=True,
+              help="Capital height of --text, mm.")
+@click.option("--at", callback=pair, default="0,0", show_default=True, metavar="U,V",
+              help="U,V mm: where input goes (--text baseline start; stroke files shifted by it, "
+                   "an SVG page's / image's lower-left corner), as in `strokes` and `preview`.")
+@click.option("--font", default="futural", show_default=True, help="Hershey font of --text (as in `strokes`).")
+@click.option("--letter-spacing", type=FINITE, default=0.0, show_default=True,
+              help="Extra mm between letters of --text.")
+@click.option("--scale", type=POSITIVE, default=1.0, show_default=True, help="Scale SVG/JSON stroke files.")
+@click.option("--image-width", type=POSITIVE, help="Width (mm) on the wall of an image stroke file.")
+@click.option("--curve-tolerance", type=POSITIVE, default=0.05, show_default=True,
+              help="SVG curve flattening tolerance, mm (--tolerance is M720 T).")
+@click.option("--mirror", is_flag=True, help="Mirror --text (paint rollers).")
+@outdir_option()
+@click.option("--name", help="Output base name (default: the G-code's name).")
+@click.option("--spacing", type=POSITIVE, help="Distance (mm) between points along a layer [2 x line width].")
+@click.option("--line-width", type=POSITIVE, default=0.45, show_default=True, help="Outer-wall line width, mm.")
+@click.option("--layer-height", type=Num(0.0, 2.0, lo_open=True),
+              help="Layer height (mm) if the G-code does not say (its ;layer_height wins).")
+@click.option("--ref-angle", type=FINITE, default=-90.0, show_default=True,
+              help="Direction (deg, from +X) from the layer centre where u = 0.")
+@click.option("--no-stream", is_flag=True, help="Fail instead of streaming a map larger than the printer's arena.")
+@click.option("--fallback", "write_fallback", is_flag=True, help="Also write <name>.stock.gcode for stock firmware.")
+@click.option("--preview/--no-preview", default=True, show_default=True, help="Write <name>.preview.png.")
+@click.option("--preview-3d", is_flag=True, help="Also write <name>.preview3d.png (the walls in 3D).")
+@_settings_options
+@_stock_options
+@progress_option
+@friendly
+@click.pass_context
+def build(ctx, gcode, placement, stroke_files, text, text_size, at, font, letter_spacing, scale, image_width,
+          curve_tolerance, mirror, outdir, name, spacing, line_width, layer_height, ref_angle, no_stream,
+          write_fallback, preview, preview_3d, dwell, extra, tolerance, geometric, stop_kind, e_steps,
+          stop_e_steps):
+    """Place strokes on GCODE's outer wall: map + annotated G-code + stats."""
+    from ..bulge import api
+    from ..bulge.strokes import text_strokes
+    strokes = []
+    if placement:
+        from ..bulge.placement import load_placement
+        pl = load_placement(placement)
+        strokes += pl.strokes
+        given = lambda p: ctx.get_parameter_source(p) == click.core.ParameterSource.COMMANDLINE
+        b = pl.bulges
+        dwell = dwell if given("dwell") else b.get("dwell", dwell)
+        extra = extra if given("extra") else b.get("extra", extra)
+        tolerance = tolerance if given("tolerance") else b.get("tolerance", tolerance)
+        geometric = geometric if given("geometric") else b.get("geometric", geometric)
+        spacing = spacing if given("spacing") else b.get("spacing", spacing)
+        line_width = line_width if given("line_width") else b.get("line_width", line_width)
+        write_fallback = write_fallback or b.get("fallback", False)
+        stop_kind = stop_kind if given("stop_kind") else b.get("stop", stop_kind)
+        e_steps = e_steps if given("e_steps") else b.get("e_steps", e_steps)
+        stop_e_steps = stop_e_steps if given("stop_e_steps") else b.get("stop_e_steps", stop_e_steps)
+    for f in stroke_files:
+        strokes += api.load_strokes(f, image_width_mm=image_width, offset=at, scale=scale,
+                                    curve_tolerance_mm=curve_tolerance)
+    if text:
+        strokes += text_strokes(text, text_size, spacing=letter_spacing, u0=at[0], v0=at[1],
+                                mirror=mirror, font=font)
+    if not strokes:
+        raise click.UsageError("nothing to draw: give --strokes FILE, --text TEXT or --placement FILE")
+    settings = _settings(dwell, extra, tolerance, geometric)
+    stops = _stops(stop_kind, e_steps, stop_e_steps)
+    t0 = time.perf_counter()
+    out = api.build(gcode, strokes, outdir, name=name, spacing=spacing, line_width=line_width,
+                    layer_height=layer_height, ref_angle_deg=ref_angle, settings=settings,
+                    stream=not no_stream, write_fallback=write_fallback, stops=stops)
+    click.echo(out.stats.text(per_layer=False))
+    for note in out.result.notes:
+        click.echo(f"note: {note}")
+    if out.annotate.appends:
+        click.echo(f"streaming: {out.annotate.initial_records} layers at the start, "
+                   f"{len(out.annotate.appends)} appends while printing")
+    click.echo(f"wrote {out.map_path}, {out.gcode_path}, {out.stats_path}"
+               + (f", {out.fallback_path}" if out.fallback_path else ""))
+    from ..bulge.preview import build_3d, build_unrolled
+    stem = name or Path(gcode).stem
+    if preview:
+        click.echo(f"wrote {build_unrolled(out, Path(outdir) / f'{stem}.preview.png')}")
+    if preview_3d:
+        click.echo(f"wrote {build_3d(out, Path(outdir) / f'{stem}.preview3d.png')}")
+    click.echo(f"done in {time.perf_counter() - t0:.1f} s")
+
+
+@main.command("post-process", short_help="For a slicer's post-processing step: annotate a G-code file in place.")
+@click.option("--placement", required=True, type=click.Path(exists=True, dir_okay=False),
+              help="TOML placement file: what to draw and the bulge settings (examples/placement.toml).")
+@_arena_option
+@click.option("--keep", type=click.Path(file_okay=False),
+              help="Also keep the map and the stats in this folder.")
+@click.argument("gcode", type=click.Path(exists=True, dir_okay=False))
+@friendly
+def post_process(placement, arena, keep, gcode):
+    """Annotate GCODE in place with the drawing a placement file describes, for bulgekit
+    firmware (M720-M722), or rewrite it for stock firmware when the placement says
+    `fallback = true`. Slicers pass the G-code path last:
+
+    \b
+      PrusaSlicer / OrcaSlicer / Bambu Studio, Print settings > Output options >
+      Post-processing scripts:   /path/to/bulgekit post-process --placement /path/to/placement.toml
+      Cura: Extensions > Post Processing > Add a script > bulgekit (integrations/cura/)
+
+    The file is replaced only when everything succeeded; on any error it is left as the slicer
+    wrote it, the message goes to stderr and the exit status is 1."""
+    import shutil
+    import tempfile
+
+    from ..bulge import api
+    from ..bulge.mapbuild import DEFAULT_LINE_WIDTH
+    from ..bulge.placement import PlacementError, load_placement
+
+    pl = load_placement(placement)
+    b = pl.bulges
+    try:
+        settings = Settings(MODE_GEOMETRIC if b.get("geometric") else MODE_MARKED,
+                            b.get("dwell", DEFAULT_DWELL_MS), b.get("extra", DEFAULT_EXTRA_E_MM),
+                            b.get("tolerance", DEFAULT_TOLERANCE_MM))
+        stops = StockStops(b.get("stop", "move"), b.get("e_steps", DEFAULT_E_STEPS), b.get("stop_e_steps"))
+    except ValueError as e:
+        raise PlacementError(f"{placement}: bulges: {e}") from None
+    src = Path(gcode)
+    tmp = Path(tempfile.mkdtemp(prefix=".bulgekit-", dir=src.parent))
+    try:
+        out = api.build(src, pl.strokes, tmp, name="pp", spacing=b.get("spacing"),
+                        line_width=b.get("line_width", DEFAULT_LINE_WIDTH), settings=settings, arena=arena,
+                        write_fallback=bool(b.get("fallback")), stops=stops)
+        result = out.fallback_path if b.get("fallback") else out.gcode_path
+        if keep:
+            Path(keep).mkdir(parents=True, exist_ok=True)
+            for p in (out.map_path, out.stats_path):
+                shutil.copy(p, Path(keep) / f"{src.stem}{p.suffix}")
+        shutil.copymode(src, result)
+        os.replace(result, src)                     # atomic on one file system: all or nothing
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    s = out.stats
+    click.echo(f"bulgekit: {s.points} points on {len(s.layers)} layers "
+               f"{'rewritten for stock firmware' if b.get('fallback') else 'annotated'} into {src}")
+
+
+@main.command(short_help="Add M720/M721/M722 for bulgekit firmware (moves untouched).")
+@click.argument("gcode", type=click.Path(exists=True, dir_okay=False))
+@click.argument("map_file", metavar="MAP", type=click.Path(exists=True, dir_okay=False))
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="Annotated G-code to write.")
+@click.option("--no-stream", is_flag=True, help="Fail if the map is larger than the printer's arena.")
+@_arena_option
+@_allow_unreached_option
+@_settings_options
+@progress_option
+@friendly
+def annotate(gcode, map_file, output, no_stream, arena, allow_unreached, dwell, extra, tolerance,
+             geometric):
+    """Add M720/M721/M722 for the bulgekit firmware to GCODE (moves untouched).
+
+    GCODE is also run through the reference planner: map points that no move
+    reaches (a map made for another file) are an error unless --allow-unreached."""
+    from ..bulge import api
+    settings = _settings(dwell, extra, tolerance, geometric)
+    t0 = time.perf_counter()
+    res = api.annotate_gcode(gcode, _read_map(map_file), output, settings, stream=not no_stream,
+                             arena=arena, allow_unreached=allow_unreached)
+    for note in res.notes:
+        click.echo(f"WARNING: {note}", err=True)
+    dt = time.perf_counter() - t0
+    click.echo(f"wrote {output}: {res.lines_added} lines added, {res.markers} markers, "
+               f"{res.initial_records} layers uploaded at the start"
+               + (f", {len(res.appends)} appends while printing" if res.appends else "")
+               + f" ({dt:.2f} s)")
+
+
+@main.command(short_help="Rewrite for stock firmware: stops as E-only moves (or G4) + extra E.")
+@click.argument("gcode", type=click.Path(exists=True, dir_okay=False))
+@click.argument("map_file", metavar="MAP", type=click.Path(exists=True, dir_okay=False))
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="G-code to write.")
+@_allow_unreached_option
+@_settings_options
+@_stock_options
+@progress_option
+@friendly
+def fallback(gcode, map_file, output, allow_unreached, dwell, extra, tolerance, geometric, stop_kind,
+             e_steps, stop_e_steps):
+    """Rewrite GCODE for stock firmware: split at each point, stop there (an extruder-only
+    move of whole E steps timed to the dwell, or G4 P<ms> with --stop g4), extra E on the
+    next piece, G92 E.
+
+    Map points that no move reaches (a map made for another file) are an
+    error unless --allow-unreached."""
+    from ..bulge import api
+    settings = _settings(dwell, extra, tolerance, geometric)
+    res = api.fallback_gcode(gcode, _read_map(map_file), output, settings, allow_unreached=allow_unreached,
+                             stops=_stops(stop_kind, e_steps, stop_e_steps))
+    if res.unreached:
+        click.echo(f"WARNING: {res.unreached}", err=True)
+    st = res.stats
+    click.echo(f"wrote {output}: {st.points_fired} stops on {res.moves_split} lines, "
+               f"{st.dwell_ms_total / 1000:.1f} s dwell, {st.extra_applied:.2f} mm extra filament")
+    click.echo(res.stock.summary())
+
+
+@main.command(short_help="M720 settings + M721 upload of a map, for any host.")
+@click.argument("map_file", metavar="MAP", type=click.Path(exists=True, dir_okay=False))
+@click.option("-o", "--output", type=click.Path(dir_okay=False),
+              help="File to write (default: standard output).")
+@click.option("--numbered", is_flag=True,
+              help="Add N<n> line numbers and *checksums (for terminals that do not).")
+@_arena_option
+@_settings_options
+@friendly
+def mcodes(map_file, output, numbered, arena, dwell, extra, tolerance, geometric):
+    """The M-code stream that configures the printer and uploads MAP: M720 settings,
+    M721 begin/chunks/commit. Send it from Pronterface, OctoPrint or `bulgekit send`
+    before printing G-code that carries M722 markers (or none, with --geometric)."""
+    settings = _settings(dwell, extra, tolerance, geometric)
+    data = _read_map(map_file)
+    mapformat.check_upload_fits(data, arena, map_file)
+    if numbered:
+        # M110 N0 resets the printer's line counter; numbered lines follow from N1
+        body = f"N1 {settings.m720()}"
+        cs = 0
+        for ch in body.encode():
+            cs ^= ch
+        text = ["M110 N0", f"{body}*{cs}"] + mapformat.upload_lines(data, start_line=2)
+    else:
+        text = [settings.m720()] + mapformat.upload_lines(data)
+    out = "\n".join(text) + "\n"
+    if output:
+        Path(output).write_text(out)
+        click.echo(f"wrote {output}: {len(text)} lines ({len(data)} map bytes)")
+    else:
+        click.echo(out, nl=False)
+
+
+@main.command(short_help="Points, stops per layer and added print time.")
+@click.argument("map_file", metavar="MAP", type=click.Path(exists=True, dir_okay=False))
+@click.option("-g", "--gcode", type=click.Path(exists=True, dir_okay=False),
+              help="Also run this (unannotated) G-code to count the stops that really happen.")
+@_arena_option
+@click.option("--accel", type=POSITIVE, default=1000.0, show_default=True,
+              help="Acceleration (mm/s^2) for the stop/start time estimate.")
+@_settings_options
+@progress_option
+@friendly
+def stats(map_file, gcode, arena, accel, dwell, extra, tolerance, geometric):
+    """Per-layer points, stops and the time bulges add. Warnings (points the G-code's moves do
+    not reach) go to stderr, and then the exit status is 1."""
+    from ..bulge import stats as st
+    settings = _settings(dwell, extra, tolerance, geometric)
+    data = _read_map(map_file)
+    if gcode:
+        from .. import progress
+        with progress.phase("statistics", path=gcode):
+            s = st.print_stats(gcode, data, settings, arena, accel)
+    else:
+        s = st.map_stats(data, settings, arena)
+    warned = False
+    for line in s.text().splitlines():
+        warned |= line.startswith("WARNING:")
+        click.echo(line, err=line.startswith("WARNING:"))
+    if warned:
+        sys.exit(1)
+
+
+class _UnlistedArgument(click.Argument):
+    """An argument kept for old command lines, left out of the usage line."""
+
+    def get_usage_pieces(self, ctx):
+        return []
+
+
+@main.command(short_help="Worked example: text on a sliced cylinder.")
+@outdir_option()
+@click.argument("old_outdir", cls=_UnlistedArgument, required=False, type=click.Path(file_okay=False))
+@click.option("--text", default="BULGE", show_default=True)
+@click.pass_context
+@friendly
+def demo(ctx, outdir, old_outdir, text):
+    """Worked example: text on a sliced 40 mm cylinder -> OUTDIR."""
+    if old_outdir is not None:  # `bulgekit demo DIR`, the spelling before -o/--outdir
+        if ctx.get_parameter_source("outdir") is click.core.ParameterSource.COMMANDLINE:
+            raise click.UsageError("give the output folder once, with -o/--outdir")
+        outdir = old_outdir
+    from ..bulge import api
+    from ..bulge.strokes import load_json, text_strokes
+    ex = _examples_dir()
+    gcode = ex / "cylinder40x20.gcode"
+    strokes = text_strokes(text, 6.0, u0=4.0, v0=7.0)
+    extra = ex / "wave.json"
+    if extra.exists():
+        strokes += load_json(str(extra))
+    out = api.build(gcode, strokes, outdir, name="demo", write_fallback=True)
+    click.echo(out.stats.text(per_layer=False))
+    from ..bulge.preview import build_3d, build_unrolled
+    png = build_unrolled(out, Path(outdir) / "demo.preview.png")
+    png3 = build_3d(out, Path(outdir) / "demo.preview3d.png")
+    for p in (out.map_path, out.gcode_path, out.fallback_path, out.stats_path, png, png3):
+        if p:
+            click.echo(f"wrote {p}")
+
+
+def _examples_dir() -> Path:
+    here = Path(__file__).resolve()
+    for up in here.parents:
+        cand = up / "examples"
+        if (cand / "cylinder40x20.gcode").exists():
+            return cand
+    raise BulgekitError("demo data not found: run from a bulgekit checkout (examples/cylinder40x20.gcode)")
+
+
+# preview, send and strokes live in io.py; litho, estimate and studio in their own modules.
+from . import estimate, io, litho, studio  # noqa: E402  (needs `main` defined above)
+
+io.register(main)
+litho.register(main)
+estimate.register(main)
+studio.register(main)

@@ -1,0 +1,116 @@
+"""Pieces shared by the command modules (cli/__init__.py, cli/io.py)."""
+from __future__ import annotations
+
+import functools
+import math
+import sys
+
+import click
+
+from ..errors import BulgekitError
+
+
+def friendly(fn):
+    """Turn expected failures into one-line messages (exit status 1): our own
+    errors (they name the file and line, stroke or layer), map-format errors,
+    and I/O errors."""
+    @functools.wraps(fn)
+    def wrapper(*a, **kw):
+        try:
+            return fn(*a, **kw)
+        except BulgekitError as e:
+            raise click.ClickException(str(e)) from None
+        except ValueError as e:  # mapformat.MapFormatError and friends
+            if type(e).__module__.startswith("bulgekit"):
+                raise click.ClickException(str(e)) from None
+            raise
+        except BrokenPipeError:
+            raise  # output piped into `head`: click ends quietly
+        except OSError as e:
+            raise click.ClickException(f"{e.filename or ''}: {e.strerror or e}") from None
+    return wrapper
+
+
+def progress_option(fn):
+    """--quiet, and progress on stderr for the command's passes over its G-code while it runs
+    (only on a terminal: a slicer, a pipe or a log gets none)."""
+    @functools.wraps(fn)
+    def wrapper(*a, quiet=False, **kw):
+        from .. import progress
+        if not quiet and sys.stderr.isatty():
+            progress.enable()
+        try:
+            return fn(*a, **kw)
+        finally:
+            progress.disable()
+    return click.option("-q", "--quiet", is_flag=True,
+                        help="No progress on stderr (it is shown only on a terminal).")(wrapper)
+
+
+class Num(click.ParamType):
+    """A finite float, optionally within lo..hi (lo excluded with lo_open);
+    click's FloatRange lets nan through."""
+    name = "number"
+
+    def __init__(self, lo: float | None = None, hi: float | None = None, lo_open: bool = False):
+        self.lo, self.hi, self.lo_open = lo, hi, lo_open
+
+    def convert(self, value, param, ctx):
+        try:
+            v = float(value)
+        except (TypeError, ValueError):
+            self.fail(f"{value!r} is not a number", param, ctx)
+        if not math.isfinite(v):
+            self.fail(f"{value!r} is not a finite number", param, ctx)
+        lo_bad = self.lo is not None and (v <= self.lo if self.lo_open else v < self.lo)
+        if lo_bad or (self.hi is not None and v > self.hi):
+            lo = "" if self.lo is None else (f"> {self.lo:g}" if self.lo_open else f">= {self.lo:g}")
+            hi = "" if self.hi is None else f"<= {self.hi:g}"
+            self.fail(f"{value} must be {' and '.join(t for t in (lo, hi) if t)}", param, ctx)
+        return v
+
+
+FINITE = Num()
+POSITIVE = Num(0.0, lo_open=True)
+NONNEG = Num(0.0)
+
+
+def pair(ctx, param, value):
+    """click callback for a "U,V" option in mm."""
+    if value is None:
+        return None
+    try:
+        a, b = (float(t) for t in value.split(","))
+    except ValueError:
+        raise click.BadParameter(f"expected two numbers U,V (mm), got {value!r}") from None
+    if not (math.isfinite(a) and math.isfinite(b)):
+        raise click.BadParameter(f"U,V must be finite numbers, got {value!r}")
+    return (a, b)
+
+
+OUTDIR_DEFAULT = "bulgekit-out"
+
+
+class _OldSpellings(click.Option):
+    """An option whose earlier spellings still parse (scripts keep working) but are left out of
+    --help, so the help shows the one convention."""
+
+    def __init__(self, *a, old_spellings=(), **kw):
+        super().__init__(*a, **kw)
+        self.old_spellings = set(old_spellings)
+
+    def get_help_record(self, ctx):
+        opts = self.opts
+        self.opts = [o for o in opts if o not in self.old_spellings]
+        try:
+            return super().get_help_record(ctx)
+        finally:
+            self.opts = opts
+
+
+def outdir_option(*old_spellings):
+    """`-o/--outdir DIR`, the output folder of every command that writes several files
+    (build, litho, demo); a command writing one file takes `-o/--output FILE`."""
+    return click.option("-o", "--outdir", *old_spellings, "outdir", cls=_OldSpellings,
+                        old_spellings=old_spellings, type=click.Path(file_okay=False),
+                        default=OUTDIR_DEFAULT, show_default=True, help="Output folder.")

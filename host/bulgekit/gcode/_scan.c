@@ -1,0 +1,613 @@
+/* Fast G-code move scanner: the C twin of gcode.parse_lines for the passes that only need moves.
+ *
+ * A Scanner keeps the machine state (positions, G90/G91, M82/M83, the feature role) across the
+ * chunks of one file and turns each chunk's complete lines into fixed-size move records, one per
+ * G0/G1 and one per chord of a G2/G3 (gcode.ARC_CHORD_MM), with exactly the numbers gcode/__init__.py
+ * computes: the same line splitting (\n, \r\n and a lone \r, as Python's universal newlines), the
+ * same words (letters split words, so "1e5" is two words), decimal values converted by strtod
+ * (correctly rounded, as float()), the same arc arithmetic (math.hypot is Python's own, so it is
+ * called here too).
+ *
+ * What it does not handle it refuses instead of guessing: a command line with a byte >= 0x80, a
+ * value gcode/__init__.py would reject, an arc gcode/__init__.py would reject. feed() then raises
+ * ScanUnsupported(line) and the caller reads the file with gcode/__init__.py, which gives the same moves
+ * or the error message with file and line. Comment lines with bytes >= 0x80 are classified by
+ * the Python function given to the Scanner (gcode.split_code + feature_of_comment), so their
+ * roles are exact too.
+ */
+#define PY_SSIZE_T_CLEAN
+#include <Python.h>
+#include <math.h>
+#include <stdint.h>
+#include <stdlib.h>
+#include <string.h>
+
+/* One move. Python reads these as a numpy structured array (gcode_fast.RECORD). */
+typedef struct {
+    double x0, y0, z0, x1, y1, z1;
+    double e;        /* filament of this move (end E - start E) */
+    double e_start;  /* E at its start */
+    double f;        /* mm/min */
+    int64_t offset;  /* byte offset of its line in the file (feed()'s base + in its buffer) */
+    int32_t line_no; /* 1-based */
+    int16_t role;    /* index into Scanner.roles, -1: none yet */
+    uint8_t flags;   /* 1: outer wall, 2: chord of an arc, 4: G90 (else G91), 8: M82 (else M83) */
+    uint8_t pad;
+} Record;
+
+#define MAX_ROLES 1024
+
+typedef struct {
+    PyObject_HEAD
+    double x, y, z, e, f;
+    int abs_xyz, abs_e;
+    int role;          /* -1: none */
+    int outer;
+    long line_no;      /* lines done so far */
+    int pending_cr;    /* the last chunk ended in '\r': a '\n' starting the next one belongs to it */
+    PyObject *roles;   /* list of str */
+    PyObject *outer_roles;  /* frozenset of str */
+    PyObject *s3d_roles;    /* frozenset of str */
+    PyObject *classify;     /* callable(str) -> (has_code: bool, role: str | None) */
+    PyObject *hypot;        /* math.hypot */
+    double chord;
+    int events;        /* gcode/estimate.py's mode: see event_line() */
+    int quiet;         /* the line is an event: its moves change the state, no records */
+    long flagged;      /* lines that may be gcode.check_not_processed's or an M92 (see flag()) */
+    /* output */
+    Record *out;
+    Py_ssize_t n, cap;
+    const char *base;
+    long long base_offset;
+} Scanner;
+
+static PyObject *ScanUnsupported;
+
+static int is_ws(unsigned char c) {
+    /* str.strip()'s ASCII whitespace */
+    return c == ' ' || (c >= '\t' && c <= '\r') || (c >= 0x1c && c <= 0x1f);
+}
+
+static int push(Scanner *s, Record *r) {
+    if (s->n == s->cap) {
+        Py_ssize_t cap = s->cap ? s->cap * 2 : 4096;
+        Record *p = PyMem_Realloc(s->out, (size_t)cap * sizeof(Record));
+        if (!p) { PyErr_NoMemory(); return -1; }
+        s->out = p;
+        s->cap = cap;
+    }
+    s->out[s->n++] = *r;
+    return 0;
+}
+
+static int unsupported(Scanner *s) {
+    PyObject *v = PyLong_FromLong(s->line_no);
+    if (v) { PyErr_SetObject(ScanUnsupported, v); Py_DECREF(v); }
+    return -1;
+}
+
+/* Index of a role name (UTF-8), added to the list when new; sets s->outer. */
+static int set_role(Scanner *s, const char *name, Py_ssize_t len) {
+    Py_ssize_t n = PyList_GET_SIZE(s->roles);
+    for (Py_ssize_t i = 0; i < n; i++) {
+        Py_ssize_t l;
+        const char *t = PyUnicode_AsUTF8AndSize(PyList_GET_ITEM(s->roles, i), &l);
+        if (t && l == len && memcmp(t, name, (size_t)len) == 0) {
+            s->role = (int)i;
+            s->outer = PySet_Contains(s->outer_roles, PyList_GET_ITEM(s->roles, i)) == 1;
+            return 0;
+        }
+    }
+    if (n >= MAX_ROLES) return unsupported(s);
+    PyObject *str = PyUnicode_DecodeUTF8(name, len, "replace");
+    if (!str) return -1;
+    int r = PyList_Append(s->roles, str);
+    int o = PySet_Contains(s->outer_roles, str);
+    Py_DECREF(str);
+    if (r < 0 || o < 0) return -1;
+    s->role = (int)n;
+    s->outer = o;
+    return 0;
+}
+
+/* A whole-line comment, ASCII (gcode.feature_of_comment). */
+static int comment_role(Scanner *s, const char *c, const char *end) {
+    while (c < end && is_ws((unsigned char)*c)) c++;
+    Py_ssize_t len = end - c;
+    const char *v = NULL;
+    if (len >= 5 && memcmp(c, "TYPE:", 5) == 0) v = c + 5;
+    else if (len >= 8 && memcmp(c, "FEATURE:", 8) == 0) v = c + 8;
+    if (v == NULL) {
+        /* Simplify3D's bare tags are lower-case words: other slicers' comments (";LAYER_CHANGE",
+         * ";Z:0.3", ";WIDTH:0.45" ...) need no lookup */
+        if (len == 0 || len > 64 || c[0] < 'a' || c[0] > 'z') return 0;
+        PyObject *str = PyUnicode_DecodeASCII(c, len, "strict");
+        if (!str) return -1;
+        int k = PySet_Contains(s->s3d_roles, str);
+        Py_DECREF(str);
+        if (k < 0) return -1;
+        return k ? set_role(s, c, len) : 0;
+    }
+    while (v < end && is_ws((unsigned char)*v)) v++;
+    char buf[256];
+    Py_ssize_t l = end - v;
+    if (l >= (Py_ssize_t)sizeof buf) return unsupported(s);
+    for (Py_ssize_t i = 0; i < l; i++) {
+        char ch = v[i];
+        buf[i] = (ch >= 'A' && ch <= 'Z') ? (char)(ch + 32) : ch;
+    }
+    return set_role(s, buf, l);
+}
+
+/* A line with bytes >= 0x80: a comment is classified by the Python side, a command refused. */
+static int foreign_line(Scanner *s, const char *p, const char *end) {
+    PyObject *text = PyUnicode_DecodeUTF8(p, end - p, "replace");
+    if (!text) return -1;
+    PyObject *r = PyObject_CallOneArg(s->classify, text);
+    Py_DECREF(text);
+    if (!r) return -1;
+    if (!PyTuple_Check(r) || PyTuple_GET_SIZE(r) != 2) {
+        Py_DECREF(r);
+        PyErr_SetString(PyExc_TypeError, "classify must return (has_code, role)");
+        return -1;
+    }
+    int has_code = PyObject_IsTrue(PyTuple_GET_ITEM(r, 0));
+    PyObject *role = PyTuple_GET_ITEM(r, 1);
+    int rc = 0;
+    if (has_code) rc = unsupported(s);
+    else if (role != Py_None) {
+        Py_ssize_t l;
+        const char *t = PyUnicode_AsUTF8AndSize(role, &l);
+        rc = t ? set_role(s, t, l) : -1;
+    }
+    Py_DECREF(r);
+    return rc;
+}
+
+typedef struct {
+    unsigned have;     /* bit per letter A..Z */
+    double v[26];
+} Words;
+
+#define HAS(w, L) ((w)->have & (1u << ((L) - 'A')))
+#define GET(w, L) ((w)->v[(L) - 'A'])
+
+/* gcode.parse_words: letters start words, a word runs to the next letter or blank; a first N is
+ * skipped; a value must match gcode._NUM (else refused: gcode/__init__.py names the bad word). */
+static int parse_words(Scanner *s, const char *p, const char *end, Words *w) {
+    w->have = 0;
+    while (p < end) {
+        char ch = *p;
+        if (ch >= 'a' && ch <= 'z') ch = (char)(ch - 32);
+        if (ch < 'A' || ch > 'Z') { p++; continue; }
+        const char *v = ++p;
+        while (p < end && !is_ws((unsigned char)*p) &&
+               !((*p >= 'A' && *p <= 'Z') || (*p >= 'a' && *p <= 'z'))) p++;
+        if (ch == 'N' && w->have == 0) continue;
+        /* [-+]?(\d+\.?\d*|\.\d+) */
+        const char *q = v;
+        if (q < p && (*q == '-' || *q == '+')) q++;
+        const char *d0 = q;
+        while (q < p && *q >= '0' && *q <= '9') q++;
+        int lead = (int)(q - d0);
+        int frac = 0;
+        if (q < p && *q == '.') {
+            q++;
+            const char *f0 = q;
+            while (q < p && *q >= '0' && *q <= '9') q++;
+            frac = (int)(q - f0);
+        }
+        if (q != p || (lead == 0 && frac == 0)) return unsupported(s);
+        if (lead + frac <= 15) {
+            /* Up to 15 digits: the digits as an integer (< 2^53, exact) over a power of ten
+             * (<= 1e15, exact): one correctly rounded division, strtod's result (Clinger). */
+            static const double p10[16] = {1e0, 1e1, 1e2, 1e3, 1e4, 1e5, 1e6, 1e7, 1e8,
+                                           1e9, 1e10, 1e11, 1e12, 1e13, 1e14, 1e15};
+            uint64_t m = 0;
+            for (const char *c = d0; c < p; c++)
+                if (*c != '.') m = m * 10 + (uint64_t)(*c - '0');
+            double val = (double)m / p10[frac];
+            w->v[ch - 'A'] = (*v == '-') ? -val : val;
+            w->have |= 1u << (ch - 'A');
+            continue;
+        }
+        char buf[64];
+        if (p - v >= (Py_ssize_t)sizeof buf) return unsupported(s);
+        memcpy(buf, v, (size_t)(p - v));
+        buf[p - v] = 0;
+        w->v[ch - 'A'] = strtod(buf, NULL);
+        w->have |= 1u << (ch - 'A');
+    }
+    return 0;
+}
+
+static void target(Scanner *s, Words *w, double *x, double *y, double *z, double *e) {
+    if (s->abs_xyz) {
+        *x = HAS(w, 'X') ? GET(w, 'X') : s->x;
+        *y = HAS(w, 'Y') ? GET(w, 'Y') : s->y;
+        *z = HAS(w, 'Z') ? GET(w, 'Z') : s->z;
+    } else {
+        *x = s->x + (HAS(w, 'X') ? GET(w, 'X') : 0.0);
+        *y = s->y + (HAS(w, 'Y') ? GET(w, 'Y') : 0.0);
+        *z = s->z + (HAS(w, 'Z') ? GET(w, 'Z') : 0.0);
+    }
+    *e = s->abs_e ? (HAS(w, 'E') ? GET(w, 'E') : s->e) : s->e + (HAS(w, 'E') ? GET(w, 'E') : 0.0);
+}
+
+static int emit(Scanner *s, const char *line, double x, double y, double z, double e, int arc) {
+    Record r;
+    r.x0 = s->x; r.y0 = s->y; r.z0 = s->z;
+    r.x1 = x; r.y1 = y; r.z1 = z;
+    r.e = e - s->e;
+    r.e_start = s->e;
+    r.f = s->f;
+    r.offset = (int64_t)(s->base_offset + (line - s->base));
+    r.line_no = (int32_t)s->line_no;
+    r.role = (int16_t)s->role;
+    r.flags = (uint8_t)((s->outer ? 1 : 0) | (arc ? 2 : 0) | (s->abs_xyz ? 4 : 0) | (s->abs_e ? 8 : 0));
+    r.pad = 0;
+    if (!s->quiet && push(s, &r) < 0) return -1;
+    s->x = x; s->y = y; s->z = z; s->e = e;
+    return 0;
+}
+
+/* Events mode (gcode/estimate.py): a line the estimator reads itself gets a record of its own, flags
+ * 16, at its offset and line, holding the state before it (no move: x1.. = x0.., e = 0). Plain
+ * moves keep their records: G0/G1/G00/G01 whose words, split at blanks, are each one letter of
+ * X Y Z E F and a number as gcode._NUM takes it (so float() reads the same), F not 0, no '*' or
+ * '(', and whose comment, if any, is not one the estimator reads (TYPE:, LAYER...). Every other
+ * line with a command, and such comments, are events. */
+static int is_event(Scanner *s, const char *p, const char *end) {
+    const char *semi = memchr(p, ';', (size_t)(end - p));
+    if (semi) {
+        const char *c = semi + 1;
+        while (c < end && is_ws((unsigned char)*c)) c++;
+        if ((end - c >= 5 && memcmp(c, "TYPE:", 5) == 0) || (end - c >= 5 && memcmp(c, "LAYER", 5) == 0))
+            return 1;
+        end = semi;
+    }
+    while (p < end && is_ws((unsigned char)*p)) p++;
+    while (end > p && is_ws((unsigned char)end[-1])) end--;
+    if (p == end) return 0;                          /* blank or a comment the estimator skips */
+    for (const char *q = p; q < end; q++)
+        if (*q == '*' || *q == '(') return 1;
+    const char *h = p;
+    while (p < end && !is_ws((unsigned char)*p)) p++;
+    if (*h == 'N' || *h == 'n') {                    /* a line number: the next word is the command */
+        while (p < end && is_ws((unsigned char)*p)) p++;
+        if (p == end) return 1;
+        h = p;
+        while (p < end && !is_ws((unsigned char)*p)) p++;
+    }
+    Py_ssize_t hl = p - h;
+    if (!((*h == 'G' || *h == 'g') && ((hl == 2 && (h[1] == '0' || h[1] == '1')) ||
+                                       (hl == 3 && h[1] == '0' && (h[2] == '0' || h[2] == '1')))))
+        return 1;
+    while (p < end) {
+        while (p < end && is_ws((unsigned char)*p)) p++;
+        if (p == end) break;
+        char L = *p;
+        if (L >= 'a' && L <= 'z') L = (char)(L - 32);
+        if (L != 'X' && L != 'Y' && L != 'Z' && L != 'E' && L != 'F') return 1;
+        const char *q = ++p;
+        if (q < end && (*q == '-' || *q == '+')) q++;
+        int digits = 0, nonzero = 0, dot = 0;
+        for (; q < end && !is_ws((unsigned char)*q); q++) {
+            if (*q >= '0' && *q <= '9') { digits++; nonzero |= *q != '0'; }
+            else if (*q == '.' && !dot) dot = 1;
+            else return 1;
+        }
+        if (!digits || (L == 'F' && !nonzero)) return 1;
+        p = q;
+    }
+    return 0;
+}
+
+static int py_hypot(Scanner *s, double a, double b, double *out) {
+    PyObject *r = PyObject_CallFunction(s->hypot, "dd", a, b);
+    if (!r) return -1;
+    *out = PyFloat_AsDouble(r);
+    Py_DECREF(r);
+    return 0;
+}
+
+/* gcode._arc, operation for operation. */
+static int arc(Scanner *s, const char *line, Words *w, int cw) {
+    double x, y, z, e;
+    target(s, w, &x, &y, &z, &e);
+    if (HAS(w, 'F')) s->f = GET(w, 'F');
+    double x0 = s->x, y0 = s->y, cx, cy;
+    if (HAS(w, 'R')) {
+        double r = GET(w, 'R'), dx = x - x0, dy = y - y0, d;
+        if (py_hypot(s, dx, dy, &d) < 0) return -1;
+        if (d == 0 || fabs(r) < d / 2 - 1e-6) return unsupported(s);
+        double hh = r * r - d * d / 4;
+        double h = sqrt(hh > 0.0 ? hh : 0.0);
+        double sg = (cw ? -1 : 1) * (r > 0 ? 1 : -1);
+        cx = x0 + dx / 2 - sg * h * dy / d;
+        cy = y0 + dy / 2 + sg * h * dx / d;
+    } else if (HAS(w, 'I') || HAS(w, 'J')) {
+        cx = x0 + (HAS(w, 'I') ? GET(w, 'I') : 0.0);
+        cy = y0 + (HAS(w, 'J') ? GET(w, 'J') : 0.0);
+    } else {
+        return unsupported(s);
+    }
+    double r0;
+    if (py_hypot(s, x0 - cx, y0 - cy, &r0) < 0) return -1;
+    double a0 = atan2(y0 - cy, x0 - cx);
+    double a1 = atan2(y - cy, x - cx);
+    double sweep = a1 - a0;
+    if (cw) {
+        if (sweep >= -1e-9) sweep -= 2 * M_PI;
+    } else {
+        if (sweep <= 1e-9) sweep += 2 * M_PI;
+    }
+    double length = fabs(sweep) * r0;
+    double c = ceil(length / s->chord);
+    if (!isfinite(c) || c > 1e7) return unsupported(s);
+    long n = c < 1 ? 1 : (long)c;
+    double zs = s->z, es = s->e;
+    for (long i = 1; i <= n; i++) {
+        double t = (double)i / (double)n, px, py;
+        if (i == n) {
+            px = x; py = y;
+        } else {
+            double a = a0 + sweep * t;
+            px = cx + r0 * cos(a);
+            py = cy + r0 * sin(a);
+        }
+        if (emit(s, line, px, py, zs + (z - zs) * t, es + (e - es) * t, 1) < 0) return -1;
+    }
+    s->x = x; s->y = y; s->z = z; s->e = e;
+    return 0;
+}
+
+/* One line without its line end (gcode.split_code + parse_lines). */
+static int do_line_state(Scanner *s, const char *p, const char *end);
+
+static int do_line(Scanner *s, const char *p, const char *end) {
+    if (!s->events) return do_line_state(s, p, end);
+    int ascii = 1;
+    for (const char *q = p; q < end; q++)
+        if ((unsigned char)*q >= 0x80) { ascii = 0; break; }
+    if (ascii && !is_event(s, p, end)) return do_line_state(s, p, end);
+    Record r;
+    memset(&r, 0, sizeof r);
+    r.x0 = r.x1 = s->x; r.y0 = r.y1 = s->y; r.z0 = r.z1 = s->z;
+    r.e_start = s->e;
+    r.f = s->f;
+    r.offset = (int64_t)(s->base_offset + (p - s->base));
+    r.line_no = (int32_t)s->line_no;
+    r.role = -1;
+    r.flags = (uint8_t)(16 | (s->abs_xyz ? 4 : 0) | (s->abs_e ? 8 : 0));
+    if (push(s, &r) < 0) return -1;
+    if (!ascii) return 0;                  /* the state is the estimator's to follow */
+    s->quiet = 1;                          /* the line's own state changes, without records */
+    int rc = do_line_state(s, p, end);
+    s->quiet = 0;
+    if (rc < 0 && PyErr_ExceptionMatches(ScanUnsupported)) {
+        PyErr_Clear();                     /* the estimator reads (or refuses) it */
+        rc = 0;
+    }
+    return rc;
+}
+
+/* Counts the lines the regexes of gcode.check_not_processed and fallback.scan_m92 may match, so
+ * that Python runs them only on parts of a file that hold one: comments starting "; bulgekit",
+ * commands M[0...]72x / M[0...]92 (after any line number), and lines with bytes >= 0x80. A
+ * superset: the regexes decide. */
+static void flag(Scanner *s, const char *p, const char *end) {
+    if (*p == ';') {
+        if (end - p >= 10 && memcmp(p, "; bulgekit", 10) == 0) s->flagged++;
+        return;
+    }
+    if (*p == 'N' || *p == 'n') {
+        while (p < end && !is_ws((unsigned char)*p)) p++;
+        while (p < end && is_ws((unsigned char)*p)) p++;
+    }
+    if (p < end && (*p == 'M' || *p == 'm')) {
+        p++;
+        while (p < end && *p == '0') p++;
+        if (end - p >= 2 && (p[0] == '7' || p[0] == '9') && p[1] == '2') s->flagged++;
+    }
+}
+
+static int do_line_state(Scanner *s, const char *p, const char *end) {
+    const char *line = p;
+    for (const char *q = p; q < end; q++)
+        if ((unsigned char)*q >= 0x80) { s->flagged++; return foreign_line(s, p, end); }
+    while (p < end && is_ws((unsigned char)*p)) p++;
+    while (end > p && is_ws((unsigned char)end[-1])) end--;
+    if (p == end) return 0;
+    flag(s, p, end);
+    if (*p == ';') return comment_role(s, p + 1, end);
+    for (const char *q = p; q < end; q++)
+        if (*q == ';' || *q == '*' || *q == '(') { end = q; break; }
+    while (end > p && is_ws((unsigned char)end[-1])) end--;
+    if (p < end && (*p == 'N' || *p == 'n')) {       /* a line number: drop the first word */
+        while (p < end && !is_ws((unsigned char)*p)) p++;
+        while (p < end && is_ws((unsigned char)*p)) p++;
+    }
+    if (p == end) return 0;
+    const char *h = p;
+    while (p < end && !is_ws((unsigned char)*p)) p++;
+    const char *rest = p;
+    while (rest < end && is_ws((unsigned char)*rest)) rest++;
+    char letter = *h;
+    if (letter == 'g') letter = 'G';
+    if (letter == 'm') letter = 'M';
+    if ((letter != 'G' && letter != 'M') || p - h < 2) return 0;
+    long num = 0;
+    for (const char *q = h + 1; q < p; q++) {
+        if (*q < '0' || *q > '9') return 0;         /* "G1.5", "G1X5": not a command gcode/__init__.py knows */
+        if (num < 100000) num = num * 10 + (*q - '0');
+    }
+    Words w;
+    if (letter == 'G') {
+        if (num == 0 || num == 1) {
+            if (parse_words(s, rest, end, &w) < 0) return -1;
+            double x, y, z, e;
+            target(s, &w, &x, &y, &z, &e);
+            if (HAS(&w, 'F')) s->f = GET(&w, 'F');
+            return emit(s, line, x, y, z, e, 0);
+        }
+        if (num == 2 || num == 3) {
+            if (parse_words(s, rest, end, &w) < 0) return -1;
+            return arc(s, line, &w, num == 2);
+        }
+        if (num == 92) {
+            if (parse_words(s, rest, end, &w) < 0) return -1;
+            if (HAS(&w, 'X')) s->x = GET(&w, 'X');
+            if (HAS(&w, 'Y')) s->y = GET(&w, 'Y');
+            if (HAS(&w, 'Z')) s->z = GET(&w, 'Z');
+            if (HAS(&w, 'E')) s->e = GET(&w, 'E');
+            return 0;
+        }
+        if (num == 90) { s->abs_xyz = s->abs_e = 1; return 0; }
+        if (num == 91) { s->abs_xyz = s->abs_e = 0; return 0; }
+        return 0;
+    }
+    if (num == 82) s->abs_e = 1;
+    else if (num == 83) s->abs_e = 0;
+    return 0;
+}
+
+/* feed(data, final, base) -> (records: bytes, used: int). Lines that end in data are scanned;
+ * without final, the bytes after the last line end are left for the next call (used says where).
+ * base: the file offset of data[0], for the records' offsets. */
+static PyObject *Scanner_feed(Scanner *s, PyObject *args) {
+    Py_buffer buf;
+    int final = 0;
+    long long base = 0;
+    if (!PyArg_ParseTuple(args, "y*|pL", &buf, &final, &base)) return NULL;
+    s->base_offset = base;
+    const char *p = buf.buf, *end = p + buf.len;
+    s->n = 0;
+    s->base = p;
+    if (s->pending_cr && p < end && *p == '\n') p++;
+    s->pending_cr = 0;
+    const char *used = p;
+    while (p < end) {
+        const char *q = p;
+        while (q < end && *q != '\n' && *q != '\r') q++;
+        if (q == end && !final) break;
+        s->line_no++;
+        if (do_line(s, p, q) < 0) { PyBuffer_Release(&buf); return NULL; }
+        if (q < end) {
+            if (*q == '\r') {
+                if (q + 1 < end) { if (q[1] == '\n') q++; }
+                else if (!final) s->pending_cr = 1;
+            }
+            q++;
+        }
+        p = used = q;
+    }
+    if (final) used = end;
+    PyObject *out = PyBytes_FromStringAndSize((const char *)s->out, s->n * (Py_ssize_t)sizeof(Record));
+    Py_ssize_t n_used = used - (const char *)buf.buf;
+    PyBuffer_Release(&buf);
+    if (!out) return NULL;
+    return Py_BuildValue("(Nn)", out, n_used);
+}
+
+static int Scanner_init(Scanner *s, PyObject *args, PyObject *kw) {
+    static char *kwlist[] = {"outer_roles", "s3d_roles", "classify", "chord", "events", NULL};
+    PyObject *outer, *s3d, *classify;
+    double chord = 0.5;
+    int events = 0;
+    if (!PyArg_ParseTupleAndKeywords(args, kw, "OOO|dp", kwlist, &outer, &s3d, &classify, &chord,
+                                     &events))
+        return -1;
+    s->events = events;
+    s->quiet = 0;
+    s->flagged = 0;
+    s->x = s->y = s->z = s->e = 0.0;
+    s->f = 1500.0;
+    s->abs_xyz = s->abs_e = 1;
+    s->role = -1;
+    s->outer = 0;
+    s->line_no = 0;
+    s->pending_cr = 0;
+    s->chord = chord;
+    Py_XSETREF(s->roles, PyList_New(0));
+    Py_XSETREF(s->outer_roles, PyFrozenSet_New(outer));
+    Py_XSETREF(s->s3d_roles, PyFrozenSet_New(s3d));
+    Py_INCREF(classify);
+    Py_XSETREF(s->classify, classify);
+    PyObject *math = PyImport_ImportModule("math");
+    if (!math) return -1;
+    Py_XSETREF(s->hypot, PyObject_GetAttrString(math, "hypot"));
+    Py_DECREF(math);
+    if (!s->roles || !s->outer_roles || !s->s3d_roles || !s->hypot) return -1;
+    return 0;
+}
+
+static void Scanner_dealloc(Scanner *s) {
+    Py_XDECREF(s->roles);
+    Py_XDECREF(s->outer_roles);
+    Py_XDECREF(s->s3d_roles);
+    Py_XDECREF(s->classify);
+    Py_XDECREF(s->hypot);
+    PyMem_Free(s->out);
+    Py_TYPE(s)->tp_free((PyObject *)s);
+}
+
+static PyObject *Scanner_roles(Scanner *s, void *c) {
+    (void)c;
+    return Py_NewRef(s->roles);
+}
+
+static PyObject *Scanner_lines(Scanner *s, void *c) {
+    (void)c;
+    return PyLong_FromLong(s->line_no);
+}
+
+static PyObject *Scanner_flagged(Scanner *s, void *c) {
+    (void)c;
+    return PyLong_FromLong(s->flagged);
+}
+
+static PyObject *Scanner_e(Scanner *s, void *c) {
+    (void)c;
+    return PyFloat_FromDouble(s->e);
+}
+
+static PyMethodDef Scanner_methods[] = {
+    {"feed", (PyCFunction)Scanner_feed, METH_VARARGS,
+     "feed(data, final=False, base=0) -> (records, used): move records of data's complete lines"},
+    {NULL, NULL, 0, NULL}};
+
+static PyGetSetDef Scanner_getset[] = {
+    {"roles", (getter)Scanner_roles, NULL, "role names by index (lower case)", NULL},
+    {"lines", (getter)Scanner_lines, NULL, "lines scanned so far", NULL},
+    {"e", (getter)Scanner_e, NULL, "E position after the lines scanned so far", NULL},
+    {"flagged", (getter)Scanner_flagged, NULL, "lines so far that may be bulgekit's or an M92", NULL},
+    {NULL, NULL, NULL, NULL, NULL}};
+
+static PyTypeObject ScannerType = {
+    PyVarObject_HEAD_INIT(NULL, 0)
+    .tp_name = "bulgekit.gcode._scan.Scanner",
+    .tp_basicsize = sizeof(Scanner),
+    .tp_flags = Py_TPFLAGS_DEFAULT,
+    .tp_doc = "G-code move scanner (see the module comment)",
+    .tp_new = PyType_GenericNew,
+    .tp_init = (initproc)Scanner_init,
+    .tp_dealloc = (destructor)Scanner_dealloc,
+    .tp_methods = Scanner_methods,
+    .tp_getset = Scanner_getset,
+};
+
+static struct PyModuleDef scan_module = {
+    PyModuleDef_HEAD_INIT, "_scan", "G-code move scanner (C)", -1, NULL, NULL, NULL, NULL, NULL};
+
+PyMODINIT_FUNC PyInit__scan(void) {
+    if (PyType_Ready(&ScannerType) < 0) return NULL;
+    PyObject *m = PyModule_Create(&scan_module);
+    if (!m) return NULL;
+    ScanUnsupported = PyErr_NewException("bulgekit.gcode._scan.ScanUnsupported", NULL, NULL);
+    PyModule_AddObject(m, "ScanUnsupported", ScanUnsupported);
+    Py_INCREF(&ScannerType);
+    PyModule_AddObject(m, "Scanner", (PyObject *)&ScannerType);
+    PyModule_AddIntConstant(m, "RECORD_SIZE", (long)sizeof(Record));
+    return m;
+}

@@ -1,0 +1,1057 @@
+"""Print time of any G-code, planned the way Marlin 2.1 plans it.
+
+    from bulgekit.gcode.estimate import Machine, estimate_file
+    r = estimate_file("part.gcode", Machine(accel=1000, travel_accel=1000))
+    r.total_s, r.by_feature, r.blocks          # blocks: one row per planner block (numpy)
+
+Every G0/G1 becomes a block as in Marlin's Planner::_buffer_steps (module/planner.cpp):
+
+  length      XYZ distance; |dE| for a move of E alone. Moves under MIN_STEPS_PER_SEGMENT (6)
+              steps on every axis are dropped and their distance goes to the next move.
+  speed       F (mm/min) x M220 %, lowered until no axis exceeds its M203 maximum. In width mode
+              (M723 on, our firmware) an extruding XY move gets v = L * r / dE instead (r: the
+              extruder rate, docs/width-mode.md), clamped to [L, U].
+  accel       M204 P for moves that extrude, T for travel, R for E alone; a move with X/Y/Z is
+              lowered until no axis exceeds its M201 maximum: a <= amax_i * length / |d_i|.
+  junction    junction deviation (M205 J): with u, u' the unit vectors of two moves (XYZE,
+              normalised, for moves that extrude; XYZ / length for travel) and
+              cos(theta) = -u'.u, sin(theta/2) = sqrt((1 - cos) / 2),
+                  v_j^2 = a_j * JD * sin(theta/2) / (1 - sin(theta/2))
+              where a_j is the accel lowered by the axis limits along (u - u')/|u - u'|; for
+              moves under 1 mm turning by more than 45 degrees (JD_HANDLE_SMALL_SEGMENTS)
+              v_j^2 <= length * a_j / theta (the speed on an arc through the corner; theta
+              from Marlin's acos lookup table, as the firmware computes it). Then
+              v_j <= both moves' speeds. Classic jerk (Machine.jerk, M205 X Y Z E) follows
+              Marlin's HAS_CLASSIC_JERK branch instead.
+
+The entry speeds then follow the planner's passes: backwards, a block may enter no faster than
+it can brake to the next block's entry (v^2 <= v_next^2 + 2 a L); forwards, no faster than the
+previous block could accelerate to. Marlin plans only what its block buffer holds: when a block
+starts to run, the blocks behind it (up to BLOCK_BUFFER_SIZE - 2 of them, the buffer keeps one
+slot free and the running block is locked) are all it knows, and the last of them must be able
+to stop. `Machine.lookahead` is that buffer size (16, Marlin's default); None plans with the
+whole file, as slicers' estimators do. Both passes are solved in closed form with prefix sums:
+    backward: v_i^2 = min_k (m_k + S_k) - S_i     (k from i over the window; S: sum of 2 a L)
+    forward:  v_i^2 = S_i + min_{k <= i} (b_k - S_k)
+Each block is then a trapezoid (accelerate, cruise, brake).
+
+A program that writes G-code can hand its moves over as numbers (MoveBlock items among the
+lines: `bulgekit litho` does), so they are not parsed again; the blocks are the same. Large files
+are planned a chunk of blocks at a time, each chunk with the braking distance of its fastest
+block on both sides (what decides a block's speeds lies within it): the same speeds in a fraction
+of the memory. `Machine(min_segment_steps=0)` plans every move, as Klipper and RepRapFirmware do.
+
+A file (estimate_file) is read by the compiled scanner when it is built (movescan, its events
+mode): the plain moves come as move records and are taken as arrays, operation for operation as
+the text parser below takes them, and every other line goes to the text parser in order; the
+blocks are the same to the bit (host/tests/gcode/test_estimate_scan.py).
+
+A move of E alone (a retraction, or a stop in a stock file, see bulge/fallback.py) runs n whole steps
+(n = lround(|dE| x M92 E)) at the block's rate r = ceil(n x speed / |dE|) steps/s. Below Marlin's
+MINIMAL_STEP_RATE (120 steps/s) the stepper starts and ends the block at 120 steps/s: it takes
+1/120 + (n - 1)/r s (measured in simulated stock Marlin 2.1.2.7, issue 25: the head stands still
+1/120 + (n - 1)/r + 1/120 s, the last 1/120 being the following block's first step, which its
+trapezoid holds). It is queued like any move: the planner does not empty, and the moves on either
+side slow to its speed (a junction with a move of E alone is limited by both moves' speeds).
+
+The planner empties (the machine stops) at G4, G28, M400 and the heating waits M109/M190: the
+moves before brake to a stop and the ones after start from rest (the drain's cost), the dwell
+itself is added; the time the host takes to fill the queue again is not modelled. Not
+modelled either: Marlin's slow-down when the buffer runs low (a host that keeps it full: SD
+card, or a fast enough serial line), LIN_ADVANCE, S-curve acceleration, arcs' exact segment
+count (G2/G3 are cut into pieces of at most 1 mm, as MAX_ARC_SEGMENT_MM).
+"""
+from __future__ import annotations
+
+import math
+import os
+import re
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..errors import BulgekitError
+
+AXES = "XYZE"
+
+
+MINIMAL_STEP_RATE = 120          # steps/s: Marlin's floor for a block's first and last step rate
+
+
+class EstimateError(BulgekitError):
+    """A G-code line the estimator cannot plan (the message names file and line)."""
+
+
+def _axes(x, y, z, e):
+    return {"X": float(x), "Y": float(y), "Z": float(z), "E": float(e)}
+
+
+@dataclass
+class Machine:
+    """Planner settings. Defaults: Marlin 2.1.2.x's Configuration.h (RAMPS example config)."""
+    accel: float = 3000.0             # M204 P, printing moves, mm/s^2
+    travel_accel: float = 3000.0      # M204 T
+    retract_accel: float = 3000.0     # M204 R, moves of E alone
+    max_accel: dict = field(default_factory=lambda: _axes(3000, 3000, 100, 10000))   # M201
+    max_feedrate: dict = field(default_factory=lambda: _axes(300, 300, 5, 25))       # M203, mm/s
+    steps_per_mm: dict = field(default_factory=lambda: _axes(80, 80, 400, 500))      # M92
+    junction_deviation: float = 0.013  # M205 J, mm
+    jerk: dict | None = None          # classic jerk (M205 X Y Z E, mm/s) instead of JD
+    jd_small_segments: bool = True    # JD_HANDLE_SMALL_SEGMENTS
+    min_planner_speed: float = 0.05   # MINIMUM_PLANNER_SPEED, mm/s
+    min_segment_steps: int = 6        # MIN_STEPS_PER_SEGMENT
+    lookahead: int | None = 16        # BLOCK_BUFFER_SIZE; None: the whole file
+    honour_file_limits: bool = False  # apply the file's M201/M203/M204/M205
+
+
+@dataclass
+class Result:
+    total_s: float
+    moves_s: float
+    dwell_s: float
+    by_feature: dict
+    features: list
+    blocks: np.ndarray            # structured: see BLOCK_DTYPE
+    lines: int
+
+    def summary(self) -> str:
+        h, rem = divmod(self.total_s, 3600)
+        return f"{int(h)}h {int(rem // 60):02d}m {rem % 60:04.1f}s"
+
+
+@dataclass
+class MoveBlock:
+    """Moves a program already holds as numbers, given to estimate_lines in place of their text
+    (which it then need not parse): G1 to absolute X, Y (mm) with relative E (mm) or W words,
+    F (mm/min) per move, all as the text has them (rounded alike). Needs G90 and M83 in force."""
+    x: np.ndarray
+    y: np.ndarray
+    e: np.ndarray
+    f: np.ndarray
+    w: np.ndarray | None = None
+
+    def __len__(self):
+        return len(self.x)
+
+
+BLOCK_DTYPE = [("line", "i8"), ("feature", "i4"), ("layer", "i4"), ("dx", "f8"), ("dy", "f8"), ("dz", "f8"),
+               ("de", "f8"), ("length", "f8"), ("nominal_speed", "f8"), ("accel", "f8"),
+               ("entry_speed", "f8"), ("exit_speed", "f8"), ("cruise_speed", "f8"),
+               ("t_accel", "f8"), ("t_cruise", "f8"), ("t_decel", "f8")]
+
+
+class _Parser:
+    """G-code to raw moves (deltas, feed, accel class), in Marlin's modal state."""
+
+    def __init__(self, m: Machine, source: str):
+        self.m, self.src = m, source
+        self.pos = [0.0, 0.0, 0.0, 0.0]
+        self.rel = [False, False, False, False]
+        self.f = 1500.0 / 60                    # Marlin's power-on feedrate, mm/s
+        self.F = 1500.0                         # the same as written (mm/min): the scanner's
+        self.pct = 100.0
+        self.feature, self.features, self.fidx = "", [""], {"": 0}
+        self.layer = -1
+        # planner settings that the file may change (copies)
+        self.accel, self.travel_accel, self.retract_accel = m.accel, m.travel_accel, m.retract_accel
+        self.max_accel = dict(m.max_accel)
+        self.max_fr = dict(m.max_feedrate)
+        self.jd = m.junction_deviation
+        self.jerk = dict(m.jerk) if m.jerk is not None else None
+        self.width = None                       # width mode: dict(r=, D=, H=, L=, U=) when on
+        self.w_state = dict(q=None, r=None, D=1.75, H=0.0, L=5.0, U=150.0)
+        self.rows = []                          # (line, feat, layer, dx, dy, dz, de, v, accel, brk, jd, jerk)
+        self.parts = []                         # rows turned into column arrays, and MoveBlocks' columns
+        self.brk = True                         # the next block starts from rest
+        self.pending = [0.0, 0.0, 0.0, 0.0]     # distance of dropped tiny moves
+        self.dwell = 0.0
+        self.dwell_by_feature: dict[str, float] = {}
+        self.spm = dict(m.steps_per_mm)         # M92 in the file changes it
+        self.e_at = 0                           # the planner's E position, whole steps
+        self.g92_at = None                      # _take: e_at as a G92 between two ranges set it
+        self.g92_lines = []                     # _take: G92s after the last range gathered
+
+    def err(self, n, msg):
+        raise EstimateError(f"{self.src}:{n}: {msg}")
+
+    def words(self, n, toks):
+        w = {}
+        for t in toks:
+            if not t:
+                continue
+            k = t[0].upper()
+            try:
+                w[k] = float(t[1:]) if len(t) > 1 else None
+            except ValueError:
+                self.err(n, f"bad number in {t!r}")
+        return w
+
+    def line(self, n: int, raw: str):
+        if ";" in raw:
+            code, _, comment = raw.partition(";")
+            c = comment.strip()
+            if c.startswith("TYPE:"):
+                name = c[5:].strip()
+                if name not in self.fidx:
+                    self.fidx[name] = len(self.features)
+                    self.features.append(name)
+                self.feature = name
+            elif c.startswith("LAYER:"):
+                try:
+                    self.layer = int(c[6:])
+                except ValueError:
+                    pass
+            elif c == "LAYER_CHANGE":
+                self.layer += 1
+        else:
+            code = raw
+        toks = code.split()
+        if not toks:
+            return
+        cmd = toks[0].upper()
+        if cmd[0] == "N" and len(toks) > 1:              # line numbers from a host
+            toks = toks[1:]
+            cmd = toks[0].upper()
+        if "*" in toks[-1]:
+            toks[-1] = toks[-1].split("*")[0]
+        if cmd in ("G1", "G0", "G01", "G00"):
+            self.move(n, self.words(n, toks[1:]))
+        elif cmd in ("G2", "G3", "G02", "G03"):
+            self.arc(n, cmd in ("G2", "G02"), self.words(n, toks[1:]))
+        elif cmd == "G92":
+            w = self.words(n, toks[1:])
+            if not any(a in w for a in AXES):
+                w = {a: 0.0 for a in AXES}
+            for i, a in enumerate(AXES):
+                if a in w:
+                    self.pos[i] = w[a] or 0.0
+            self.e_at = _lround(self.pos[3] * self.spm["E"])
+        elif cmd == "G90":
+            self.rel = [False] * 4
+        elif cmd == "G91":
+            self.rel = [True] * 4
+        elif cmd == "M82":
+            self.rel[3] = False
+        elif cmd == "M83":
+            self.rel[3] = True
+        elif cmd == "G4":
+            w = self.words(n, toks[1:])
+            t = (w.get("P") or 0.0) / 1000 + (w.get("S") or 0.0)
+            self.dwell += t
+            self.dwell_by_feature[self.feature] = self.dwell_by_feature.get(self.feature, 0.0) + t
+            self.brk = True
+        elif cmd == "G28":
+            w = self.words(n, toks[1:])
+            for i, a in enumerate("XYZ"):
+                if not any(k in w for k in "XYZ") or a in w:
+                    self.pos[i] = 0.0
+            self.brk = True
+        elif cmd == "M92":
+            # steps/mm: the E-only rule and the tiny-move rule count whole steps
+            w = self.words(n, toks[1:])
+            for a in AXES:
+                if w.get(a) and w[a] > 0:
+                    self.spm[a] = w[a]
+            self.e_at = _lround(self.pos[3] * self.spm["E"])   # Marlin re-sets its position
+        elif cmd in ("M400", "M109", "M190", "M116", "M0", "M1"):
+            self.brk = True
+        elif cmd == "M220":
+            w = self.words(n, toks[1:])
+            if w.get("S") is not None:
+                if w["S"] <= 0:
+                    self.err(n, f"M220 S{w['S']:g}: feed rate percentage must be > 0")
+                self.pct = w["S"]
+        elif cmd == "M723":
+            self.m723(n, self.words(n, toks[1:]))
+        elif cmd in ("M201", "M203", "M204", "M205") and self.m.honour_file_limits:
+            self.limits(cmd, self.words(n, toks[1:]))
+
+    def limits(self, cmd, w):
+        if cmd == "M201":
+            for a in AXES:
+                if w.get(a):
+                    self.max_accel[a] = w[a]
+        elif cmd == "M203":
+            for a in AXES:
+                if w.get(a):
+                    self.max_fr[a] = w[a]
+        elif cmd == "M204":
+            if w.get("S"):
+                self.accel = self.travel_accel = w["S"]
+            if w.get("P"):
+                self.accel = w["P"]
+            if w.get("T"):
+                self.travel_accel = w["T"]
+            if w.get("R"):
+                self.retract_accel = w["R"]
+        elif cmd == "M205":
+            if w.get("J"):
+                self.jd = w["J"]
+            if self.jerk is not None:
+                for a in AXES:
+                    if w.get(a) is not None:
+                        self.jerk[a] = w[a]
+
+    def m723(self, n, w):
+        s = self.w_state
+        for k in ("D", "H", "L", "U"):
+            if w.get(k) is not None:
+                s[k] = w[k]
+        if w.get("Q") is not None:
+            s["q"], s["r"] = w["Q"], None
+        if w.get("R") is not None:
+            s["r"], s["q"] = w["R"], None
+        if w.get("S") is not None:
+            self.width = bool(w["S"])
+        if self.width and s["q"] is None and s["r"] is None:
+            self.err(n, "M723 S1 without a rate (Q or R)")
+
+    def _rate(self):
+        s = self.w_state
+        r = s["r"] if s["r"] is not None else s["q"] / (math.pi * s["D"] ** 2 / 4)
+        return r * self.pct / 100
+
+    def move(self, n, w, f_override=None):
+        if w.get("F"):
+            self.f = w["F"] / 60
+            self.F = w["F"]
+        target = list(self.pos)
+        for i, a in enumerate(AXES):
+            v = w.get(a)
+            if v is not None:
+                target[i] = self.pos[i] + v if self.rel[i] else v
+        d = [target[i] - self.pos[i] for i in range(4)]
+        self.pos = target
+        if "W" in w and w["W"] is not None:                # width mode: filament from the width
+            s = self.w_state
+            L = math.hypot(d[0], d[1])
+            d[3] = w["W"] * s["H"] * L / (math.pi * s["D"] ** 2 / 4)
+        self.emit(n, d, f_override)
+
+    def emit(self, n, d, f_override=None):
+        m = self.m
+        d = [d[i] + self.pending[i] for i in range(4)]
+        steps = [abs(d[i]) * self.spm[a] for i, a in enumerate(AXES)]
+        xyz = math.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
+        e_to = _lround(self.pos[3] * self.spm["E"])
+        if xyz == 0:
+            # E alone: whole steps from the planner's position (the fraction carried matters)
+            steps[3] = abs(e_to - self.e_at)
+        if max(steps) < m.min_segment_steps or max(steps) == 0:   # Marlin drops it; the distance carries on
+            self.pending = d
+            return
+        self.pending = [0.0, 0.0, 0.0, 0.0]
+        n_e = steps[3] if xyz == 0 else 0
+        self.e_at = e_to
+        v = f_override if f_override is not None else self.f * self.pct / 100
+        if self.width and d[3] > 0 and (d[0] or d[1]):
+            s = self.w_state
+            # v = L * r / dE, r scaled by M220; the limits apply to the scaled speed
+            v = min(max(math.hypot(d[0], d[1]) * self._rate() / d[3], s["L"]), s["U"])
+        if xyz > 0:
+            accel = self.accel if d[3] != 0 else self.travel_accel
+        else:
+            accel = self.retract_accel
+        self.rows.append((n, self.fidx[self.feature], self.layer, d[0], d[1], d[2], d[3], v, accel,
+                          self.brk, self.jd, tuple(self.jerk[a] for a in AXES) if self.jerk else None,
+                          tuple(self.max_accel[a] for a in AXES), tuple(self.max_fr[a] for a in AXES),
+                          n_e, self.spm["E"]))
+        self.brk = False
+
+    def flush(self):
+        if self.rows:
+            self.parts.append(_columns(self.rows))
+            self.rows = []
+
+    def block(self, n, mb: MoveBlock):
+        """A MoveBlock: the same blocks as its lines would give, computed on whole arrays."""
+        k = len(mb)
+        if k == 0:
+            return
+        m, s = self.m, self.w_state
+        x = np.concatenate([[self.pos[0]], mb.x])
+        y = np.concatenate([[self.pos[1]], mb.y])
+        dx, dy = np.diff(x), np.diff(y)
+        L = np.hypot(dx, dy)
+        de = np.asarray(mb.e, float)
+        if mb.w is not None:
+            de = np.where(mb.w > 0, mb.w * s["H"] * L / (math.pi * s["D"] ** 2 / 4), de)
+        spm = self.spm
+        steps = np.maximum(np.maximum(np.abs(dx) * spm["X"], np.abs(dy) * spm["Y"]), np.abs(de) * spm["E"])
+        if (self.rel[0] or self.rel[1] or not self.rel[3] or any(self.pending)
+                or np.any(steps < max(m.min_segment_steps, 1e-12)) or np.any(L == 0)):
+            for i in range(k):                          # as the text: move by move
+                w = {"X": float(mb.x[i]), "Y": float(mb.y[i]), "F": float(mb.f[i])}
+                if mb.w is not None and mb.w[i] > 0:
+                    w["W"] = float(mb.w[i])
+                elif mb.e[i] != 0:
+                    w["E"] = float(mb.e[i])
+                self.move(n + i, w)
+            return
+        self.flush()
+        v = np.asarray(mb.f, float) / 60 * self.pct / 100
+        if self.width:
+            ext = de > 0
+            with np.errstate(divide="ignore", invalid="ignore"):
+                vw = np.clip(L * self._rate() / de, s["L"], s["U"])
+            v = np.where(ext, vw, v)
+        brk = np.zeros(k, bool)
+        brk[0] = self.brk
+        full = lambda val: np.full(k, val)
+        self.parts.append({
+            "line": n + np.arange(k), "feature": full(self.fidx[self.feature]), "layer": full(self.layer),
+            "dx": dx, "dy": dy, "dz": np.zeros(k), "de": de, "v": v,
+            "accel": np.where(de != 0, self.accel, self.travel_accel), "brk": brk, "jd": full(self.jd),
+            "jerk": None if self.jerk is None else np.tile([self.jerk[a] for a in AXES], (k, 1)),
+            "amax": np.tile([self.max_accel[a] for a in AXES], (k, 1)),
+            "vmax": np.tile([self.max_fr[a] for a in AXES], (k, 1)),
+            "n_e": np.zeros(k), "spm_e": full(spm["E"])})
+        self.brk = False
+        self.f = float(mb.f[-1]) / 60
+        self.F = float(mb.f[-1])
+        e_end = float(np.cumsum(np.concatenate([[self.pos[3]], de]))[-1])     # summed as the text's moves
+        self.pos = [float(mb.x[-1]), float(mb.y[-1]), self.pos[2], e_end]
+        self.e_at = _lround(self.pos[3] * spm["E"])
+
+    def arc(self, n, cw, w):
+        if "R" in w:
+            self.err(n, "G2/G3 with R is not supported by the estimator (use I/J)")
+        x0, y0 = self.pos[0], self.pos[1]
+        if w.get("F"):
+            self.f = w["F"] / 60
+            self.F = w["F"]
+        x1 = (x0 + w["X"] if self.rel[0] else w["X"]) if w.get("X") is not None else x0
+        y1 = (y0 + w["Y"] if self.rel[1] else w["Y"]) if w.get("Y") is not None else y0
+        z1 = (self.pos[2] + w["Z"] if self.rel[2] else w["Z"]) if w.get("Z") is not None else self.pos[2]
+        e1 = (self.pos[3] + w["E"] if self.rel[3] else w["E"]) if w.get("E") is not None else self.pos[3]
+        cx, cy = x0 + (w.get("I") or 0.0), y0 + (w.get("J") or 0.0)
+        r = math.hypot(x0 - cx, y0 - cy)
+        a0, a1 = math.atan2(y0 - cy, x0 - cx), math.atan2(y1 - cy, x1 - cx)
+        sweep = a1 - a0
+        if cw and sweep >= 0:
+            sweep -= 2 * math.pi
+        elif not cw and sweep <= 0:
+            sweep += 2 * math.pi
+        segs = max(1, math.ceil(abs(sweep) * r / 1.0))      # MAX_ARC_SEGMENT_MM 1
+        z0, e0 = self.pos[2], self.pos[3]
+        px, py = x0, y0
+        for k in range(1, segs + 1):
+            t = k / segs
+            if k == segs:
+                nx, ny = x1, y1
+            else:
+                nx, ny = cx + r * math.cos(a0 + sweep * t), cy + r * math.sin(a0 + sweep * t)
+            self.emit(n, [nx - px, ny - py, (z1 - z0) / segs, (e1 - e0) / segs])
+            px, py = nx, ny
+        self.pos = [x1, y1, z1, e1]
+        self.e_at = _lround(e1 * self.spm["E"])
+
+
+def _junctions(b, jd, jerk, amax, m: Machine):
+    """Max entry speed squared of every block from its junction with the one before."""
+    n = len(b)
+    d = np.column_stack([b["dx"], b["dy"], b["dz"], b["de"]])
+    L = b["length"]
+    v = b["nominal_speed"]
+    extr = d[:, 3] != 0
+    unit = np.where(extr[:, None], d / np.linalg.norm(d, axis=1, keepdims=True), d / L[:, None])
+    out = np.zeros(n)
+    if n < 2:
+        return out
+    u, p = unit[1:], unit[:-1]
+    if jerk is None:
+        cos = -(u * p).sum(axis=1)
+        j = u - p
+        jn = np.linalg.norm(j, axis=1, keepdims=True)
+        j = np.divide(j, jn, out=np.zeros_like(j), where=jn > 0)
+        aj = b["accel"][1:].copy()
+        with np.errstate(divide="ignore"):
+            lim = np.where(np.abs(j) > 0, amax[1:] / np.abs(j), np.inf).min(axis=1)
+        aj = np.minimum(aj, lim)
+        c = np.maximum(cos, -0.999999)
+        s2 = np.sqrt(0.5 * (1 - c))
+        vj2 = aj * jd[1:] * s2 / (1 - s2)
+        if m.jd_small_segments:
+            small = (L[1:] < 1) & (c < -0.7071067812)
+            vj2 = np.where(small, np.minimum(vj2, L[1:] * aj / _jd_lut_acos_neg(c)), vj2)
+        vj2 = np.where(cos > 0.999999, m.min_planner_speed ** 2, vj2)
+        out[1:] = np.minimum(vj2, np.minimum(v[1:], v[:-1]) ** 2)
+    else:
+        out[1:] = _classic_jerk(d, L, v, jerk)
+    return out
+
+
+# Marlin's JD_USE_LOOKUP_TABLE (default with JD_HANDLE_SMALL_SEGMENTS): acos by 16 lines
+_JD_K = np.array([-1.03145837, -1.30760646, -1.75205851, -2.41705704, -3.37769222, -4.74888992,
+                  -6.69649887, -9.45661736, -13.3640480, -18.8928222, -26.7136841, -37.7754593,
+                  -53.4201813, -75.5458374, -106.836761, -218.532821])
+_JD_B = np.array([1.57079637, 1.70887053, 2.04220939, 2.62408352, 3.52467871, 4.85302639,
+                  6.77020454, 9.50875854, 13.4009285, 18.9188995, 26.7321243, 37.7885055,
+                  53.4293975, 75.5523529, 106.841369, 218.534011])
+
+
+def _jd_lut_acos_neg(cos):
+    """acos(-cos) as Marlin's table gives it: t = |cos| picks a line by the leading zeros of
+    (1 - t) * 2^15 (16-bit), theta = k t + b, mirrored for cos > 0."""
+    neg = np.where(cos < 0, -1.0, 1.0)
+    t = neg * cos
+    x = np.clip(np.floor((1.0 - t) * 32768.0), 0, 65535).astype(np.int64)
+    bits = np.zeros_like(x)
+    nz = x > 0
+    bits[nz] = np.floor(np.log2(x[nz])).astype(np.int64) + 1
+    idx = np.where(t < 3e-8, 0, np.clip(16 - bits - 1, 0, 15))
+    theta = t * _JD_K[idx] + _JD_B[idx]
+    return np.where(neg > 0, math.pi - theta, theta)
+
+
+def _classic_jerk(d, L, v, jerk):
+    """Marlin's HAS_CLASSIC_JERK junction (from Prusa's MK firmware), block by block."""
+    speed = d * (v / L)[:, None]                             # per-axis speed at cruise
+    n = len(v)
+    out = np.zeros(n - 1)
+    safe_prev = None
+    for i in range(n):
+        jk = jerk[i]
+        safe = v[i]
+        limited = False
+        for a in range(4):
+            cs, mj = abs(speed[i, a]), jk[a]
+            if cs > mj:
+                if limited:
+                    if cs * safe > v[i] * mj:
+                        safe = v[i] * mj / cs
+                else:
+                    safe *= mj / cs
+                    limited = True
+        if i > 0:
+            vf = 1.0
+            lim = False
+            if v[i] < v[i - 1]:
+                vj, ssf = v[i], v[i] / v[i - 1]
+            else:
+                vj, ssf = v[i - 1], 1.0
+            for a in range(4):
+                vx, ve = speed[i - 1, a] * ssf, speed[i, a]
+                if lim:
+                    vx *= vf
+                    ve *= vf
+                if vx > ve:
+                    j = (vx - ve) if (ve > 0 or vx < 0) else max(vx, -ve)
+                else:
+                    j = (ve - vx) if (ve < 0 or vx > 0) else max(-vx, ve)
+                if j > jk[a]:
+                    vf *= jk[a] / j
+                    lim = True
+            if lim:
+                vj *= vf
+            if safe_prev > vj * 0.99 and safe > vj * 0.99:
+                vj = safe
+            out[i - 1] = vj * vj
+        safe_prev = safe
+    return out
+
+
+def _plan_segment(b, maxentry2, m: Machine):
+    """Entry/exit speeds and trapezoid times of blocks that run without a stop in between."""
+    n = len(b)
+    vmin2 = m.min_planner_speed ** 2
+    a, L = b["accel"], b["length"]
+    M = np.append(np.minimum(maxentry2, b["nominal_speed"] ** 2), vmin2)
+    M[0] = vmin2                                            # starts from rest (a stop: MINIMUM_PLANNER_SPEED)
+    S = np.concatenate([[0.0], np.cumsum(2 * a * L)])       # S[k] = sum_{m<k} 2 a_m L_m
+    arr = M + S
+    if m.lookahead is None or m.lookahead - 2 >= n:
+        back = np.minimum.accumulate(arr[::-1])[::-1][:-1]
+    else:
+        W = max(1, m.lookahead - 2)
+        from numpy.lib.stride_tricks import sliding_window_view
+        pad = np.concatenate([arr, np.full(W - 1, np.inf)])
+        back = sliding_window_view(pad, W).min(axis=1)[:n]
+        end = np.minimum(np.arange(n) + W, n)
+        back = np.minimum(back, vmin2 + S[end])
+    back = back - S[:-1]
+    fwd = S[:-1] + np.minimum.accumulate(back - S[:-1])
+    entry2 = np.maximum(np.minimum(back, fwd), 0.0)
+    exit2 = np.append(entry2[1:], vmin2)
+    vn = b["nominal_speed"]
+    v0, v1 = np.sqrt(entry2), np.sqrt(exit2)
+    # peak speed of a triangle: accelerate from v0, brake to v1 within L
+    vpeak = np.sqrt(np.maximum((2 * a * L + entry2 + exit2) / 2, 0.0))
+    vc = np.minimum(vn, vpeak)
+    vc = np.maximum(vc, np.maximum(v0, v1))
+    ta = (vc - v0) / a
+    td = (vc - v1) / a
+    d_c = np.maximum(L - (vc ** 2 - entry2) / (2 * a) - (vc ** 2 - exit2) / (2 * a), 0.0)
+    tc = d_c / vc
+    b["entry_speed"], b["exit_speed"], b["cruise_speed"] = v0, v1, vc
+    b["t_accel"], b["t_cruise"], b["t_decel"] = ta, tc, td
+
+
+def _columns(rows) -> dict:
+    """The parser's rows (tuples) as column arrays."""
+    cols = list(zip(*rows))
+    out = {name: np.array(cols[k]) for k, name in enumerate(("line", "feature", "layer", "dx", "dy", "dz", "de"))}
+    out.update(v=np.array(cols[7], float), accel=np.array(cols[8], float), brk=np.array(cols[9], bool),
+               jd=np.array(cols[10], float), amax=np.array(cols[12], float), vmax=np.array(cols[13], float),
+               jerk=None if cols[11][0] is None else np.array(cols[11], float),
+               n_e=np.array(cols[14], float), spm_e=np.array(cols[15], float))
+    return out
+
+
+CHUNK = 1 << 16          # blocks computed at once (a large file's temporaries stay small)
+
+
+def _plan_parts(p: "_Parser", m: Machine, source: str) -> np.ndarray:
+    """The parser's columns -> planned blocks, a chunk of blocks at a time."""
+    parts, p.parts = p.parts, None
+    n = sum(len(q["v"]) for q in parts)
+    b = np.zeros(n, dtype=BLOCK_DTYPE)
+    if not n:
+        return b
+    v, jd, brk = np.empty(n), np.empty(n), np.empty(n, bool)
+    amax, vmax = np.empty((n, 4)), np.empty((n, 4))
+    n_e, spm_e = np.empty(n), np.empty(n)
+    jerk = None if parts[0]["jerk"] is None else np.empty((n, 4))
+    off = 0
+    while parts:                                    # copied in, each part dropped once copied
+        q = parts.pop(0)
+        k = len(q["v"])
+        sl = slice(off, off + k)
+        for name in ("line", "feature", "layer", "dx", "dy", "dz", "de", "accel"):
+            b[name][sl] = q[name]
+        v[sl], jd[sl], brk[sl], amax[sl], vmax[sl] = q["v"], q["jd"], q["brk"], q["amax"], q["vmax"]
+        n_e[sl], spm_e[sl] = q["n_e"], q["spm_e"]
+        if jerk is not None:
+            jerk[sl] = q["jerk"]
+        off += k
+    for c0 in range(0, n, CHUNK):
+        c = slice(c0, min(n, c0 + CHUNK))
+        bc = b[c]
+        d = np.column_stack([bc["dx"], bc["dy"], bc["dz"], bc["de"]])
+        xyz = np.linalg.norm(d[:, :3], axis=1)
+        L = np.where(xyz > 0, xyz, np.abs(d[:, 3]))
+        b["length"][c] = L
+        # per-axis limits: speed so no axis exceeds its M203, accel so none exceeds its M201
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ratio = np.abs(d) / L[:, None]
+            vlim = np.where(ratio > 0, vmax[c] / ratio, np.inf).min(axis=1)
+            alim = np.where(ratio > 0, amax[c] / ratio, np.inf).min(axis=1)
+        b["nominal_speed"][c] = np.minimum(v[c], vlim)
+        b["accel"][c] = np.where(xyz > 0, np.minimum(bc["accel"], alim), bc["accel"])
+    del v, vmax
+    if np.any(b["nominal_speed"] <= 0):
+        i = int(np.argmax(b["nominal_speed"] <= 0))
+        raise EstimateError(f"{source}:{b['line'][i]}: move with feed rate 0")
+    # junctions: each block's only with the one before (chunks overlap by one block)
+    maxentry2 = np.zeros(n)
+    for c0 in range(0, n, CHUNK):
+        lo, hi = max(0, c0 - 1), min(n, c0 + CHUNK)
+        part = _junctions(b[lo:hi], jd[lo:hi], None if jerk is None else jerk[lo:hi], amax[lo:hi], m)
+        maxentry2[c0:hi] = part[c0 - lo:]
+    del jd, amax, jerk
+    starts = np.flatnonzero(brk)
+    if len(starts) == 0 or starts[0] != 0:
+        starts = np.concatenate([[0], starts])
+    bounds = list(starts) + [n]
+    for s0, e0 in zip(bounds[:-1], bounds[1:]):
+        if e0 > s0:
+            _plan_long(b, s0, e0, maxentry2, m)
+    _slow_e_only(b, (b["dx"] == 0) & (b["dy"] == 0) & (b["dz"] == 0), n_e, spm_e)
+    return b
+
+
+def _plan_long(b, s0, e0, maxentry2, m: Machine) -> None:
+    """_plan_segment on blocks s0..e0 (no stop between them), a chunk at a time. A block's speeds
+    depend only on blocks within the distance the head needs to reach or lose its highest
+    speed (v^2 / 2a), so each chunk is planned with that much on both sides and only its own
+    blocks are kept: the same result as planning the whole run at once."""
+    n = e0 - s0
+    if n <= 2 * CHUNK:
+        seg = b[s0:e0]
+        _plan_segment(seg, maxentry2[s0:e0], m)
+        b[s0:e0] = seg
+        return
+    L = b["length"][s0:e0]
+    cum = np.concatenate([[0.0], np.cumsum(L)])
+    reach = float((b["nominal_speed"][s0:e0] ** 2).max() / (2 * b["accel"][s0:e0].min())) * 1.5 + 1.0
+    for c0 in range(0, n, CHUNK):
+        c1 = min(n, c0 + CHUNK)
+        lo = int(np.searchsorted(cum, cum[c0] - reach, side="right")) - 1
+        hi = int(np.searchsorted(cum, cum[c1] + reach, side="left")) + 1
+        lo, hi = max(0, lo - m.lookahead if m.lookahead else lo), min(n, hi + (m.lookahead or 0))
+        seg = b[s0 + lo:s0 + hi].copy()              # its edges are planned wrongly: not kept
+        me = maxentry2[s0 + lo:s0 + hi]
+        _plan_segment(seg, me, m)
+        keep = slice(c0 - lo, c1 - lo)
+        for f in ("entry_speed", "exit_speed", "cruise_speed", "t_accel", "t_cruise", "t_decel"):
+            b[f][s0 + c0:s0 + c1] = seg[f][keep]
+
+
+def estimate_lines(lines, machine: Machine | None = None, source: str = "<gcode>") -> Result:
+    """Items of `lines`: G-code lines, or MoveBlocks standing for the lines of their moves."""
+    m = machine or Machine()
+    p = _Parser(m, source)
+    count = 0
+    for raw in lines:
+        if isinstance(raw, MoveBlock):
+            p.block(count + 1, raw)
+            count += len(raw)
+        else:
+            count += 1
+            p.line(count, raw)
+    p.flush()
+    return _result(p, _plan_parts(p, m, source), count)
+
+
+def _result(p: _Parser, b: np.ndarray, count: int) -> Result:
+    t = b["t_accel"] + b["t_cruise"] + b["t_decel"]
+    feats = p.features
+    by = {}
+    if len(b):
+        sums = np.bincount(b["feature"], weights=t, minlength=len(feats))
+        by = {feats[i]: float(sums[i]) for i in range(len(feats)) if sums[i] > 0}
+    for f, dt in p.dwell_by_feature.items():
+        by[f] = by.get(f, 0.0) + dt
+    moves = float(t.sum())
+    return Result(total_s=moves + p.dwell, moves_s=moves, dwell_s=p.dwell, by_feature=by,
+                  features=feats, blocks=b, lines=count)
+
+
+def _lround(v: float) -> int:
+    return int(math.floor(v + 0.5)) if v >= 0 else -int(math.floor(-v + 0.5))
+
+
+def _slow_e_only(b, e_alone, steps_e, spm_e) -> None:
+    """Moves of E alone whose step rate is under MINIMAL_STEP_RATE: 1/120 + (n - 1)/r s, all at
+    their speed (see the module's doc); faster ones keep their trapezoid, which is n/r plus the
+    ramp."""
+    sel = np.flatnonzero(e_alone & (b["de"] != 0))
+    if not len(sel):
+        return
+    n = steps_e[sel]
+    # Marlin's length of the block is its whole steps in mm: the rate is speed x steps/mm
+    rate = np.ceil(b["nominal_speed"][sel] * spm_e[sel] - 1e-9)
+    slow = (rate < MINIMAL_STEP_RATE) & (n >= 1)
+    k = sel[slow]
+    b["t_accel"][k] = 0.0
+    b["t_decel"][k] = 0.0
+    b["t_cruise"][k] = 1 / MINIMAL_STEP_RATE + (n[slow] - 1) / rate[slow]
+
+
+def estimate_file(path, machine: Machine | None = None, scanned: bool | None = None) -> Result:
+    """The file's estimate: from the compiled scanner's move records (movescan, events mode)
+    when it is built, else (or scanned=False) from its lines; both give the same blocks
+    (host/tests/gcode/test_estimate_scan.py)."""
+    from . import movescan
+    path = os.fspath(path)
+    try:
+        if scanned is None:
+            scanned = movescan.available()
+        if scanned:
+            try:
+                return _estimate_scanned(path, machine or Machine(), path)
+            except movescan.Unsupported:
+                pass                                   # a line only the text parser takes
+        with open(path, encoding="utf-8", errors="replace") as f:
+            return estimate_lines(f, machine, source=path)
+    except OSError as e:
+        raise EstimateError(f"{path}: {e.strerror or e}") from None
+
+
+# Lines the estimator reads itself (the scanner's events) that move the head or set its position
+# as the scanner may not (G28, a bare G92, arcs ...): the moves gathered before them are taken
+# first. Every other event (comments, feed and acceleration settings, dwells, G90/M83 ...)
+# leaves the position alone, and the moves on either side of it are taken together, each with
+# the state it set; so does a G92 of numbers, which the scanner sets alike.
+_HARD = frozenset(("G0", "G1", "G00", "G01", "G2", "G3", "G02", "G03", "G92", "G28", "M92", "M723"))
+_G92_WORD = re.compile(r"[XYZEF][-+]?(?:\d+\.?\d*|\.\d+)$")
+
+
+def _command(raw: str) -> str | None:
+    """The command of a line as _Parser.line reads it (None: a comment or blank)."""
+    toks = raw.partition(";")[0].split()
+    if not toks:
+        return None
+    if toks[0][0] in "Nn" and len(toks) > 1:
+        toks = toks[1:]
+    return toks[0].upper()
+
+
+def _estimate_scanned(path: str, m: Machine, source: str) -> Result:
+    """estimate_lines on the file, its plain moves taken from the scanner's records as arrays
+    (what _Parser.move and emit would compute, operation for operation) and every other line
+    (the scanner's events: comments with TYPE:/LAYER, other commands, odd moves) given to
+    _Parser.line in order. A move whose start is not where the parser stands (after a G28, a bare
+    G92 ...: the scanner does not follow those) is read from its text too."""
+    from . import movescan
+    p = _Parser(m, source)
+    if movescan._scan is None:
+        raise movescan.Unsupported("bulgekit.gcode._scan is not built")
+    sc = movescan._scan.Scanner((), (), movescan._classify, 1.0, events=True)
+    carry = None                                        # (record, its line's text): a chunk's last move
+    base, buf = 0, b""
+
+    def text_at(off: int) -> str:
+        i = off - base
+        j = buf.find(b"\n", i)
+        j = len(buf) if j < 0 else j
+        r = buf.find(b"\r", i, j)
+        return buf[i:j if r < 0 else r].decode("utf-8", "replace")
+
+    try:
+        with open(path, "rb") as f:
+            while True:
+                data = f.read(movescan.CHUNK_BYTES)
+                final = not data
+                buf = buf + data if buf else data
+                recs, used = sc.feed(buf, final, base)
+                a = np.frombuffer(recs, dtype=movescan.RECORD)
+                texts = {}
+                if carry is not None:
+                    a = np.concatenate([carry[0], a])
+                    texts[int(carry[0]["line_no"][0])] = carry[1]
+                    carry = None
+                e_last = sc.e                           # the E the chunk ends at: the next record's start
+                if not final and len(a):
+                    # the chunk's last record waits for the next chunk, where its end E is
+                    carry = (a[-1:].copy(), text_at(int(a["offset"][-1])))
+                    e_last = float(a["e_start"][-1])
+                    a = a[:-1]
+                _take(p, a, lambda r: texts.get(int(r["line_no"])) or text_at(int(r["offset"])), e_last)
+                _progress_tick(sc.lines)
+                base += used
+                buf = buf[used:]
+                if final:
+                    break
+    except movescan._scan.ScanUnsupported:
+        raise movescan.Unsupported("the scanner refused a line") from None
+    p.flush()
+    return _result(p, _plan_parts(p, m, source), sc.lines)
+
+
+_EVENT = 16                                             # the scanner's flag for an event record
+_ABS_XYZ, _ABS_E = 4, 8                                 # movescan.ABS_XYZ, ABS_E
+
+
+def _progress_tick(n: int) -> None:
+    from .. import progress
+    progress.tick(n)
+
+
+def _take(p: _Parser, a: np.ndarray, text, e_last: float) -> None:
+    """One chunk of records (see _estimate_scanned). Moves are gathered in ranges while only
+    lines that leave the position alone come between them (_SOFT, comments), each range with the
+    parser's state at its start, and taken as arrays when another line comes (or the chunk ends)."""
+    n = len(a)
+    if not n:
+        return
+    ev = np.flatnonzero(a["flags"] & _EVENT)
+    # a move's end E is the next record's start E (an event's record holds the state before it)
+    e_next = np.append(a["e_start"][1:], e_last)
+    ranges = []
+    i = k = 0
+    while i < n:
+        while k < len(ev) and ev[k] < i:
+            k += 1
+        j = int(ev[k]) if k < len(ev) else n
+        if j > i:                                       # moves i .. j-1
+            if not ranges and not _in_step(p, a[i]):
+                p.line(int(a[i]["line_no"]), text(a[i]))     # from its text until in step again
+                i += 1
+                continue
+            # the E steps a range starts from: the first one's are the parser's now (a G92
+            # gathered later sets p.e_at), a later one's are its last block's unless a G92 set them
+            at = p.e_at if not ranges and p.g92_at is None else p.g92_at
+            ranges.append((i, j, _state(p), at))
+            p.g92_at = None
+            p.g92_lines = []
+            p.brk = False                               # taken by the range's first block (or carried)
+            i = j
+            continue
+        raw = text(a[j])
+        cmd = _command(raw)
+        if ranges and cmd in _HARD:
+            if cmd == "G92" and _plain_g92(raw):
+                p.line(int(a[j]["line_no"]), raw)
+                p.g92_at = p.e_at                       # the E steps the next range starts from
+                p.g92_lines.append((int(a[j]["line_no"]), raw))   # again once the moves are taken
+                i = j + 1
+                continue
+            _vector_moves(p, a, e_next, ranges)
+            ranges = []
+        p.line(int(a[j]["line_no"]), raw)
+        i = j + 1
+    if ranges:
+        _vector_moves(p, a, e_next, ranges)
+
+
+def _plain_g92(raw: str) -> bool:
+    """A G92 that sets E, and only axes given as numbers (as the scanner sets them)."""
+    toks = raw.partition(";")[0].split()
+    if toks and toks[0][0] in "Nn" and len(toks) > 1:
+        toks = toks[1:]
+    words = [t.upper() for t in toks[1:]]
+    return (any(w[0] == "E" for w in words) and all(_G92_WORD.match(w) and w[0] != "F" for w in words)
+            and "*" not in raw and "(" not in raw)
+
+
+def _in_step(p: _Parser, r) -> bool:
+    """Whether the parser stands where the record starts, in its modes, at its feed rate."""
+    fl = int(r["flags"])
+    return (not p.width and p.pos[0] == r["x0"] and p.pos[1] == r["y0"] and p.pos[2] == r["z0"]
+            and p.pos[3] == r["e_start"] and p.F == r["f"] and p.rel[0] == (not fl & _ABS_XYZ)
+            and p.rel[1] == p.rel[2] == p.rel[0] and p.rel[3] == (not fl & _ABS_E))
+
+
+def _lround_array(v: np.ndarray) -> np.ndarray:
+    return np.where(v >= 0, np.floor(v + 0.5), -np.floor(-v + 0.5)).astype(np.int64)
+
+
+def _vector_moves(p: _Parser, a: np.ndarray, e_next: np.ndarray, ranges) -> None:
+    """_Parser.move + emit for the moves of `ranges`, as arrays (see _take)."""
+    m = p.m
+    counts = [e - s for s, e, _, _ in ranges]
+    idx = np.concatenate([np.arange(s, e) for s, e, _, _ in ranges])
+    k = len(idx)
+    r = a[idx]
+    states = [st for _, _, st, _ in ranges]
+    # the states as one matrix, a row per range: feature, layer, M220, accel x3, jd, jerk x4,
+    # M201 x4, M203 x4, brk
+    S = np.array([st[:7] + (st[7] or (0.0,) * 4) + st[8] + st[9] + (st[10],) for st in states], float)
+    starts = np.cumsum([0] + counts[:-1])
+    brk_in = np.zeros(k, bool)
+    brk_in[starts] = S[:, 19] != 0
+    sx, sy, sz, se = (p.spm[ax] for ax in AXES)
+    D = np.column_stack([r["x1"] - r["x0"], r["y1"] - r["y0"], r["z1"] - r["z0"], r["e"]])
+    ea = e_next[idx]
+    e_to = _lround_array(ea * se)
+    e_prev = np.concatenate([[p.e_at], e_to[:-1]])
+    reset = np.zeros(k, bool)                      # a G92 before it set the E steps
+    for q, (_, _, _, g92) in enumerate(ranges):
+        if g92 is not None:
+            e_prev[starts[q]] = g92
+            reset[starts[q]] = True
+    xyz = np.sqrt(D[:, 0] * D[:, 0] + D[:, 1] * D[:, 1] + D[:, 2] * D[:, 2])
+    st_e = np.where(xyz == 0, np.abs(e_to - e_prev), np.abs(D[:, 3]) * se)
+    mx = np.maximum(np.maximum(np.abs(D[:, 0]) * sx, np.abs(D[:, 1]) * sy), np.maximum(np.abs(D[:, 2]) * sz, st_e))
+    ne = np.where(xyz == 0, st_e, 0.0)
+    emitted = np.ones(k, bool)
+    # dropped moves (too few steps, Marlin's rule) and the ones after them: one at a time
+    todo = list(np.flatnonzero((mx < m.min_segment_steps) | (mx == 0)))
+    if any(p.pending) and (not todo or todo[0] != 0):
+        todo.insert(0, 0)
+    nxt, last_pend = 0, [0.0, 0.0, 0.0, 0.0]
+    for j in todo:
+        if j < nxt:
+            continue
+        pend, e_at = (list(p.pending) if j == 0 else [0.0, 0.0, 0.0, 0.0]), int(e_prev[j])
+        while j < k:
+            if reset[j]:
+                e_at = int(e_prev[j])
+            d = [float(D[j, c]) + pend[c] for c in range(4)]
+            steps = [abs(d[0]) * sx, abs(d[1]) * sy, abs(d[2]) * sz, abs(d[3]) * se]
+            xj = math.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
+            et = int(e_to[j])
+            if xj == 0:
+                steps[3] = abs(et - e_at)
+            j += 1
+            if max(steps) < m.min_segment_steps or max(steps) == 0:
+                emitted[j - 1] = False
+                pend = d
+                continue
+            D[j - 1] = d
+            ne[j - 1] = steps[3] if xj == 0 else 0
+            e_at, pend = et, [0.0, 0.0, 0.0, 0.0]
+            break
+        nxt = j
+        last_pend = pend if j == k else [0.0, 0.0, 0.0, 0.0]
+    p.pending = last_pend if nxt == k else [0.0, 0.0, 0.0, 0.0]
+    E = np.flatnonzero(emitted)
+    cs = np.cumsum(brk_in)
+    if len(E):
+        before = np.concatenate([[0], cs[E[:-1]]])
+        brk = (cs[E] - before) > 0
+        p.brk = p.brk or bool(cs[-1] - cs[E[-1]] > 0)
+        p.e_at = int(e_to[E[-1]])
+        DE = D[E]
+        xyzE = np.sqrt(DE[:, 0] * DE[:, 0] + DE[:, 1] * DE[:, 1] + DE[:, 2] * DE[:, 2])
+        X = np.repeat(np.arange(len(states)), counts)[E]   # each emitted block's range
+        SE = S[X]
+        acc = np.where(xyzE > 0, np.where(DE[:, 3] != 0, SE[:, 3], SE[:, 4]), SE[:, 5])
+        p.flush()
+        p.parts.append({
+            "line": r["line_no"][E].astype(np.int64), "feature": SE[:, 0].astype(np.int64),
+            "layer": SE[:, 1].astype(np.int64), "dx": DE[:, 0], "dy": DE[:, 1], "dz": DE[:, 2],
+            "de": DE[:, 3], "v": r["f"][E] / 60 * SE[:, 2] / 100, "accel": acc, "brk": brk,
+            "jd": SE[:, 6], "jerk": None if p.jerk is None else SE[:, 7:11],
+            "amax": SE[:, 11:15], "vmax": SE[:, 15:19],
+            "n_e": ne[E].astype(float), "spm_e": np.full(len(E), float(se))})
+    else:
+        p.brk = p.brk or bool(cs[-1] > 0)
+    last = r[-1]
+    p.pos = [float(last["x1"]), float(last["y1"]), float(last["z1"]), float(ea[-1])]
+    p.F = float(last["f"])
+    p.f = p.F / 60
+    for n, raw in p.g92_lines:                    # G92s after the last range: on the position now
+        p.line(n, raw)
+    p.g92_lines, p.g92_at = [], None
+
+
+def _state(p: _Parser) -> tuple:
+    return (p.fidx[p.feature], p.layer, p.pct, p.accel, p.travel_accel, p.retract_accel, p.jd,
+            None if p.jerk is None else tuple(p.jerk[a] for a in AXES),
+            tuple(p.max_accel[a] for a in AXES), tuple(p.max_fr[a] for a in AXES), p.brk)
+
+
+def block_times(res: Result) -> np.ndarray:
+    b = res.blocks
+    return b["t_accel"] + b["t_cruise"] + b["t_decel"]
+
+
+def extruding(res: Result) -> np.ndarray:
+    """Blocks that lay filament: X/Y/Z motion with dE > 0."""
+    b = res.blocks
+    return (b["de"] > 0) & ((b["dx"] != 0) | (b["dy"] != 0) | (b["dz"] != 0))
+
+
+def deposited_filament(res: Result, mask=None) -> float:
+    """Filament (mm) laid by extruding moves (retractions and their primes are not counted)."""
+    sel = extruding(res) if mask is None else (extruding(res) & mask)
+    return float(res.blocks["de"][sel].sum())
+
+
+def e_rate_share(res: Result, mask=None, ref: float | None = None, tol: float = 0.05,
+                 cruise_only: bool = False) -> float:
+    """Share of extruding time with the extruder rate (dE/L x head speed) within +-tol of `ref`
+    (mm/s of filament; None: the time-weighted median rate at cruise of the selected blocks).
+    Exact over the trapezoids: the speed is linear in time while accelerating or braking, so the
+    time spent in a speed band is that band's overlap with the ramp divided by the acceleration.
+    cruise_only: each block counted at its nominal speed for length / nominal speed seconds."""
+    b = res.blocks
+    sel = extruding(res) if mask is None else (extruding(res) & np.asarray(mask, bool))
+    if not sel.any():
+        return float("nan")
+    b = b[sel]
+    k = b["de"] / b["length"]                              # filament per mm of motion
+    if ref is None:
+        rate = k * b["nominal_speed"]
+        w = b["length"] / b["nominal_speed"]
+        o = np.argsort(rate)
+        cw = np.cumsum(w[o])
+        ref = float(rate[o][np.searchsorted(cw, cw[-1] / 2)])
+    lo, hi = ref * (1 - tol) / k, ref * (1 + tol) / k      # speed band per block
+    if cruise_only:
+        t = b["length"] / b["nominal_speed"]
+        inside = (b["nominal_speed"] >= lo) & (b["nominal_speed"] <= hi)
+        return float(t[inside].sum() / t.sum())
+
+    def ramp(va, vb, a):
+        top, bot = np.maximum(va, vb), np.minimum(va, vb)
+        return np.maximum(np.minimum(top, hi) - np.maximum(bot, lo), 0.0) / a
+
+    a = b["accel"]
+    t_in = ramp(b["entry_speed"], b["cruise_speed"], a) + ramp(b["cruise_speed"], b["exit_speed"], a)
+    vc = b["cruise_speed"]
+    t_in = t_in + np.where((vc >= lo) & (vc <= hi), b["t_cruise"], 0.0)
+    total = (b["t_accel"] + b["t_cruise"] + b["t_decel"]).sum()
+    return float(t_in.sum() / total)

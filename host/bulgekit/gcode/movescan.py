@@ -1,0 +1,359 @@
+"""The G-code reader: moves of a file as numpy record arrays (RECORD, the one definition of the
+move records every pass reads), chunk by chunk: the compiled scanner (_scan.c) when it is built and
+takes the file, gcode.parse_lines otherwise. Both give the same numbers (host/tests/gcode/test_movescan.py).
+Walls, statistics, the stock fallback, annotate's reach check and the studio read them here; the
+estimator reads the scanner's records in its events mode (estimate.estimate_file).
+
+    run(path, consume)      # consume(chunks) gets an iterator of RECORD arrays and the role names
+    with Scan(path).kept(): # build: the file checked and scanned once, every run() above replays it
+
+consume must start from nothing each time it is called: when the compiled scanner meets a line it
+leaves to the Python parser (a command with non-ASCII bytes, a value or arc gcode/__init__.py refuses),
+consume is called again with the Python parser's chunks, which give the moves or the error
+message naming the file and line.
+
+`bulgekit --version` says which scanner is in use.
+"""
+from __future__ import annotations
+
+import contextlib
+import io
+import os
+import tempfile
+from typing import Callable, Iterator, TypeVar
+
+import numpy as np
+
+from .. import gcode, progress
+
+try:
+    from . import _scan
+except ImportError:          # built without a C compiler: the Python parser does all the work
+    _scan = None
+
+RECORD = np.dtype([
+    ("x0", "<f8"), ("y0", "<f8"), ("z0", "<f8"), ("x1", "<f8"), ("y1", "<f8"), ("z1", "<f8"),
+    ("e", "<f8"), ("e_start", "<f8"), ("f", "<f8"),
+    ("offset", "<i8"),       # byte offset of the move's line in the file (-1 from the Python parser)
+    ("line_no", "<i4"), ("role", "<i2"), ("flags", "u1"), ("pad", "u1"),
+])
+OUTER = 1                    # flags: inside an outer-wall feature
+ARC = 2                      # flags: a chord of a linearised G2/G3
+ABS_XYZ = 4                  # flags: G90 in force (else G91)
+ABS_E = 8                    # flags: absolute E in force (M82/G90; else M83/G91)
+
+CHUNK_BYTES = 2 << 20        # 2 MB of G-code: about 7 MB of records at a time
+T = TypeVar("T")
+
+
+class Unsupported(Exception):
+    """The compiled scanner left the file to the Python parser, and the caller asked for the
+    compiled one only (it needs the byte offsets)."""
+
+
+class Chunks:
+    """What consume gets: iterate for RECORD arrays (moves in file order); `roles` names the
+    role indices seen so far (complete once iteration ends); `lines` counts the lines read."""
+
+    def __init__(self, it: Iterator[np.ndarray], roles: list[str], lines: Callable[[], int]):
+        self._it, self.roles, self._lines = it, roles, lines
+
+    def __iter__(self):
+        return self._it
+
+    @property
+    def lines(self) -> int:
+        return self._lines()
+
+
+def z_cmm(z: np.ndarray) -> np.ndarray:
+    """Move z (mm) as the firmware reads it: 0.01 mm, rounded in float32, half away from zero
+    (bulge_planner.cpp; fallback.RefPlanner._cmm and wall._z_cmm one at a time)."""
+    v = (np.asarray(z).astype(np.float32) * np.float32(100.0)).astype(np.float64)
+    return np.where(v >= 0, np.floor(v + 0.5), -np.floor(0.5 - v)).astype(np.int64)
+
+
+def available() -> bool:
+    return _scan is not None
+
+
+def _classify(text: str):
+    code, comment = gcode.split_code(text)
+    if code:
+        return True, None
+    return False, gcode.feature_of_comment(comment) if comment is not None else None
+
+
+def _fast(path) -> Chunks:
+    assert _scan is not None and _scan.RECORD_SIZE == RECORD.itemsize
+    sc = _scan.Scanner(sorted(gcode.OUTER_ROLES), sorted(gcode._S3D_ROLES), _classify,
+                       gcode.ARC_CHORD_MM)
+    roles: list[str] = sc.roles              # the scanner's own list, filled as it reads
+
+    def gen():
+        base = 0                              # file offset of buf[0]
+        buf = b""
+        with (io.BytesIO(path) if isinstance(path, (bytes, bytearray)) else open(path, "rb")) as f:
+            while True:
+                data = f.read(CHUNK_BYTES)
+                final = not data
+                buf = buf + data if buf else data
+                recs, used = sc.feed(buf, final, base)
+                if recs:
+                    yield np.frombuffer(recs, dtype=RECORD)         # read-only, not copied
+                progress.tick(sc.lines)
+                base += used
+                buf = buf[used:]
+                if final:
+                    return
+    return Chunks(gen(), roles, lambda: sc.lines)
+
+
+def from_moves(moves, roles: list[str] | None = None,
+               state: gcode.GcodeState | None = None) -> Iterator[np.ndarray]:
+    """gcode.Move objects as RECORD arrays (role indices into `roles`, which it fills; the
+    G90/M82 flags from `state`, the parser's state as each move is made, else absolute)."""
+    roles = [] if roles is None else roles
+    role_ix = {r: i for i, r in enumerate(roles)}
+    rows = []
+    for m in moves:
+        r = -1
+        if m.role is not None:
+            r = role_ix.get(m.role)
+            if r is None:
+                r = role_ix[m.role] = len(roles)
+                roles.append(m.role)
+        modes = ABS_XYZ | ABS_E if state is None else (
+            (ABS_XYZ if state.abs_xyz else 0) | (ABS_E if state.abs_e else 0))
+        rows.append((m.x0, m.y0, m.z0, m.x1, m.y1, m.z1, m.e, m.e_start, m.f, -1,
+                     m.line_no, r, (OUTER if m.outer else 0) | (ARC if m.arc else 0) | modes, 0))
+        if len(rows) >= 65536:
+            yield np.array(rows, dtype=RECORD)
+            rows = []
+    if rows:
+        yield np.array(rows, dtype=RECORD)
+
+
+def _slow(path, source: str) -> Chunks:
+    roles: list[str] = []
+    count = [0]
+    st = gcode.GcodeState()
+
+    def moves(f):
+        for ln in gcode.parse_lines(f, source, st):
+            count[0] = ln.line_no
+            yield from ln.moves
+
+    def gen():
+        if isinstance(path, (bytes, bytearray)):
+            f = io.StringIO(bytes(path).decode("utf-8", "replace"), newline="")
+        else:
+            f = open(path, "r", encoding="utf-8", errors="replace", newline="")
+        with f:
+            yield from from_moves(moves(f), roles, st)
+    return Chunks(gen(), roles, lambda: count[0])
+
+
+ENDS = 1 << 21                 # bytes of each end kept as text (gcode.open_checked's default)
+
+
+class Scan:
+    """One reading of a G-code file that every pass of `build` works from: the checks
+    (gcode.check_complete: text, not cut off; gcode.check_not_processed) and the move records,
+    made in one pass over the file, 2 MB at a time. The records go to an unnamed temporary file
+    chunk by chunk (88 bytes a move: 100 MB of G-code gives about 300 MB of them, kept out of
+    memory) and are read back, in the same chunks, by each run(). Also kept: the text of the
+    file's two ends (gcode.open_checked's), whether its lines suit fallback's byte path
+    (gcode._plain_lines) and its M92 E words (gcode.scan_m92).
+
+        with movescan.Scan(path).kept():      # movescan.run, gcode.open_checked and
+            ...                               # check_input_file on path use it
+    """
+
+    def __init__(self, path, source: str | None = None):
+        self.path = os.fspath(path)
+        self.source = source or self.path
+        self.fast = _scan is not None          # records from the compiled scanner (with offsets)
+        self.roles: list[str] = []
+        self.chunks: list[tuple[int, int]] = []     # (records, lines read so far) per chunk
+        self.m92: list[tuple[int, float]] = []
+        self.lines = 0
+        self._store = tempfile.TemporaryFile()
+        try:
+            self._read()
+        except BaseException:
+            self._store.close()
+            raise
+
+    def _read(self) -> None:
+        sc = None
+        if self.fast:
+            sc = _scan.Scanner(sorted(gcode.OUTER_ROLES), sorted(gcode._S3D_ROLES), _classify,
+                               gcode.ARC_CHORD_MM)
+            self.roles = sc.roles
+        n_cr = n_crlf = nl = 0
+        plain = True
+        last = b""
+        with open(self.path, "rb") as f:
+            size = os.fstat(f.fileno()).st_size
+            base, buf, first = 0, b"", True
+            while True:
+                data = f.read(CHUNK_BYTES)
+                final = not data
+                if first:
+                    gcode.check_text(data[:65537] if size > 65536 else data, self.source)
+                    head = b""
+                    whole = data if size <= len(data) else None
+                    first = False
+                if len(head) < ENDS:
+                    head += data[:ENDS - len(head)]
+                buf = buf + data if buf else data
+                used = len(buf)
+                look = True                            # whether the part may hold what the regexes find
+                if sc is not None:
+                    flagged = sc.flagged
+                    try:
+                        recs, used = sc.feed(buf, final, base)
+                        look = sc.flagged != flagged
+                    except _scan.ScanUnsupported:
+                        sc, self.fast = None, False        # the Python parser does it below
+                    else:
+                        if recs:
+                            self._store.write(recs)
+                        self.chunks.append((len(recs) // RECORD.itemsize, sc.lines))
+                        progress.tick(sc.lines)
+                if sc is None and not final:           # checks only: whole lines still
+                    used = buf.rfind(b"\n") + 1
+                part = buf[:used]
+                # the checks, on whole lines (a \r\n cut between two parts counted once)
+                # (a part after a lone \r does not start a line for the regexes' ^, as in one piece)
+                at = 0 if not last or last == b"\n" else 1
+                if look:
+                    gcode._refuse_processed(part, self.source, nl, at)
+                n_cr += part.count(b"\r")
+                n_crlf += part.count(b"\r\n") + (last[-1:] == b"\r" and part[:1] == b"\n")
+                if plain and not part.isascii():
+                    try:                               # parts end at line ends: no character cut
+                        part.decode("utf-8")
+                    except UnicodeDecodeError:
+                        plain = False
+                if look and gcode.might_hold(part, (b"M92", b"m92")):
+                    for mt in gcode._M92_RX.finditer(part, at):
+                        e = gcode._m92_e(mt.group(1))
+                        if e is not None:
+                            self.m92.append((nl + part.count(b"\n", 0, mt.start()) + 1, e))
+                nl += part.count(b"\n")
+                if part:
+                    last = part[-1:]
+                base += used
+                buf = buf[used:]
+                if final:
+                    break
+            tail = whole[-ENDS:] if whole is not None else b""
+            if whole is None:
+                f.seek(max(0, size - ENDS))
+                tail = f.read(ENDS)
+        self.plain_lines = plain and n_cr == n_crlf
+        self.nl = nl
+        self.ends = head.decode("utf-8", "replace") + "\n" + (tail.decode("utf-8", "replace") if size > ENDS else "")
+        self._complete(tail)
+        if sc is not None:
+            self.lines = sc.lines
+        else:                                  # the Python parser's records (no offsets)
+            self._store.seek(0)
+            self._store.truncate()
+            self.chunks = []
+            ch = _slow(self.path, self.source)
+            for a in ch:
+                self._store.write(a.tobytes())
+                self.chunks.append((len(a), ch.lines))
+            self.roles, self.lines = ch.roles, ch.lines
+
+    def _complete(self, tail: bytes) -> None:
+        """gcode.check_complete's line-end check, on the file's last bytes."""
+        if not tail or tail.endswith(b"\n"):
+            return
+        last = tail[tail.rfind(b"\n") + 1:].decode("utf-8", "replace")
+        gcode.refuse_cut_off(last, self.nl + 1, self.source)
+
+    def run(self, consume: Callable[[Chunks], T], fast: bool | None = None) -> T:
+        """As movescan.run on the file, from the kept records."""
+        if fast and not self.fast:
+            raise Unsupported("the compiled scanner left the file to the Python parser")
+        done = [0]
+
+        def gen():
+            self._store.seek(0)
+            for k, lines in self.chunks:
+                a = np.frombuffer(self._store.read(k * RECORD.itemsize), dtype=RECORD)
+                done[0] = lines
+                progress.tick(lines)
+                if k:
+                    yield a
+            done[0] = self.lines
+        return consume(Chunks(gen(), list(self.roles), lambda: done[0]))
+
+    def text_lines(self) -> Iterator[str]:
+        """The file's lines as text (what gcode.open_checked's iterator gives), opened lazily."""
+        with open(self.path, "r", encoding="utf-8", errors="replace", newline="") as f:
+            yield from f
+
+    def close(self) -> None:
+        self._store.close()
+
+    def kept(self):
+        """Context: while in it, passes over this file use this scan (see the class comment)."""
+
+        @contextlib.contextmanager
+        def ctx():
+            key = _key(self.path)
+            prev = _KEPT.get(key)
+            _KEPT[key] = self
+            try:
+                yield self
+            finally:
+                if prev is None:
+                    _KEPT.pop(key, None)
+                else:
+                    _KEPT[key] = prev
+                self.close()
+        return ctx()
+
+
+_KEPT: dict[str, Scan] = {}
+
+
+def _key(path) -> str:
+    return os.path.realpath(os.fspath(path))
+
+
+def kept(path) -> Scan | None:
+    """The Scan in force for the file at path, if any (bytes given in place of a path: None)."""
+    if not _KEPT or isinstance(path, (bytes, bytearray)):
+        return None
+    return _KEPT.get(_key(path))
+
+
+def run(path, consume: Callable[[Chunks], T], source: str | None = None,
+        fast: bool | None = None) -> T:
+    """consume(chunks) over the moves of the file at path (or of G-code bytes); see the module
+    comment. fast=False forces the Python parser (tests compare the two); fast=True the compiled
+    one only (Unsupported when it leaves the file to the Python parser). A file a Scan in force
+    has read is not read again (fast=False still reads it with the Python parser)."""
+    sc = kept(path)
+    if sc is not None and fast is not False:
+        return sc.run(consume, fast)
+    source = source or ("<gcode>" if isinstance(path, (bytes, bytearray)) else str(path))
+    if fast is None:
+        use = _scan is not None
+    else:
+        use = fast
+        if fast and _scan is None:
+            raise Unsupported("bulgekit.gcode._scan is not built")
+    if use:
+        try:
+            return consume(_fast(path))
+        except _scan.ScanUnsupported as e:
+            if fast:
+                raise Unsupported(f"line {e.args[0]}") from None
+    return consume(_slow(path, source))

@@ -1,0 +1,2 @@
+"""The printer link: sending G-code and maps over a serial port (sender).
+"""

@@ -1,0 +1,300 @@
+import base64
+import re
+import zlib
+
+import pytest
+
+from bulgekit.bulge import mapformat
+from bulgekit.bulge.annotate import AnnotateError, annotate_bytes
+from bulgekit.bulge.fallback import Settings
+from bulgekit.gcode import iter_moves
+from bulgekit.bulge.mapbuild import build
+from bulgekit.bulge.strokes import Stroke
+from bulgekit.bulge.wall import walls_from_gcode
+
+INSERTED = re.compile(r"^(M72[0-2]\b.*|; bulgekit.*)$")
+
+
+def strip_inserted(text):
+    return "".join(l for l in text.splitlines(keepends=True) if not INSERTED.match(l.rstrip("\r\n")))
+
+
+class FirmwareModel:
+    """What the firmware's map store and layer window do with an annotated file
+    (src/bulge_map.cpp, map_upload.cpp, bulge_planner.cpp), in a few lines."""
+
+    def __init__(self, full_map: bytes, arena=2048):
+        self.arena = arena
+        self.full = mapformat.decode_map(full_map)
+        self.records = []          # [(z, size)]
+        self.loaded = False
+        self.stage = None
+        self.layer_z = None
+        self.marker = False
+        self.mode = 0
+        self.errors = []
+        self.found = []
+
+    def used(self):
+        return sum(s for _, s in self.records)
+
+    def command(self, line):
+        w = line.split()
+        if w[0] == "M720":
+            self.mode = int(w[1][1:])
+        elif w[0] == "M722":
+            self.marker = w[1] == "S1"
+        elif w[0] == "M721":
+            args = {x[0]: x[1:] for x in w[1:]}
+            if "X" in args:
+                self.records, self.loaded, self.layer_z = [], False, None
+            elif "S" in args:
+                size = int(args["S"])
+                # a full map's 8-byte header is kept beside the arena
+                need = size if "A" in args else size - mapformat.HEADER_BYTES
+                if need > self.arena - self.used():
+                    self.errors.append(f"no room for {size} bytes at {self.used()} used")
+                self.stage = dict(size=size, crc=int(args["C"]), append="A" in args, data=bytearray())
+            elif "O" in args:
+                d = args["D"]
+                chunk = base64.b32decode(d + "=" * (-len(d) % 8))
+                assert int(args["O"]) == len(self.stage["data"])
+                self.stage["data"] += chunk
+            elif "E" in args:
+                st, self.stage = self.stage, None
+                data = bytes(st["data"])
+                assert len(data) == st["size"] and zlib.crc32(data) == st["crc"]
+                if st["append"]:
+                    recs = mapformat.decode_records(data, self.full.has_weights,
+                                                    self.records[-1][0] if self.records else -1)
+                    self.records += [(r.z_cmm, len(mapformat.encode_record(r, self.full.has_weights)))
+                                     for r in recs]
+                else:
+                    m = mapformat.decode_map(data)
+                    self.records = [(r.z_cmm, len(mapformat.encode_record(r, m.has_weights)))
+                                    for r in m.layers]
+                    self.loaded = True
+
+    def move(self, m):
+        if self.mode == 0 or (self.mode == 1 and not self.marker) or not m.extruding:
+            return
+        zc = round(m.z1 * 100)
+        h = self.full.layer_height_cmm
+        if self.layer_z is not None and 2 * abs(zc - self.layer_z) <= h:
+            return
+        want = [r.z_cmm for r in self.full.layers if 2 * abs(r.z_cmm - zc) <= h]
+        have = [z for z, _ in self.records if 2 * abs(z - zc) <= h]
+        if want and not have:
+            self.errors.append(f"record z {want[0]} not on the printer at z {zc}")
+            return
+        if have:
+            z = min(have, key=lambda z: (abs(z - zc), z))
+            if self.layer_z is None or z > self.layer_z:
+                self.records = [r for r in self.records if r[0] >= z]   # release_below
+            self.layer_z = z
+            self.found.append(z)
+
+    def run(self, text):
+        from bulgekit.gcode import parse_lines
+        for ln in parse_lines(text.splitlines(keepends=True), "annotated"):
+            if ln.cmd in ("M720", "M721", "M722"):
+                self.command(ln.raw.split(";")[0].strip())
+            for m in ln.moves:
+                self.move(m)
+
+
+@pytest.fixture(scope="module")
+def prusa(request):
+    from pathlib import Path
+    p = Path(__file__).parents[1] / "data" / "prusa_cyl_m83.gcode"
+    return p.read_bytes(), walls_from_gcode(p)
+
+
+def test_moves_are_untouched_and_markers_follow_the_feature_comments(prusa):
+    data, model = prusa
+    r = build([Stroke(((5.0, 1.0), (5.0, 8.0)))], model)
+    out = annotate_bytes(data, r.map_bytes, Settings()).decode()
+    assert strip_inserted(out) == data.decode()
+    lines = out.splitlines()
+    assert lines[1] == "M720 S1 P100 E0.100 T0.250"
+    assert out.count("M722 S1") == out.count(";TYPE:External perimeter") == 33
+    for i, l in enumerate(lines):
+        if l == "M722 S1":
+            assert lines[i - 1] == ";TYPE:External perimeter"
+        if l == "M722 S0":
+            assert lines[i - 1].startswith(";TYPE:") and lines[i - 1] != ";TYPE:External perimeter"
+    assert lines[-2:] == ["M720 S0", "M721 X"]
+
+
+def test_upload_carries_the_map_exactly(prusa):
+    data, model = prusa
+    r = build([Stroke(((5.0, 1.0), (25.0, 8.0)))], model)
+    out = annotate_bytes(data, r.map_bytes, Settings()).decode()
+    fw = FirmwareModel(r.map_bytes)
+    fw.run(out)
+    assert fw.errors == []
+    assert sorted(set(fw.found)) == [l.z_cmm for l in r.bulge_map.layers]
+
+
+def test_large_map_is_streamed_within_the_arena(prusa):
+    data, model = prusa
+    strokes = [Stroke(((u, 0.5), (u, 9.8))) for u in range(0, 120, 3)]
+    r = build(strokes, model)
+    assert len(r.map_bytes) > 2048
+    from bulgekit.bulge.annotate import AnnotateResult
+    res = AnnotateResult()
+    out = annotate_bytes(data, r.map_bytes, Settings(), arena=2048, result=res).decode()
+    assert res.appends and res.initial_records < len(r.bulge_map.layers)
+    fw = FirmwareModel(r.map_bytes)
+    fw.run(out)
+    assert fw.errors == []
+    assert sorted(set(fw.found)) == [l.z_cmm for l in r.bulge_map.layers]
+    # the default arena (1024, the firmware's AVR default) needs more appends and still works
+    res2 = AnnotateResult()
+    out2 = annotate_bytes(data, r.map_bytes, Settings(), result=res2).decode()
+    assert len(res2.appends) > len(res.appends)
+    fw = FirmwareModel(r.map_bytes, arena=1024)
+    fw.run(out2)
+    assert fw.errors == []
+
+
+def test_z_hops_do_not_trigger_appends_early(prusa):
+    data, model = prusa
+    assert b"G1 Z.7 F7800" in data  # this slice lifts 0.4 mm on travels
+    strokes = [Stroke(((u, 0.5), (u, 9.8))) for u in range(0, 120, 3)]
+    r = build(strokes, model)
+    out = annotate_bytes(data, r.map_bytes, Settings(), arena=700).decode().splitlines()
+    for i, l in enumerate(out):
+        if l.startswith("; bulgekit: layers"):
+            nxt = out[i + 1 + next(k for k, x in enumerate(out[i + 1:]) if not x.startswith("M721"))]
+            z = float(re.search(r"Z([0-9.]+)", nxt).group(1))
+            first = float(l.split()[3].split("..")[0])
+            assert abs(z - first) < 0.151, (nxt, l)
+
+
+def test_no_stream_refuses_a_map_larger_than_the_arena(prusa):
+    data, model = prusa
+    r = build([Stroke(((u, 0.5), (u, 9.8))) for u in range(0, 120, 3)], model)
+    with pytest.raises(AnnotateError, match=r"do not fit.*streaming"):
+        annotate_bytes(data, r.map_bytes, Settings(), stream=False)
+
+
+def test_no_feature_comments_suggests_geometric(data_dir):
+    data = (data_dir / "slic3r_cyl.gcode").read_bytes()
+    model = walls_from_gcode(data_dir / "slic3r_cyl.gcode", geometric=True)
+    r = build([Stroke(((5.0, 2.0),))], model)
+    with pytest.raises(AnnotateError, match=r"slic3r_cyl\.gcode: no slicer feature comments.*--geometric"):
+        annotate_bytes(data, r.map_bytes, Settings(), source=str(data_dir / "slic3r_cyl.gcode"))
+    out = annotate_bytes(data, r.map_bytes, Settings(mode=2)).decode()
+    assert "M720 S2" in out and "M722" not in out
+    fw = FirmwareModel(r.map_bytes)
+    fw.run(out)
+    assert fw.errors == [] and fw.found
+
+
+@pytest.mark.parametrize("tag_in,tag_out", [
+    (";TYPE:WALL-OUTER", ";TYPE:WALL-INNER"),               # Cura, ideaMaker
+    ("; FEATURE: Outer wall", "; FEATURE: Inner wall"),     # BambuStudio, OrcaSlicer
+    (";TYPE:Outer wall", ";TYPE:Sparse infill"),            # OrcaSlicer
+    ("; outer perimeter", "; infill"),                      # Simplify3D
+])
+def test_dialects(tag_in, tag_out):
+    g = ("G90\nM83\nG1 Z0.3\n" + tag_out + "\nG1 X1 Y1 E1\n" + tag_in + "\nG1 X10 Y0 E1\n"
+         + tag_out + "\nG1 X0 Y0 E1\n")
+    m = mapformat.encode_map([(0.3, [(5.0, 0.0)])])
+    out = annotate_bytes(g.encode(), m, Settings()).decode().splitlines()
+    i = out.index(tag_in)
+    assert out[i + 1] == "M722 S1"
+    assert out[out.index(tag_out, i) + 1] == "M722 S0"
+    assert out.count("M722 S1") == 1
+
+
+def test_comment_after_a_command_is_not_a_feature_tag():
+    g = "G90\nM83\nG1 Z0.3\n;TYPE:Perimeter\nG1 X10 Y0 E1 ;TYPE:External perimeter\n"
+    m = mapformat.encode_map([(0.3, [(5.0, 0.0)])])
+    with pytest.raises(AnnotateError, match="none marks the outer wall"):
+        annotate_bytes(g.encode(), m, Settings())
+
+
+def test_open_marker_is_closed_at_the_end_and_crlf_kept():
+    g = "G90\r\nM83\r\nG1 Z0.3\r\n;TYPE:External perimeter\r\nG1 X10 Y0 E1\r\n"
+    m = mapformat.encode_map([(0.3, [(5.0, 0.0)])])
+    out = annotate_bytes(g.encode(), m, Settings()).decode()
+    assert out.endswith("M722 S0\r\n; bulgekit: end\r\nM720 S0\r\nM721 X\r\n")
+    assert "\n" not in out.replace("\r\n", "")
+
+
+def test_map_for_another_print_is_refused():
+    g = "G90\nM83\nG1 Z0.3\n;TYPE:External perimeter\nG1 X10 Y0 E1\n"
+    layers = [(0.3 * k, [(5.0, 0.0)] * 1) for k in range(1, 400)]
+    m = mapformat.encode_map(layers)
+    with pytest.raises(AnnotateError, match="never reaches z"):
+        annotate_bytes(g.encode(), m, Settings())
+
+
+def test_points_on_arcs_are_refused_with_the_reason():
+    # The firmware does not split G2/G3 (Marlin cuts arcs past our hook): a
+    # point only an arc passes is never reached, and the message says why.
+    from bulgekit.bulge.annotate import check_reach
+    g = ("G90\nM83\nG1 Z0.3 F600\n;TYPE:External perimeter\nG1 X0 Y0 F1800\n"
+         "G2 X20 Y0 I10 J0 E2\nG1 X0 Y0 E1.5\n")
+    m = mapformat.encode_map([(0.3, [(10.0, 10.0), (5.0, 0.0)])])
+    msg = check_reach(g.encode(), m, Settings(), "t.gcode")
+    assert re.search(r"^t.gcode: 1 of 2 map points .*1 of them lie on G2/G3 arcs "
+                     r"\(the first on line 6\).*arc fitting", msg)
+    # the stock fallback linearises arcs, so it reaches both
+    from bulgekit.bulge.fallback import RewriteResult, rewrite
+    res = RewriteResult()
+    "".join(rewrite(g.splitlines(keepends=True), mapformat.decode_map(m), Settings(), "t.gcode", res))
+    assert res.stats.points_fired == 2
+
+
+def test_arc_after_a_wall_edge_leaves_a_deferred_point_to_a_later_move():
+    # (10.2, 0) lies beyond the first edge's end: deferred. The arc moves the
+    # head away (the firmware's core never sees it), so it does not stop at
+    # (10, 0) later; a move that passes the point takes it.
+    from bulgekit.bulge.annotate import check_reach
+    from bulgekit.bulge.fallback import RefPlanner
+    from bulgekit.gcode import parse_lines
+    g = ("G90\nM83\nG1 Z0.3 F600\n;TYPE:External perimeter\nG1 X0 Y0 F1800\n"
+         "G1 X10 Y0 E1\nG2 X30 Y0 I10 J0 E2\nG1 X10.2 Y-5\nG1 X10.2 Y5 E1\n")
+    m = mapformat.encode_map([(0.3, [(10.2, 0.0)])])
+    assert check_reach(g.encode(), m, Settings(), "t.gcode") is None
+    ref = RefPlanner(mapformat.decode_map(m), Settings())
+    for ln in parse_lines(g.splitlines(keepends=True), "t.gcode"):
+        for mv in ln.moves:
+            ref.bypass(mv) if mv.arc else ref.plan(mv)
+    assert [(s.line_no, round(s.x, 4), round(s.y, 4)) for s in ref.stops] == [(9, 10.2, 0.0)]
+
+
+@pytest.mark.parametrize("name", ["prusa_cyl.gcode", "prusa_cyl_m83.gcode", "cura_cyl.gcode",
+                                  "prusa_vase.gcode", "slic3r_cyl.gcode"])
+def test_fast_reach_check_says_what_the_reference_planner_says(name):
+    """annotate's reach check reads only the outer-wall sections near map
+    layers (vectorised); it must name the same missed points as running the
+    reference planner over the whole file, for a right and a wrong map."""
+    from pathlib import Path
+    from bulgekit.bulge import api, mapformat
+    from bulgekit.bulge.annotate import check_reach
+    from bulgekit.bulge.fallback import RefPlanner, unreached_message
+    from bulgekit.gcode import parse_lines
+    from bulgekit.bulge.strokes import text_strokes
+    g = Path(__file__).parents[1] / "data" / name
+    data = g.read_bytes()
+    geometric = name.startswith("slic3r")
+    settings = Settings(2 if geometric else 1)
+    good = api.build_map(api.walls(g, geometric=geometric), text_strokes("BULGE", 4.0, u0=4.0, v0=3.0)).map_bytes
+    bm = mapformat.decode_map(good)
+    q = bm.quantum_um / 1000
+    layers = [(l.z_cmm / 100, [(x * q + (5.0 if i % 3 == 0 else 0.0), y * q) for x, y in l.points])
+              for i, l in enumerate(bm.layers)]
+    layers.append((layers[-1][0] + 30.0, [(1.0, 1.0)]))
+    wrong = mapformat.encode_map(layers, quantum_um=bm.quantum_um, layer_height_mm=bm.layer_height_cmm / 100)
+    for m in (good, wrong):
+        ref = RefPlanner(mapformat.decode_map(m), settings)
+        for ln in parse_lines(data.decode().splitlines(keepends=True), str(g)):
+            for mv in ln.moves:
+                ref.bypass(mv) if mv.arc else ref.plan(mv)
+        assert check_reach(data, m, settings, str(g)) == unreached_message(ref, str(g))
+    assert check_reach(data, good, settings, str(g)) is None
+    assert check_reach(data, wrong, settings, str(g)) is not None

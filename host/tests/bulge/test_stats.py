@@ -1,0 +1,67 @@
+import pytest
+
+from bulgekit.bulge import mapformat
+from bulgekit.bulge.fallback import Settings
+from bulgekit.bulge.mapbuild import build
+from bulgekit.bulge.stats import map_stats, print_stats, slicer_time
+from bulgekit.bulge.strokes import Stroke
+from bulgekit.bulge.wall import walls_from_gcode
+
+
+def test_map_stats_counts_and_weighted_dwell():
+    m = mapformat.encode_map([(0.3, [(1.0, 0.0), (2.0, 0.0)]), (0.6, [(3.0, 0.0)])],
+                             weights=[[255, 51], [255]])
+    st = map_stats(m, Settings(dwell_ms=200, extra_e=0.05))
+    assert [(l.z, l.points) for l in st.layers] == [(0.3, 2), (0.6, 1)]
+    assert st.points == 3
+    assert st.dwell_s == pytest.approx((200 + 40 + 200) / 1000)
+    assert st.extra_e_mm == pytest.approx(0.15)
+    assert st.fits_arena
+    text = st.text()
+    assert "2 layers, 3 points" in text and "0.30:2" in text
+
+
+def test_print_stats_counts_real_stops_and_names_missed_points(data_dir):
+    g = data_dir / "prusa_cyl.gcode"
+    r = build([Stroke(((5.0, 2.0), (5.0, 4.0)))], walls_from_gcode(g))
+    bm = r.bulge_map
+    # add a point far from any wall at the first layer's z
+    layers = [(l.z_cmm / 100, bm.points_mm(l)) for l in bm.layers]
+    layers[0] = (layers[0][0], layers[0][1] + [(100.0, 100.0)])
+    data = mapformat.encode_map(layers)
+    st = print_stats(g, data, Settings())
+    assert st.stops == len(r.points)
+    assert st.missed == [(layers[0][0], 100.0, 100.0)]
+    assert st.dwell_s == pytest.approx(0.1 * len(r.points))
+    assert st.decel_s > 0
+    assert st.slicer_time_s == pytest.approx(15 * 60 + 8)
+    assert "WARNING: 1 points are not within 0.25 mm" in st.text()
+
+
+def test_slicer_time_dialects():
+    assert slicer_time("; estimated printing time (normal mode) = 1h 2m 3s\n") == 3723
+    assert slicer_time(";TIME:6666\n") == 6666
+    assert slicer_time(";   Build time: 2 hours 5 minutes\n") == 7500
+    assert slicer_time("G1 X1\n") is None
+
+
+def test_build_stats_give_the_stock_files_stops_as_printed(data_dir, tmp_path):
+    from bulgekit.bulge import api
+    from bulgekit.bulge.fallback import StockStops, still_s
+    g = data_dir / "prusa_cyl.gcode"
+    strokes = [Stroke(((5.0, 2.0), (5.0, 4.0)))]
+    plain = api.build(g, strokes, tmp_path / "a")
+    assert "stock file" not in plain.stats_path.read_text()          # no stock file, no stock line
+    out = api.build(g, strokes, tmp_path / "b", write_fallback=True, settings=Settings(dwell_ms=130))
+    st = out.stats
+    n = st.stops
+    # 130 ms: 6 steps at r = 5 / (0.13 - 2/120) = 44.1 steps/s, 44 the nearest whole rate
+    held = n * still_s(6, 44)
+    assert st.stock.moves == n and st.stock.still_s == pytest.approx(held)
+    text = out.stats_path.read_text()
+    assert f"stock file: stops as E-only moves: {n} ({held:.1f} s head still" in text
+    run = held - n / 120                  # each block: the stillness less the braking's last step
+    assert st.stock.run_s == pytest.approx(run)
+    assert f"stock file's added time: {run:.1f} s in the stops + {st.decel_s:.1f} s stopping/starting" in text
+    g4 = api.build(g, strokes, tmp_path / "c", write_fallback=True, stops=StockStops("g4"))
+    assert f"and the planner's drain and refill at each of its {n} G4" in g4.stats_path.read_text()

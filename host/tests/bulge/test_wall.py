@@ -1,0 +1,91 @@
+import math
+
+import numpy as np
+import pytest
+
+from bulgekit.gcode import iter_moves
+from bulgekit.bulge.wall import WallError, extract_walls, walls_from_gcode
+
+R_OUTER = 20 - 0.45 / 2  # outer-wall centreline of the 40 mm cylinder
+
+
+@pytest.mark.parametrize("name", ["prusa_cyl.gcode", "prusa_cyl_m83.gcode", "cura_cyl.gcode"])
+def test_cylinder_walls(data_dir, name):
+    m = walls_from_gcode(data_dir / name)
+    assert len(m.walls) == 33
+    assert m.layer_height == pytest.approx(0.3)
+    assert [w.z for w in m.walls] == pytest.approx([0.3 * (i + 1) for i in range(33)])
+    assert m.v_range == pytest.approx((0.0, 9.9))
+    for w in m.walls[1:]:
+        assert w.length == pytest.approx(2 * math.pi * R_OUTER, rel=0.01)
+        assert w.ccw
+        # u = 0 faces the front (-Y) of the part centred at (100, 100)
+        x, y = w.xy_of_u(0.0)[0]
+        assert x == pytest.approx(100, abs=0.05) and y < 100 - 19
+        # a quarter turn counter-clockwise is the +X side (right, seen from the front)
+        x, y = w.xy_of_u(w.length / 4)[0]
+        assert x > 100 + 19 and y == pytest.approx(100, abs=0.3)
+
+
+def test_same_u_lands_on_the_same_spot_every_layer(data_dir):
+    m = walls_from_gcode(data_dir / "prusa_cyl.gcode")
+    pts = np.array([w.xy_of_u(17.0)[0] for w in m.walls[1:]])
+    assert np.ptp(pts[:, 0]) < 0.1 and np.ptp(pts[:, 1]) < 0.1
+
+
+def test_vase_mode_windows(data_dir):
+    m = walls_from_gcode(data_dir / "prusa_vase.gcode")
+    zs = [w.z for w in m.walls]
+    assert zs == pytest.approx([0.3 * (i + 1) for i in range(33)])
+    # spiral windows are whole turns, except the half turn at the top
+    for w in m.walls[3:-1]:
+        assert w.length == pytest.approx(2 * math.pi * R_OUTER, rel=0.02)
+    assert m.walls[-1].length < 0.6 * m.walls[-2].length
+    assert any("9.90" in n for n in m.notes)
+
+
+def test_no_outer_wall_comments_suggests_geometric(data_dir):
+    with pytest.raises(WallError, match=r"slic3r_cyl\.gcode: no outer-wall feature comments.*--geometric"):
+        walls_from_gcode(data_dir / "slic3r_cyl.gcode")
+
+
+def test_geometric_mode_skips_the_skirt(data_dir):
+    m = walls_from_gcode(data_dir / "slic3r_cyl.gcode", geometric=True)
+    assert len(m.walls) == 33
+    # first layer: the skirt is the largest loop, but the wall is the one under layer 2
+    assert m.walls[0].length == pytest.approx(2 * math.pi * 19.78, rel=0.01)
+    tagged = walls_from_gcode(data_dir / "prusa_cyl.gcode", geometric=True)
+    assert tagged.walls[0].length == pytest.approx(m.walls[0].length, rel=0.01)
+
+
+def _square(ccw=True, z=0.2, layers=3):
+    out = ["G90", "M83"]
+    for k in range(layers):
+        zz = z + 0.2 * k
+        pts = [(0, 0), (10, 0), (10, 10), (0, 10), (0, 0)]
+        if not ccw:
+            pts = pts[::-1]
+        out += [f"G1 Z{zz:.2f}", f"G1 X{pts[0][0]} Y{pts[0][1]}", ";TYPE:External perimeter"]
+        out += [f"G1 X{x} Y{y} E0.5" for x, y in pts[1:]]
+        out += [";TYPE:Solid infill", "G1 X5 Y5 E0.2"]
+    return "\n".join(out) + "\n"
+
+
+@pytest.mark.parametrize("ccw", [True, False])
+def test_u_runs_counter_clockwise_whatever_the_print_direction(ccw):
+    m = extract_walls(iter_moves(_square(ccw).splitlines()), layer_height=0.2)
+    w = m.walls[0]
+    assert w.ccw is ccw
+    assert w.length == pytest.approx(40)
+    # front middle of the square is u = 0, then right along the front edge
+    assert w.xy_of_u(0)[0] == pytest.approx([5, 0])
+    assert w.xy_of_u(2)[0] == pytest.approx([7, 0])
+    assert w.xy_of_u(10)[0] == pytest.approx([10, 5])
+    # and back: s <-> u round trip
+    s = w.s_of_u(np.array([0.0, 3.0, 39.0]))
+    assert w.u_of_s(s) == pytest.approx([0, 3, 39])
+
+
+def test_layer_of_v_uses_the_bead_each_layer_covers():
+    m = extract_walls(iter_moves(_square().splitlines()), layer_height=0.2)
+    assert list(m.layer_of_v([0.0, 0.1, 0.2, 0.21, 0.4, 0.59, 0.6, 0.61])) == [0, 0, 0, 1, 1, 2, 2, -1]

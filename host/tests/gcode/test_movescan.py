@@ -1,0 +1,165 @@
+"""The compiled move scanner (bulgekit/gcode/_scan.c) and the planner's skipping of moves that cannot
+matter (fallback.Skipper) give exactly what the Python parser and a planner run over every move
+give: same numbers to the bit, same stops, same files."""
+from __future__ import annotations
+
+import random
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from bulgekit.bulge import mapformat
+from bulgekit.gcode import movescan
+from bulgekit.bulge.fallback import (RefPlanner, RewriteResult, Settings, StockStops, plan_records, rewrite,
+                               rewrite_file)
+from bulgekit.gcode import GcodeError, parse_lines
+
+DATA = Path(__file__).parents[1] / "data"
+FILES = sorted(DATA.glob("*.gcode"))
+
+TRICKY = (b"; generated\r\n;TYPE:External perimeter\r\nG1 X10 Y10 E1 F1200\rG01 x20 y10 e2\n"
+          b"N12 G1 X30 Y5 E3*45\n  g1  X31 Y6 E3.5 ; hi\n; \xc3\xa9t\xc3\xa9 comment\n"
+          b";FEATURE: Outer wall\nG2 X40 Y5 I5 J0 E4\nG3 X30 Y5 R5 E5\nG91\nG1 X1 Y1 E0.1\nG90\nM83\n"
+          b"G1 X5 Y5 E.2 Z.3\nG92 E0 X1\nG1 X2 Y2 E1\n; outer perimeter\nG1 X3 Y3 E1e5\n"
+          b"G1X5 Y5\nG1.5 X1\nG1 X-.5 Y+.5 E+1. ,Z3\n;TYPE:Outer wall \xe2\x80\x94 x\nG1 X9 Y9 E1\n"
+          b"; TYPE:Perimeter\n\xc2\xa0;TYPE:WALL-OUTER\nG1 X8 Y8 E1\r\rG1 X7 Y7 E1\n\nG0 X1 Y1")
+
+
+def _all(chunks):
+    parts = list(chunks)
+    a = np.concatenate(parts) if parts else np.empty(0, movescan.RECORD)
+    return a, [chunks.roles[i] if i >= 0 else None for i in a["role"]], chunks.lines
+
+
+def _same(p, q):
+    (a, ra, la), (b, rb, lb) = p, q
+    assert (len(a), la, ra) == (len(b), lb, rb)
+    for k in ("x0", "y0", "z0", "x1", "y1", "z1", "e", "e_start", "f"):
+        assert np.array_equal(a[k].view(np.uint64), b[k].view(np.uint64)), k   # to the bit
+    for k in ("line_no", "flags"):
+        assert np.array_equal(a[k], b[k]), k
+
+
+def test_the_compiled_scanner_is_built():
+    # make deps builds it (host/setup.py); without it every pass reads G-code in Python
+    assert movescan.available(), "bulgekit.gcode._scan is not built: pip install -e host with a C compiler"
+    from click.testing import CliRunner
+    from bulgekit.cli import main
+    assert "(G-code scanner: compiled)" in CliRunner().invoke(main, ["--version"]).output
+
+
+@pytest.mark.parametrize("path", FILES, ids=lambda p: p.name)
+def test_scanner_gives_the_python_parsers_moves(path):
+    _same(movescan.run(path, _all, fast=True), movescan.run(path, _all, fast=False))
+
+
+@pytest.mark.parametrize("chunk", [1, 2, 3, 7, 64, 1 << 20])
+def test_scanner_on_odd_lines_and_every_chunk_boundary(tmp_path, monkeypatch, chunk):
+    # CR, CRLF and lone CR line ends (a CR at a chunk's end), line numbers and checksums, arcs,
+    # G91/M83, words split by letters ("1e5"), a command without a blank ("G1X5" is none),
+    # roles from FEATURE:, Simplify3D and non-ASCII comments (one behind a no-break space)
+    g = tmp_path / "t.gcode"
+    g.write_bytes(TRICKY)
+    monkeypatch.setattr(movescan, "CHUNK_BYTES", chunk)
+    fast = movescan.run(g, _all, fast=True)
+    _same(fast, movescan.run(g, _all, fast=False))
+    a, roles, lines = fast
+    assert lines == 31 and len(a) > 40
+    assert roles[0] == "external perimeter" and "wall-outer" in roles and "outer wall — x" in roles
+    assert a["offset"][0] == TRICKY.index(b"G1 X10")
+
+
+def test_lines_the_scanner_refuses_go_to_the_python_parser(tmp_path):
+    bad = tmp_path / "bad.gcode"
+    bad.write_bytes(b"G1 X1 Y1\nG1 X1O Y2\n")
+    with pytest.raises(movescan.Unsupported):
+        movescan.run(bad, _all, fast=True)
+    with pytest.raises(GcodeError, match=r"bad.gcode:2: unparsable value 'X1O'"):
+        movescan.run(bad, _all)
+    odd = tmp_path / "odd.gcode"              # a no-break space inside a command line
+    odd.write_bytes("G1 X1 Y1\nG1 X2\u00a0Y3 E1\n".encode())
+    a, _, _ = movescan.run(odd, _all)
+    assert a["y1"][-1] == 3.0
+
+
+def _random_map(path: Path, rng: random.Random, geometric: bool):
+    """Points on, near and just beyond the ends of outer-wall moves (deferred points), some
+    merged, some on layers the print never reaches, and weights."""
+    moves = [m for ln in parse_lines(path.read_text().splitlines(keepends=True))
+             for m in ln.moves if m.e > 0 and (m.outer or geometric) and not m.arc]
+    by_z: dict[float, list] = {}
+    for m in rng.sample(moves, min(400, len(moves))):
+        t = rng.choice([0.0, 1.0, 1.002, rng.random(), rng.random()])
+        x, y = m.x0 + t * (m.x1 - m.x0), m.y0 + t * (m.y1 - m.y0)
+        x += rng.uniform(-0.12, 0.12)
+        y += rng.uniform(-0.12, 0.12)
+        by_z.setdefault(round(m.z1, 2), []).append((x, y))
+        if rng.random() < 0.1:
+            by_z[round(m.z1, 2)].append((x + 0.02, y))       # merged with the one before
+    by_z[round(max(by_z) + 5.0, 2)] = [(10.0, 10.0)]
+    layers = sorted(by_z.items())
+    weights = [[rng.randint(1, 255) for _ in pts] for _, pts in layers]
+    return mapformat.decode_map(mapformat.encode_map(layers, weights=weights))
+
+
+def _full(path, bm, settings, arcs_bypass):
+    ref = RefPlanner(bm, settings)
+    for ln in parse_lines(path.read_text().splitlines(keepends=True), str(path)):
+        for m in ln.moves:
+            ref.bypass(m) if (arcs_bypass and m.arc) else ref.plan(m)
+    return ref
+
+
+@pytest.mark.parametrize("path", FILES, ids=lambda p: p.name)
+def test_skipping_moves_changes_nothing_the_planner_does(path):
+    rng = random.Random(path.name)
+    for trial in range(4):
+        geometric = trial % 2 == 1 or path.name.startswith("slic3r")
+        settings = Settings(mode=2 if geometric else 1, dwell_ms=rng.choice([0, 100, 700]),
+                            extra_e=rng.choice([0.0, 0.1, 0.9]),
+                            tolerance=rng.choice([0.05, 0.15, 0.6]))
+        bm = _random_map(path, rng, geometric)
+        for bypass in (False, True):
+            ref = _full(path, bm, settings, bypass)
+            fast = RefPlanner(bm, settings)
+            movescan.run(path, lambda ch: plan_records(fast, ch, arcs_bypass=bypass))
+            assert ref.stops, "the map must make stops for this test to mean something"
+            assert fast.stops == ref.stops
+            assert fast.stats == ref.stats and fast.top_z == ref.top_z
+            assert fast.arcs == ref.arcs
+
+
+@pytest.mark.parametrize("stops", [StockStops(), StockStops("g4"), StockStops(e_steps=415, stop_e_steps=9)],
+                         ids=["move", "g4", "move415"])
+@pytest.mark.parametrize("path", FILES, ids=lambda p: p.name)
+def test_fallback_file_is_the_same_by_either_path(path, tmp_path, stops):
+    rng = random.Random("fallback" + path.name)
+    geometric = path.name.startswith("slic3r")
+    settings = Settings(mode=2 if geometric else 1, extra_e=0.3)
+    bm = _random_map(path, rng, geometric)
+    out = tmp_path / "out.gcode"
+    res = rewrite_file(path, out, bm, settings, allow_unreached=True, stops=stops)    # bytes copied
+    text_res = RewriteResult()
+    text = "".join(rewrite(path.read_text().splitlines(keepends=True), bm, settings, str(path),
+                           text_res, stops))
+    assert res.moves_split > 10
+    assert out.read_text() == text
+    assert (res.lines_in, res.moves_split, res.stops, res.stats, res.unreached) == \
+        (text_res.lines_in, text_res.moves_split, text_res.stops, text_res.stats, text_res.unreached)
+    assert res.stock.summary() == text_res.stock.summary()
+    assert vars(res.stock) == vars(text_res.stock)
+
+
+def test_scanner_numbers_are_floats_bit_for_bit():
+    """The scanner's short-number path (digits over a power of ten) and its strtod path give
+    float()'s double, sign of zero included, for values of 1 to 20 digits."""
+    rnd = random.Random(7)
+    vals = ["-0", "0", "+5", ".5", "-.25", "5.", "123456789012345", "1234567890.12345",
+            "1234567890123456", "0.30000000000000004", "9007199254740993"]
+    for _ in range(20000):
+        a, b = str(rnd.randint(0, 10 ** rnd.randint(0, 10))), str(rnd.randint(0, 10 ** rnd.randint(0, 9)))
+        vals.append(rnd.choice(["", "-"]) + a + rnd.choice(["", "." + b[:rnd.randint(0, 9)]]))
+    text = "".join(f"G1 X{v} Y1\n" for v in vals).encode()
+    got = movescan.run(text, lambda ch: np.concatenate(list(ch)), fast=True)["x1"]
+    assert np.array_equal(got.view(np.uint64), np.array([float(v) for v in vals]).view(np.uint64))

@@ -1,0 +1,121 @@
+"""The package's layout (issue 26): imports flow one way, cli/studio -> jobs (bulge, litho,
+printer) -> gcode -> base (errors, progress); no flat module comes back beside the base; the
+public API (`import bulgekit as bk`) keeps its names.  Where things live: docs/host.md."""
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import bulgekit as bk
+
+PKG = Path(__file__).resolve().parents[1] / "bulgekit"
+
+# floor of each part: an import goes to a lower floor, or stays inside its own package
+FLOORS = {"errors": 0, "progress": 0, "gcode": 1, "bulge": 2, "litho": 2, "printer": 2, "studio": 3, "cli": 3}
+# imports between two packages on the same floor, each with its reason
+SIDEWAYS = {
+    ("litho", "bulge"): "the calibration plate's labels are drawn with the stroke fonts "
+                        "(bulge.strokes.text_strokes)",
+    ("cli", "studio"): "`bulgekit studio` starts the studio's server",
+    ("studio", "cli"): "printing from the studio checks the printer's arena as `bulgekit send` does "
+                       "(cli.io.annotated_arena, check_printer_arena)",
+}
+# the facade (bulgekit/__init__.py, __main__.py) sits above everything; of it, the package
+# imports only the version string
+FROM_FACADE = {"__version__"}
+PUBLIC = ["BuildOutput", "BulgekitError", "InputError", "MODE_GEOMETRIC", "MODE_MARKED", "MODE_OFF",
+          "Settings", "StockStops", "Stroke", "__version__", "annotate_gcode", "build", "build_map",
+          "bulge_stats", "fallback_gcode", "load_strokes", "text_strokes", "walls"]
+
+
+def modules():
+    for p in sorted(PKG.rglob("*.py")):
+        rel = p.relative_to(PKG.parent).with_suffix("")
+        parts = list(rel.parts)
+        is_init = parts[-1] == "__init__"
+        if is_init:
+            parts = parts[:-1]
+        yield p, ".".join(parts), is_init
+
+
+def part(mod):
+    """The layout part a dotted module belongs to: a FLOORS key, or "facade"."""
+    parts = mod.split(".")
+    if len(parts) == 1 or parts[1] == "__main__":
+        return "facade"
+    return parts[1] if parts[1] in FLOORS else "?" + parts[1]
+
+
+def imports(path, mod, is_init):
+    """(line, imported module or name's module, name) for every bulgekit import, lazy ones too."""
+    known = {m for _, m, _ in modules()} | {"bulgekit._scan", "bulgekit.gcode._scan"}
+    pkg = mod if is_init else mod.rsplit(".", 1)[0]
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = pkg.split(".")[:len(pkg.split(".")) - node.level + 1]
+                full = ".".join(base + ([node.module] if node.module else []))
+            else:
+                full = node.module or ""
+            if full.split(".")[0] != "bulgekit":
+                continue
+            for a in node.names:
+                sub = f"{full}.{a.name}"
+                yield node.lineno, (sub if sub in known else full), a.name
+        elif isinstance(node, ast.Import):
+            for a in node.names:
+                if a.name.split(".")[0] == "bulgekit":
+                    yield node.lineno, a.name, None
+
+
+def test_imports_flow_one_way():
+    bad = []
+    for path, mod, is_init in modules():
+        me = part(mod)
+        if me == "facade":
+            continue
+        for line, target, name in imports(path, mod, is_init):
+            there = part(target)
+            where = f"{path.relative_to(PKG.parent)}:{line}: {me} imports {target}"
+            if there == "facade":
+                if name not in FROM_FACADE:
+                    bad.append(where + f" ({name}): the facade is above every part")
+            elif there.startswith("?") or me.startswith("?"):
+                bad.append(where + ": a part with no floor (add it to FLOORS)")
+            elif there == me:
+                continue
+            elif FLOORS[there] > FLOORS[me]:
+                bad.append(where + ": upward")
+            elif FLOORS[there] == FLOORS[me] and (me, there) not in SIDEWAYS:
+                bad.append(where + ": sideways, not in SIDEWAYS")
+    assert not bad, "\n".join(bad)
+
+
+def test_the_floor_table_knows_every_subpackage():
+    subs = {p.name for p in PKG.iterdir() if p.is_dir() and (p / "__init__.py").is_file()}
+    assert subs == {k for k in FLOORS if (PKG / k).is_dir()}, "a subpackage with no floor in FLOORS"
+    # a folder of .py files without __init__.py would be left out of the wheel (packages.find)
+    loose = [str(p.relative_to(PKG)) for p in PKG.rglob("*.py")
+             if not (p.parent / "__init__.py").is_file()]
+    assert not loose, loose
+
+
+def test_only_the_base_lies_flat():
+    extra = {p.stem for p in PKG.glob("*.py")} - {"__init__", "__main__", "errors", "progress"}
+    assert not extra, f"modules beside the base: {sorted(extra)}: put each in its job's subpackage"
+
+
+def test_tests_are_laid_out_by_part():
+    here = Path(__file__).resolve().parent
+    flat = sorted(p.name for p in here.glob("test_*.py") if p.name != "test_layout.py")
+    assert not flat, f"tests beside conftest.py: {flat}: put each in its part's folder"
+
+
+def test_public_api_keeps_its_names():
+    assert sorted(bk.__all__) == PUBLIC
+    for name in PUBLIC:
+        assert getattr(bk, name) is not None
+    assert issubclass(bk.InputError, bk.BulgekitError)
+    from bulgekit import errors
+    from bulgekit.bulge import strokes
+    assert bk.InputError is errors.InputError is strokes.InputError
