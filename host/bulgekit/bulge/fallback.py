@@ -971,9 +971,19 @@ def _unchanged(m: Move, actions: list[Action]) -> bool:
             and abs(actions[0].e - m.e) < 1e-12)
 
 
-def _lead_steps(m: Move) -> float:
-    """Steps per mm of path of a move's leading X/Y axis: the head goes on along the move it
-    stopped on (a stop at a move's end is followed by the wall's next move, nearly as straight)."""
+def _lead_steps(m: Move, at: tuple, nxt: Action | None, spm: float, stop_n: int) -> float:
+    """Steps per mm of path of the leading axis of the piece the head goes on with (still_s's k):
+    X/Y at XY_STEPS, or E where that piece carries the rest of the extra in more steps than X/Y
+    make (at 415 E steps/mm, 37-49 steps over 0.1-0.6 mm: Marlin then starts it at its entry
+    speed times E's steps per mm, and the head moves on sooner; stock-verify, issue 25). Without
+    a piece after the stop on this move (a stop at its end), the move's own direction, X/Y only.
+    `at`: where the head stands (x, y)."""
+    if nxt is not None and nxt.kind == "line":
+        dx, dy = nxt.x - at[0], nxt.y - at[1]
+        length = math.hypot(dx, dy)
+        if length > 1e-9:
+            e_steps = max(0.0, nxt.e * spm - stop_n)     # the stop's steps come out of its extra
+            return max(XY_STEPS * max(abs(dx), abs(dy)), e_steps) / length
     dx, dy = abs(m.x1 - m.x0), abs(m.y1 - m.y0)
     length = math.hypot(dx, dy)
     return XY_STEPS * max(dx, dy) / length if length > 1e-9 else XY_STEPS
@@ -998,18 +1008,24 @@ def _emit(ln: Line, per_move, st: GcodeState, sw: StopWriter) -> Iterator[str]:
     for m, acts in per_move:
         e_host = m.e_start
         acc = 0.0                  # filament written for this move so far
-        for a in acts:
+        for i, a in enumerate(acts):
             if a.dropped:
                 sw.drop()
             if a.kind == "dwell":
-                stop = sw.plan(a, ln.line_no, _lead_steps(m))
+                spm = sw.spm_at(ln.line_no)
+                nxt = acts[i + 1] if i + 1 < len(acts) else None
+                prev = acts[i - 1] if i and acts[i - 1].kind == "line" else None
+                at = (prev.x, prev.y) if prev else (m.x0, m.y0)    # a dwell carries no position
+                guess = sw.cfg.stop_e_steps or MIN_STEPS_PER_SEGMENT
+                stop = sw.plan(a, ln.line_no, _lead_steps(m, at, nxt, spm, guess))
+                if stop.kind == STOP_MOVE and stop.n != guess:   # k with the steps it lays
+                    stop = sw.plan(a, ln.line_no, _lead_steps(m, at, nxt, spm, stop.n))
                 if stop.kind == "none":
                     continue
                 if stop.kind == STOP_G4:
                     sw.count(stop)
                     yield f"G4 P{a.ms}\n"
                     continue
-                spm = sw.spm_at(ln.line_no)
                 before, word, laid = stop_e_lines(e_host + acc + added, stop.n, spm, abs_e)
                 sw.count(stop, laid)
                 acc += laid

@@ -568,3 +568,23 @@ def test_layer_search_by_bisection_finds_what_a_walk_finds():
         z = r.randint(-50, 3100)
         assert RefPlanner._find(p, z) == find_walk(p, z)
         assert RefPlanner._neighbors(p, z) == neighbors_walk(p, z)
+
+
+def test_an_e_led_piece_after_the_stop_times_it():
+    """At 415 E steps/mm the piece after a stop can carry the rest of the extra in more E steps
+    than X makes (Marlin then starts it at entry speed x E steps per mm of path: the head goes on
+    sooner, stock-verify in docs/marlin-integration.md): k is E's, so the E move runs slower."""
+    from bulgekit.bulge.fallback import XY_STEPS, plan_stop
+    text = HEAD.format(mode="M83") + "G1 X10 Y0 E1.0\n"
+    settings = Settings(dwell_ms=25)
+    stops = StockStops(e_steps=415)
+    # a point 0.2 mm before the move's end: the last piece is 0.2 mm with 0.02 + 0.1 mm of E,
+    # 50 steps less the stop's 6: 220 E steps per mm of path against X's 80
+    (near,) = stop_lines(run(text, [(0.3, [(9.8, 0.0)])], settings, stops=stops))
+    k_e = (0.12 * 415 - 6) / 0.2
+    want = plan_stop(25, 415, 0.1, k=k_e)
+    assert near.endswith(f" F{want.feed(415):.3f}") and want.rate != plan_stop(25, 415, 0.1).rate
+    assert abs(want.still - 0.025) < 0.001
+    # far from the end the piece after is X-led: k is X's steps per mm
+    (far,) = stop_lines(run(text, [(0.3, [(4.0, 0.0)])], settings, stops=stops))
+    assert far.endswith(f" F{plan_stop(25, 415, 0.1, k=XY_STEPS).feed(415):.3f}")
