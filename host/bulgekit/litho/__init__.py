@@ -985,15 +985,31 @@ def _umask() -> int:
 
 @contextlib.contextmanager
 def _held():
-    """SIGINT and SIGTERM held back (delivered at the end) in this thread, where available."""
+    """SIGINT and SIGTERM held back until the end, then handled as they would have been. Python
+    runs signal handlers in the main thread whichever thread the signal reached (numpy's worker
+    threads do not block it), so a signal mask does not hold them: the handlers are swapped for
+    one that notes the signal. Elsewhere than the main thread no handler runs: nothing to hold."""
     import signal
-    block = getattr(signal, "pthread_sigmask", None)
-    old = block(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM}) if block else None
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    got = []
+    old = {n: signal.signal(n, lambda signum, frame: got.append((signum, frame)))
+           for n in (signal.SIGINT, signal.SIGTERM)}
     try:
         yield
     finally:
-        if block:
-            block(signal.SIG_SETMASK, old)
+        for n, h in old.items():
+            signal.signal(n, h)
+        if got:
+            signum, frame = got[0]
+            h = old[signum]
+            if callable(h):
+                h(signum, frame)                      # e.g. KeyboardInterrupt, the CLI's SystemExit
+            elif h == signal.SIG_DFL:
+                os.kill(os.getpid(), signum)
 
 
 def _write_atomic(path, data, binary=False):
