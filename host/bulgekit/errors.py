@@ -5,6 +5,8 @@ them: `bk.BulgekitError` and `bk.InputError` are the same classes.
 """
 from __future__ import annotations
 
+import contextlib
+
 
 class BulgekitError(Exception):
     """Base class for errors reported to the user (message is user-facing)."""
@@ -12,3 +14,18 @@ class BulgekitError(Exception):
 
 class InputError(BulgekitError):
     """A stroke input (SVG, JSON, image, text, mesh) could not be used."""
+
+
+@contextlib.contextmanager
+def reading_picture(path: str):
+    """Pillow's errors while a picture file is opened and read, as one InputError naming it."""
+    from PIL import UnidentifiedImageError
+
+    try:
+        yield
+    except FileNotFoundError:
+        raise InputError(f"{path}: image file not found") from None
+    except UnidentifiedImageError:
+        raise InputError(f"{path}: cannot read image (not a format Pillow recognizes)") from None
+    except (OSError, ValueError, SyntaxError) as e:
+        raise InputError(f"{path}: cannot read image: {e}") from None

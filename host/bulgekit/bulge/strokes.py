@@ -818,23 +818,18 @@ class PictureDot(Stroke):
 def read_gray(path):
     """A picture as an 8-bit grayscale PIL image (any format Pillow reads);
     transparent pixels count as white. Errors name the file."""
-    from PIL import Image, UnidentifiedImageError
+    from PIL import Image
+
+    from ..errors import reading_picture
 
     path = os.fspath(path)
-    try:
-        with Image.open(path) as im:
-            im.load()
-            if im.mode in ("RGBA", "LA", "PA") or (im.mode == "P" and "transparency" in im.info):
-                rgba = im.convert("RGBA")
-                bg = Image.new("RGBA", rgba.size, (255, 255, 255, 255))
-                im = Image.alpha_composite(bg, rgba)
-            gray = im.convert("L")
-    except FileNotFoundError:
-        raise InputError(f"{path}: image file not found") from None
-    except UnidentifiedImageError:
-        raise InputError(f"{path}: cannot read image (not a format Pillow recognizes)") from None
-    except (OSError, ValueError, SyntaxError) as e:
-        raise InputError(f"{path}: cannot read image: {e}") from None
+    with reading_picture(path), Image.open(path) as im:
+        im.load()
+        if im.mode in ("RGBA", "LA", "PA") or (im.mode == "P" and "transparency" in im.info):
+            rgba = im.convert("RGBA")
+            bg = Image.new("RGBA", rgba.size, (255, 255, 255, 255))
+            im = Image.alpha_composite(bg, rgba)
+        gray = im.convert("L")
     return gray
 
 

@@ -87,37 +87,30 @@ def read_luminance(path) -> np.ndarray:
     8- and 16-bit grey, grey + alpha, RGB(A), palette and CMYK pictures: alpha is laid over white
     in sRGB values (as a viewer shows the picture on a white page). 16-bit grey keeps its 16 bits;
     Pillow hands 16-bit colour over as 8 bits per channel. Errors name the file."""
-    from PIL import Image, UnidentifiedImageError
+    from PIL import Image
 
-    from ..errors import InputError
+    from ..errors import reading_picture
 
     path = os.fspath(path)
-    try:
-        with Image.open(path) as im:
-            im.load()
-            alpha = None
-            if im.mode.startswith("I;16") or im.mode == "I":
-                # 16-bit grey (I;16 from PNG, I from some TIFFs): full scale is 65535
-                raw, scale = np.asarray(im), 65535.0
-            elif im.mode == "F":
-                raw, scale = np.asarray(im), 1.0
+    with reading_picture(path), Image.open(path) as im:
+        im.load()
+        alpha = None
+        if im.mode.startswith("I;16") or im.mode == "I":
+            # 16-bit grey (I;16 from PNG, I from some TIFFs): full scale is 65535
+            raw, scale = np.asarray(im), 65535.0
+        elif im.mode == "F":
+            raw, scale = np.asarray(im), 1.0
+        else:
+            has_alpha = "A" in im.getbands() or "transparency" in im.info
+            grey = im.mode in ("1", "L", "LA") or (im.mode == "P" and not has_alpha and _grey_palette(im))
+            if grey:
+                raw = np.asarray(im.convert("LA") if has_alpha else im.convert("L"))
             else:
-                has_alpha = "A" in im.getbands() or "transparency" in im.info
-                grey = im.mode in ("1", "L", "LA") or (im.mode == "P" and not has_alpha and _grey_palette(im))
-                if grey:
-                    raw = np.asarray(im.convert("LA") if has_alpha else im.convert("L"))
-                else:
-                    raw = np.asarray(im.convert("RGBA" if has_alpha else "RGB"))
-                scale = 255.0
-                if has_alpha:
-                    raw, alpha = raw[..., :-1], raw[..., -1]
-                    raw = raw[..., 0] if grey else raw
-    except FileNotFoundError:
-        raise InputError(f"{path}: image file not found") from None
-    except UnidentifiedImageError:
-        raise InputError(f"{path}: cannot read image (not a format Pillow recognizes)") from None
-    except (OSError, ValueError, SyntaxError) as e:
-        raise InputError(f"{path}: cannot read image: {e}") from None
+                raw = np.asarray(im.convert("RGBA" if has_alpha else "RGB"))
+            scale = 255.0
+            if has_alpha:
+                raw, alpha = raw[..., :-1], raw[..., -1]
+                raw = raw[..., 0] if grey else raw
     out = np.empty(raw.shape[:2], dtype=np.float32)
     for r in range(0, raw.shape[0], _ROWS):          # in bands of rows: a few MB at a time
         a = np.clip(raw[r:r + _ROWS].astype(float) / scale, 0.0, 1.0)

@@ -872,14 +872,15 @@ async function downloadPlacement() {
   } catch (e) { showError("export-error", e); }
 }
 
-async function doSend() {
-  showError("send-error", null);
-  const bar = $("send-bar"), log = $("send-log");
+// Sends a file through the server's Sender (line numbers, checksums, resends, the printer's
+// messages); `ids` name the tab's error line, progress bar, log and button.
+async function sendFile(ids, body, ready) {
+  showError(ids.error, null);
+  const bar = $(ids.bar), log = $(ids.log);
   log.textContent = "";
-  $("send").disabled = true;
+  $(ids.button).disabled = true;
   try {
-    const job = await postJSON("/api/send", { export: S.exportKey, which: $("send-which").value,
-      port: $("port").value, baud: +$("baud").value });
+    const job = await postJSON("/api/send", body);
     bar.hidden = false;
     const res = await pollJob(job, (j) => {
       bar.value = j.total ? j.done / j.total : 0;
@@ -889,11 +890,17 @@ async function doSend() {
     log.textContent += `\n${res.file}: ${res.summary}`;
     status(`sent ${res.file}`);
   } catch (e) {
-    showError("send-error", e);
+    showError(ids.error, e);
     status("sending stopped");
   } finally {
-    $("send").disabled = !S.exportKey;
+    $(ids.button).disabled = !ready();
   }
+}
+
+function doSend() {
+  return sendFile({ error: "send-error", bar: "send-bar", log: "send-log", button: "send" },
+    { export: S.exportKey, which: $("send-which").value, port: $("port").value, baud: +$("baud").value },
+    () => S.exportKey);
 }
 
 async function loadPorts() {
@@ -1012,29 +1019,11 @@ async function makeLitho() {
   }
 }
 
-// The same sender as the wall tab's: line numbers, checksums, resends, the printer's messages.
-async function sendLitho() {
-  showError("litho-send-error", null);
-  const bar = $("litho-send-bar"), log = $("litho-send-log");
-  log.textContent = "";
-  $("litho-send").disabled = true;
-  try {
-    const job = await postJSON("/api/send", { litho: L.key, which: $("litho-which").value,
-      port: $("litho-port").value, baud: +$("litho-baud").value });
-    bar.hidden = false;
-    const res = await pollJob(job, (j) => {
-      bar.value = j.total ? j.done / j.total : 0;
-      log.textContent = j.log.join("\n");
-      status(`${j.label || "connecting"}${j.total ? `: ${j.done} of ${j.total} lines` : "…"}`, j.total ? j.done / j.total : 0);
-    });
-    log.textContent += `\n${res.file}: ${res.summary}`;
-    status(`sent ${res.file}`);
-  } catch (e) {
-    showError("litho-send-error", e);
-    status("sending stopped");
-  } finally {
-    $("litho-send").disabled = !L.key;
-  }
+// The same sender as the wall tab's.
+function sendLitho() {
+  return sendFile({ error: "litho-send-error", bar: "litho-send-bar", log: "litho-send-log", button: "litho-send" },
+    { litho: L.key, which: $("litho-which").value, port: $("litho-port").value, baud: +$("litho-baud").value },
+    () => L.key);
 }
 
 const b64bytes = (s) => Uint8Array.from(atob(s), (c) => c.charCodeAt(0));
