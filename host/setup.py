@@ -1,6 +1,6 @@
 """The package's one compiled part: the G-code move scanner (bulgekit/gcode/_scan.c). It is optional:
 without a C compiler the package installs and reads G-code with the pure-Python parser
-(slower; `python3 -m bulgekit.gcode.movescan` says which one is in use).
+(slower; `bulgekit --version` says which one is in use).
 
 Building the package also puts the studio's front-end libraries in place (web/build.py: three.js
 from npm, pinned by web/package-lock.json), so that a wheel carries them."""
