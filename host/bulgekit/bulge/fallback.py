@@ -705,8 +705,13 @@ def still_s(n: int, rate: int, spm: float | None = None, k: float = XY_STEPS) ->
     """Seconds the head stands still for an E-only move of n steps at `rate` steps/s (the rule
     above) at `spm` E steps/mm, the next move's leading axis making k steps per mm of its path.
     Without spm: issue 25's rule (the next move starts at the 120 steps/s floor)."""
+    return 1 / max(rate, MINIMAL_STEP_RATE) + (n - 1) / rate + next_start_s(rate, spm, k)
+
+
+def next_start_s(rate: int, spm: float | None = None, k: float = XY_STEPS) -> float:
+    """The last term of still_s: from the stop's last E step to the next move's first step."""
     v = min(rate / spm, V_JD) if spm else 0.0
-    return 1 / max(rate, MINIMAL_STEP_RATE) + (n - 1) / rate + 1 / max(MINIMAL_STEP_RATE, v * k)
+    return 1 / max(MINIMAL_STEP_RATE, v * k)
 
 
 @dataclass
@@ -717,6 +722,7 @@ class StopMove:
     n: int = 0
     rate: int = 0
     still: float = 0.0         # s the head stands still (G4: the dwell itself)
+    start: float = 0.0         # of that, s until the next move's first step (next_start_s)
     nearest: bool = False      # the dwell could not be made exactly (counted in the stats)
     why: str = ""              # a move stop written as G4: "extra" (under 6 steps), "long"
 
@@ -785,7 +791,7 @@ def _rate_for(n: int, d: float, spm: float, k: float = XY_STEPS) -> StopMove:
         mid = (lo + hi) // 2
         lo, hi = (mid, hi) if still(mid) >= d else (lo, mid)
     rate = min((lo, hi), key=lambda q: abs(still(q) - d))
-    return StopMove(0, STOP_MOVE, n, rate, still(rate))
+    return StopMove(0, STOP_MOVE, n, rate, still(rate), start=next_start_s(rate, spm, k))
 
 
 def _lround(v) -> int:
@@ -843,7 +849,7 @@ class StopWriter:
         self.nearest = 0                       # stops whose stillness is off their dwell (> 1 ms)
         self.still_s = 0.0                     # stillness of the E-only stops, s
         self.run_s = 0.0                       # their time as blocks: the stillness but the
-                                               # braking's last 1/120 s (gcode/estimate.py's model)
+                                               # next move's start (gcode/estimate.py's model)
         self.g4_s = 0.0                        # dwell of the G4 stops, s
         self.stop_e_mm = 0.0                   # E laid during stops
         self.unpaid_e_mm = 0.0                 # of that, not taken from a following piece
@@ -876,7 +882,7 @@ class StopWriter:
             return
         self.moves += 1
         self.still_s += stop.still
-        self.run_s += stop.still - 1 / MINIMAL_STEP_RATE
+        self.run_s += stop.still - stop.start
         self.nearest += stop.nearest
         self.stop_e_mm += laid
         self.debt += laid

@@ -588,3 +588,13 @@ def test_an_e_led_piece_after_the_stop_times_it():
     # far from the end the piece after is X-led: k is X's steps per mm
     (far,) = stop_lines(run(text, [(0.3, [(4.0, 0.0)])], settings, stops=stops))
     assert far.endswith(f" F{plan_stop(25, 415, 0.1, k=XY_STEPS).feed(415):.3f}")
+
+
+def test_stats_time_of_a_fast_stop_leaves_out_the_next_moves_start():
+    """A stop's time as a block is its stillness less the wait for the next move's first step,
+    which is 1/120 s only under the floor (25 ms at E 93: 1/(287 / 93 x 80) s)."""
+    from bulgekit.bulge.fallback import StopWriter, plan_stop
+    sw = StopWriter(StockStops())
+    s = plan_stop(25, 93, 1.0)
+    sw.count(s, 6 / 93)
+    assert sw.run_s == pytest.approx(s.still - 93 / (287 * 80)) and sw.run_s == pytest.approx(6 / 287)
