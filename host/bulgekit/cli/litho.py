@@ -77,6 +77,17 @@ def register(main):
                        "a line width, so that no piece is capped.")
     @click.option("--max-line", type=POSITIVE, default=1.6, show_default=True,
                   help="Widest single mid-line, mm; wider gaps get two or more.")
+    @click.option("--light-gaps", type=click.Choice(["mid-line", "walls"]), default="mid-line",
+                  show_default=True,
+                  help="Where the gap between the walls is narrower than --min-line (light tones): "
+                       "mid-line = the walls narrow (to half a line width at least) so that a thin "
+                       "mid-line runs on through light areas at the mid-line's rate; walls = the two "
+                       "walls widen and share the gap at their own rate, and the mid-line stops there.")
+    @click.option("--rate-accel", type=NONNEG, default=1000.0, show_default=True,
+                  help="Acceleration the mid-line's speed changes are planned for, mm/s² (with "
+                       "--light-gaps mid-line): where the picture changes faster than the head can "
+                       "follow at a steady extruder rate, the walls (half to one and a half line "
+                       "widths) take the difference. The thickness is the same; 0: off.")
     @click.option("--block-rate", type=NONNEG, default=200.0, show_default=True,
                   help="Moves per second the printer's board plans: no piece is shorter than its "
                        "speed / this (samples merge). 200 suits an 8-bit ATmega2560; a 32-bit "
@@ -190,7 +201,8 @@ def summary(s: dict) -> str:
         f"  mid-line at {s['rates']['mid_line_mm3_s']:g} mm^3/s: capped at --max-speed "
         f"{100 * ml['capped_time_share']:.1f} % of its time; layers with 2+ mid-lines: "
         f"{ml['layers_with_two_or_more']}",
-        f"  gaps narrower than a mid-line, shared by the walls: {100 * gp['shared_share']:.2f} % of samples",
+        f"  gaps narrower than a mid-line: walls narrowed for a thin mid-line at "
+        f"{100 * gp['narrowed_share']:.2f} % of samples, shared by the walls at {100 * gp['shared_share']:.2f} %",
         f"  predicted look vs picture (L*, the plate shows {lk['plate_L_range'][0]:.0f}-100): "
         f"mean |dL*| {lk['mean_abs_dL']:.1f}, "
         f"SSIM {'n/a' if lk['ssim_L'] is None else format(lk['ssim_L'], '.3f')} ({lk['curve']} curve)",

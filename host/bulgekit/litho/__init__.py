@@ -48,6 +48,7 @@ from ..errors import BulgekitError
 SHAPES = ("planar", "cylinder")
 CURVES = tone.CURVES
 WORDS = ("e", "w")
+LIGHT_GAPS = ("mid-line", "walls")
 
 
 class LithoError(BulgekitError):
@@ -74,6 +75,10 @@ class LithoOptions:
     pitch: float = 0.4              # mm between samples along a layer
     min_line: float | None = None   # narrowest mid-line, mm (None: the narrowest line_min())
     max_line: float = 1.6           # widest single mid-line, mm
+    light_gaps: str = "mid-line"    # a gap narrower than a mid-line: "mid-line" (the walls narrow and
+                                    # a thin mid-line runs on) or "walls" (the walls widen and share it)
+    rate_accel: float = 1000.0      # mm/s^2 the mid-line's speed changes are planned for (light_gaps
+                                    # "mid-line"): the walls take faster changes (0: off)
     block_rate: float = 200.0       # blocks/s the board plans: no piece shorter than speed / rate (0: off)
     filament: float = 1.75
     wall_speed: float = 40.0        # mm/s
@@ -126,6 +131,8 @@ def check_options(o: LithoOptions) -> None:
         bad("curve", f"{o.curve!r} is not one of {', '.join(CURVES)}")
     if o.words not in WORDS:
         bad("words", f"{o.words!r} is not one of {', '.join(WORDS)}")
+    if o.light_gaps not in LIGHT_GAPS:
+        bad("light-gaps", f"{o.light_gaps!r} is not one of {', '.join(LIGHT_GAPS)}")
     positive = {"width": o.width, "diameter": o.diameter, "layer-height": o.layer_height,
                 "line-width": o.line_width, "pitch": o.pitch, "filament": o.filament,
                 "wall-speed": o.wall_speed, "infill-flow": o.infill_flow, "max-speed": o.max_speed,
@@ -138,7 +145,7 @@ def check_options(o: LithoOptions) -> None:
             bad(k, f"must be a number > 0, got {v}")
     if o.height is not None and not (math.isfinite(o.height) and o.height > 0):
         bad("height", f"must be a number > 0, got {o.height}")
-    for k, v in {"block-rate": o.block_rate, "frame": o.frame, "foot": 0.0 if o.foot is None else o.foot,
+    for k, v in {"block-rate": o.block_rate, "rate-accel": o.rate_accel, "frame": o.frame, "foot": 0.0 if o.foot is None else o.foot,
                  "foot-height": o.foot_height, "retract": o.retract, "retract-min": o.retract_min}.items():
         if not (math.isfinite(v) and v >= 0):
             bad(k, f"must be a number >= 0, got {v}")
@@ -195,6 +202,9 @@ class Field:
     n_foot: int              # layers of foot at the bottom (planar)
     lines: np.ndarray        # mid-lines per layer
     shared: int              # picture samples whose gap is narrower than a mid-line: the walls share it
+    narrowed: int            # ... where instead the walls narrow so that a thin mid-line runs on
+    ww: np.ndarray           # (layers, samples) back wall's width, mm (wall_widths)
+    wf: np.ndarray           # ... the front wall's
     picture_mm: tuple        # (width or circumference, height) of the picture, mm
     inside: tuple            # (rows, samples) slices of the picture inside the frame
     foot: float = 0.0        # depth of the foot, mm (0: none)
@@ -232,6 +242,120 @@ def thickness_field(image, o: LithoOptions) -> Field:
     return _field(t, tone.lightness(Y) / 100.0, s, o, pic_w)
 
 
+MID_MARGIN = 0.1        # a kept mid-line is this much wider than min_line: slopes and the
+                        # walls' share (_layer_paths) narrow it a little, and it must stay laid
+
+
+RATE_STEP = 0.06        # the mid-line's speed changes by at most this share from sample to sample
+CENTRE_SLOPE = 0.1      # the mid-line's centre moves at most this much across per mm along
+RATE_ACCEL_SHARE = 0.3  # ... and by at most what this share of rate_accel gains over the piece
+
+
+def wall_min(o: LithoOptions) -> float:
+    """The narrowest wall line: half a line width (what the nozzle still lays as a line)."""
+    return o.line_width / 2
+
+
+def wall_max(o: LithoOptions) -> float:
+    """The widest wall line when the walls take what the mid-line cannot follow: 1.5 line widths."""
+    return 1.5 * o.line_width
+
+
+def _steady(zt, lo, hi, d, closed):
+    """A sequence z (per row, along the samples) near the target zt, within [lo, hi], that changes
+    by at most d[i] between samples i and i + 1 where the band allows (log widths: the bound is on
+    the speed's ratio). The band is first narrowed to what a sequence so limited can follow
+    (forward and backward passes, as a planner limits speeds), then the target is followed from
+    the left and from the right and the two averaged: both lie in the narrowed band and keep the
+    steps, so their mean does too (it is convex in log width), and a step of the target becomes
+    a ramp centred on it. Closed (cylinder) rows wrap: they are run three times round and the
+    middle turn kept."""
+    if closed:
+        n = zt.shape[1]
+        tile = lambda a: np.concatenate([a, a, a], axis=1)
+        return _steady(tile(zt), tile(lo), tile(hi), np.concatenate([d, d, d], axis=1), False)[:, n:2 * n]
+    U, L = hi.copy(), lo.copy()
+    m = zt.shape[1]
+    for i in range(1, m):
+        U[:, i] = np.minimum(U[:, i], U[:, i - 1] + d[:, i - 1])
+        L[:, i] = np.maximum(L[:, i], L[:, i - 1] - d[:, i - 1])
+    for i in range(m - 2, -1, -1):
+        U[:, i] = np.minimum(U[:, i], U[:, i + 1] + d[:, i])
+        L[:, i] = np.maximum(L[:, i], L[:, i + 1] - d[:, i])
+    ok = L <= U
+    L, U = np.where(ok, L, lo), np.where(ok, U, hi)          # no room: the band as it is
+    f, b = zt.copy(), zt.copy()
+    f[:, 0] = np.clip(zt[:, 0], L[:, 0], U[:, 0])
+    for i in range(1, m):
+        f[:, i] = np.clip(np.clip(zt[:, i], f[:, i - 1] - d[:, i - 1], f[:, i - 1] + d[:, i - 1]), L[:, i], U[:, i])
+    b[:, -1] = np.clip(zt[:, -1], L[:, -1], U[:, -1])
+    for i in range(m - 2, -1, -1):
+        b[:, i] = np.clip(np.clip(zt[:, i], b[:, i + 1] - d[:, i], b[:, i + 1] + d[:, i]), L[:, i], U[:, i])
+    return np.clip((f + b) / 2, lo, hi)
+
+
+def wall_widths(t: np.ndarray, lines, o: LithoOptions, steps=None) -> tuple:
+    """Wall width ww per sample of thickness t with `lines` mid-lines, and where the gap
+    g = t - 2 w is narrower than those lines (n x min_line): (ww, shared, narrowed).
+    light_gaps "walls": the two walls widen by g / 2 each and share the gap (shared).
+    light_gaps "mid-line": the walls narrow (not below wall_min) so that the mid-line keeps
+    n x min_line x (1 + MID_MARGIN) and runs on unbroken through light areas (narrowed); the
+    layer's thickness is the same either way, only the split between the lines differs. Where
+    even the narrowest walls leave no room, they widen and share as with "walls"."""
+    w = o.line_width
+    g = np.maximum(t - 2 * w, 0.0)
+    need = lines * o.line_min()
+    short = g < need - 1e-9
+    narrowed = np.zeros(t.shape, bool)
+    ww = np.full(t.shape, w, dtype=float)
+    if o.light_gaps == "mid-line":
+        wn = w - (need * (1 + MID_MARGIN) - g) / 2
+        narrowed = short & (wn >= wall_min(o) - 1e-9)
+        ww = np.where(narrowed, wn, ww)
+    shared = short & ~narrowed & (g > 1e-9)
+    ww = np.where(shared, w + g / 2, ww)
+    wf = ww
+    if o.light_gaps == "mid-line" and o.rate_accel > 0 and steps is not None and t.ndim == 2:
+        ww, wf = _steady_walls(t, ww, shared, np.broadcast_to(lines, t.shape[:1] + (1,)), o, steps)
+    return ww, wf, shared, narrowed
+
+
+def _steady_walls(t, ww, shared, lines, o: LithoOptions, steps):
+    """Wall widths that let the mid-line keep a steady extruder rate: its speed (q / (W H), W the
+    gap per line) changes from sample to sample by at most RATE_STEP, and by no more than
+    RATE_ACCEL_SHARE of `rate_accel` gains over the piece (v2^2 - v1^2 <= 2 a L), so the planner's
+    ramps between pieces stay inside the +-5 % band; the walls, whose width may run from wall_min
+    to wall_max, take the rest of each sample's thickness. The layer's thickness is unchanged;
+    only the split between walls and mid-line moves. `steps`: the mid-line's length per sample
+    interval, mm (rows, samples - 1, or samples when closed)."""
+    H, q = o.layer_height, o.mid_flow
+    nl = lines.astype(float)
+    lo = np.maximum(t - 2 * wall_max(o), nl * o.line_min() * (1 + MID_MARGIN))
+    hi = np.minimum(t - 2 * wall_min(o), nl * o.max_line)
+    free = (lo < hi) & ~shared
+    lo, hi = np.where(free, lo, t - 2 * ww), np.where(free, hi, t - 2 * ww)
+    gm = np.clip(t - 2 * ww, lo, hi)
+    closed = o.shape == "cylinder"
+    nxt = np.roll(gm, -1, axis=1) if closed else gm[:, 1:]
+    v = q * nl / (np.minimum(gm if closed else gm[:, :-1], nxt) * H)   # the faster of the two pieces
+    d = np.minimum(math.log1p(RATE_STEP), RATE_ACCEL_SHARE * o.rate_accel * steps / np.maximum(v, 1e-9) ** 2)
+    gm = np.where(free, np.exp(_steady(np.log(gm), np.log(lo), np.log(hi), d, closed)), gm)
+    # The mid-line's centre c: with equal walls it would follow the relief at half its height
+    # and turn at every step of the picture, and a turn costs the planner speed at the junction.
+    # The walls may differ (each within wall_min .. wall_max): c keeps the back wall at its width
+    # where it can (the back face is plain, so is its wall: few pieces), with a slope of at most
+    # CENTRE_SLOPE; the front wall, along the relief, takes the rest.
+    c_lo = np.maximum(wall_min(o) + gm / 2, t - gm / 2 - wall_max(o))
+    c_hi = np.minimum(wall_max(o) + gm / 2, t - gm / 2 - wall_min(o))
+    c0 = np.clip(ww + gm / 2, c_lo, c_hi)
+    okc = free & (c_lo <= c_hi)
+    c_lo, c_hi = np.where(okc, c_lo, c0), np.where(okc, c_hi, c0)
+    c = _steady(c0, c_lo, c_hi, np.broadcast_to(CENTRE_SLOPE * steps, d.shape), closed)
+    wb = np.where(free, c - gm / 2, ww)
+    wf = np.where(free, t - c - gm / 2, ww)
+    return wb, wf
+
+
 def _field(t: np.ndarray, bright: np.ndarray, s: np.ndarray, o: LithoOptions, pic_w: float) -> Field:
     """The field from the picture's thickness (rows, samples): frame, gaps, foot."""
     rows, n = t.shape
@@ -253,8 +377,12 @@ def _field(t: np.ndarray, bright: np.ndarray, s: np.ndarray, o: LithoOptions, pi
     w2 = 2 * o.line_width
     gap = np.maximum(t - w2, 0.0)
     lines = np.maximum(1, np.ceil(gap.max(axis=1) / o.max_line - 1e-9)).astype(int)
-    thr = (lines * o.line_min())[:, None]
-    shared = (gap > 1e-9) & (gap < thr - 1e-9)
+    if o.shape == "planar":
+        steps = np.broadcast_to(np.diff(s), (rows, n - 1))
+    else:                                              # along the mid-line's circle
+        r_mid = o.diameter / 2 - o.max_thickness + t / 2
+        steps = r_mid * (2 * math.pi / n)
+    ww, wf, shared, narrowed = wall_widths(t, lines[:, None], o, steps)
     n_foot = 0
     foot = foot_depth(o, rows * o.layer_height)
     if o.shape == "planar" and foot > 0 and o.foot_height > 0:
@@ -262,8 +390,11 @@ def _field(t: np.ndarray, bright: np.ndarray, s: np.ndarray, o: LithoOptions, pi
         t = np.vstack([np.full((n_foot, n), foot), t])
         foot_lines = max(1, math.ceil((foot - w2) / o.max_line - 1e-9))
         lines = np.concatenate([np.full(n_foot, foot_lines), lines])
+    if n_foot:
+        ww = np.vstack([np.full((n_foot, n), o.line_width), ww])
+        wf = np.vstack([np.full((n_foot, n), o.line_width), wf])
     return Field(t=t, bright=bright, s=s, n_foot=n_foot, lines=lines, shared=int(shared.sum()),
-                 picture_mm=(pic_w, rows * o.layer_height), inside=inside, foot=foot if n_foot else 0.0)
+                 narrowed=int(narrowed.sum()), ww=ww, wf=wf, picture_mm=(pic_w, rows * o.layer_height), inside=inside, foot=foot if n_foot else 0.0)
 
 
 def calibration_field(o: LithoOptions) -> tuple[Field, dict]:
@@ -518,10 +649,9 @@ def _layer_paths(o: LithoOptions, fld: Field, k: int, wall_q, mid_q, counts: dic
     w, nl = o.line_width, int(fld.lines[k])
     lmin = o.line_min()
     planar = o.shape == "planar"
-    g = np.maximum(t - 2 * w, 0.0)
-    share = (g > 1e-9) & (g < nl * lmin - 1e-9)
-    ww = np.where(share, w + g / 2, w)
-    gm = t - 2 * ww
+    wb, wf = fld.ww[k], fld.wf[k]                  # back and front wall widths
+    ww = (wb + wf) / 2
+    gm = t - wb - wf
     if planar:
         # the mid-line runs between the end walls (x = w .. X - w), the walls' centre lines from
         # x = w / 2 to X - w / 2: the samples inside, and the ends
@@ -529,30 +659,30 @@ def _layer_paths(o: LithoOptions, fld: Field, k: int, wall_q, mid_q, counts: dic
         ends = lambda a: np.concatenate([[a], fld.s[(fld.s > a + 1e-9) & (fld.s < X - a - 1e-9)], [X - a]])
         xm = ends(w)
         um = xm / (X / (n - 1))
-        wwm = np.interp(xm, fld.s, ww)
-        gmm = np.interp(xm, fld.s, t) - 2 * wwm
+        wwm = np.interp(xm, fld.s, wb)
+        gmm = np.interp(xm, fld.s, t) - wwm - np.interp(xm, fld.s, wf)
         band = _Band(o, fld, k, xm)
     else:
-        wwm, gmm, band = ww, gm, _Band(o, fld, k)
+        wwm, gmm, band = wb, gm, _Band(o, fld, k)
         um = np.arange(n + 1, dtype=float)
     # the walls: centre lines half their band in from each face
     if planar:
         xw = ends(w / 2)
         uw = xw / (X / (n - 1))
-        tw, wwv = np.interp(xw, fld.s, t), np.interp(xw, fld.s, ww)
+        tw, wbv, wfv = np.interp(xw, fld.s, t), np.interp(xw, fld.s, wb), np.interp(xw, fld.s, wf)
         bw = _Band(o, fld, k, xw)
         move_w = lambda a: np.diff(np.interp(xw, xm, np.concatenate([[0.0], np.cumsum(a)])))
         move_m = lambda a: np.diff(np.interp(xm, xw, np.concatenate([[0.0], np.cumsum(a)])))
     else:
-        uw, tw, wwv, bw = um, t, ww, band
+        uw, tw, wbv, wfv, bw = um, t, wb, wf, band
         move_w = move_m = lambda a: a
-    back_p, front_p = bw.points(wwv / 2), bw.points(tw - wwv / 2)
-    back_a, front_a = bw.area(np.zeros(len(wwv)), wwv), bw.area(tw - wwv, tw)
+    back_p, front_p = bw.points(wbv / 2), bw.points(tw - wfv / 2)
+    back_a, front_a = bw.area(np.zeros(len(wbv)), wbv), bw.area(tw - wfv, tw)
     # A wall along a slope is longer than its band is wide: at its own width it lays a little
     # more than the band, taken from the mid-line beside it, so that the walls keep one speed.
-    wbar = (wwv + np.roll(wwv, -1))[: len(back_a)] / 2
-    want = [np.maximum(wbar * np.linalg.norm(np.diff(p_, axis=0), axis=1) - a_, 0.0)
-            for p_, a_ in ((back_p, back_a), (front_p, front_a))]
+    bar = lambda a: (a + np.roll(a, -1))[: len(back_a)] / 2
+    want = [np.maximum(bar(w_) * np.linalg.norm(np.diff(p_, axis=0), axis=1) - a_, 0.0)
+            for p_, a_, w_ in ((back_p, back_a, wbv), (front_p, front_a, wfv))]
     mid_w = move_w(band.area(wwm, wwm + gmm))
     take = want[0] + want[1]
     scale = np.where(take > mid_w, mid_w / np.maximum(take, 1e-12), 1.0)
@@ -595,7 +725,7 @@ def _layer_paths(o: LithoOptions, fld: Field, k: int, wall_q, mid_q, counts: dic
     else:
         lay = np.ones(n, bool)
         outer, _ = _pieces("wall", front_p, front_a, lay, uw, o, wall_q)
-        if np.all(ww == w) and np.all(g_w == 0):
+        if np.all(wb == w) and np.all(g_w == 0):
             # a plain circle: chords of as many samples as the chord tolerance allows
             r, step = band.r_in + w / 2, 1
             # a chord over k samples strays from the points it drops by r (cos(a) - cos(k dth / 2)),
@@ -1290,6 +1420,9 @@ def plan_stats(plan: Plan, stl_volume: float) -> dict:
         "gaps": {
             "shared_by_walls": fld.shared,
             "shared_share": round(fld.shared / samples, 4),
+            "narrowed_by_walls": fld.narrowed,
+            "narrowed_share": round(fld.narrowed / samples, 4),
+            "light_gaps": o.light_gaps,
             "min_line_mm": round(o.line_min(), 4), "max_line_mm": o.max_line,
             "printed_vs_planned_thickness_max_mm": round(float(np.abs(t_print - pic).max()), 3),
         },

@@ -83,11 +83,11 @@ def test_transmission_curve_is_linear_in_luminance(tmp_path):
 
 
 def test_narrow_gaps_are_shared_by_the_walls(tmp_path):
-    # default narrowest line: what 8 mm^3/s lays at 150 mm/s, 8 / (150 x 0.2) = 0.267 mm.
-    # darkness 0.05 -> t = 0.88 (gap 0.08), 0.1 -> t = 0.96 (gap 0.16): no mid-line there, the
-    # two walls widen by half the gap each and run slower at the walls' rate
+    # --light-gaps walls. Default narrowest line: what 8 mm^3/s lays at 150 mm/s, 8 / (150 x 0.2)
+    # = 0.267 mm. darkness 0.05 -> t = 0.88 (gap 0.08), 0.1 -> t = 0.96 (gap 0.16): no mid-line
+    # there, the two walls widen by half the gap each and run slower at the walls' rate
     p = picture(tmp_path, w=30, h=10, boxes=[(0, 0, 10, 10, round(255 * 0.95)), (10, 0, 20, 10, round(255 * 0.9))])
-    o = opts(width=30.0, height=2.0, curve="linear")
+    o = opts(width=30.0, height=2.0, curve="linear", light_gaps="walls")
     assert o.line_min() == pytest.approx(8 / (150 * 0.2))
     f = lt.thickness_field(p, o)
     assert f.t[2, 10] == pytest.approx(0.8 + 1.6 * (1 - round(255 * 0.95) / 255))    # not snapped
@@ -123,7 +123,7 @@ def test_grey_ramp_prints_monotonic_without_jumps(tmp_path):
                                                 foot=0))
     t = lt.printed_thickness(plan)
     assert t == pytest.approx(plan.field.t, abs=1e-9)
-    assert plan.field.shared > 0                                   # the light end passes through it
+    assert plan.field.narrowed > 0 and plan.field.shared == 0      # the light end passes through it
     d = np.diff(t, axis=1)
     assert d.min() >= -1e-9 and d.max() <= 0.02
     for k in (3, 8):
@@ -223,7 +223,7 @@ def test_merged_pieces_and_the_plain_inner_circle(tmp_path):
     a[:, 80:] = np.linspace(150, 20, 40).round().astype(np.uint8)
     p = tmp_path / "scene.png"
     Image.fromarray(a).save(p)
-    o = lt.LithoOptions(shape="cylinder", diameter=30.0, height=3.0)
+    o = lt.LithoOptions(shape="cylinder", diameter=30.0, height=3.0, light_gaps="walls")
     plan = lt.plan_lithophane(p, o)
     r_in = o.diameter / 2 - o.max_thickness + W / 2
     n = len(plan.field.s)
@@ -253,7 +253,7 @@ def step_plan(tmp_path_factory):
     """Black left half (2.4 mm), mid-grey right half (1.39 mm by the perceptual curve)."""
     d = tmp_path_factory.mktemp("step")
     p = picture(d, boxes=[(0, 0, 20, 16, 0), (20, 0, 40, 16, 128)])
-    return lt.plan_lithophane(p, opts())
+    return lt.plan_lithophane(p, opts(rate_accel=0))        # the bands as laid out, walls a line wide
 
 
 def test_walls_follow_the_relief(step_plan):
@@ -310,10 +310,10 @@ def test_nothing_outside_the_body(step_plan):
 
 
 def test_head_crosses_merged_walls_in_the_middle(tmp_path):
-    """Black, white (walls merge: no mid-line), black: the head crosses the white part without
-    laying, along the plate's middle (down the steps' slopes, then straight)."""
+    """--light-gaps walls. Black, white (walls merge: no mid-line), black: the head crosses the
+    white part without laying, along the plate's middle (down the steps' slopes, then straight)."""
     p = picture(tmp_path, boxes=[(0, 0, 10, 16, 0), (30, 0, 40, 16, 0)])
-    plan = lt.plan_lithophane(p, opts())
+    plan = lt.plan_lithophane(p, opts(light_gaps="walls"))
     m = [s for s in plan.layers[4].sections if s.kind == "mid-line"][0]
     hop = np.flatnonzero(m.e == 0)
     assert np.all(np.diff(hop) == 1) and len(hop) <= 3              # one run of moves across
@@ -502,16 +502,18 @@ def test_cylinder_layers_are_joined_loops(cyl):
     assert ";TYPE:travel" not in body and "E-" not in body.split("M723 S0")[0]
 
 
-def test_cylinder_crossings_are_chords_near_the_middle(cyl):
-    """Where the walls merge the head moves on in chords (not in single-sample pieces) that stay
-    within the chord tolerance of the plate's middle circle."""
-    o = cyl.plan.options
+def test_cylinder_crossings_are_chords_near_the_middle(tmp_path):
+    """--light-gaps walls: where the walls merge the head moves on in chords (not in
+    single-sample pieces) that stay within the chord tolerance of the plate's middle circle."""
+    p = picture(tmp_path, w=60, h=10, boxes=[(0, 0, 6, 10, 0), (54, 0, 60, 10, 250)])
+    o = lt.LithoOptions(shape="cylinder", diameter=30.0, height=2.0, pitch=0.4, light_gaps="walls")
+    plan = lt.plan_lithophane(p, o)
     r_mid = o.diameter / 2 - o.max_thickness + 0.4          # middle of a 0.8 mm (white) plate
-    m = [s for s in cyl.plan.layers[4].sections if s.kind == "mid-line"][0]
+    m = [s for s in plan.layers[4].sections if s.kind == "mid-line"][0]
     hop = np.flatnonzero(m.e == 0)
     assert len(hop) > 5
     lengths = np.linalg.norm(m.pts[hop + 1] - m.pts[hop], axis=1)
-    piece = 2 * math.pi * r_mid / len(cyl.plan.field.s)   # one sample step on the middle circle
+    piece = 2 * math.pi * r_mid / len(plan.field.s)        # one sample step on the middle circle
     assert np.median(lengths) > 1.8 * piece
     inner = hop[np.isin(hop - 1, hop) & np.isin(hop + 1, hop)]   # not the joins to laid pieces
     mids = (m.pts[inner + 1] + m.pts[inner]) / 2
@@ -745,3 +747,83 @@ def test_estimate_in_chunks_is_the_whole_plan(noisy_made, monkeypatch):
         assert len(whole.blocks) > 10 * 64
         assert part.blocks["entry_speed"] == pytest.approx(whole.blocks["entry_speed"], abs=1e-6)
         assert part.total_s == pytest.approx(whole.total_s, rel=1e-9)
+
+
+# --- light gaps: a thin mid-line runs on (the default), steady extruder rate -------------------
+
+def test_light_gaps_keep_a_thin_mid_line(tmp_path):
+    """White and near-white (gaps narrower than a mid-line) between dark boxes: by default the
+    walls narrow and the mid-line runs on unbroken from end wall to end wall, at least
+    min_line x (1 + MID_MARGIN) wide; nothing is shared or snapped; thickness and volume as the body."""
+    p = picture(tmp_path, w=40, h=16, boxes=[(0, 0, 10, 16, 0), (10, 0, 20, 16, 245), (30, 0, 40, 16, 0)])
+    o = opts()
+    plan = lt.plan_lithophane(p, o)
+    f = plan.field
+    assert f.shared == 0 and f.narrowed > 0
+    assert lt.printed_thickness(plan) == pytest.approx(f.t, abs=1e-9)
+    assert f.ww.min() >= lt.wall_min(o) - 1e-9 and f.wf.min() >= lt.wall_min(o) - 1e-9
+    assert f.ww.max() <= lt.wall_max(o) + 1e-9 and f.wf.max() <= lt.wall_max(o) + 1e-9
+    for k in range(1, f.layers):
+        mids = [s for s in plan.layers[k].sections if s.kind == "mid-line"]
+        assert len(mids) == 1
+        m = mids[0]
+        # laid all through the light part (5.6 .. 14.4 mm: samples 14 .. 36); at the two hard
+        # steps beside it the walls may take a piece
+        lo_u, hi_u = np.minimum(m.u[:-1], m.u[1:]), np.maximum(m.u[:-1], m.u[1:])
+        light = (hi_u > 14) & (lo_u < 36)
+        assert np.all(m.e[light] > 0) and lo_u[light].min() <= 14 and hi_u[light].max() >= 36
+        assert (m.e == 0).sum() <= 2
+        assert m.width[light].min() >= o.line_min() * (1 + lt.MID_MARGIN) * 0.97
+        xs = sorted([m.pts[0, 0], m.pts[-1, 0]])
+        assert xs[0] < W + 0.8 and xs[1] > 20.0 - W - 0.8
+        laid, body = lt.laid_area(plan, k)
+        assert laid[2:-2] == pytest.approx(body[2:-2], rel=0.005)
+
+
+def test_mid_line_speed_changes_are_planned(tmp_path):
+    """A photo-like picture: with --rate-accel the mid-line's speed changes from sample to
+    sample by at most RATE_STEP nearly everywhere (not where a step of the picture is larger
+    than the walls can take, between wall_min and wall_max); without it, most steps are larger.
+    The walls take the difference: the thickness is the picture's either way."""
+    p = noisy(tmp_path, w=120, h=12, sigma=30)
+
+    def field(acc):
+        o = opts(width=48.0, height=2.4, rate_accel=acc)
+        f = lt.thickness_field(p, o)
+        gm = f.t - f.ww - f.wf
+        v = o.mid_flow / (gm / f.lines[:, None] * o.layer_height)
+        return o, f, gm, np.abs(np.log(v[:, 1:] / v[:, :-1]))
+
+    o, f, gm, step = field(1000.0)
+    assert f.ww + f.wf + gm == pytest.approx(f.t, abs=1e-12)
+    for w_ in (f.ww, f.wf):
+        assert w_.min() >= lt.wall_min(o) - 1e-9 and w_.max() <= lt.wall_max(o) + 1e-9
+    _, f0, gm0, step0 = field(0.0)
+    assert f0.t == pytest.approx(f.t)
+    over = lambda s_: float((s_ > math.log1p(lt.RATE_STEP) + 1e-9).mean())
+    assert over(step) < 0.05 and over(step0) > 0.5
+    # the mid-line's centre (back wall + half the gap) turns less
+    c, c0 = f.ww + gm / 2, f0.ww + gm0 / 2
+    assert np.abs(np.diff(c, axis=1)).mean() < 0.6 * np.abs(np.diff(c0, axis=1)).mean()
+
+
+def test_steady_mid_line_keeps_the_extruder_rate(tmp_path):
+    """Through the estimator (1000 mm/s^2, the defaults' 16-block look-ahead): more of the
+    mid-line's time within +-5 % of the set rate with the default --light-gaps mid-line and
+    --rate-accel than with the walls sharing light gaps, and the part takes less time."""
+    from bulgekit.gcode import estimate as E
+
+    p = noisy(tmp_path, w=150, h=8, sigma=25)
+    ref = 8.0 / (math.pi * 1.75 ** 2 / 4)
+    share, time_ = {}, {}
+    for mode in ("walls", "mid-line"):
+        plan = lt.plan_lithophane(p, opts(width=60.0, height=1.6, light_gaps=mode))
+        path = tmp_path / f"{mode}.gcode"
+        lt.write_gcode(plan, path, "litho")
+        r = E.estimate_file(str(path), E.Machine(accel=1000.0, travel_accel=1000.0))
+        b = r.blocks
+        mid = E.extruding(r) & (b["layer"] >= 1) & (b["feature"] == r.features.index("mid-line"))
+        share[mode] = E.e_rate_share(r, mask=mid, ref=ref)
+        time_[mode] = r.moves_s
+    assert share["mid-line"] > share["walls"] + 0.05
+    assert time_["mid-line"] < time_["walls"]
