@@ -88,10 +88,10 @@ def register(main):
                        "--light-gaps mid-line): where the picture changes faster than the head can "
                        "follow at a steady extruder rate, the walls (half to one and a half line "
                        "widths) take the difference. The thickness is the same; 0: off.")
-    @click.option("--block-rate", type=NONNEG, default=200.0, show_default=True,
+    @click.option("--block-rate", type=NONNEG, default=120.0, show_default=True,
                   help="Moves per second the printer's board plans: no piece is shorter than its "
-                       "speed / this (samples merge). 200 suits an 8-bit ATmega2560; a 32-bit "
-                       "board: 2000; 0: off (pieces still at least 0.075 mm).")
+                       "speed / this (samples merge). 120 suits an 8-bit ATmega2560 streaming from "
+                       "the host; a 32-bit board: 2000; 0: off (pieces still at least 0.075 mm).")
     @click.option("--filament", type=POSITIVE, default=1.75, show_default=True, help="Filament diameter, mm.")
     @click.option("--wall-speed", type=POSITIVE, default=40.0, show_default=True, help="Walls, mm/s.")
     @click.option("--infill-flow", type=POSITIVE, default=8.0, show_default=True,

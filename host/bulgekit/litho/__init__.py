@@ -79,7 +79,7 @@ class LithoOptions:
                                     # a thin mid-line runs on) or "walls" (the walls widen and share it)
     rate_accel: float = 1000.0      # mm/s^2 the mid-line's speed changes are planned for (light_gaps
                                     # "mid-line"): the walls take faster changes (0: off)
-    block_rate: float = 200.0       # blocks/s the board plans: no piece shorter than speed / rate (0: off)
+    block_rate: float = 120.0       # blocks/s the board plans: no piece shorter than speed / rate (0: off)
     filament: float = 1.75
     wall_speed: float = 40.0        # mm/s
     infill_flow: float = 8.0        # mm^3/s, the mid-line's volumetric rate

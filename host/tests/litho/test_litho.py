@@ -229,7 +229,8 @@ def test_merged_pieces_and_the_plain_inner_circle(tmp_path):
     n = len(plan.field.s)
     per_sample = circles = 0
     for L in plan.layers:
-        inner = [s for s in L.sections if s.kind == "wall" and np.linalg.norm(s.pts, axis=1).max() < r_in + 0.01]
+        # the inner wall (its first point may be where the part before it ended: a join)
+        inner = [s for s in L.sections if s.kind == "wall" and np.linalg.norm(s.pts[1:], axis=1).max() < r_in + 0.01]
         if inner and np.allclose(L.wall, W):
             chord = 2 * math.sqrt(2 * r_in * lt.CHORD_TOL)           # its sagitta is the tolerance
             assert len(inner[0].e) <= math.ceil(2 * math.pi * r_in / chord * 1.35) + 2
@@ -448,7 +449,9 @@ def test_w_words(tmp_path):
     res = lt.make(p, tmp_path / "o", options=opts(words="w"))
     ws = [m for m in moves(res.paths["gcode"]) if m[5] == "mid-line" and m[4] is not None]
     assert ws and all(m[2] == 0.0 for m in ws)
-    assert np.median([m[4] for m in ws]) == pytest.approx(res.plan.field.t[5, 20] - 2 * W, abs=1e-3)
+    # a mid-line joined from where the loop ended spreads its first piece's volume over the
+    # longer way (here one piece across the plate, 19.4 mm instead of 19.2): 1 % narrower
+    assert np.median([m[4] for m in ws]) == pytest.approx(res.plan.field.t[5, 20] - 2 * W, rel=0.015)
 
 
 def test_outputs_and_stats(made):
@@ -486,6 +489,7 @@ def cyl(tmp_path_factory):
 
 
 def test_cylinder_layers_are_joined_loops(cyl):
+    o = cyl.plan.options
     for L in cyl.plan.layers:
         kinds = [s.kind for s in L.sections]
         assert kinds in (["wall", "mid-line", "wall"],)
@@ -496,7 +500,7 @@ def test_cylinder_layers_are_joined_loops(cyl):
             # close for a move of its own (a join under the block-rate budget)
             assert np.allclose(s.pts[0], s.pts[-1]) or (
                 prev is not None and np.allclose(s.pts[0], prev.pts[-1])
-                and np.linalg.norm(s.pts[0] - s.pts[-1]) < s.v[0] / cyl.plan.options.block_rate + 1e-6)
+                and np.linalg.norm(s.pts[0] - s.pts[-1]) < o.max_speed / o.block_rate + 1e-6)
     text = cyl.paths["gcode"].read_text()
     body = text[text.index(";LAYER:1"):]
     assert ";TYPE:travel" not in body and "E-" not in body.split("M723 S0")[0]
@@ -756,7 +760,7 @@ def test_light_gaps_keep_a_thin_mid_line(tmp_path):
     walls narrow and the mid-line runs on unbroken from end wall to end wall, at least
     min_line x (1 + MID_MARGIN) wide; nothing is shared or snapped; thickness and volume as the body."""
     p = picture(tmp_path, w=40, h=16, boxes=[(0, 0, 10, 16, 0), (10, 0, 20, 16, 245), (30, 0, 40, 16, 0)])
-    o = opts()
+    o = opts(block_rate=0)          # pieces as the geometry gives them (the budget averages: its own test)
     plan = lt.plan_lithophane(p, o)
     f = plan.field
     assert f.shared == 0 and f.narrowed > 0
