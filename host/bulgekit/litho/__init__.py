@@ -11,17 +11,23 @@ extruder rate (firmware width mode, M723: v = q / (W * H)), so the gap fills in 
 
 Geometry per layer, on the sample grid (no polygon offsets): every sample has a probe across
 the layer (vertical for planar, radial for cylinder) from the back face to the relief at
-thickness t. Along it lie three bands: the back wall [0, ww], the mid-line [ww, t - ww] and the
-front wall [t - ww, t], ww = one line width. The bands between two samples are trapezoids (in
-polar form for the cylinder), so together they are exactly the body the STL holds, and each
-piece lays its band's area (width = area / length: the filament is the body's volume).
+thickness t. Along it lie three bands: the back wall [0, wb], the mid-line [wb, t - wf] and the
+front wall [t - wf, t], wb = wf = one line width unless said below. The bands between two
+samples are trapezoids (in polar form for the cylinder), so together they are exactly the body
+the STL holds, and each piece lays its band's area (width = area / length: the filament is the
+body's volume). Only the split between the lines changes below, never the thickness.
 
   - A gap t - 2 w narrower than a printable mid-line (`min_line`, by default the narrowest line
     the mid-line's rate lays at `max_speed`, q / (U * H), but at least half a line) is not
-    snapped: the two walls widen by half of it each (ww = w + gap / 2) and lay it at their own
-    rate (width by feedrate: v = q_wall / (W * H)). Mid-line pieces narrower than min_line next
-    to such places give their area to the walls too. Nothing is snapped; the thickness printed
-    is the picture's.
+    snapped. light_gaps "mid-line" (default): the walls narrow (to wall_min at least) so that a
+    mid-line of min_line x (1 + MID_MARGIN) runs on unbroken. light_gaps "walls": the two walls
+    widen by half of it each (ww = w + gap / 2) and lay it at their own rate (width by feedrate:
+    v = q_wall / (W * H)). Mid-line pieces narrower than min_line give their area to the walls.
+  - With `rate_accel` (light_gaps "mid-line") the mid-line's width, so its speed, is planned
+    along the layer as a planner plans speeds (_steady_walls): small steps from sample to sample,
+    a centre line that turns little; the walls (wall_min .. wall_max, back and front apart) take
+    what the picture changes faster than that, so the extruder runs at its set rate through
+    the planner's ramps.
   - A wall along a slope is longer than its band is wide; it keeps its width (so its speed) and
     takes what it lays beyond its band from the mid-line beside it.
   - Wider than `max_line`: the layer gets n = ceil(gap / max_line) mid-lines of gap / n each.
@@ -639,11 +645,11 @@ def _trim(s: Section) -> Section:
 
 def _layer_paths(o: LithoOptions, fld: Field, k: int, wall_q, mid_q, counts: dict):
     """Walls and mid-line(s) of layer k, each a band between offsets from the back face on every
-    sample's probe: back wall [0, ww], mid-line [ww, t - ww], front wall [t - ww, t]. ww is a line
-    width, or where the gap t - 2 w is narrower than a mid-line (n x min_line with n lines), a line
-    width plus half the gap: the walls widen and share it. A mid-line piece narrower than
-    min_line (next to where the walls share) gives its area to the two walls, half each, and
-    the head moves on along the middle there. Returns (walls, mids, gm, ww)."""
+    sample's probe: back wall [0, wb], mid-line [wb, t - wf], front wall [t - wf, t], with the
+    walls' widths from the field (wall_widths: a line width, narrowed for a thin mid-line or
+    widened to share a light gap, and planned for a steady mid-line). A mid-line piece narrower
+    than min_line gives its area to the two walls, half each, and the head moves on along the
+    middle there. Returns (walls, mids, gm, mean wall width)."""
     t = fld.t[k].astype(float)
     n = len(t)
     w, nl = o.line_width, int(fld.lines[k])
