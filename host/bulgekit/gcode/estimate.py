@@ -64,6 +64,7 @@ count (G2/G3 are cut into pieces of at most 1 mm, as MAX_ARC_SEGMENT_MM).
 from __future__ import annotations
 
 import math
+import operator
 import os
 import re
 from dataclasses import dataclass, field
@@ -71,6 +72,11 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import BulgekitError
+
+try:
+    from . import _plan            # the compiled planner passes (_plan.c), optional
+except ImportError:
+    _plan = None
 
 AXES = "XYZE"
 
@@ -111,8 +117,10 @@ class Result:
     dwell_s: float
     by_feature: dict
     features: list
-    blocks: np.ndarray            # structured: see BLOCK_DTYPE
+    blocks: np.ndarray | None     # structured: see BLOCK_DTYPE (None: not asked for, blocks=False)
     lines: int
+    n_blocks: int = 0             # planner blocks (moves not dropped)
+    filament: float = 0.0         # deposited_filament(): filament laid by extruding blocks, mm
 
     def summary(self) -> str:
         h, rem = divmod(self.total_s, 3600)
@@ -357,6 +365,8 @@ class _Parser:
                           tuple(self.max_accel[a] for a in AXES), tuple(self.max_fr[a] for a in AXES),
                           n_e, self.spm["E"]))
         self.brk = False
+        if len(self.rows) >= CHUNK:            # planned part by part (_Planner)
+            self.flush()
 
     def flush(self):
         if self.rows:
@@ -447,12 +457,10 @@ class _Parser:
         self.e_at = _lround(e1 * self.spm["E"])
 
 
-def _junctions(b, jd, jerk, amax, m: Machine):
-    """Max entry speed squared of every block from its junction with the one before."""
-    n = len(b)
-    d = np.column_stack([b["dx"], b["dy"], b["dz"], b["de"]])
-    L = b["length"]
-    v = b["nominal_speed"]
+def _junctions(d, L, v, accel, jd, jerk, amax, m: Machine):
+    """Max entry speed squared of every block from its junction with the one before (d: the
+    blocks' dx, dy, dz, de as rows; L, v, accel: length, nominal speed, acceleration)."""
+    n = len(v)
     extr = d[:, 3] != 0
     unit = np.where(extr[:, None], d / np.linalg.norm(d, axis=1, keepdims=True), d / L[:, None])
     out = np.zeros(n)
@@ -464,7 +472,7 @@ def _junctions(b, jd, jerk, amax, m: Machine):
         j = u - p
         jn = np.linalg.norm(j, axis=1, keepdims=True)
         j = np.divide(j, jn, out=np.zeros_like(j), where=jn > 0)
-        aj = b["accel"][1:].copy()
+        aj = accel[1:].copy()
         with np.errstate(divide="ignore"):
             lim = np.where(np.abs(j) > 0, amax[1:] / np.abs(j), np.inf).min(axis=1)
         aj = np.minimum(aj, lim)
@@ -551,12 +559,13 @@ def _classic_jerk(d, L, v, jerk):
     return out
 
 
-def _plan_segment(b, maxentry2, m: Machine):
-    """Entry/exit speeds and trapezoid times of blocks that run without a stop in between."""
-    n = len(b)
+def _plan_segment_np(a, L, vn, maxentry2, m: Machine):
+    """Entry, exit and cruise speeds and the trapezoid's times (accelerate, cruise, brake) of
+    blocks that run without a stop in between: a, L, vn: their acceleration, length and nominal
+    speed; maxentry2: the square of the speed each may enter at (its junction)."""
+    n = len(a)
     vmin2 = m.min_planner_speed ** 2
-    a, L = b["accel"], b["length"]
-    M = np.append(np.minimum(maxentry2, b["nominal_speed"] ** 2), vmin2)
+    M = np.append(np.minimum(maxentry2, vn ** 2), vmin2)
     M[0] = vmin2                                            # starts from rest (a stop: MINIMUM_PLANNER_SPEED)
     S = np.concatenate([[0.0], np.cumsum(2 * a * L)])       # S[k] = sum_{m<k} 2 a_m L_m
     arr = M + S
@@ -573,7 +582,6 @@ def _plan_segment(b, maxentry2, m: Machine):
     fwd = S[:-1] + np.minimum.accumulate(back - S[:-1])
     entry2 = np.maximum(np.minimum(back, fwd), 0.0)
     exit2 = np.append(entry2[1:], vmin2)
-    vn = b["nominal_speed"]
     v0, v1 = np.sqrt(entry2), np.sqrt(exit2)
     # peak speed of a triangle: accelerate from v0, brake to v1 within L
     vpeak = np.sqrt(np.maximum((2 * a * L + entry2 + exit2) / 2, 0.0))
@@ -583,8 +591,16 @@ def _plan_segment(b, maxentry2, m: Machine):
     td = (vc - v1) / a
     d_c = np.maximum(L - (vc ** 2 - entry2) / (2 * a) - (vc ** 2 - exit2) / (2 * a), 0.0)
     tc = d_c / vc
-    b["entry_speed"], b["exit_speed"], b["cruise_speed"] = v0, v1, vc
-    b["t_accel"], b["t_cruise"], b["t_decel"] = ta, tc, td
+    return v0, v1, vc, ta, tc, td
+
+
+def _plan_segment(a, L, vn, maxentry2, m: Machine):
+    """_plan_segment_np, by the compiled planner (_plan.c) when it is built: the same numbers
+    (host/tests/gcode/test_plan_c.py)."""
+    if _plan is None:
+        return _plan_segment_np(a, L, vn, maxentry2, m)
+    return _plan.segment(a, L, vn, maxentry2, m.min_planner_speed ** 2,
+                         -1 if m.lookahead is None else m.lookahead)
 
 
 def _columns(rows) -> dict:
@@ -599,98 +615,161 @@ def _columns(rows) -> dict:
 
 
 CHUNK = 1 << 16          # blocks computed at once (a large file's temporaries stay small)
+_RUN = ("a", "L", "vn", "me2")                          # a run's columns (_Planner)
+_SPEEDS = ("entry_speed", "exit_speed", "cruise_speed", "t_accel", "t_cruise", "t_decel")
 
 
-def _plan_parts(p: "_Parser", m: Machine, source: str) -> np.ndarray:
-    """The parser's columns -> planned blocks, a chunk of blocks at a time."""
-    parts, p.parts = p.parts, None
-    n = sum(len(q["v"]) for q in parts)
-    b = np.zeros(n, dtype=BLOCK_DTYPE)
-    if not n:
-        return b
-    v, jd, brk = np.empty(n), np.empty(n), np.empty(n, bool)
-    amax, vmax = np.empty((n, 4)), np.empty((n, 4))
-    n_e, spm_e = np.empty(n), np.empty(n)
-    jerk = None if parts[0]["jerk"] is None else np.empty((n, 4))
-    off = 0
-    while parts:                                    # copied in, each part dropped once copied
-        q = parts.pop(0)
+class _Planner:
+    """The parser's parts (column arrays) -> planned blocks, part by part as the file is read.
+    Per part: each block's length, speed and acceleration under the axis limits and its junction
+    with the block before; the blocks are gathered into runs (no stop in between), and each run is
+    planned (_plan_run) once its end is known. What is kept: each block's time, feature and (of
+    extruding ones) filament, for the totals; with blocks=True also every block's row
+    (BLOCK_DTYPE), for callers that ask for them."""
+
+    def __init__(self, m: Machine, source: str, blocks: bool = True):
+        self.m, self.source, self.keep = m, source, blocks
+        self.prev = None                 # the last block so far: its junction with the next one
+        self.run = {k: [] for k in _RUN}
+        self.e_only = []                 # the run's moves of E alone: (index in the run, n_e, spm_e)
+        self.run_n = 0
+        self.t, self.feature, self.de = [], [], []
+        self.parts, self.speeds = [], []      # blocks=True: BLOCK_DTYPE rows; planned speeds per run
+        self.n = 0
+        self.bad = None                  # the line of the first move with feed rate 0
+
+    def feed(self, p: "_Parser") -> None:
+        """Takes the parser's parts so far."""
+        parts, p.parts = p.parts, []
+        for q in parts:
+            self.add(q)
+
+    def add(self, q: dict) -> None:
         k = len(q["v"])
-        sl = slice(off, off + k)
-        for name in ("line", "feature", "layer", "dx", "dy", "dz", "de", "accel"):
-            b[name][sl] = q[name]
-        v[sl], jd[sl], brk[sl], amax[sl], vmax[sl] = q["v"], q["jd"], q["brk"], q["amax"], q["vmax"]
-        n_e[sl], spm_e[sl] = q["n_e"], q["spm_e"]
-        if jerk is not None:
-            jerk[sl] = q["jerk"]
-        off += k
-    for c0 in range(0, n, CHUNK):
-        c = slice(c0, min(n, c0 + CHUNK))
-        bc = b[c]
-        d = np.column_stack([bc["dx"], bc["dy"], bc["dz"], bc["de"]])
+        if not k:
+            return
+        self.n += k
+        if self.bad is not None:                # nothing more is planned; the parse goes on
+            return
+        f8 = np.float64
+        d = np.column_stack([np.asarray(q[c], f8) for c in ("dx", "dy", "dz", "de")])
+        v, accel = np.asarray(q["v"], f8), np.asarray(q["accel"], f8)
         xyz = np.linalg.norm(d[:, :3], axis=1)
         L = np.where(xyz > 0, xyz, np.abs(d[:, 3]))
-        b["length"][c] = L
         # per-axis limits: speed so no axis exceeds its M203, accel so none exceeds its M201
         with np.errstate(divide="ignore", invalid="ignore"):
             ratio = np.abs(d) / L[:, None]
-            vlim = np.where(ratio > 0, vmax[c] / ratio, np.inf).min(axis=1)
-            alim = np.where(ratio > 0, amax[c] / ratio, np.inf).min(axis=1)
-        b["nominal_speed"][c] = np.minimum(v[c], vlim)
-        b["accel"][c] = np.where(xyz > 0, np.minimum(bc["accel"], alim), bc["accel"])
-    del v, vmax
-    if np.any(b["nominal_speed"] <= 0):
-        i = int(np.argmax(b["nominal_speed"] <= 0))
-        raise EstimateError(f"{source}:{b['line'][i]}: move with feed rate 0")
-    # junctions: each block's only with the one before (chunks overlap by one block)
-    maxentry2 = np.zeros(n)
-    for c0 in range(0, n, CHUNK):
-        lo, hi = max(0, c0 - 1), min(n, c0 + CHUNK)
-        part = _junctions(b[lo:hi], jd[lo:hi], None if jerk is None else jerk[lo:hi], amax[lo:hi], m)
-        maxentry2[c0:hi] = part[c0 - lo:]
-    del jd, amax, jerk
-    starts = np.flatnonzero(brk)
-    if len(starts) == 0 or starts[0] != 0:
-        starts = np.concatenate([[0], starts])
-    bounds = list(starts) + [n]
-    for s0, e0 in zip(bounds[:-1], bounds[1:]):
-        if e0 > s0:
-            _plan_long(b, s0, e0, maxentry2, m)
-    _slow_e_only(b, (b["dx"] == 0) & (b["dy"] == 0) & (b["dz"] == 0), n_e, spm_e)
-    return b
+            vlim = np.where(ratio > 0, q["vmax"] / ratio, np.inf).min(axis=1)
+            alim = np.where(ratio > 0, q["amax"] / ratio, np.inf).min(axis=1)
+        vn = np.minimum(v, vlim)
+        acc = np.where(xyz > 0, np.minimum(accel, alim), accel)
+        del ratio, vlim, alim
+        if np.any(vn <= 0):
+            self.bad = int(np.asarray(q["line"])[int(np.argmax(vn <= 0))])
+            return
+        # junctions: each block's with the one before (the previous part's last block first)
+        jd, amax = np.asarray(q["jd"], f8), np.asarray(q["amax"], f8)
+        jerk = None if q["jerk"] is None else np.asarray(q["jerk"], f8)
+        cols = (d, L, vn, acc, jd, jerk, amax)
+        last = tuple(None if c is None else c[-1:].copy() for c in cols)
+        if self.prev is not None:
+            cols = tuple(None if c is None else np.concatenate([pc, c]) for pc, c in zip(self.prev, cols))
+        me2 = _junctions(*cols, self.m)
+        if self.prev is not None:
+            me2 = me2[1:]
+        self.prev = last
+        del cols, jd, amax, jerk
+        dx, dy, dz, de = d[:, 0], d[:, 1], d[:, 2], d[:, 3]
+        e_only = np.flatnonzero((dx == 0) & (dy == 0) & (dz == 0) & (de != 0))
+        n_e, spm_e = np.asarray(q["n_e"], f8)[e_only], np.asarray(q["spm_e"], f8)[e_only]
+        self.feature.append(np.asarray(q["feature"]).astype(np.int32))
+        self.de.append(de[(de > 0) & ((dx != 0) | (dy != 0) | (dz != 0))])
+        if self.keep:
+            b = np.zeros(k, dtype=BLOCK_DTYPE)
+            for name in ("line", "feature", "layer"):
+                b[name] = q[name]
+            b["dx"], b["dy"], b["dz"], b["de"] = dx, dy, dz, de
+            b["length"], b["nominal_speed"], b["accel"] = L, vn, acc
+            self.parts.append(b)
+        # runs: a block after a stop starts one
+        lo = 0
+        for hi in np.flatnonzero(q["brk"]).tolist() + [k]:
+            if hi > lo:
+                for name, c in zip(_RUN, (acc, L, vn, me2)):
+                    self.run[name].append(c[lo:hi])
+                w = (e_only >= lo) & (e_only < hi)
+                if w.any():
+                    self.e_only.append((e_only[w] - lo + self.run_n, n_e[w], spm_e[w]))
+                self.run_n += hi - lo
+            if hi < k:
+                self.close()
+            lo = hi
+
+    def close(self) -> None:
+        """Plans the run gathered so far."""
+        if not self.run_n:
+            return
+        cols = [np.concatenate(self.run[name]) for name in _RUN]
+        self.run = {k: [] for k in _RUN}
+        a, L, vn, me2 = cols
+        sp = list(_plan_run(a, L, vn, me2, self.m))
+        if self.e_only:
+            sel, n_e, spm_e = (np.concatenate(c) for c in zip(*self.e_only))
+            _slow_e_only(vn, sp[3], sp[4], sp[5], sel, n_e, spm_e)
+        self.t.append(sp[3] + sp[4] + sp[5])
+        if self.keep:
+            self.speeds.append(sp)
+        self.e_only, self.run_n = [], 0
+
+    def finish(self):
+        """(each block's time, feature, the filament of extruding blocks, the blocks or None,
+        the number of blocks)."""
+        self.close()
+        if self.bad is not None:
+            raise EstimateError(f"{self.source}:{self.bad}: move with feed rate 0")
+        t = np.concatenate(self.t) if self.t else np.zeros(0)
+        feature = np.concatenate(self.feature) if self.feature else np.zeros(0, np.int32)
+        filament = float(np.concatenate(self.de).sum()) if self.de else 0.0
+        b = None
+        if self.keep:
+            b = np.concatenate(self.parts) if self.parts else np.zeros(0, dtype=BLOCK_DTYPE)
+            self.parts = []
+            for i, name in enumerate(_SPEEDS):
+                if len(b):
+                    b[name] = np.concatenate([s[i] for s in self.speeds])
+        return t, feature, filament, b, self.n
 
 
-def _plan_long(b, s0, e0, maxentry2, m: Machine) -> None:
-    """_plan_segment on blocks s0..e0 (no stop between them), a chunk at a time. A block's speeds
-    depend only on blocks within the distance the head needs to reach or lose its highest
-    speed (v^2 / 2a), so each chunk is planned with that much on both sides and only its own
-    blocks are kept: the same result as planning the whole run at once."""
-    n = e0 - s0
+def _plan_run(a, L, vn, me2, m: Machine):
+    """_plan_segment on a run of blocks (no stop between them), a chunk at a time when it is
+    long. A block's speeds depend only on blocks within the distance the head needs to reach or
+    lose its highest speed (v^2 / 2a), so each chunk is planned with that much on both sides and
+    only its own blocks are kept: the same result as planning the whole run at once."""
+    n = len(a)
     if n <= 2 * CHUNK:
-        seg = b[s0:e0]
-        _plan_segment(seg, maxentry2[s0:e0], m)
-        b[s0:e0] = seg
-        return
-    L = b["length"][s0:e0]
+        return _plan_segment(a, L, vn, me2, m)
+    out = [np.empty(n) for _ in _SPEEDS]
     cum = np.concatenate([[0.0], np.cumsum(L)])
-    reach = float((b["nominal_speed"][s0:e0] ** 2).max() / (2 * b["accel"][s0:e0].min())) * 1.5 + 1.0
+    reach = float((vn ** 2).max() / (2 * a.min())) * 1.5 + 1.0
     for c0 in range(0, n, CHUNK):
         c1 = min(n, c0 + CHUNK)
         lo = int(np.searchsorted(cum, cum[c0] - reach, side="right")) - 1
         hi = int(np.searchsorted(cum, cum[c1] + reach, side="left")) + 1
         lo, hi = max(0, lo - m.lookahead if m.lookahead else lo), min(n, hi + (m.lookahead or 0))
-        seg = b[s0 + lo:s0 + hi].copy()              # its edges are planned wrongly: not kept
-        me = maxentry2[s0 + lo:s0 + hi]
-        _plan_segment(seg, me, m)
-        keep = slice(c0 - lo, c1 - lo)
-        for f in ("entry_speed", "exit_speed", "cruise_speed", "t_accel", "t_cruise", "t_decel"):
-            b[f][s0 + c0:s0 + c1] = seg[f][keep]
+        # the window's edges are planned wrongly: not kept
+        seg = _plan_segment(a[lo:hi], L[lo:hi], vn[lo:hi], me2[lo:hi], m)
+        for o, s in zip(out, seg):
+            o[c0:c1] = s[c0 - lo:c1 - lo]
+    return out
 
 
-def estimate_lines(lines, machine: Machine | None = None, source: str = "<gcode>") -> Result:
-    """Items of `lines`: G-code lines, or MoveBlocks standing for the lines of their moves."""
+def estimate_lines(lines, machine: Machine | None = None, source: str = "<gcode>",
+                   blocks: bool = True) -> Result:
+    """Items of `lines`: G-code lines, or MoveBlocks standing for the lines of their moves.
+    blocks=False: Result.blocks is None (the totals only, in less memory)."""
     m = machine or Machine()
     p = _Parser(m, source)
+    plan = _Planner(m, source, blocks)
     count = 0
     for raw in lines:
         if isinstance(raw, MoveBlock):
@@ -699,49 +778,51 @@ def estimate_lines(lines, machine: Machine | None = None, source: str = "<gcode>
         else:
             count += 1
             p.line(count, raw)
+        if p.parts:
+            plan.feed(p)
     p.flush()
-    return _result(p, _plan_parts(p, m, source), count)
+    plan.feed(p)
+    return _result(p, plan, count)
 
 
-def _result(p: _Parser, b: np.ndarray, count: int) -> Result:
-    t = b["t_accel"] + b["t_cruise"] + b["t_decel"]
+def _result(p: _Parser, plan: _Planner, count: int) -> Result:
+    t, feature, filament, b, n = plan.finish()
     feats = p.features
     by = {}
-    if len(b):
-        sums = np.bincount(b["feature"], weights=t, minlength=len(feats))
+    if n:
+        sums = np.bincount(feature, weights=t, minlength=len(feats))
         by = {feats[i]: float(sums[i]) for i in range(len(feats)) if sums[i] > 0}
     for f, dt in p.dwell_by_feature.items():
         by[f] = by.get(f, 0.0) + dt
     moves = float(t.sum())
     return Result(total_s=moves + p.dwell, moves_s=moves, dwell_s=p.dwell, by_feature=by,
-                  features=feats, blocks=b, lines=count)
+                  features=feats, blocks=b, lines=count, n_blocks=n, filament=filament)
 
 
 def _lround(v: float) -> int:
     return int(math.floor(v + 0.5)) if v >= 0 else -int(math.floor(-v + 0.5))
 
 
-def _slow_e_only(b, e_alone, steps_e, spm_e) -> None:
-    """Moves of E alone whose step rate is under MINIMAL_STEP_RATE: 1/120 + (n - 1)/r s, all at
-    their speed (see the module's doc); faster ones keep their trapezoid, which is n/r plus the
-    ramp."""
-    sel = np.flatnonzero(e_alone & (b["de"] != 0))
-    if not len(sel):
-        return
-    n = steps_e[sel]
+def _slow_e_only(vn, t_accel, t_cruise, t_decel, sel, steps_e, spm_e) -> None:
+    """Moves of E alone (indices sel, their whole steps and steps/mm) whose step rate is under
+    MINIMAL_STEP_RATE: 1/120 + (n - 1)/r s, all at their speed (see the module's doc); faster
+    ones keep their trapezoid, which is n/r plus the ramp."""
+    n = steps_e
     # Marlin's length of the block is its whole steps in mm: the rate is speed x steps/mm
-    rate = np.ceil(b["nominal_speed"][sel] * spm_e[sel] - 1e-9)
+    rate = np.ceil(vn[sel] * spm_e - 1e-9)
     slow = (rate < MINIMAL_STEP_RATE) & (n >= 1)
     k = sel[slow]
-    b["t_accel"][k] = 0.0
-    b["t_decel"][k] = 0.0
-    b["t_cruise"][k] = 1 / MINIMAL_STEP_RATE + (n[slow] - 1) / rate[slow]
+    t_accel[k] = 0.0
+    t_decel[k] = 0.0
+    t_cruise[k] = 1 / MINIMAL_STEP_RATE + (n[slow] - 1) / rate[slow]
 
 
-def estimate_file(path, machine: Machine | None = None, scanned: bool | None = None) -> Result:
+def estimate_file(path, machine: Machine | None = None, scanned: bool | None = None,
+                  blocks: bool = True) -> Result:
     """The file's estimate: from the compiled scanner's move records (movescan, events mode)
     when it is built, else (or scanned=False) from its lines; both give the same blocks
-    (host/tests/gcode/test_estimate_scan.py)."""
+    (host/tests/gcode/test_estimate_scan.py). blocks=False: Result.blocks is None (the totals
+    only, in less memory: what `bulgekit estimate` prints)."""
     from . import movescan
     path = os.fspath(path)
     try:
@@ -749,11 +830,11 @@ def estimate_file(path, machine: Machine | None = None, scanned: bool | None = N
             scanned = movescan.available()
         if scanned:
             try:
-                return _estimate_scanned(path, machine or Machine(), path)
+                return _estimate_scanned(path, machine or Machine(), path, blocks)
             except movescan.Unsupported:
                 pass                                   # a line only the text parser takes
         with open(path, encoding="utf-8", errors="replace") as f:
-            return estimate_lines(f, machine, source=path)
+            return estimate_lines(f, machine, source=path, blocks=blocks)
     except OSError as e:
         raise EstimateError(f"{path}: {e.strerror or e}") from None
 
@@ -777,14 +858,16 @@ def _command(raw: str) -> str | None:
     return toks[0].upper()
 
 
-def _estimate_scanned(path: str, m: Machine, source: str) -> Result:
+def _estimate_scanned(path: str, m: Machine, source: str, blocks: bool = True) -> Result:
     """estimate_lines on the file, its plain moves taken from the scanner's records as arrays
     (what _Parser.move and emit would compute, operation for operation) and every other line
     (the scanner's events: comments with TYPE:/LAYER, other commands, odd moves) given to
     _Parser.line in order. A move whose start is not where the parser stands (after a G28, a bare
-    G92 ...: the scanner does not follow those) is read from its text too."""
+    G92 ...: the scanner does not follow those) is read from its text too. Each chunk's blocks are
+    planned as it is read (_Planner)."""
     from . import movescan
     p = _Parser(m, source)
+    plan = _Planner(m, source, blocks)
     if movescan._scan is None:
         raise movescan.Unsupported("bulgekit.gcode._scan is not built")
     sc = movescan._scan.Scanner((), (), movescan._classify, 1.0, events=True)
@@ -817,7 +900,8 @@ def _estimate_scanned(path: str, m: Machine, source: str) -> Result:
                     carry = (a[-1:].copy(), text_at(int(a["offset"][-1])))
                     e_last = float(a["e_start"][-1])
                     a = a[:-1]
-                _take(p, a, lambda r: texts.get(int(r["line_no"])) or text_at(int(r["offset"])), e_last)
+                _take(p, a, lambda n, off: texts.get(n) or text_at(off), e_last)
+                plan.feed(p)
                 _progress_tick(sc.lines)
                 base += used
                 buf = buf[used:]
@@ -826,7 +910,8 @@ def _estimate_scanned(path: str, m: Machine, source: str) -> Result:
     except movescan._scan.ScanUnsupported:
         raise movescan.Unsupported("the scanner refused a line") from None
     p.flush()
-    return _result(p, _plan_parts(p, m, source), sc.lines)
+    plan.feed(p)
+    return _result(p, plan, sc.lines)
 
 
 _EVENT = 16                                             # the scanner's flag for an event record
@@ -841,22 +926,23 @@ def _progress_tick(n: int) -> None:
 def _take(p: _Parser, a: np.ndarray, text, e_last: float) -> None:
     """One chunk of records (see _estimate_scanned). Moves are gathered in ranges while only
     lines that leave the position alone come between them (_SOFT, comments), each range with the
-    parser's state at its start, and taken as arrays when another line comes (or the chunk ends)."""
+    parser's state at its start, and taken as arrays when another line comes (or the chunk ends).
+    text(line number, byte offset): a record's line."""
     n = len(a)
     if not n:
         return
     ev = np.flatnonzero(a["flags"] & _EVENT)
+    ev_line = a["line_no"][ev].tolist()
+    ev_off = a["offset"][ev].tolist()
     # a move's end E is the next record's start E (an event's record holds the state before it)
     e_next = np.append(a["e_start"][1:], e_last)
-    ranges = []
-    i = k = 0
-    while i < n:
-        while k < len(ev) and ev[k] < i:
-            k += 1
-        j = int(ev[k]) if k < len(ev) else n
-        if j > i:                                       # moves i .. j-1
+    ranges = []                                         # (start, end, state, E steps at its start)
+    i = 0
+    for q, j in enumerate(ev.tolist() + [n]):
+        while j > i:                                    # moves i .. j-1
             if not ranges and not _in_step(p, a[i]):
-                p.line(int(a[i]["line_no"]), text(a[i]))     # from its text until in step again
+                r = a[i]
+                p.line(int(r["line_no"]), text(int(r["line_no"]), int(r["offset"])))   # from its text until in step again
                 i += 1
                 continue
             # the E steps a range starts from: the first one's are the parser's now (a G92
@@ -864,22 +950,25 @@ def _take(p: _Parser, a: np.ndarray, text, e_last: float) -> None:
             at = p.e_at if not ranges and p.g92_at is None else p.g92_at
             ranges.append((i, j, _state(p), at))
             p.g92_at = None
-            p.g92_lines = []
+            if p.g92_lines:
+                p.g92_lines = []
             p.brk = False                               # taken by the range's first block (or carried)
             i = j
-            continue
-        raw = text(a[j])
+        if j == n:
+            break
+        ln = ev_line[q]
+        raw = text(ln, ev_off[q])
         cmd = _command(raw)
         if ranges and cmd in _HARD:
             if cmd == "G92" and _plain_g92(raw):
-                p.line(int(a[j]["line_no"]), raw)
+                p.line(ln, raw)
                 p.g92_at = p.e_at                       # the E steps the next range starts from
-                p.g92_lines.append((int(a[j]["line_no"]), raw))   # again once the moves are taken
+                p.g92_lines.append((ln, raw))           # again once the moves are taken
                 i = j + 1
                 continue
             _vector_moves(p, a, e_next, ranges)
             ranges = []
-        p.line(int(a[j]["line_no"]), raw)
+        p.line(ln, raw)
         i = j + 1
     if ranges:
         _vector_moves(p, a, e_next, ranges)
@@ -910,15 +999,17 @@ def _lround_array(v: np.ndarray) -> np.ndarray:
 def _vector_moves(p: _Parser, a: np.ndarray, e_next: np.ndarray, ranges) -> None:
     """_Parser.move + emit for the moves of `ranges`, as arrays (see _take)."""
     m = p.m
-    counts = [e - s for s, e, _, _ in ranges]
-    idx = np.concatenate([np.arange(s, e) for s, e, _, _ in ranges])
-    k = len(idx)
+    R = len(ranges)
+    rs = np.array([s for s, _, _, _ in ranges], np.int64)
+    counts = np.array([e for _, e, _, _ in ranges], np.int64) - rs
+    starts = np.cumsum(counts) - counts                 # each range's first move among the k taken
+    k = int(counts.sum())
+    rid = np.repeat(np.arange(R), counts)               # each move's range
+    idx = np.arange(k) + (rs - starts)[rid]
     r = a[idx]
-    states = [st for _, _, st, _ in ranges]
     # the states as one matrix, a row per range: feature, layer, M220, accel x3, jd, jerk x4,
-    # M201 x4, M203 x4, brk
-    S = np.array([st[:7] + (st[7] or (0.0,) * 4) + st[8] + st[9] + (st[10],) for st in states], float)
-    starts = np.cumsum([0] + counts[:-1])
+    # M201 x4, M203 x4, brk (_state)
+    S = np.array([st for _, _, st, _ in ranges], float)
     brk_in = np.zeros(k, bool)
     brk_in[starts] = S[:, 19] != 0
     sx, sy, sz, se = (p.spm[ax] for ax in AXES)
@@ -936,14 +1027,42 @@ def _vector_moves(p: _Parser, a: np.ndarray, e_next: np.ndarray, ranges) -> None
     mx = np.maximum(np.maximum(np.abs(D[:, 0]) * sx, np.abs(D[:, 1]) * sy), np.maximum(np.abs(D[:, 2]) * sz, st_e))
     ne = np.where(xyz == 0, st_e, 0.0)
     emitted = np.ones(k, bool)
-    # dropped moves (too few steps, Marlin's rule) and the ones after them: one at a time
-    todo = list(np.flatnonzero((mx < m.min_segment_steps) | (mx == 0)))
-    if any(p.pending) and (not todo or todo[0] != 0):
-        todo.insert(0, 0)
+    # Dropped moves (too few steps, Marlin's rule): their distance goes to the next move. A move
+    # the arrays above drop does drop when the move before it was planned (its E steps and
+    # distance are then the ones used above); the usual case, one dropped move (a lone F word)
+    # whose next move is planned, is computed on arrays ("single"), chains of them one at a time.
+    drop = (mx < m.min_segment_steps) | (mx == 0)
+    todo = np.flatnonzero(drop)
+    pending = any(p.pending)
+    nxt_ok = np.zeros(len(todo), bool)
+    if len(todo):
+        s1 = todo + 1
+        nxt_ok = s1 < k
+        nxt_ok[nxt_ok] = ~drop[s1[nxt_ok]]
+        if pending and todo[0] == 0:
+            nxt_ok[0] = False
+    single = todo[nxt_ok]
+    if len(single):
+        # as the loop below computes it: the dropped move's distance (plus nothing pending)
+        # added to the next move's, whose E steps count from the dropped one's start
+        s1 = single + 1
+        d1 = D[s1] + (D[single] + 0.0)
+        x1 = np.sqrt(d1[:, 0] * d1[:, 0] + d1[:, 1] * d1[:, 1] + d1[:, 2] * d1[:, 2])
+        e_at1 = np.where(reset[s1], e_prev[s1], e_prev[single])
+        st1 = np.where(x1 == 0, np.abs(e_to[s1] - e_at1), np.abs(d1[:, 3]) * se)
+        mx1 = np.maximum(np.maximum(np.abs(d1[:, 0]) * sx, np.abs(d1[:, 1]) * sy), np.maximum(np.abs(d1[:, 2]) * sz, st1))
+        ok = ~((mx1 < m.min_segment_steps) | (mx1 == 0))
+        nxt_ok[np.flatnonzero(nxt_ok)[~ok]] = False
+        single, s1, d1, x1, st1 = single[ok], s1[ok], d1[ok], x1[ok], st1[ok]
+    chains = list(todo[~nxt_ok])
+    if pending and (not chains or chains[0] != 0):
+        chains.insert(0, 0)
+    covered = []                                   # (first, end) of each chain taken one by one
     nxt, last_pend = 0, [0.0, 0.0, 0.0, 0.0]
-    for j in todo:
+    for j in chains:
         if j < nxt:
             continue
+        j0 = j
         pend, e_at = (list(p.pending) if j == 0 else [0.0, 0.0, 0.0, 0.0]), int(e_prev[j])
         while j < k:
             if reset[j]:
@@ -964,7 +1083,17 @@ def _vector_moves(p: _Parser, a: np.ndarray, e_next: np.ndarray, ranges) -> None
             e_at, pend = et, [0.0, 0.0, 0.0, 0.0]
             break
         nxt = j
+        covered.append((j0, j))
         last_pend = pend if j == k else [0.0, 0.0, 0.0, 0.0]
+    if len(single):
+        if covered:                                # a single one inside a chain is the chain's
+            c0, c1 = np.array(covered).T
+            w = np.searchsorted(c0, single, side="right") - 1
+            free = (w < 0) | (single >= c1[np.maximum(w, 0)])
+            single, s1, d1, x1, st1 = single[free], s1[free], d1[free], x1[free], st1[free]
+        emitted[single] = False
+        D[s1] = d1
+        ne[s1] = np.where(x1 == 0, st1, 0.0)
     p.pending = last_pend if nxt == k else [0.0, 0.0, 0.0, 0.0]
     E = np.flatnonzero(emitted)
     cs = np.cumsum(brk_in)
@@ -975,8 +1104,7 @@ def _vector_moves(p: _Parser, a: np.ndarray, e_next: np.ndarray, ranges) -> None
         p.e_at = int(e_to[E[-1]])
         DE = D[E]
         xyzE = np.sqrt(DE[:, 0] * DE[:, 0] + DE[:, 1] * DE[:, 1] + DE[:, 2] * DE[:, 2])
-        X = np.repeat(np.arange(len(states)), counts)[E]   # each emitted block's range
-        SE = S[X]
+        SE = S[rid[E]]                                  # each emitted block's range's state
         acc = np.where(xyzE > 0, np.where(DE[:, 3] != 0, SE[:, 3], SE[:, 4]), SE[:, 5])
         p.flush()
         p.parts.append({
@@ -997,10 +1125,17 @@ def _vector_moves(p: _Parser, a: np.ndarray, e_next: np.ndarray, ranges) -> None
     p.g92_lines, p.g92_at = [], None
 
 
+_XYZE = operator.itemgetter(*AXES)
+
+
 def _state(p: _Parser) -> tuple:
-    return (p.fidx[p.feature], p.layer, p.pct, p.accel, p.travel_accel, p.retract_accel, p.jd,
-            None if p.jerk is None else tuple(p.jerk[a] for a in AXES),
-            tuple(p.max_accel[a] for a in AXES), tuple(p.max_fr[a] for a in AXES), p.brk)
+    """The parser's state a range of moves starts with, as one row of numbers (see _vector_moves)."""
+    return ((p.fidx[p.feature], p.layer, p.pct, p.accel, p.travel_accel, p.retract_accel, p.jd)
+            + (_NO_JERK if p.jerk is None else _XYZE(p.jerk)) + _XYZE(p.max_accel) + _XYZE(p.max_fr)
+            + (p.brk,))
+
+
+_NO_JERK = (0.0, 0.0, 0.0, 0.0)
 
 
 def block_times(res: Result) -> np.ndarray:
@@ -1016,6 +1151,10 @@ def extruding(res: Result) -> np.ndarray:
 
 def deposited_filament(res: Result, mask=None) -> float:
     """Filament (mm) laid by extruding moves (retractions and their primes are not counted)."""
+    if res.blocks is None:                                 # blocks=False: the sum kept
+        if mask is not None:
+            raise ValueError("deposited_filament with a mask needs the blocks (blocks=True)")
+        return res.filament
     sel = extruding(res) if mask is None else (extruding(res) & mask)
     return float(res.blocks["de"][sel].sum())
 

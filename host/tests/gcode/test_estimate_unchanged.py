@@ -86,6 +86,8 @@ def totals(path, name: str, monkeypatch=None, **kw) -> dict:
     if r.blocks is not None:
         out["blocks"] = len(r.blocks)
         out["digest"] = _digest(r.blocks)
+    else:                                   # blocks=False: the totals only
+        out["blocks"] = r.n_blocks
     return out
 
 
@@ -106,6 +108,15 @@ def _path(name: str, tmp: Path) -> Path:
 def test_results_are_the_code_befores(fname, machine, scanned, tmp_path, monkeypatch):
     before = json.loads(BEFORE.read_text())[f"{fname} {machine}"]
     got = totals(_path(fname, tmp_path), machine, monkeypatch, scanned=scanned)
+    assert got == before
+
+
+@pytest.mark.parametrize("fname,machine", _cases())
+def test_totals_without_blocks_are_the_same(fname, machine, tmp_path, monkeypatch):
+    """`bulgekit estimate` keeps no blocks (blocks=False): its figures are the same."""
+    before = json.loads(BEFORE.read_text())[f"{fname} {machine}"]
+    del before["digest"]
+    got = totals(_path(fname, tmp_path), machine, monkeypatch, blocks=False)
     assert got == before
 
 
