@@ -457,35 +457,58 @@ class _Parser:
         self.e_at = _lround(e1 * self.spm["E"])
 
 
+def _norm(*c):
+    """Each row's Euclidean norm, the columns summed in order (what np.linalg.norm(axis=1) does,
+    to the bit, without its slow reduction along short rows)."""
+    s = c[0] * c[0]
+    for x in c[1:]:
+        s = s + x * x
+    return np.sqrt(s)
+
+
+def _row_min(*c):
+    """Each row's smallest value (the columns' minimum)."""
+    out = c[0]
+    for x in c[1:]:
+        out = np.minimum(out, x)
+    return out
+
+
 def _junctions(d, L, v, accel, jd, jerk, amax, m: Machine):
     """Max entry speed squared of every block from its junction with the one before (d: the
-    blocks' dx, dy, dz, de as rows; L, v, accel: length, nominal speed, acceleration)."""
+    blocks' dx, dy, dz, de as rows; L, v, accel: length, nominal speed, acceleration; amax: M201
+    per axis, rows). Column by column: each operation is the one a row of numbers gets."""
     n = len(v)
-    extr = d[:, 3] != 0
-    unit = np.where(extr[:, None], d / np.linalg.norm(d, axis=1, keepdims=True), d / L[:, None])
     out = np.zeros(n)
     if n < 2:
         return out
-    u, p = unit[1:], unit[:-1]
-    if jerk is None:
-        cos = -(u * p).sum(axis=1)
-        j = u - p
-        jn = np.linalg.norm(j, axis=1, keepdims=True)
-        j = np.divide(j, jn, out=np.zeros_like(j), where=jn > 0)
-        aj = accel[1:].copy()
-        with np.errstate(divide="ignore"):
-            lim = np.where(np.abs(j) > 0, amax[1:] / np.abs(j), np.inf).min(axis=1)
-        aj = np.minimum(aj, lim)
-        c = np.maximum(cos, -0.999999)
-        s2 = np.sqrt(0.5 * (1 - c))
-        vj2 = aj * jd[1:] * s2 / (1 - s2)
-        if m.jd_small_segments:
-            small = (L[1:] < 1) & (c < -0.7071067812)
-            vj2 = np.where(small, np.minimum(vj2, L[1:] * aj / _jd_lut_acos_neg(c)), vj2)
-        vj2 = np.where(cos > 0.999999, m.min_planner_speed ** 2, vj2)
-        out[1:] = np.minimum(vj2, np.minimum(v[1:], v[:-1]) ** 2)
-    else:
+    if jerk is not None:
         out[1:] = _classic_jerk(d, L, v, jerk)
+        return out
+    col = [d[:, i] for i in range(4)]
+    extr = col[3] != 0
+    nd = _norm(*col)
+    unit = [np.where(extr, c / nd, c / L) for c in col]
+    u, p = [c[1:] for c in unit], [c[:-1] for c in unit]
+    cos = -(u[0] * p[0] + u[1] * p[1] + u[2] * p[2] + u[3] * p[3])
+    j = [a - b for a, b in zip(u, p)]
+    jn = _norm(*j)
+    nz = jn > 0
+    j = [np.divide(c, jn, out=np.zeros_like(c), where=nz) for c in j]
+    aj = accel[1:]
+    with np.errstate(divide="ignore"):
+        lim = _row_min(*(np.where(np.abs(c) > 0, amax[1:, i] / np.abs(c), np.inf) for i, c in enumerate(j)))
+    aj = np.minimum(aj, lim)
+    c = np.maximum(cos, -0.999999)
+    s2 = np.sqrt(0.5 * (1 - c))
+    vj2 = aj * jd[1:] * s2 / (1 - s2)
+    if m.jd_small_segments:
+        small = (L[1:] < 1) & (c < -0.7071067812)
+        if small.any():
+            k = np.flatnonzero(small)
+            vj2[k] = np.minimum(vj2[k], L[1:][k] * aj[k] / _jd_lut_acos_neg(c[k]))
+    vj2 = np.where(cos > 0.999999, m.min_planner_speed ** 2, vj2)
+    out[1:] = np.minimum(vj2, np.minimum(v[1:], v[:-1]) ** 2)
     return out
 
 
@@ -594,13 +617,21 @@ def _plan_segment_np(a, L, vn, maxentry2, m: Machine):
     return v0, v1, vc, ta, tc, td
 
 
-def _plan_segment(a, L, vn, maxentry2, m: Machine):
-    """_plan_segment_np, by the compiled planner (_plan.c) when it is built: the same numbers
-    (host/tests/gcode/test_plan_c.py)."""
-    if _plan is None:
-        return _plan_segment_np(a, L, vn, maxentry2, m)
-    return _plan.segment(a, L, vn, maxentry2, m.min_planner_speed ** 2,
-                         -1 if m.lookahead is None else m.lookahead)
+def _plan_window(a, L, vn, me2, m: Machine, lo, hi, k0, k1, t, sp) -> None:
+    """_plan_segment_np on blocks lo..hi-1 of a run (a, L, vn, me2: its columns), the results of
+    blocks k0..k1-1 written there in t (time) and sp (_SPEEDS' arrays, or Nones): by the compiled
+    planner (_plan.c) when it is built, which gives the same numbers (host/tests/gcode/test_plan_c.py)."""
+    n = hi - lo
+    W = -1 if m.lookahead is None or m.lookahead - 2 >= n else max(1, m.lookahead - 2)
+    if _plan is not None and W <= 64:       # a longer window: numpy's sliding minimum is quicker
+        _plan.segment(a, L, vn, me2, m.min_planner_speed ** 2, W, lo, hi, k0, k1, t, *sp)
+        return
+    res = _plan_segment_np(a[lo:hi], L[lo:hi], vn[lo:hi], me2[lo:hi], m)
+    w = slice(k0 - lo, k1 - lo)
+    t[k0:k1] = (res[3] + res[4] + res[5])[w]
+    for o, r in zip(sp, res):
+        if o is not None:
+            o[k0:k1] = r[w]
 
 
 def _columns(rows) -> dict:
@@ -654,13 +685,14 @@ class _Planner:
         f8 = np.float64
         d = np.column_stack([np.asarray(q[c], f8) for c in ("dx", "dy", "dz", "de")])
         v, accel = np.asarray(q["v"], f8), np.asarray(q["accel"], f8)
-        xyz = np.linalg.norm(d[:, :3], axis=1)
+        xyz = _norm(d[:, 0], d[:, 1], d[:, 2])
         L = np.where(xyz > 0, xyz, np.abs(d[:, 3]))
         # per-axis limits: speed so no axis exceeds its M203, accel so none exceeds its M201
+        vmax, amax = q["vmax"], q["amax"]
         with np.errstate(divide="ignore", invalid="ignore"):
-            ratio = np.abs(d) / L[:, None]
-            vlim = np.where(ratio > 0, q["vmax"] / ratio, np.inf).min(axis=1)
-            alim = np.where(ratio > 0, q["amax"] / ratio, np.inf).min(axis=1)
+            ratio = [np.abs(d[:, i]) / L for i in range(4)]
+            vlim = _row_min(*(np.where(r > 0, vmax[:, i] / r, np.inf) for i, r in enumerate(ratio)))
+            alim = _row_min(*(np.where(r > 0, amax[:, i] / r, np.inf) for i, r in enumerate(ratio)))
         vn = np.minimum(v, vlim)
         acc = np.where(xyz > 0, np.minimum(accel, alim), accel)
         del ratio, vlim, alim
@@ -709,14 +741,17 @@ class _Planner:
         """Plans the run gathered so far."""
         if not self.run_n:
             return
-        cols = [np.concatenate(self.run[name]) for name in _RUN]
+        a, L, vn, me2 = (np.concatenate(self.run.pop(name)) for name in _RUN)   # the pieces freed
         self.run = {k: [] for k in _RUN}
-        a, L, vn, me2 = cols
-        sp = list(_plan_run(a, L, vn, me2, self.m))
+        t, sp = _plan_run(a, L, vn, me2, self.m, self.keep)
+        del a, L, me2
         if self.e_only:
             sel, n_e, spm_e = (np.concatenate(c) for c in zip(*self.e_only))
-            _slow_e_only(vn, sp[3], sp[4], sp[5], sel, n_e, spm_e)
-        self.t.append(sp[3] + sp[4] + sp[5])
+            k, tc = _slow_e_only(vn, sel, n_e, spm_e)
+            if sp[3] is not None:
+                sp[3][k], sp[4][k], sp[5][k] = 0.0, tc, 0.0
+            t[k] = (0.0 + tc) + 0.0                      # t_accel + t_cruise + t_decel
+        self.t.append(t)
         if self.keep:
             self.speeds.append(sp)
         self.e_only, self.run_n = [], 0
@@ -740,15 +775,18 @@ class _Planner:
         return t, feature, filament, b, self.n
 
 
-def _plan_run(a, L, vn, me2, m: Machine):
-    """_plan_segment on a run of blocks (no stop between them), a chunk at a time when it is
-    long. A block's speeds depend only on blocks within the distance the head needs to reach or
-    lose its highest speed (v^2 / 2a), so each chunk is planned with that much on both sides and
-    only its own blocks are kept: the same result as planning the whole run at once."""
+def _plan_run(a, L, vn, me2, m: Machine, speeds: bool):
+    """Plans a run of blocks (no stop between them), a chunk at a time when it is long: (each
+    block's time, _SPEEDS' arrays or Nones). A block's speeds depend only on blocks within the
+    distance the head needs to reach or lose its highest speed (v^2 / 2a), so each chunk is
+    planned with that much on both sides and only its own blocks are kept: the same result as
+    planning the whole run at once."""
     n = len(a)
+    t = np.empty(n)
+    sp = [np.empty(n) if speeds else None for _ in _SPEEDS]
     if n <= 2 * CHUNK:
-        return _plan_segment(a, L, vn, me2, m)
-    out = [np.empty(n) for _ in _SPEEDS]
+        _plan_window(a, L, vn, me2, m, 0, n, 0, n, t, sp)
+        return t, sp
     cum = np.concatenate([[0.0], np.cumsum(L)])
     reach = float((vn ** 2).max() / (2 * a.min())) * 1.5 + 1.0
     for c0 in range(0, n, CHUNK):
@@ -756,11 +794,8 @@ def _plan_run(a, L, vn, me2, m: Machine):
         lo = int(np.searchsorted(cum, cum[c0] - reach, side="right")) - 1
         hi = int(np.searchsorted(cum, cum[c1] + reach, side="left")) + 1
         lo, hi = max(0, lo - m.lookahead if m.lookahead else lo), min(n, hi + (m.lookahead or 0))
-        # the window's edges are planned wrongly: not kept
-        seg = _plan_segment(a[lo:hi], L[lo:hi], vn[lo:hi], me2[lo:hi], m)
-        for o, s in zip(out, seg):
-            o[c0:c1] = s[c0 - lo:c1 - lo]
-    return out
+        _plan_window(a, L, vn, me2, m, lo, hi, c0, c1, t, sp)   # the window's edges are planned wrongly: not kept
+    return t, sp
 
 
 def estimate_lines(lines, machine: Machine | None = None, source: str = "<gcode>",
@@ -803,18 +838,15 @@ def _lround(v: float) -> int:
     return int(math.floor(v + 0.5)) if v >= 0 else -int(math.floor(-v + 0.5))
 
 
-def _slow_e_only(vn, t_accel, t_cruise, t_decel, sel, steps_e, spm_e) -> None:
+def _slow_e_only(vn, sel, steps_e, spm_e):
     """Moves of E alone (indices sel, their whole steps and steps/mm) whose step rate is under
     MINIMAL_STEP_RATE: 1/120 + (n - 1)/r s, all at their speed (see the module's doc); faster
-    ones keep their trapezoid, which is n/r plus the ramp."""
+    ones keep their trapezoid, which is n/r plus the ramp. -> (those moves, their cruise time)."""
     n = steps_e
     # Marlin's length of the block is its whole steps in mm: the rate is speed x steps/mm
     rate = np.ceil(vn[sel] * spm_e - 1e-9)
     slow = (rate < MINIMAL_STEP_RATE) & (n >= 1)
-    k = sel[slow]
-    t_accel[k] = 0.0
-    t_decel[k] = 0.0
-    t_cruise[k] = 1 / MINIMAL_STEP_RATE + (n[slow] - 1) / rate[slow]
+    return sel[slow], 1 / MINIMAL_STEP_RATE + (n[slow] - 1) / rate[slow]
 
 
 def estimate_file(path, machine: Machine | None = None, scanned: bool | None = None,
@@ -1006,14 +1038,17 @@ def _vector_moves(p: _Parser, a: np.ndarray, e_next: np.ndarray, ranges) -> None
     k = int(counts.sum())
     rid = np.repeat(np.arange(R), counts)               # each move's range
     idx = np.arange(k) + (rs - starts)[rid]
-    r = a[idx]
+    # the records' numbers as columns (a gather of whole records is slow)
+    fl = a.view(np.float64).reshape(len(a), a.dtype.itemsize // 8)      # movescan.RECORD: 8-byte fields
+    x0, y0, z0, x1, y1, z1, de, f = (fl[:, a.dtype.fields[c][1] // 8][idx]
+                                     for c in ("x0", "y0", "z0", "x1", "y1", "z1", "e", "f"))
     # the states as one matrix, a row per range: feature, layer, M220, accel x3, jd, jerk x4,
     # M201 x4, M203 x4, brk (_state)
     S = np.array([st for _, _, st, _ in ranges], float)
     brk_in = np.zeros(k, bool)
     brk_in[starts] = S[:, 19] != 0
     sx, sy, sz, se = (p.spm[ax] for ax in AXES)
-    D = np.column_stack([r["x1"] - r["x0"], r["y1"] - r["y0"], r["z1"] - r["z0"], r["e"]])
+    D = np.column_stack([x1 - x0, y1 - y0, z1 - z0, de])
     ea = e_next[idx]
     e_to = _lround_array(ea * se)
     e_prev = np.concatenate([[p.e_at], e_to[:-1]])
@@ -1047,13 +1082,13 @@ def _vector_moves(p: _Parser, a: np.ndarray, e_next: np.ndarray, ranges) -> None
         # added to the next move's, whose E steps count from the dropped one's start
         s1 = single + 1
         d1 = D[s1] + (D[single] + 0.0)
-        x1 = np.sqrt(d1[:, 0] * d1[:, 0] + d1[:, 1] * d1[:, 1] + d1[:, 2] * d1[:, 2])
+        xs1 = np.sqrt(d1[:, 0] * d1[:, 0] + d1[:, 1] * d1[:, 1] + d1[:, 2] * d1[:, 2])
         e_at1 = np.where(reset[s1], e_prev[s1], e_prev[single])
-        st1 = np.where(x1 == 0, np.abs(e_to[s1] - e_at1), np.abs(d1[:, 3]) * se)
+        st1 = np.where(xs1 == 0, np.abs(e_to[s1] - e_at1), np.abs(d1[:, 3]) * se)
         mx1 = np.maximum(np.maximum(np.abs(d1[:, 0]) * sx, np.abs(d1[:, 1]) * sy), np.maximum(np.abs(d1[:, 2]) * sz, st1))
         ok = ~((mx1 < m.min_segment_steps) | (mx1 == 0))
         nxt_ok[np.flatnonzero(nxt_ok)[~ok]] = False
-        single, s1, d1, x1, st1 = single[ok], s1[ok], d1[ok], x1[ok], st1[ok]
+        single, s1, d1, xs1, st1 = single[ok], s1[ok], d1[ok], xs1[ok], st1[ok]
     chains = list(todo[~nxt_ok])
     if pending and (not chains or chains[0] != 0):
         chains.insert(0, 0)
@@ -1090,10 +1125,10 @@ def _vector_moves(p: _Parser, a: np.ndarray, e_next: np.ndarray, ranges) -> None
             c0, c1 = np.array(covered).T
             w = np.searchsorted(c0, single, side="right") - 1
             free = (w < 0) | (single >= c1[np.maximum(w, 0)])
-            single, s1, d1, x1, st1 = single[free], s1[free], d1[free], x1[free], st1[free]
+            single, s1, d1, xs1, st1 = single[free], s1[free], d1[free], xs1[free], st1[free]
         emitted[single] = False
         D[s1] = d1
-        ne[s1] = np.where(x1 == 0, st1, 0.0)
+        ne[s1] = np.where(xs1 == 0, st1, 0.0)
     p.pending = last_pend if nxt == k else [0.0, 0.0, 0.0, 0.0]
     E = np.flatnonzero(emitted)
     cs = np.cumsum(brk_in)
@@ -1104,21 +1139,32 @@ def _vector_moves(p: _Parser, a: np.ndarray, e_next: np.ndarray, ranges) -> None
         p.e_at = int(e_to[E[-1]])
         DE = D[E]
         xyzE = np.sqrt(DE[:, 0] * DE[:, 0] + DE[:, 1] * DE[:, 1] + DE[:, 2] * DE[:, 2])
-        SE = S[rid[E]]                                  # each emitted block's range's state
-        acc = np.where(xyzE > 0, np.where(DE[:, 3] != 0, SE[:, 3], SE[:, 4]), SE[:, 5])
+        rE = rid[E]                                     # each emitted block's range
+        nE = len(E)
+
+        def state(c0, c1=None):
+            """State columns c0 (..c1) per emitted block; a column the same in every range is
+            given as a broadcast view, not copied."""
+            cols = S[:, c0:c1 or c0 + 1]
+            if (cols == cols[0]).all():
+                out = np.broadcast_to(cols[0], (nE, cols.shape[1]))
+            else:
+                out = cols[rE]
+            return out if c1 else out[:, 0]
+
+        acc = np.where(xyzE > 0, np.where(DE[:, 3] != 0, state(3), state(4)), state(5))
         p.flush()
         p.parts.append({
-            "line": r["line_no"][E].astype(np.int64), "feature": SE[:, 0].astype(np.int64),
-            "layer": SE[:, 1].astype(np.int64), "dx": DE[:, 0], "dy": DE[:, 1], "dz": DE[:, 2],
-            "de": DE[:, 3], "v": r["f"][E] / 60 * SE[:, 2] / 100, "accel": acc, "brk": brk,
-            "jd": SE[:, 6], "jerk": None if p.jerk is None else SE[:, 7:11],
-            "amax": SE[:, 11:15], "vmax": SE[:, 15:19],
-            "n_e": ne[E].astype(float), "spm_e": np.full(len(E), float(se))})
+            "line": a["line_no"][idx[E]].astype(np.int64), "feature": state(0).astype(np.int64),
+            "layer": state(1).astype(np.int64), "dx": DE[:, 0], "dy": DE[:, 1], "dz": DE[:, 2],
+            "de": DE[:, 3], "v": f[E] / 60 * state(2) / 100, "accel": acc, "brk": brk,
+            "jd": state(6), "jerk": None if p.jerk is None else state(7, 11),
+            "amax": state(11, 15), "vmax": state(15, 19),
+            "n_e": ne[E].astype(float), "spm_e": np.full(nE, float(se))})
     else:
         p.brk = p.brk or bool(cs[-1] > 0)
-    last = r[-1]
-    p.pos = [float(last["x1"]), float(last["y1"]), float(last["z1"]), float(ea[-1])]
-    p.F = float(last["f"])
+    p.pos = [float(x1[-1]), float(y1[-1]), float(z1[-1]), float(ea[-1])]
+    p.F = float(f[-1])
     p.f = p.F / 60
     for n, raw in p.g92_lines:                    # G92s after the last range: on the position now
         p.line(n, raw)
