@@ -15,6 +15,7 @@
 #include <Python.h>
 #include <math.h>
 #include <stdlib.h>
+#include <string.h>
 
 /* numpy's minimum and maximum of two doubles (a NaN in either wins) */
 static inline double np_min(double a, double b) { return (a <= b || isnan(a)) ? a : b; }
@@ -137,8 +138,153 @@ done:
     return ret;
 }
 
+/* A strided float64 vector or k x 4 matrix (a broadcast row has stride 0) */
+typedef struct { Py_buffer b; int set; const char *p; Py_ssize_t s0, s1; } Vec;
+
+static int get_vec(PyObject *o, Vec *v, Py_ssize_t n, int cols, const char *name) {
+    v->set = 0;
+    if (PyObject_GetBuffer(o, &v->b, PyBUF_RECORDS_RO) < 0) return -1;
+    v->set = 1;
+    Py_buffer *b = &v->b;
+    int ok = b->itemsize == 8 && b->format && strcmp(b->format, "d") == 0;
+    if (ok && cols == 0) {
+        ok = b->ndim == 1 && b->shape[0] >= n;
+        v->s0 = ok ? b->strides[0] : 0;
+        v->s1 = 0;
+    } else if (ok) {
+        ok = (b->ndim == 2 && b->shape[0] >= n && b->shape[1] == cols) || (b->ndim == 1 && b->shape[0] == cols);
+        v->s0 = !ok ? 0 : b->ndim == 2 ? b->strides[0] : 0;
+        v->s1 = !ok ? 0 : b->ndim == 2 ? b->strides[1] : b->strides[0];
+    }
+    if (!ok) {
+        PyErr_Format(PyExc_ValueError, "_plan.blocks: %s must be float64 of %zd rows%s", name, n,
+                     cols ? " by 4 (or one row)" : "");
+        return -1;
+    }
+    v->p = (const char *)b->buf;
+    return 0;
+}
+
+#define AT(v, i) (*(const double *)((v).p + (i) * (v).s0))
+#define AT2(v, i, c) (*(const double *)((v).p + (i) * (v).s0 + (c) * (v).s1))
+
+/* Marlin's JD_USE_LOOKUP_TABLE: estimate._jd_lut_acos_neg, one value */
+static const double JD_K[16] = {-1.03145837, -1.30760646, -1.75205851, -2.41705704, -3.37769222, -4.74888992,
+                                -6.69649887, -9.45661736, -13.3640480, -18.8928222, -26.7136841, -37.7754593,
+                                -53.4201813, -75.5458374, -106.836761, -218.532821};
+static const double JD_B[16] = {1.57079637, 1.70887053, 2.04220939, 2.62408352, 3.52467871, 4.85302639,
+                                6.77020454, 9.50875854, 13.4009285, 18.9188995, 26.7321243, 37.7885055,
+                                53.4293975, 75.5523529, 106.841369, 218.534011};
+
+static double jd_lut_acos_neg(double cos) {
+    double neg = cos < 0 ? -1.0 : 1.0;
+    double t = neg * cos;
+    double xf = floor((1.0 - t) * 32768.0);
+    xf = xf < 0 ? 0 : xf > 65535 ? 65535 : xf;
+    long x = (long)xf, bits = 0;
+    while (x >> bits) bits++;                           /* floor(log2(x)) + 1 for x > 0 */
+    long idx = 16 - bits - 1;
+    idx = t < 3e-8 ? 0 : idx < 0 ? 0 : idx > 15 ? 15 : idx;
+    double theta = t * JD_K[idx] + JD_B[idx];
+    return neg > 0 ? 3.141592653589793 - theta : theta;
+}
+
+/* blocks(dx, dy, dz, de, v, accel, jd, amax, vmax, prev, small_segments, vmin2, L, vn, acc, me2)
+ *
+ * estimate._Planner.add's numbers for k blocks, junction deviation (no classic jerk): each block's
+ * length L, nominal speed vn and acceleration acc under the per-axis limits (vmax: M203, amax:
+ * M201, k x 4 or one row), and me2, the square of the speed it may enter at from its junction with
+ * the block before (estimate._junctions). prev: 6 float64, in and out: the previous block's unit
+ * vector and nominal speed, and 1 if there is one (else 0: the first block's me2 is 0); the last
+ * block's are left there. Inputs may be strided (column views, broadcast rows); outputs are
+ * contiguous float64 of k. Returns the number of blocks. */
+static PyObject *blocks(PyObject *self, PyObject *args) {
+    PyObject *o[9], *po, *out[4];
+    int small;
+    double vmin2;
+    if (!PyArg_ParseTuple(args, "OOOOOOOOOOidOOOO", &o[0], &o[1], &o[2], &o[3], &o[4], &o[5], &o[6], &o[7],
+                          &o[8], &po, &small, &vmin2, &out[0], &out[1], &out[2], &out[3]))
+        return NULL;
+    static const char *names[9] = {"dx", "dy", "dz", "de", "v", "accel", "jd", "amax", "vmax"};
+    Vec in[9];
+    Buf ob[4], pb;
+    PyObject *ret = NULL;
+    Py_ssize_t k, i;
+    int c;
+    for (i = 0; i < 9; i++) in[i].set = 0;
+    for (i = 0; i < 4; i++) ob[i].set = 0;
+    pb.set = 0;
+    if (get_buf(out[0], &ob[0], 1, 0, "L") < 0 || !ob[0].set) goto done;
+    k = ob[0].b.len / 8;
+    for (i = 1; i < 4; i++)
+        if (get_buf(out[i], &ob[i], 1, k, "an output") < 0 || !ob[i].set) goto done;
+    if (get_buf(po, &pb, 1, 6, "prev") < 0) goto done;
+    for (i = 0; i < 9; i++)
+        if (get_vec(o[i], &in[i], k, i >= 7 ? 4 : 0, names[i]) < 0) goto done;
+    {
+        double *L = ob[0].b.buf, *vn = ob[1].b.buf, *acc = ob[2].b.buf, *me2 = ob[3].b.buf, *prev = pb.b.buf;
+        for (i = 0; i < k; i++) {
+            double d[4] = {AT(in[0], i), AT(in[1], i), AT(in[2], i), AT(in[3], i)};
+            double xyz = sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
+            double Li = xyz > 0 ? xyz : fabs(d[3]);
+            double vlim = 0, alim = 0;
+            for (c = 0; c < 4; c++) {
+                double r = fabs(d[c]) / Li;
+                double vl = r > 0 ? AT2(in[8], i, c) / r : INFINITY;
+                double al = r > 0 ? AT2(in[7], i, c) / r : INFINITY;
+                vlim = c ? np_min(vlim, vl) : vl;
+                alim = c ? np_min(alim, al) : al;
+            }
+            double v = np_min(AT(in[4], i), vlim);
+            double a = xyz > 0 ? np_min(AT(in[5], i), alim) : AT(in[5], i);
+            L[i] = Li;
+            vn[i] = v;
+            acc[i] = a;
+            /* the unit vector: XYZE normalised for a move that extrudes, XYZ / length for travel */
+            double nd = sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2] + d[3] * d[3]);
+            double u[4];
+            for (c = 0; c < 4; c++) u[c] = d[3] != 0 ? d[c] / nd : d[c] / Li;
+            double e2 = 0.0;
+            if (prev[5] != 0) {
+                const double *p = prev;
+                double cos = -(u[0] * p[0] + u[1] * p[1] + u[2] * p[2] + u[3] * p[3]);
+                double j[4];
+                for (c = 0; c < 4; c++) j[c] = u[c] - p[c];
+                double jn = sqrt(j[0] * j[0] + j[1] * j[1] + j[2] * j[2] + j[3] * j[3]);
+                double lim = 0;
+                for (c = 0; c < 4; c++) {
+                    double jc = jn > 0 ? j[c] / jn : 0.0;
+                    double l = fabs(jc) > 0 ? AT2(in[7], i, c) / fabs(jc) : INFINITY;
+                    lim = c ? np_min(lim, l) : l;
+                }
+                double aj = np_min(a, lim);
+                double cc = np_max(cos, -0.999999);
+                double s2 = sqrt(0.5 * (1 - cc));
+                double vj2 = aj * AT(in[6], i) * s2 / (1 - s2);
+                if (small && Li < 1 && cc < -0.7071067812) vj2 = np_min(vj2, Li * aj / jd_lut_acos_neg(cc));
+                if (cos > 0.999999) vj2 = vmin2;
+                double vm = np_min(v, p[4]);
+                e2 = np_min(vj2, vm * vm);
+            }
+            me2[i] = e2;
+            for (c = 0; c < 4; c++) prev[c] = u[c];
+            prev[4] = v;
+            prev[5] = 1.0;
+        }
+    }
+    ret = PyLong_FromSsize_t(k);
+done:
+    for (i = 0; i < 9; i++)
+        if (in[i].set) PyBuffer_Release(&in[i].b);
+    for (i = 0; i < 4; i++)
+        if (ob[i].set) PyBuffer_Release(&ob[i].b);
+    if (pb.set) PyBuffer_Release(&pb.b);
+    return ret;
+}
+
 static PyMethodDef methods[] = {
     {"segment", segment, METH_VARARGS, "Plan blocks lo..hi-1 as one segment; write k0..k1-1 (see the file's comment)."},
+    {"blocks", blocks, METH_VARARGS, "Blocks' length, speed, acceleration and junction speed (see the file's comment)."},
     {NULL, NULL, 0, NULL}};
 
 static struct PyModuleDef module = {PyModuleDef_HEAD_INIT, "_plan", NULL, -1, methods};

@@ -661,6 +661,7 @@ class _Planner:
     def __init__(self, m: Machine, source: str, blocks: bool = True):
         self.m, self.source, self.keep = m, source, blocks
         self.prev = None                 # the last block so far: its junction with the next one
+        self.prev_c = None               # the same for _plan.blocks: its unit vector, speed, 1
         self.run = {k: [] for k in _RUN}
         self.e_only = []                 # the run's moves of E alone: (index in the run, n_e, spm_e)
         self.run_n = 0
@@ -683,6 +684,9 @@ class _Planner:
         if self.bad is not None:                # nothing more is planned; the parse goes on
             return
         f8 = np.float64
+        if _plan is not None and q["jerk"] is None and self.prev is None:
+            self._add_c(q, k)
+            return
         d = np.column_stack([np.asarray(q[c], f8) for c in ("dx", "dy", "dz", "de")])
         v, accel = np.asarray(q["v"], f8), np.asarray(q["accel"], f8)
         xyz = _norm(d[:, 0], d[:, 1], d[:, 2])
@@ -711,7 +715,27 @@ class _Planner:
             me2 = me2[1:]
         self.prev = last
         del cols, jd, amax, jerk
-        dx, dy, dz, de = d[:, 0], d[:, 1], d[:, 2], d[:, 3]
+        self._keep(q, k, d[:, 0], d[:, 1], d[:, 2], d[:, 3], L, vn, acc, me2)
+
+    def _add_c(self, q: dict, k: int) -> None:
+        """add's numbers by the compiled planner (_plan.blocks: the same, operation for operation)."""
+        f8 = np.float64
+        dx, dy, dz, de = (np.asarray(q[c], f8) for c in ("dx", "dy", "dz", "de"))
+        L, vn, acc, me2 = np.empty(k), np.empty(k), np.empty(k), np.empty(k)
+        if self.prev_c is None:
+            self.prev_c = np.zeros(6)
+        _plan.blocks(dx, dy, dz, de, np.asarray(q["v"], f8), np.asarray(q["accel"], f8),
+                     np.asarray(q["jd"], f8), np.asarray(q["amax"], f8), np.asarray(q["vmax"], f8),
+                     self.prev_c, bool(self.m.jd_small_segments), self.m.min_planner_speed ** 2,
+                     L, vn, acc, me2)
+        if np.any(vn <= 0):
+            self.bad = int(np.asarray(q["line"])[int(np.argmax(vn <= 0))])
+            return
+        self._keep(q, k, dx, dy, dz, de, L, vn, acc, me2)
+
+    def _keep(self, q, k, dx, dy, dz, de, L, vn, acc, me2) -> None:
+        """A part's planned numbers: into the run, and what the totals (and blocks) need."""
+        f8 = np.float64
         e_only = np.flatnonzero((dx == 0) & (dy == 0) & (dz == 0) & (de != 0))
         n_e, spm_e = np.asarray(q["n_e"], f8)[e_only], np.asarray(q["spm_e"], f8)[e_only]
         self.feature.append(np.asarray(q["feature"]).astype(np.int32))
