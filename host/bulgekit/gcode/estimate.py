@@ -500,7 +500,8 @@ def _junctions(d, L, v, accel, jd, jerk, amax, m: Machine):
         lim = _row_min(*(np.where(np.abs(c) > 0, amax[1:, i] / np.abs(c), np.inf) for i, c in enumerate(j)))
     aj = np.minimum(aj, lim)
     c = np.maximum(cos, -0.999999)
-    s2 = np.sqrt(0.5 * (1 - c))
+    with np.errstate(invalid="ignore"):                   # cos a hair over 1: replaced below
+        s2 = np.sqrt(0.5 * (1 - c))
     vj2 = aj * jd[1:] * s2 / (1 - s2)
     if m.jd_small_segments:
         small = (L[1:] < 1) & (c < -0.7071067812)
