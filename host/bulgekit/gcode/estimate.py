@@ -63,6 +63,7 @@ count (G2/G3 are cut into pieces of at most 1 mm, as MAX_ARC_SEGMENT_MM).
 """
 from __future__ import annotations
 
+import bisect
 import math
 import operator
 import os
@@ -647,7 +648,6 @@ def _columns(rows) -> dict:
 
 
 CHUNK = 1 << 16          # blocks computed at once (a large file's temporaries stay small)
-_RUN = ("a", "L", "vn", "me2")                          # a run's columns (_Planner)
 _SPEEDS = ("entry_speed", "exit_speed", "cruise_speed", "t_accel", "t_cruise", "t_decel")
 
 
@@ -663,9 +663,8 @@ class _Planner:
         self.m, self.source, self.keep = m, source, blocks
         self.prev = None                 # the last block so far: its junction with the next one
         self.prev_c = None               # the same for _plan.blocks: its unit vector, speed, 1
-        self.run = {k: [] for k in _RUN}
-        self.e_only = []                 # the run's moves of E alone: (index in the run, n_e, spm_e)
-        self.run_n = 0
+        self.run = _Run()
+        self.e_only = []                 # the run's moves of E alone: (index in the run, n_e, spm_e, vn)
         self.t, self.feature, self.de = [], [], []
         self.parts, self.speeds = [], []      # blocks=True: BLOCK_DTYPE rows; planned speeds per run
         self.n = 0
@@ -738,7 +737,7 @@ class _Planner:
         """A part's planned numbers: into the run, and what the totals (and blocks) need."""
         f8 = np.float64
         e_only = np.flatnonzero((dx == 0) & (dy == 0) & (dz == 0) & (de != 0))
-        n_e, spm_e = np.asarray(q["n_e"], f8)[e_only], np.asarray(q["spm_e"], f8)[e_only]
+        n_e, spm_e, vn_e = np.asarray(q["n_e"], f8)[e_only], np.asarray(q["spm_e"], f8)[e_only], vn[e_only]
         self.feature.append(np.asarray(q["feature"]).astype(np.int32))
         self.de.append(de[(de > 0) & ((dx != 0) | (dy != 0) | (dz != 0))])
         if self.keep:
@@ -752,26 +751,22 @@ class _Planner:
         lo = 0
         for hi in np.flatnonzero(q["brk"]).tolist() + [k]:
             if hi > lo:
-                for name, c in zip(_RUN, (acc, L, vn, me2)):
-                    self.run[name].append(c[lo:hi])
                 w = (e_only >= lo) & (e_only < hi)
                 if w.any():
-                    self.e_only.append((e_only[w] - lo + self.run_n, n_e[w], spm_e[w]))
-                self.run_n += hi - lo
+                    self.e_only.append((e_only[w] - lo + self.run.n, n_e[w], spm_e[w], vn_e[w]))
+                self.run.add(acc[lo:hi], L[lo:hi], vn[lo:hi], me2[lo:hi])
             if hi < k:
                 self.close()
             lo = hi
 
     def close(self) -> None:
         """Plans the run gathered so far."""
-        if not self.run_n:
+        if not self.run.n:
             return
-        a, L, vn, me2 = (np.concatenate(self.run.pop(name)) for name in _RUN)   # the pieces freed
-        self.run = {k: [] for k in _RUN}
-        t, sp = _plan_run(a, L, vn, me2, self.m, self.keep)
-        del a, L, me2
+        run, self.run = self.run, _Run()
+        t, sp = _plan_run(run, self.m, self.keep)
         if self.e_only:
-            sel, n_e, spm_e = (np.concatenate(c) for c in zip(*self.e_only))
+            sel, n_e, spm_e, vn = (np.concatenate(c) for c in zip(*self.e_only))
             k, tc = _slow_e_only(vn, sel, n_e, spm_e)
             if sp[3] is not None:
                 sp[3][k], sp[4][k], sp[5][k] = 0.0, tc, 0.0
@@ -779,7 +774,7 @@ class _Planner:
         self.t.append(t)
         if self.keep:
             self.speeds.append(sp)
-        self.e_only, self.run_n = [], 0
+        self.e_only = []
 
     def finish(self):
         """(each block's time, feature, the filament of extruding blocks, the blocks or None,
@@ -800,26 +795,90 @@ class _Planner:
         return t, feature, filament, b, self.n
 
 
-def _plan_run(a, L, vn, me2, m: Machine, speeds: bool):
+class _Run:
+    """A run of blocks (no stop between them) as its columns came, piece by piece: acceleration,
+    length, nominal speed, junction speed squared, and cum, the prefix sums of the lengths
+    (np.cumsum over the whole run, to the bit: each piece's sums continue from the last one's
+    total). Windows are copied out as they are planned (window()), and pieces behind them are let
+    go (drop()), so that planning needs no second copy of the run."""
+
+    def __init__(self):
+        self.pieces = []                 # (a, L, vn, me2, cum) or None once dropped
+        self.starts = []                 # each piece's first block
+        self.lasts = []                  # each piece's last cum
+        self.n = 0
+        self.total = 0.0
+        self.vn_max = self.a_min = None
+
+    def add(self, a, L, vn, me2) -> None:
+        cum = np.cumsum(np.concatenate([[self.total], L]))[1:]
+        self.pieces.append((a, L, vn, me2, cum))
+        self.starts.append(self.n)
+        self.lasts.append(float(cum[-1]))
+        self.n += len(a)
+        self.total = self.lasts[-1]
+        vm, am = vn.max(), a.min()
+        self.vn_max = vm if self.vn_max is None else np.maximum(self.vn_max, vm)
+        self.a_min = am if self.a_min is None else np.minimum(self.a_min, am)
+
+    def cum(self, i: int) -> float:
+        """The run's cum[i] (cum[0] = 0: before the first block)."""
+        if i == 0:
+            return 0.0
+        j = bisect.bisect_right(self.starts, i - 1) - 1
+        return self.pieces[j][4][i - 1 - self.starts[j]]
+
+    def searchsorted(self, x: float, side: str) -> int:
+        """np.searchsorted(cum, x, side) on the run's n + 1 cum values."""
+        if x < 0 or (side == "left" and x <= 0):       # cum[0] = 0, and every cum >= 0
+            return 0
+        j = (bisect.bisect_right if side == "right" else bisect.bisect_left)(self.lasts, x)
+        if j == len(self.pieces):
+            return self.n + 1
+        return 1 + self.starts[j] + int(np.searchsorted(self.pieces[j][4], x, side=side))
+
+    def window(self, lo: int, hi: int):
+        """(a, L, vn, me2) of blocks lo..hi-1, contiguous."""
+        j = bisect.bisect_right(self.starts, lo) - 1
+        parts = []
+        while j < len(self.pieces) and self.starts[j] < hi:
+            s0 = self.starts[j]
+            parts.append(tuple(c[max(lo - s0, 0):hi - s0] for c in self.pieces[j][:4]))
+            j += 1
+        if len(parts) == 1:
+            return parts[0]
+        return tuple(np.concatenate(c) for c in zip(*parts))
+
+    def drop(self, lo: int) -> None:
+        """Lets go of the pieces that end before block lo."""
+        for j in range(len(self.pieces) - 1):
+            if self.starts[j + 1] > lo:
+                break
+            self.pieces[j] = None
+
+
+def _plan_run(run: _Run, m: Machine, speeds: bool):
     """Plans a run of blocks (no stop between them), a chunk at a time when it is long: (each
     block's time, _SPEEDS' arrays or Nones). A block's speeds depend only on blocks within the
     distance the head needs to reach or lose its highest speed (v^2 / 2a), so each chunk is
     planned with that much on both sides and only its own blocks are kept: the same result as
     planning the whole run at once."""
-    n = len(a)
+    n = run.n
     t = np.empty(n)
     sp = [np.empty(n) if speeds else None for _ in _SPEEDS]
     if n <= 2 * CHUNK:
-        _plan_window(a, L, vn, me2, m, 0, n, 0, n, t, sp)
+        _plan_window(*run.window(0, n), m, 0, n, 0, n, t, sp)
         return t, sp
-    cum = np.concatenate([[0.0], np.cumsum(L)])
-    reach = float((vn ** 2).max() / (2 * a.min())) * 1.5 + 1.0
+    reach = float(run.vn_max * run.vn_max / (2 * run.a_min)) * 1.5 + 1.0
     for c0 in range(0, n, CHUNK):
         c1 = min(n, c0 + CHUNK)
-        lo = int(np.searchsorted(cum, cum[c0] - reach, side="right")) - 1
-        hi = int(np.searchsorted(cum, cum[c1] + reach, side="left")) + 1
+        lo = run.searchsorted(run.cum(c0) - reach, "right") - 1
+        hi = run.searchsorted(run.cum(c1) + reach, "left") + 1
         lo, hi = max(0, lo - m.lookahead if m.lookahead else lo), min(n, hi + (m.lookahead or 0))
-        _plan_window(a, L, vn, me2, m, lo, hi, c0, c1, t, sp)   # the window's edges are planned wrongly: not kept
+        # the window's edges are planned wrongly: not kept
+        _plan_window(*run.window(lo, hi), m, 0, hi - lo, c0 - lo, c1 - lo, t[lo:],
+                     [None if o is None else o[lo:] for o in sp])
+        run.drop(lo)
     return t, sp
 
 
@@ -864,12 +923,12 @@ def _lround(v: float) -> int:
 
 
 def _slow_e_only(vn, sel, steps_e, spm_e):
-    """Moves of E alone (indices sel, their whole steps and steps/mm) whose step rate is under
+    """Moves of E alone (indices sel, their nominal speed, whole steps and steps/mm) whose step rate is under
     MINIMAL_STEP_RATE: 1/120 + (n - 1)/r s, all at their speed (see the module's doc); faster
     ones keep their trapezoid, which is n/r plus the ramp. -> (those moves, their cruise time)."""
     n = steps_e
     # Marlin's length of the block is its whole steps in mm: the rate is speed x steps/mm
-    rate = np.ceil(vn[sel] * spm_e - 1e-9)
+    rate = np.ceil(vn * spm_e - 1e-9)
     slow = (rate < MINIMAL_STEP_RATE) & (n >= 1)
     return sel[slow], 1 / MINIMAL_STEP_RATE + (n[slow] - 1) / rate[slow]
 
@@ -1063,25 +1122,33 @@ def _vector_moves(p: _Parser, a: np.ndarray, e_next: np.ndarray, ranges) -> None
     k = int(counts.sum())
     rid = np.repeat(np.arange(R), counts)               # each move's range
     idx = np.arange(k) + (rs - starts)[rid]
-    # the records' numbers as columns (a gather of whole records is slow)
-    fl = a.view(np.float64).reshape(len(a), a.dtype.itemsize // 8)      # movescan.RECORD: 8-byte fields
-    x0, y0, z0, x1, y1, z1, de, f = (fl[:, a.dtype.fields[c][1] // 8][idx]
+    # the records as rows of 8-byte words (movescan.RECORD; np.take of plain rows is quick)
+    w = a.dtype.itemsize // 8
+    g = np.take(a.view(np.float64).reshape(len(a), w), idx, axis=0)
+    x0, y0, z0, x1, y1, z1, de, f = (g[:, a.dtype.fields[c][1] // 8]
                                      for c in ("x0", "y0", "z0", "x1", "y1", "z1", "e", "f"))
+    off = a.dtype.fields["line_no"][1]
+    line_no = g.view(np.int32).reshape(k, 2 * w)[:, off // 4] if off % 4 == 0 else a["line_no"][idx]
     # the states as one matrix, a row per range: feature, layer, M220, accel x3, jd, jerk x4,
     # M201 x4, M203 x4, brk (_state)
     S = np.array([st for _, _, st, _ in ranges], float)
     brk_in = np.zeros(k, bool)
     brk_in[starts] = S[:, 19] != 0
     sx, sy, sz, se = (p.spm[ax] for ax in AXES)
-    D = np.column_stack([x1 - x0, y1 - y0, z1 - z0, de])
+    D = np.empty((k, 4))
+    np.subtract(x1, x0, out=D[:, 0])
+    np.subtract(y1, y0, out=D[:, 1])
+    np.subtract(z1, z0, out=D[:, 2])
+    D[:, 3] = de
     ea = e_next[idx]
     e_to = _lround_array(ea * se)
     e_prev = np.concatenate([[p.e_at], e_to[:-1]])
     reset = np.zeros(k, bool)                      # a G92 before it set the E steps
-    for q, (_, _, _, g92) in enumerate(ranges):
-        if g92 is not None:
-            e_prev[starts[q]] = g92
-            reset[starts[q]] = True
+    g92 = [(q, r[3]) for q, r in enumerate(ranges) if r[3] is not None]
+    if g92:
+        q, at = zip(*g92)
+        e_prev[starts[list(q)]] = at
+        reset[starts[list(q)]] = True
     xyz = np.sqrt(D[:, 0] * D[:, 0] + D[:, 1] * D[:, 1] + D[:, 2] * D[:, 2])
     st_e = np.where(xyz == 0, np.abs(e_to - e_prev), np.abs(D[:, 3]) * se)
     mx = np.maximum(np.maximum(np.abs(D[:, 0]) * sx, np.abs(D[:, 1]) * sy), np.maximum(np.abs(D[:, 2]) * sz, st_e))
@@ -1162,7 +1229,7 @@ def _vector_moves(p: _Parser, a: np.ndarray, e_next: np.ndarray, ranges) -> None
         brk = (cs[E] - before) > 0
         p.brk = p.brk or bool(cs[-1] - cs[E[-1]] > 0)
         p.e_at = int(e_to[E[-1]])
-        DE = D[E]
+        DE = D[E] if len(E) < k else D
         xyzE = np.sqrt(DE[:, 0] * DE[:, 0] + DE[:, 1] * DE[:, 1] + DE[:, 2] * DE[:, 2])
         rE = rid[E]                                     # each emitted block's range
         nE = len(E)
@@ -1180,12 +1247,12 @@ def _vector_moves(p: _Parser, a: np.ndarray, e_next: np.ndarray, ranges) -> None
         acc = np.where(xyzE > 0, np.where(DE[:, 3] != 0, state(3), state(4)), state(5))
         p.flush()
         p.parts.append({
-            "line": a["line_no"][idx[E]].astype(np.int64), "feature": state(0).astype(np.int64),
+            "line": line_no[E].astype(np.int64), "feature": state(0).astype(np.int64),
             "layer": state(1).astype(np.int64), "dx": DE[:, 0], "dy": DE[:, 1], "dz": DE[:, 2],
             "de": DE[:, 3], "v": f[E] / 60 * state(2) / 100, "accel": acc, "brk": brk,
             "jd": state(6), "jerk": None if p.jerk is None else state(7, 11),
             "amax": state(11, 15), "vmax": state(15, 19),
-            "n_e": ne[E].astype(float), "spm_e": np.full(nE, float(se))})
+            "n_e": ne[E], "spm_e": np.broadcast_to(float(se), (nE,))})
     else:
         p.brk = p.brk or bool(cs[-1] > 0)
     p.pos = [float(x1[-1]), float(y1[-1]), float(z1[-1]), float(ea[-1])]
