@@ -665,7 +665,9 @@ class _Planner:
         self.prev_c = None               # the same for _plan.blocks: its unit vector, speed, 1
         self.run = _Run()
         self.e_only = []                 # the run's moves of E alone: (index in the run, n_e, spm_e, vn)
-        self.t, self.feature, self.de = [], [], []
+        self.t, self.de = [], []
+        self.feature = []                # the run's blocks' features
+        self.by_feature = {}             # time per feature index, summed block by block in order
         self.parts, self.speeds = [], []      # blocks=True: BLOCK_DTYPE rows; planned speeds per run
         self.n = 0
         self.bad = None                  # the line of the first move with feed rate 0
@@ -738,7 +740,7 @@ class _Planner:
         f8 = np.float64
         e_only = np.flatnonzero((dx == 0) & (dy == 0) & (dz == 0) & (de != 0))
         n_e, spm_e, vn_e = np.asarray(q["n_e"], f8)[e_only], np.asarray(q["spm_e"], f8)[e_only], vn[e_only]
-        self.feature.append(np.asarray(q["feature"]).astype(np.int32))
+        feature = np.asarray(q["feature"])
         self.de.append(de[(de > 0) & ((dx != 0) | (dy != 0) | (dz != 0))])
         if self.keep:
             b = np.zeros(k, dtype=BLOCK_DTYPE)
@@ -755,6 +757,7 @@ class _Planner:
                 if w.any():
                     self.e_only.append((e_only[w] - lo + self.run.n, n_e[w], spm_e[w], vn_e[w]))
                 self.run.add(acc[lo:hi], L[lo:hi], vn[lo:hi], me2[lo:hi])
+                self.feature.append(feature[lo:hi].astype(np.int32))
             if hi < k:
                 self.close()
             lo = hi
@@ -772,19 +775,29 @@ class _Planner:
                 sp[3][k], sp[4][k], sp[5][k] = 0.0, tc, 0.0
             t[k] = (0.0 + tc) + 0.0                      # t_accel + t_cruise + t_decel
         self.t.append(t)
+        # the time per feature as np.bincount(feature, weights=t) adds it up over the whole file:
+        # block by block in order (cumsum continues each feature's sum exactly so)
+        feature = np.concatenate(self.feature)
+        self.feature = []
+        for c0 in range(0, len(t), CHUNK):
+            f, tt = feature[c0:c0 + CHUNK], t[c0:c0 + CHUNK]
+            for i in np.unique(f).tolist():
+                self.by_feature[i] = np.cumsum(np.concatenate([[self.by_feature.get(i, 0.0)], tt[f == i]]))[-1]
         if self.keep:
             self.speeds.append(sp)
         self.e_only = []
 
     def finish(self):
-        """(each block's time, feature, the filament of extruding blocks, the blocks or None,
-        the number of blocks)."""
+        """(each block's time, the time per feature index, the filament of extruding blocks,
+        the blocks or None, the number of blocks)."""
         self.close()
         if self.bad is not None:
             raise EstimateError(f"{self.source}:{self.bad}: move with feed rate 0")
-        t = np.concatenate(self.t) if self.t else np.zeros(0)
-        feature = np.concatenate(self.feature) if self.feature else np.zeros(0, np.int32)
-        filament = float(np.concatenate(self.de).sum()) if self.de else 0.0
+        t = self.t[0] if len(self.t) == 1 else np.concatenate(self.t) if self.t else np.zeros(0)
+        self.t = []
+        de, self.de = self.de, []
+        filament = float(np.concatenate(de).sum()) if de else 0.0
+        del de
         b = None
         if self.keep:
             b = np.concatenate(self.parts) if self.parts else np.zeros(0, dtype=BLOCK_DTYPE)
@@ -792,7 +805,7 @@ class _Planner:
             for i, name in enumerate(_SPEEDS):
                 if len(b):
                     b[name] = np.concatenate([s[i] for s in self.speeds])
-        return t, feature, filament, b, self.n
+        return t, self.by_feature, filament, b, self.n
 
 
 class _Run:
@@ -905,12 +918,11 @@ def estimate_lines(lines, machine: Machine | None = None, source: str = "<gcode>
 
 
 def _result(p: _Parser, plan: _Planner, count: int) -> Result:
-    t, feature, filament, b, n = plan.finish()
+    t, sums, filament, b, n = plan.finish()
     feats = p.features
     by = {}
     if n:
-        sums = np.bincount(feature, weights=t, minlength=len(feats))
-        by = {feats[i]: float(sums[i]) for i in range(len(feats)) if sums[i] > 0}
+        by = {feats[i]: float(sums.get(i, 0.0)) for i in range(len(feats)) if sums.get(i, 0.0) > 0}
     for f, dt in p.dwell_by_feature.items():
         by[f] = by.get(f, 0.0) + dt
     moves = float(t.sum())
