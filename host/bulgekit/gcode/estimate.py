@@ -999,7 +999,6 @@ def _estimate_scanned(path: str, m: Machine, source: str, blocks: bool = True) -
     if movescan._scan is None:
         raise movescan.Unsupported("bulgekit.gcode._scan is not built")
     sc = movescan._scan.Scanner((), (), movescan._classify, 1.0, events=True)
-    carry = None                                        # (record, its line's text): a chunk's last move
     base, buf = 0, b""
 
     def text_at(off: int) -> str:
@@ -1017,18 +1016,9 @@ def _estimate_scanned(path: str, m: Machine, source: str, blocks: bool = True) -
                 buf = buf + data if buf else data
                 recs, used = sc.feed(buf, final, base)
                 a = np.frombuffer(recs, dtype=movescan.RECORD)
-                texts = {}
-                if carry is not None:
-                    a = np.concatenate([carry[0], a])
-                    texts[int(carry[0]["line_no"][0])] = carry[1]
-                    carry = None
-                e_last = sc.e                           # the E the chunk ends at: the next record's start
-                if not final and len(a):
-                    # the chunk's last record waits for the next chunk, where its end E is
-                    carry = (a[-1:].copy(), text_at(int(a["offset"][-1])))
-                    e_last = float(a["e_start"][-1])
-                    a = a[:-1]
-                _take(p, a, lambda n, off: texts.get(n) or text_at(off), e_last)
+                # the E the chunk ends at: the next record's start (every line that sets E, an
+                # event or a move, has a record, so none comes between)
+                _take(p, a, lambda n, off: text_at(off), sc.e)
                 plan.feed(p)
                 _progress_tick(sc.lines)
                 base += used
