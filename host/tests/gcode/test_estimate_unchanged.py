@@ -1,10 +1,12 @@
 """The estimator's results are those of the code before issue 26's speed-up (commit e382faa), to
-the bit: host/tests/data/estimate_before.json holds, for the repository's G-code files and a
-synthetic file of odd lines, under several machines (lookahead 16 and whole file, every move
-planned, classic jerk, the file's own limits, and small planning chunks so that long runs are
-planned piece by piece), the totals, the time per feature, the filament and a digest of every
-block's numbers, all as e382faa computed them (`python3 host/tests/gcode/test_estimate_unchanged.py
---write` made the file there). Floats are compared exactly (tolerance 0), as their hex."""
+the bit: host/tests/data/estimate_before.json holds, for the repository's G-code files, a
+synthetic file of odd lines and a list of lines and MoveBlocks (what `bulgekit litho` hands it),
+under several machines (lookahead 16 and whole file, every move planned, classic jerk, the file's
+own limits, and small planning chunks so that long runs are planned piece by piece), the totals,
+the time per feature, the filament and a digest of every block's numbers, all as e382faa computed
+them (`python3 host/tests/gcode/test_estimate_unchanged.py --write` made the file there; the
+MoveBlock cases were added by running totals() with e382faa's estimate.py). Floats are compared
+exactly (tolerance 0), as their hex."""
 from __future__ import annotations
 
 import hashlib
@@ -59,6 +61,35 @@ def odd_gcode(seed: int = 26, n: int = 4000) -> str:
     return "\n".join(out) + "\n"
 
 
+def moveblock_items(seed: int = 26) -> list:
+    """What `bulgekit litho` hands the estimator: lines, and its moves as MoveBlocks (some in
+    width mode with W words, one with a tiny move so that it is taken move by move)."""
+    r = np.random.default_rng(seed)
+    items = ["G90", "M83", "M204 P1000 T3000", "G1 X10 Y10 F6000", ";TYPE:Wall"]
+    x, y = 10.0, 10.0
+    for b in range(12):
+        n = int(r.integers(50, 400))
+        xs = np.round(x + np.cumsum(r.uniform(-1.5, 1.5, n)), 3)
+        ys = np.round(y + np.cumsum(r.uniform(-1.5, 1.5, n)), 3)
+        if b == 5:
+            xs[7] = xs[6] + 0.001                           # under 6 steps: move by move
+        e = np.round(r.uniform(0.01, 0.06, n), 5)
+        f = r.choice([1200.0, 2400.0, 3600.0], n)
+        w = None
+        if b % 3 == 2:
+            items += ["M723 S1 Q2.5 D1.75 H0.2 L5 U150"]
+            w = np.round(r.uniform(0.3, 0.8, n), 3)
+        items.append(es.MoveBlock(xs, ys, e, f, w))
+        if b % 3 == 2:
+            items.append("M723 S0")
+        items += [f"G1 E-0.8 F2100", f"G1 X{xs[-1] + 5:.3f} Y{ys[-1]:.3f} F9000", "G1 E0.8 F2100",
+                  ";TYPE:Infill" if b % 2 else ";TYPE:Wall"]
+        if b == 8:
+            items.append("G4 P200")
+        x, y = xs[-1] + 5, ys[-1]
+    return items
+
+
 def _digest(b: np.ndarray) -> str:
     h = hashlib.sha256()
     for k in b.dtype.names:
@@ -76,7 +107,10 @@ def totals(path, name: str, monkeypatch=None, **kw) -> dict:
         else:
             es.CHUNK = chunk
     try:
-        r = es.estimate_file(path, m, **kw)
+        if path == "moveblocks":
+            r = es.estimate_lines(moveblock_items(), m, **kw)
+        else:
+            r = es.estimate_file(path, m, **kw)
     finally:
         if chunk is not None and monkeypatch is None:
             es.CHUNK = 1 << 16
@@ -92,10 +126,12 @@ def totals(path, name: str, monkeypatch=None, **kw) -> dict:
 
 
 def _cases():
-    return [(p.name, n) for p in FILES for n in MACHINES] + [("odd", n) for n in MACHINES]
+    return [(p.name, n) for p in FILES for n in MACHINES] + [(f, n) for f in ("odd", "moveblocks") for n in MACHINES]
 
 
-def _path(name: str, tmp: Path) -> Path:
+def _path(name: str, tmp: Path):
+    if name == "moveblocks":
+        return name
     if name == "odd":
         p = tmp / "odd.gcode"
         p.write_text(odd_gcode(), encoding="utf-8")
@@ -107,7 +143,8 @@ def _path(name: str, tmp: Path) -> Path:
 @pytest.mark.parametrize("fname,machine", _cases())
 def test_results_are_the_code_befores(fname, machine, scanned, tmp_path, monkeypatch):
     before = json.loads(BEFORE.read_text())[f"{fname} {machine}"]
-    got = totals(_path(fname, tmp_path), machine, monkeypatch, scanned=scanned)
+    got = totals(_path(fname, tmp_path), machine, monkeypatch,
+                 **({} if fname == "moveblocks" else {"scanned": scanned}))
     assert got == before
 
 
