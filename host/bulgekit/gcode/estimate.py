@@ -810,26 +810,29 @@ class _Planner:
 
 class _Run:
     """A run of blocks (no stop between them) as its columns came, piece by piece: acceleration,
-    length, nominal speed, junction speed squared, and cum, the prefix sums of the lengths
+    length, nominal speed, junction speed squared; and cum, the prefix sums of the lengths
     (np.cumsum over the whole run, to the bit: each piece's sums continue from the last one's
-    total). Windows are copied out as they are planned (window()), and pieces behind them are let
-    go (drop()), so that planning needs no second copy of the run."""
+    total), made piece by piece when needed. Windows are copied out as they are planned
+    (window()), and pieces behind them are let go (drop()), so that planning needs no second copy
+    of the run."""
 
     def __init__(self):
-        self.pieces = []                 # (a, L, vn, me2, cum) or None once dropped
+        self.pieces = []                 # (a, L, vn, me2) or None once dropped
+        self.cums = {}                   # piece -> its cum values, made when a search needs them
         self.starts = []                 # each piece's first block
         self.lasts = []                  # each piece's last cum
         self.n = 0
-        self.total = 0.0
         self.vn_max = self.a_min = None
 
+    def _sums(self, j: int) -> np.ndarray:
+        total = self.lasts[j - 1] if j else 0.0
+        return np.cumsum(np.concatenate([[total], self.pieces[j][1]]))[1:]
+
     def add(self, a, L, vn, me2) -> None:
-        cum = np.cumsum(np.concatenate([[self.total], L]))[1:]
-        self.pieces.append((a, L, vn, me2, cum))
+        self.pieces.append((a, L, vn, me2))
         self.starts.append(self.n)
-        self.lasts.append(float(cum[-1]))
+        self.lasts.append(float(self._sums(len(self.pieces) - 1)[-1]))     # kept: one number
         self.n += len(a)
-        self.total = self.lasts[-1]
         vm, am = vn.max(), a.min()
         self.vn_max = vm if self.vn_max is None else np.maximum(self.vn_max, vm)
         self.a_min = am if self.a_min is None else np.minimum(self.a_min, am)
@@ -839,7 +842,12 @@ class _Run:
         if i == 0:
             return 0.0
         j = bisect.bisect_right(self.starts, i - 1) - 1
-        return self.pieces[j][4][i - 1 - self.starts[j]]
+        return self._cum(j)[i - 1 - self.starts[j]]
+
+    def _cum(self, j: int) -> np.ndarray:
+        if j not in self.cums:
+            self.cums[j] = self._sums(j)
+        return self.cums[j]
 
     def searchsorted(self, x: float, side: str) -> int:
         """np.searchsorted(cum, x, side) on the run's n + 1 cum values."""
@@ -848,7 +856,7 @@ class _Run:
         j = (bisect.bisect_right if side == "right" else bisect.bisect_left)(self.lasts, x)
         if j == len(self.pieces):
             return self.n + 1
-        return 1 + self.starts[j] + int(np.searchsorted(self.pieces[j][4], x, side=side))
+        return 1 + self.starts[j] + int(np.searchsorted(self._cum(j), x, side=side))
 
     def window(self, lo: int, hi: int):
         """(a, L, vn, me2) of blocks lo..hi-1, contiguous."""
@@ -856,7 +864,7 @@ class _Run:
         parts = []
         while j < len(self.pieces) and self.starts[j] < hi:
             s0 = self.starts[j]
-            parts.append(tuple(c[max(lo - s0, 0):hi - s0] for c in self.pieces[j][:4]))
+            parts.append(tuple(c[max(lo - s0, 0):hi - s0] for c in self.pieces[j]))
             j += 1
         if len(parts) == 1:
             return parts[0]
@@ -868,6 +876,7 @@ class _Run:
             if self.starts[j + 1] > lo:
                 break
             self.pieces[j] = None
+            self.cums.pop(j, None)
 
 
 def _plan_run(run: _Run, m: Machine, speeds: bool):
