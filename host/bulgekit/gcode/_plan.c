@@ -15,6 +15,7 @@
 #include <Python.h>
 #include <math.h>
 #include <stdlib.h>
+#include <stdint.h>
 #include <string.h>
 
 /* numpy's minimum and maximum of two doubles (a NaN in either wins) */
@@ -282,7 +283,137 @@ done:
     return ret;
 }
 
+static int get_out(PyObject *o, Py_buffer *b, Py_ssize_t n, Py_ssize_t itemsize, const char *name) {
+    if (PyObject_GetBuffer(o, b, PyBUF_C_CONTIGUOUS | PyBUF_WRITABLE) < 0) return -1;
+    if (b->itemsize != itemsize || b->len / itemsize < n) {
+        PyBuffer_Release(b);
+        PyErr_Format(PyExc_ValueError, "_plan.moves: %s must have %zd items of %zd bytes", name, n, itemsize);
+        return -1;
+    }
+    return 0;
+}
+
+/* moves(x0, y0, z0, x1, y1, z1, e, e_to, e_prev, reset, spm, min_steps, pending, D, ne, emitted)
+ *
+ * estimate._vector_moves' Marlin rule for k moves taken from the scanner's records: a move whose
+ * steps (on every axis, E alone counting whole steps from the planner's E position) are fewer
+ * than min_steps, or none, is dropped and its distance goes to the next move. Inputs: the moves'
+ * coordinates (float64, may be strided), e_to: each move's end E in whole steps, e_prev: the E
+ * steps each starts from if the one before is planned (or a G92 set them: reset, bool), spm: steps
+ * per mm X Y Z E, pending: 4 float64, the distance carried in (out: carried on past the last move).
+ * Out: D (k x 4: dx dy dz de as planned), ne (E-alone whole steps, else 0; of the planned moves),
+ * emitted (bool). The
+ * same numbers as the numpy code (a move after a dropped one gets the carried distance added, the
+ * others are taken as they are). */
+static PyObject *moves(PyObject *self, PyObject *args) {
+    PyObject *o[7], *eto_o, *eprev_o, *reset_o, *spm_o, *pend_o, *D_o, *ne_o, *em_o;
+    double min_steps;
+    if (!PyArg_ParseTuple(args, "OOOOOOOOOOOdOOOO", &o[0], &o[1], &o[2], &o[3], &o[4], &o[5], &o[6], &eto_o,
+                          &eprev_o, &reset_o, &spm_o, &min_steps, &pend_o, &D_o, &ne_o, &em_o))
+        return NULL;
+    static const char *names[7] = {"x0", "y0", "z0", "x1", "y1", "z1", "e"};
+    Vec in[7];
+    Py_buffer eto, eprev, reset, D, ne, em;
+    Buf spm, pend;
+    int got[6] = {0, 0, 0, 0, 0, 0};
+    PyObject *ret = NULL;
+    Py_ssize_t k, i;
+    int c;
+    for (i = 0; i < 7; i++) in[i].set = 0;
+    spm.set = pend.set = 0;
+    if (get_out(ne_o, &ne, 0, 8, "ne") < 0) return NULL;
+    got[4] = 1;
+    k = ne.len / 8;
+    if (get_out(D_o, &D, 4 * k, 8, "D") < 0) goto done;
+    got[3] = 1;
+    if (get_out(em_o, &em, k, 1, "emitted") < 0) goto done;
+    got[5] = 1;
+    if (get_out(eto_o, &eto, k, 8, "e_to") < 0) goto done;
+    got[0] = 1;
+    if (get_out(eprev_o, &eprev, k, 8, "e_prev") < 0) goto done;
+    got[1] = 1;
+    if (get_out(reset_o, &reset, k, 1, "reset") < 0) goto done;
+    got[2] = 1;
+    if (get_buf(spm_o, &spm, 0, 4, "spm") < 0 || get_buf(pend_o, &pend, 1, 4, "pending") < 0) goto done;
+    if (!spm.set || !pend.set) { PyErr_SetString(PyExc_TypeError, "_plan.moves: spm and pending are required"); goto done; }
+    for (i = 0; i < 7; i++)
+        if (get_vec(o[i], &in[i], k, 0, names[i]) < 0) goto done;
+    {
+        const int64_t *e_to = eto.buf, *e_prev = eprev.buf;
+        const char *rs = reset.buf;
+        const double *sp = spm.b.buf;
+        double *pending = pend.b.buf, *Dp = D.buf, *nep = ne.buf;
+        char *emitted = em.buf;
+        double pend_[4] = {0, 0, 0, 0};
+        int in_chain = 0, pending_any = pending[0] != 0 || pending[1] != 0 || pending[2] != 0 || pending[3] != 0;
+        int64_t e_at = 0;
+        for (i = 0; i < k; i++) {
+            double *d = Dp + 4 * i;
+            d[0] = AT(in[3], i) - AT(in[0], i);
+            d[1] = AT(in[4], i) - AT(in[1], i);
+            d[2] = AT(in[5], i) - AT(in[2], i);
+            d[3] = AT(in[6], i);
+            if (!in_chain) {
+                /* the move as it is (the one before it planned) */
+                double xyz = sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
+                int64_t de_steps = e_to[i] - e_prev[i];
+                double st_e = xyz == 0 ? (double)(de_steps < 0 ? -de_steps : de_steps) : fabs(d[3]) * sp[3];
+                double mx = np_max(np_max(fabs(d[0]) * sp[0], fabs(d[1]) * sp[1]), np_max(fabs(d[2]) * sp[2], st_e));
+                if (!((i == 0 && pending_any) || mx < min_steps || mx == 0)) {
+                    emitted[i] = 1;
+                    nep[i] = xyz == 0 ? st_e : 0.0;
+                    continue;
+                }
+                in_chain = 1;                       /* dropped (or a distance carried in): one at a time */
+                for (c = 0; c < 4; c++) pend_[c] = i == 0 ? pending[c] : 0.0;
+                e_at = e_prev[i];
+            }
+            if (rs[i]) e_at = e_prev[i];
+            double dd[4], steps[4];
+            for (c = 0; c < 4; c++) {
+                dd[c] = d[c] + pend_[c];
+                steps[c] = fabs(dd[c]) * sp[c];
+            }
+            double xj = sqrt(dd[0] * dd[0] + dd[1] * dd[1] + dd[2] * dd[2]);
+            if (xj == 0) {
+                int64_t q = e_to[i] - e_at;
+                steps[3] = (double)(q < 0 ? -q : q);
+            }
+            double mx = steps[0];
+            for (c = 1; c < 4; c++)
+                if (steps[c] > mx) mx = steps[c];
+            if (mx < min_steps || mx == 0) {
+                emitted[i] = 0;
+                nep[i] = 0.0;                       /* not read: a dropped move is no block */
+                for (c = 0; c < 4; c++) pend_[c] = dd[c];
+                continue;
+            }
+            for (c = 0; c < 4; c++) d[c] = dd[c];
+            nep[i] = xj == 0 ? steps[3] : 0.0;
+            emitted[i] = 1;
+            e_at = e_to[i];
+            in_chain = 0;
+        }
+        for (c = 0; c < 4; c++) pending[c] = in_chain ? pend_[c] : 0.0;
+    }
+    ret = Py_None;
+    Py_INCREF(ret);
+done:
+    for (i = 0; i < 7; i++)
+        if (in[i].set) PyBuffer_Release(&in[i].b);
+    if (got[0]) PyBuffer_Release(&eto);
+    if (got[1]) PyBuffer_Release(&eprev);
+    if (got[2]) PyBuffer_Release(&reset);
+    if (got[3]) PyBuffer_Release(&D);
+    if (got[4]) PyBuffer_Release(&ne);
+    if (got[5]) PyBuffer_Release(&em);
+    if (spm.set) PyBuffer_Release(&spm.b);
+    if (pend.set) PyBuffer_Release(&pend.b);
+    return ret;
+}
+
 static PyMethodDef methods[] = {
+    {"moves", moves, METH_VARARGS, "Marlin's rule for tiny moves on the scanner's moves (see the file's comment)."},
     {"segment", segment, METH_VARARGS, "Plan blocks lo..hi-1 as one segment; write k0..k1-1 (see the file's comment)."},
     {"blocks", blocks, METH_VARARGS, "Blocks' length, speed, acceleration and junction speed (see the file's comment)."},
     {NULL, NULL, 0, NULL}};

@@ -1146,11 +1146,6 @@ def _vector_moves(p: _Parser, a: np.ndarray, e_next: np.ndarray, ranges) -> None
     brk_in = np.zeros(k, bool)
     brk_in[starts] = S[:, 19] != 0
     sx, sy, sz, se = (p.spm[ax] for ax in AXES)
-    D = np.empty((k, 4))
-    np.subtract(x1, x0, out=D[:, 0])
-    np.subtract(y1, y0, out=D[:, 1])
-    np.subtract(z1, z0, out=D[:, 2])
-    D[:, 3] = de
     ea = e_next[idx]
     e_to = _lround_array(ea * se)
     e_prev = np.concatenate([[p.e_at], e_to[:-1]])
@@ -1160,6 +1155,65 @@ def _vector_moves(p: _Parser, a: np.ndarray, e_next: np.ndarray, ranges) -> None
         q, at = zip(*g92)
         e_prev[starts[list(q)]] = at
         reset[starts[list(q)]] = True
+    if _plan is not None:                          # the same, move by move in C
+        D, ne, emitted = np.empty((k, 4)), np.empty(k), np.empty(k, bool)
+        pend = np.array(p.pending, float)
+        _plan.moves(x0, y0, z0, x1, y1, z1, de, e_to, e_prev, reset, np.array([sx, sy, sz, se], float),
+                    float(m.min_segment_steps), pend, D, ne, emitted)
+        p.pending = pend.tolist()
+    else:
+        D, ne, emitted = _drop_tiny(p, k, x0, y0, z0, x1, y1, z1, de, e_to, e_prev, reset)
+    E = np.flatnonzero(emitted)
+    cs = np.cumsum(brk_in)
+    if len(E):
+        before = np.concatenate([[0], cs[E[:-1]]])
+        brk = (cs[E] - before) > 0
+        p.brk = p.brk or bool(cs[-1] - cs[E[-1]] > 0)
+        p.e_at = int(e_to[E[-1]])
+        DE = D[E] if len(E) < k else D
+        xyzE = np.sqrt(DE[:, 0] * DE[:, 0] + DE[:, 1] * DE[:, 1] + DE[:, 2] * DE[:, 2])
+        rE = rid[E]                                     # each emitted block's range
+        nE = len(E)
+
+        def state(c0, c1=None):
+            """State columns c0 (..c1) per emitted block; a column the same in every range is
+            given as a broadcast view, not copied."""
+            cols = S[:, c0:c1 or c0 + 1]
+            if (cols == cols[0]).all():
+                out = np.broadcast_to(cols[0], (nE, cols.shape[1]))
+            else:
+                out = cols[rE]
+            return out if c1 else out[:, 0]
+
+        acc = np.where(xyzE > 0, np.where(DE[:, 3] != 0, state(3), state(4)), state(5))
+        p.flush()
+        p.parts.append({
+            "line": line_no[E].astype(np.int64), "feature": state(0).astype(np.int64),
+            "layer": state(1).astype(np.int64), "dx": DE[:, 0], "dy": DE[:, 1], "dz": DE[:, 2],
+            "de": DE[:, 3], "v": f[E] / 60 * state(2) / 100, "accel": acc, "brk": brk,
+            "jd": state(6), "jerk": None if p.jerk is None else state(7, 11),
+            "amax": state(11, 15), "vmax": state(15, 19),
+            "n_e": ne[E], "spm_e": np.broadcast_to(float(se), (nE,))})
+    else:
+        p.brk = p.brk or bool(cs[-1] > 0)
+    p.pos = [float(x1[-1]), float(y1[-1]), float(z1[-1]), float(ea[-1])]
+    p.F = float(f[-1])
+    p.f = p.F / 60
+    for n, raw in p.g92_lines:                    # G92s after the last range: on the position now
+        p.line(n, raw)
+    p.g92_lines, p.g92_at = [], None
+
+
+def _drop_tiny(p: _Parser, k, x0, y0, z0, x1, y1, z1, de, e_to, e_prev, reset):
+    """_vector_moves' Marlin rule for tiny moves, on arrays (_plan.moves does it in C):
+    -> (D: dx dy dz de as planned, ne: E-alone whole steps, emitted); sets p.pending."""
+    m = p.m
+    sx, sy, sz, se = (p.spm[ax] for ax in AXES)
+    D = np.empty((k, 4))
+    np.subtract(x1, x0, out=D[:, 0])
+    np.subtract(y1, y0, out=D[:, 1])
+    np.subtract(z1, z0, out=D[:, 2])
+    D[:, 3] = de
     xyz = np.sqrt(D[:, 0] * D[:, 0] + D[:, 1] * D[:, 1] + D[:, 2] * D[:, 2])
     st_e = np.where(xyz == 0, np.abs(e_to - e_prev), np.abs(D[:, 3]) * se)
     mx = np.maximum(np.maximum(np.abs(D[:, 0]) * sx, np.abs(D[:, 1]) * sy), np.maximum(np.abs(D[:, 2]) * sz, st_e))
@@ -1233,45 +1287,7 @@ def _vector_moves(p: _Parser, a: np.ndarray, e_next: np.ndarray, ranges) -> None
         D[s1] = d1
         ne[s1] = np.where(xs1 == 0, st1, 0.0)
     p.pending = last_pend if nxt == k else [0.0, 0.0, 0.0, 0.0]
-    E = np.flatnonzero(emitted)
-    cs = np.cumsum(brk_in)
-    if len(E):
-        before = np.concatenate([[0], cs[E[:-1]]])
-        brk = (cs[E] - before) > 0
-        p.brk = p.brk or bool(cs[-1] - cs[E[-1]] > 0)
-        p.e_at = int(e_to[E[-1]])
-        DE = D[E] if len(E) < k else D
-        xyzE = np.sqrt(DE[:, 0] * DE[:, 0] + DE[:, 1] * DE[:, 1] + DE[:, 2] * DE[:, 2])
-        rE = rid[E]                                     # each emitted block's range
-        nE = len(E)
-
-        def state(c0, c1=None):
-            """State columns c0 (..c1) per emitted block; a column the same in every range is
-            given as a broadcast view, not copied."""
-            cols = S[:, c0:c1 or c0 + 1]
-            if (cols == cols[0]).all():
-                out = np.broadcast_to(cols[0], (nE, cols.shape[1]))
-            else:
-                out = cols[rE]
-            return out if c1 else out[:, 0]
-
-        acc = np.where(xyzE > 0, np.where(DE[:, 3] != 0, state(3), state(4)), state(5))
-        p.flush()
-        p.parts.append({
-            "line": line_no[E].astype(np.int64), "feature": state(0).astype(np.int64),
-            "layer": state(1).astype(np.int64), "dx": DE[:, 0], "dy": DE[:, 1], "dz": DE[:, 2],
-            "de": DE[:, 3], "v": f[E] / 60 * state(2) / 100, "accel": acc, "brk": brk,
-            "jd": state(6), "jerk": None if p.jerk is None else state(7, 11),
-            "amax": state(11, 15), "vmax": state(15, 19),
-            "n_e": ne[E], "spm_e": np.broadcast_to(float(se), (nE,))})
-    else:
-        p.brk = p.brk or bool(cs[-1] > 0)
-    p.pos = [float(x1[-1]), float(y1[-1]), float(z1[-1]), float(ea[-1])]
-    p.F = float(f[-1])
-    p.f = p.F / 60
-    for n, raw in p.g92_lines:                    # G92s after the last range: on the position now
-        p.line(n, raw)
-    p.g92_lines, p.g92_at = [], None
+    return D, ne, emitted
 
 
 _XYZE = operator.itemgetter(*AXES)

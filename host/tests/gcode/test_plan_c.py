@@ -1,7 +1,7 @@
 """The compiled planner passes (bulgekit/gcode/_plan.c) give the numbers of their pure-Python
-fallback (estimate._plan_segment_np, _junctions and the limits in _Planner.add) to the bit: on the
-test files under several machines, on odd lines, and on random blocks (zero and tiny junction
-speeds, look-ahead windows of every size, lone blocks)."""
+fallback (estimate._plan_segment_np, _junctions and the limits in _Planner.add, _drop_tiny) to the
+bit: on the test files under several machines, on odd lines, and on random blocks and moves (zero
+and tiny junction speeds, look-ahead windows of every size, lone blocks, chains of dropped moves)."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -111,3 +111,39 @@ def test_blocks_on_random_moves():
                     g[s] = o
             for g, w in zip(got, (L, vn, acc, me2)):
                 assert np.array_equal(g, w)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_moves_on_random_tiny_moves(seed):
+    """_plan.moves against the fallback (_drop_tiny): chains of dropped moves, a distance carried
+    in and out, G92s resetting the E steps, moves of E alone, signed zeros."""
+    from bulgekit.gcode import _plan
+    r = np.random.default_rng(seed)
+    k = 4000
+    step = np.where(r.random((k, 1)) < 0.5, 0.01, 2.0) * r.uniform(-1, 1, (k, 4))
+    step[r.random(k) < 0.2, :3] = 0.0                        # E alone (or nothing)
+    step[r.random(k) < 0.1] = 0.0                            # a lone F word
+    step[r.random(k) < 0.02, 0] = -0.0
+    p1 = np.cumsum(np.vstack([[50.0, 50.0, 0.2, 0.0], step]), axis=0)
+    x0, y0, z0 = (np.ascontiguousarray(p1[:-1, i]) for i in range(3))
+    x1, y1, z1 = (np.ascontiguousarray(p1[1:, i]) for i in range(3))
+    de = np.ascontiguousarray(step[:, 3])
+    m = es.Machine()
+    p = es._Parser(m, "<test>")
+    se = p.spm["E"]
+    e_to = es._lround_array(p1[1:, 3] * se)
+    e_prev = np.concatenate([[int(r.integers(-5, 5))], e_to[:-1]])
+    reset = r.random(k) < 0.01
+    e_prev[reset] = r.integers(-50, 50, int(reset.sum()))
+    for pending in ([0.0, 0.0, 0.0, 0.0], [0.01, -0.02, 0.0, 0.001]):
+        p.pending = list(pending)
+        want = es._drop_tiny(p, k, x0, y0, z0, x1, y1, z1, de, e_to, e_prev, reset)
+        want_pending = p.pending
+        D, ne, emitted = np.empty((k, 4)), np.empty(k), np.empty(k, bool)
+        pend = np.array(pending, float)
+        _plan.moves(x0, y0, z0, x1, y1, z1, de, e_to, e_prev, reset, np.array([p.spm[a] for a in "XYZE"], float),
+                    float(m.min_segment_steps), pend, D, ne, emitted)
+        assert (~emitted).sum() > 100                        # chains were taken
+        assert np.array_equal(emitted, want[2]) and np.array_equal(ne[emitted], want[1][emitted])
+        assert np.array_equal(D.view(np.int64), want[0].view(np.int64))      # the bits, signed zeros too
+        assert pend.tolist() == want_pending
