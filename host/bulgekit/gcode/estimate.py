@@ -64,6 +64,7 @@ count (G2/G3 are cut into pieces of at most 1 mm, as MAX_ARC_SEGMENT_MM).
 from __future__ import annotations
 
 import bisect
+import functools
 import math
 import operator
 import os
@@ -781,7 +782,7 @@ class _Planner:
         self.feature = []
         for c0 in range(0, len(t), CHUNK):
             f, tt = feature[c0:c0 + CHUNK], t[c0:c0 + CHUNK]
-            for i in np.unique(f).tolist():
+            for i in np.flatnonzero(np.bincount(f)).tolist():
                 self.by_feature[i] = np.cumsum(np.concatenate([[self.by_feature.get(i, 0.0)], tt[f == i]]))[-1]
         if self.keep:
             self.speeds.append(sp)
@@ -985,6 +986,7 @@ _HARD = frozenset(("G0", "G1", "G00", "G01", "G2", "G3", "G02", "G03", "G92", "G
 _G92_WORD = re.compile(r"[XYZEF][-+]?(?:\d+\.?\d*|\.\d+)$")
 
 
+@functools.lru_cache(maxsize=4096)                     # slicers repeat the same few event lines
 def _command(raw: str) -> str | None:
     """The command of a line as _Parser.line reads it (None: a comment or blank)."""
     toks = raw.partition(";")[0].split()
@@ -1101,6 +1103,7 @@ def _take(p: _Parser, a: np.ndarray, text, e_last: float) -> None:
         _vector_moves(p, a, e_next, ranges)
 
 
+@functools.lru_cache(maxsize=4096)
 def _plain_g92(raw: str) -> bool:
     """A G92 that sets E, and only axes given as numbers (as the scanner sets them)."""
     toks = raw.partition(";")[0].split()
