@@ -3,6 +3,7 @@
     from bulgekit.gcode.estimate import Machine, estimate_file
     r = estimate_file("part.gcode", Machine(accel=1000, travel_accel=1000))
     r.total_s, r.by_feature, r.blocks          # blocks: one row per planner block (numpy)
+    estimate_file("part.gcode", blocks=False)  # the totals only (blocks None), in less memory
 
 Every G0/G1 becomes a block as in Marlin's Planner::_buffer_steps (module/planner.cpp):
 
@@ -36,10 +37,15 @@ whole file, as slicers' estimators do. Both passes are solved in closed form wit
 Each block is then a trapezoid (accelerate, cruise, brake).
 
 A program that writes G-code can hand its moves over as numbers (MoveBlock items among the
-lines: `bulgekit litho` does), so they are not parsed again; the blocks are the same. Large files
-are planned a chunk of blocks at a time, each chunk with the braking distance of its fastest
+lines: `bulgekit litho` does), so they are not parsed again; the blocks are the same. The blocks
+are planned as the file is read (_Planner): each run of blocks between two stops once its end is
+known, a long one a chunk of blocks at a time, each chunk with the braking distance of its fastest
 block on both sides (what decides a block's speeds lies within it): the same speeds in a fraction
-of the memory. `Machine(min_segment_steps=0)` plans every move, as Klipper and RepRapFirmware do.
+of the memory. blocks=False (what `bulgekit estimate` uses) keeps no row per block, only the
+totals. The per-block passes (tiny moves, limits, junctions, the planner's passes) run in C when
+_plan.c is built (host/setup.py), with the same numbers as the numpy code here
+(host/tests/gcode/test_plan_c.py). `Machine(min_segment_steps=0)` plans every move, as Klipper and
+RepRapFirmware do.
 
 A file (estimate_file) is read by the compiled scanner when it is built (movescan, its events
 mode): the plain moves come as move records and are taken as arrays, operation for operation as
