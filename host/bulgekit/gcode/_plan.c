@@ -1,8 +1,11 @@
-/* The estimator's planner passes (gcode/estimate.py, _plan_segment_np), compiled: for blocks that run
- * without a stop between them, the entry speeds by the backward pass (a look-ahead window of W
- * blocks, or the whole run) and the forward pass, then each block's trapezoid. Operation for
- * operation what the numpy code computes, so the numbers are the same to the bit
- * (host/tests/gcode/test_plan_c.py); built with -ffp-contract=off so that no multiply-add is fused.
+/* The estimator's per-block passes (gcode/estimate.py), compiled: moves(), Marlin's rule for tiny
+ * moves (estimate._drop_tiny); blocks(), each block's limits and junction (_Planner.add); segment(),
+ * the planner's passes (_plan_segment_np): for blocks that run without a stop between them, the
+ * entry speeds by the backward pass (a look-ahead window of W blocks, or the whole run) and the
+ * forward pass, then each block's trapezoid. Operation for operation what the numpy code computes,
+ * so the numbers are the same to the bit (host/tests/gcode/test_plan_c.py); built with
+ * -ffp-contract=off so that no multiply-add is fused. Optional: without it estimate.py runs its
+ * numpy code.
  *
  *   segment(a, L, vn, me2, vmin2, W, lo, hi, k0, k1, t, entry, exit, cruise, ta, tc, td)
  *
@@ -335,7 +338,10 @@ static PyObject *moves(PyObject *self, PyObject *args) {
     if (get_out(reset_o, &reset, k, 1, "reset") < 0) goto done;
     got[2] = 1;
     if (get_buf(spm_o, &spm, 0, 4, "spm") < 0 || get_buf(pend_o, &pend, 1, 4, "pending") < 0) goto done;
-    if (!spm.set || !pend.set) { PyErr_SetString(PyExc_TypeError, "_plan.moves: spm and pending are required"); goto done; }
+    if (!spm.set || !pend.set) {
+        PyErr_SetString(PyExc_TypeError, "_plan.moves: spm and pending are required");
+        goto done;
+    }
     for (i = 0; i < 7; i++)
         if (get_vec(o[i], &in[i], k, 0, names[i]) < 0) goto done;
     {
@@ -414,8 +420,8 @@ done:
 
 static PyMethodDef methods[] = {
     {"moves", moves, METH_VARARGS, "Marlin's rule for tiny moves on the scanner's moves (see the file's comment)."},
-    {"segment", segment, METH_VARARGS, "Plan blocks lo..hi-1 as one segment; write k0..k1-1 (see the file's comment)."},
-    {"blocks", blocks, METH_VARARGS, "Blocks' length, speed, acceleration and junction speed (see the file's comment)."},
+    {"segment", segment, METH_VARARGS, "Plan blocks lo..hi-1 as one segment; write k0..k1-1 (see above)."},
+    {"blocks", blocks, METH_VARARGS, "Blocks' length, speed, acceleration and junction speed (see above)."},
     {NULL, NULL, 0, NULL}};
 
 static struct PyModuleDef module = {PyModuleDef_HEAD_INIT, "_plan", NULL, -1, methods};

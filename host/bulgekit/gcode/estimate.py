@@ -1035,7 +1035,7 @@ def _estimate_scanned(path: str, m: Machine, source: str, blocks: bool = True) -
                 a = np.frombuffer(recs, dtype=movescan.RECORD)
                 # the E the chunk ends at: the next record's start (every line that sets E, an
                 # event or a move, has a record, so none comes between)
-                _take(p, a, lambda n, off: text_at(off), sc.e)
+                _take(p, a, text_at, sc.e)
                 plan.feed(p)
                 _progress_tick(sc.lines)
                 base += used
@@ -1062,7 +1062,7 @@ def _take(p: _Parser, a: np.ndarray, text, e_last: float) -> None:
     """One chunk of records (see _estimate_scanned). Moves are gathered in ranges while only
     lines that leave the position alone come between them (_SOFT, comments), each range with the
     parser's state at its start, and taken as arrays when another line comes (or the chunk ends).
-    text(line number, byte offset): a record's line."""
+    text(byte offset): a record's line."""
     n = len(a)
     if not n:
         return
@@ -1077,7 +1077,7 @@ def _take(p: _Parser, a: np.ndarray, text, e_last: float) -> None:
         while j > i:                                    # moves i .. j-1
             if not ranges and not _in_step(p, a[i]):
                 r = a[i]
-                p.line(int(r["line_no"]), text(int(r["line_no"]), int(r["offset"])))   # from its text until in step again
+                p.line(int(r["line_no"]), text(int(r["offset"])))    # from its text until in step again
                 i += 1
                 continue
             # the E steps a range starts from: the first one's are the parser's now (a G92
@@ -1092,7 +1092,7 @@ def _take(p: _Parser, a: np.ndarray, text, e_last: float) -> None:
         if j == n:
             break
         ln = ev_line[q]
-        raw = text(ln, ev_off[q])
+        raw = text(ev_off[q])
         cmd = _command(raw)
         if ranges and cmd in _HARD:
             if cmd == "G92" and _plain_g92(raw):
@@ -1251,7 +1251,8 @@ def _drop_tiny(p: _Parser, k, x0, y0, z0, x1, y1, z1, de, e_to, e_prev, reset):
         xs1 = np.sqrt(d1[:, 0] * d1[:, 0] + d1[:, 1] * d1[:, 1] + d1[:, 2] * d1[:, 2])
         e_at1 = np.where(reset[s1], e_prev[s1], e_prev[single])
         st1 = np.where(xs1 == 0, np.abs(e_to[s1] - e_at1), np.abs(d1[:, 3]) * se)
-        mx1 = np.maximum(np.maximum(np.abs(d1[:, 0]) * sx, np.abs(d1[:, 1]) * sy), np.maximum(np.abs(d1[:, 2]) * sz, st1))
+        mx1 = np.maximum(np.maximum(np.abs(d1[:, 0]) * sx, np.abs(d1[:, 1]) * sy),
+                         np.maximum(np.abs(d1[:, 2]) * sz, st1))
         ok = ~((mx1 < m.min_segment_steps) | (mx1 == 0))
         nxt_ok[np.flatnonzero(nxt_ok)[~ok]] = False
         single, s1, d1, xs1, st1 = single[ok], s1[ok], d1[ok], xs1[ok], st1[ok]

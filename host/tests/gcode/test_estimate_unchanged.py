@@ -82,7 +82,7 @@ def moveblock_items(seed: int = 26) -> list:
         items.append(es.MoveBlock(xs, ys, e, f, w))
         if b % 3 == 2:
             items.append("M723 S0")
-        items += [f"G1 E-0.8 F2100", f"G1 X{xs[-1] + 5:.3f} Y{ys[-1]:.3f} F9000", "G1 E0.8 F2100",
+        items += ["G1 E-0.8 F2100", f"G1 X{xs[-1] + 5:.3f} Y{ys[-1]:.3f} F9000", "G1 E0.8 F2100",
                   ";TYPE:Infill" if b % 2 else ";TYPE:Wall"]
         if b == 8:
             items.append("G4 P200")

@@ -4,7 +4,6 @@ bit: on the test files under several machines, on odd lines, and on random block
 and tiny junction speeds, look-ahead windows of every size, lone blocks, chains of dropped moves)."""
 from __future__ import annotations
 
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -85,7 +84,8 @@ def test_blocks_on_random_moves():
     accel = r.choice([800.0, 3000.0], n)
     jd = np.full(n, 0.02)
     per_block = np.column_stack([r.uniform(50, 5000, n) for _ in range(4)])
-    for amax, vmax in ((per_block, per_block / 10), (np.array([3000.0, 3000, 100, 10000]), np.array([300.0, 300, 5, 25]))):
+    marlin = np.array([3000.0, 3000, 100, 10000]), np.array([300.0, 300, 5, 25])
+    for amax, vmax in ((per_block, per_block / 10), marlin):
         rows = np.broadcast_to(amax, (n, 4)), np.broadcast_to(vmax, (n, 4))
         for segs in (True, False):
             m = es.Machine(jd_small_segments=segs)
