@@ -41,6 +41,7 @@ static int get_buf(PyObject *o, Buf *out, int writable, Py_ssize_t n, const char
 }
 
 static PyObject *segment(PyObject *self, PyObject *args) {
+    (void)self;
     PyObject *o[11];
     double vmin2;
     Py_ssize_t W, lo, hi, k0, k1;
@@ -203,6 +204,7 @@ static double jd_lut_acos_neg(double cos) {
  * block's are left there. Inputs may be strided (column views, broadcast rows); outputs are
  * contiguous float64 of k. Returns the number of blocks. */
 static PyObject *blocks(PyObject *self, PyObject *args) {
+    (void)self;
     PyObject *o[9], *po, *out[4];
     int small;
     double vmin2;
@@ -309,6 +311,7 @@ static int get_out(PyObject *o, Py_buffer *b, Py_ssize_t n, Py_ssize_t itemsize,
  * same numbers as the numpy code (a move after a dropped one gets the carried distance added, the
  * others are taken as they are). */
 static PyObject *moves(PyObject *self, PyObject *args) {
+    (void)self;
     PyObject *o[7], *eto_o, *eprev_o, *reset_o, *spm_o, *pend_o, *D_o, *ne_o, *em_o;
     double min_steps;
     if (!PyArg_ParseTuple(args, "OOOOOOOOOOOdOOOO", &o[0], &o[1], &o[2], &o[3], &o[4], &o[5], &o[6], &eto_o,
