@@ -22,4 +22,7 @@ class BuildPy(build_py):
 
 setup(cmdclass={"build_py": BuildPy},
       ext_modules=[Extension("bulgekit.gcode._scan", ["bulgekit/gcode/_scan.c"], optional=True,
-                             extra_compile_args=["-O2"])])
+                             extra_compile_args=["-O2"]),
+                   # the estimator's planner passes; no fused multiply-add: the same bits as numpy
+                   Extension("bulgekit.gcode._plan", ["bulgekit/gcode/_plan.c"], optional=True,
+                             extra_compile_args=["-O2", "-ffp-contract=off"])])

@@ -50,8 +50,8 @@ def register(main):
                        junction_deviation=jd, jerk=jerk, lookahead=lookahead or None,
                        honour_file_limits=honour_file_limits)
         m.steps_per_mm["E"] = e_steps
-        r = es.estimate_file(gcode, m)
-        click.echo(f"{gcode}: {r.summary()} ({r.total_s:.1f} s; {len(r.blocks)} moves, "
+        r = es.estimate_file(gcode, m, blocks=False)
+        click.echo(f"{gcode}: {r.summary()} ({r.total_s:.1f} s; {r.n_blocks} moves, "
                    f"dwell {r.dwell_s:.1f} s, filament {es.deposited_filament(r):.1f} mm)")
         width = max((len(k) for k in r.by_feature), default=0)
         for k, v in sorted(r.by_feature.items(), key=lambda kv: -kv[1]):

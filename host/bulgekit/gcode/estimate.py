@@ -3,6 +3,7 @@
     from bulgekit.gcode.estimate import Machine, estimate_file
     r = estimate_file("part.gcode", Machine(accel=1000, travel_accel=1000))
     r.total_s, r.by_feature, r.blocks          # blocks: one row per planner block (numpy)
+    estimate_file("part.gcode", blocks=False)  # the totals only (blocks None), in less memory
 
 Every G0/G1 becomes a block as in Marlin's Planner::_buffer_steps (module/planner.cpp):
 
@@ -36,10 +37,15 @@ whole file, as slicers' estimators do. Both passes are solved in closed form wit
 Each block is then a trapezoid (accelerate, cruise, brake).
 
 A program that writes G-code can hand its moves over as numbers (MoveBlock items among the
-lines: `bulgekit litho` does), so they are not parsed again; the blocks are the same. Large files
-are planned a chunk of blocks at a time, each chunk with the braking distance of its fastest
+lines: `bulgekit litho` does), so they are not parsed again; the blocks are the same. The blocks
+are planned as the file is read (_Planner): each run of blocks between two stops once its end is
+known, a long one a chunk of blocks at a time, each chunk with the braking distance of its fastest
 block on both sides (what decides a block's speeds lies within it): the same speeds in a fraction
-of the memory. `Machine(min_segment_steps=0)` plans every move, as Klipper and RepRapFirmware do.
+of the memory. blocks=False (what `bulgekit estimate` uses) keeps no row per block, only the
+totals. The per-block passes (tiny moves, limits, junctions, the planner's passes) run in C when
+_plan.c is built (host/setup.py), with the same numbers as the numpy code here
+(host/tests/gcode/test_plan_c.py). `Machine(min_segment_steps=0)` plans every move, as Klipper and
+RepRapFirmware do.
 
 A file (estimate_file) is read by the compiled scanner when it is built (movescan, its events
 mode): the plain moves come as move records and are taken as arrays, operation for operation as
@@ -63,7 +69,10 @@ count (G2/G3 are cut into pieces of at most 1 mm, as MAX_ARC_SEGMENT_MM).
 """
 from __future__ import annotations
 
+import bisect
+import functools
 import math
+import operator
 import os
 import re
 from dataclasses import dataclass, field
@@ -71,6 +80,11 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import BulgekitError
+
+try:
+    from . import _plan            # the compiled planner passes (_plan.c), optional
+except ImportError:
+    _plan = None
 
 AXES = "XYZE"
 
@@ -111,8 +125,10 @@ class Result:
     dwell_s: float
     by_feature: dict
     features: list
-    blocks: np.ndarray            # structured: see BLOCK_DTYPE
+    blocks: np.ndarray | None     # structured: see BLOCK_DTYPE (None: not asked for, blocks=False)
     lines: int
+    n_blocks: int = 0             # planner blocks (moves not dropped)
+    filament: float = 0.0         # deposited_filament(): filament laid by extruding blocks, mm
 
     def summary(self) -> str:
         h, rem = divmod(self.total_s, 3600)
@@ -357,6 +373,8 @@ class _Parser:
                           tuple(self.max_accel[a] for a in AXES), tuple(self.max_fr[a] for a in AXES),
                           n_e, self.spm["E"]))
         self.brk = False
+        if len(self.rows) >= CHUNK:            # planned part by part (_Planner)
+            self.flush()
 
     def flush(self):
         if self.rows:
@@ -447,37 +465,59 @@ class _Parser:
         self.e_at = _lround(e1 * self.spm["E"])
 
 
-def _junctions(b, jd, jerk, amax, m: Machine):
-    """Max entry speed squared of every block from its junction with the one before."""
-    n = len(b)
-    d = np.column_stack([b["dx"], b["dy"], b["dz"], b["de"]])
-    L = b["length"]
-    v = b["nominal_speed"]
-    extr = d[:, 3] != 0
-    unit = np.where(extr[:, None], d / np.linalg.norm(d, axis=1, keepdims=True), d / L[:, None])
+def _norm(*c):
+    """Each row's Euclidean norm, the columns summed in order (what np.linalg.norm(axis=1) does,
+    to the bit, without its slow reduction along short rows)."""
+    s = c[0] * c[0]
+    for x in c[1:]:
+        s = s + x * x
+    return np.sqrt(s)
+
+
+def _row_min(*c):
+    """Each row's smallest value (the columns' minimum)."""
+    out = c[0]
+    for x in c[1:]:
+        out = np.minimum(out, x)
+    return out
+
+
+def _junctions(d, L, v, accel, jd, jerk, amax, m: Machine):
+    """Max entry speed squared of every block from its junction with the one before (d: the
+    blocks' dx, dy, dz, de as rows; L, v, accel: length, nominal speed, acceleration; amax: M201
+    per axis, rows). Column by column: each operation is the one a row of numbers gets."""
+    n = len(v)
     out = np.zeros(n)
     if n < 2:
         return out
-    u, p = unit[1:], unit[:-1]
-    if jerk is None:
-        cos = -(u * p).sum(axis=1)
-        j = u - p
-        jn = np.linalg.norm(j, axis=1, keepdims=True)
-        j = np.divide(j, jn, out=np.zeros_like(j), where=jn > 0)
-        aj = b["accel"][1:].copy()
-        with np.errstate(divide="ignore"):
-            lim = np.where(np.abs(j) > 0, amax[1:] / np.abs(j), np.inf).min(axis=1)
-        aj = np.minimum(aj, lim)
-        c = np.maximum(cos, -0.999999)
-        s2 = np.sqrt(0.5 * (1 - c))
-        vj2 = aj * jd[1:] * s2 / (1 - s2)
-        if m.jd_small_segments:
-            small = (L[1:] < 1) & (c < -0.7071067812)
-            vj2 = np.where(small, np.minimum(vj2, L[1:] * aj / _jd_lut_acos_neg(c)), vj2)
-        vj2 = np.where(cos > 0.999999, m.min_planner_speed ** 2, vj2)
-        out[1:] = np.minimum(vj2, np.minimum(v[1:], v[:-1]) ** 2)
-    else:
+    if jerk is not None:
         out[1:] = _classic_jerk(d, L, v, jerk)
+        return out
+    col = [d[:, i] for i in range(4)]
+    extr = col[3] != 0
+    nd = _norm(*col)
+    unit = [np.where(extr, c / nd, c / L) for c in col]
+    u, p = [c[1:] for c in unit], [c[:-1] for c in unit]
+    cos = -(u[0] * p[0] + u[1] * p[1] + u[2] * p[2] + u[3] * p[3])
+    j = [a - b for a, b in zip(u, p)]
+    jn = _norm(*j)
+    nz = jn > 0
+    j = [np.divide(c, jn, out=np.zeros_like(c), where=nz) for c in j]
+    aj = accel[1:]
+    with np.errstate(divide="ignore"):
+        lim = _row_min(*(np.where(np.abs(c) > 0, amax[1:, i] / np.abs(c), np.inf) for i, c in enumerate(j)))
+    aj = np.minimum(aj, lim)
+    c = np.maximum(cos, -0.999999)
+    with np.errstate(invalid="ignore"):                   # cos a hair over 1: replaced below
+        s2 = np.sqrt(0.5 * (1 - c))
+    vj2 = aj * jd[1:] * s2 / (1 - s2)
+    if m.jd_small_segments:
+        small = (L[1:] < 1) & (c < -0.7071067812)
+        if small.any():
+            k = np.flatnonzero(small)
+            vj2[k] = np.minimum(vj2[k], L[1:][k] * aj[k] / _jd_lut_acos_neg(c[k]))
+    vj2 = np.where(cos > 0.999999, m.min_planner_speed ** 2, vj2)
+    out[1:] = np.minimum(vj2, np.minimum(v[1:], v[:-1]) ** 2)
     return out
 
 
@@ -551,12 +591,13 @@ def _classic_jerk(d, L, v, jerk):
     return out
 
 
-def _plan_segment(b, maxentry2, m: Machine):
-    """Entry/exit speeds and trapezoid times of blocks that run without a stop in between."""
-    n = len(b)
+def _plan_segment_np(a, L, vn, maxentry2, m: Machine):
+    """Entry, exit and cruise speeds and the trapezoid's times (accelerate, cruise, brake) of
+    blocks that run without a stop in between: a, L, vn: their acceleration, length and nominal
+    speed; maxentry2: the square of the speed each may enter at (its junction)."""
+    n = len(a)
     vmin2 = m.min_planner_speed ** 2
-    a, L = b["accel"], b["length"]
-    M = np.append(np.minimum(maxentry2, b["nominal_speed"] ** 2), vmin2)
+    M = np.append(np.minimum(maxentry2, vn ** 2), vmin2)
     M[0] = vmin2                                            # starts from rest (a stop: MINIMUM_PLANNER_SPEED)
     S = np.concatenate([[0.0], np.cumsum(2 * a * L)])       # S[k] = sum_{m<k} 2 a_m L_m
     arr = M + S
@@ -573,7 +614,6 @@ def _plan_segment(b, maxentry2, m: Machine):
     fwd = S[:-1] + np.minimum.accumulate(back - S[:-1])
     entry2 = np.maximum(np.minimum(back, fwd), 0.0)
     exit2 = np.append(entry2[1:], vmin2)
-    vn = b["nominal_speed"]
     v0, v1 = np.sqrt(entry2), np.sqrt(exit2)
     # peak speed of a triangle: accelerate from v0, brake to v1 within L
     vpeak = np.sqrt(np.maximum((2 * a * L + entry2 + exit2) / 2, 0.0))
@@ -583,8 +623,24 @@ def _plan_segment(b, maxentry2, m: Machine):
     td = (vc - v1) / a
     d_c = np.maximum(L - (vc ** 2 - entry2) / (2 * a) - (vc ** 2 - exit2) / (2 * a), 0.0)
     tc = d_c / vc
-    b["entry_speed"], b["exit_speed"], b["cruise_speed"] = v0, v1, vc
-    b["t_accel"], b["t_cruise"], b["t_decel"] = ta, tc, td
+    return v0, v1, vc, ta, tc, td
+
+
+def _plan_window(a, L, vn, me2, m: Machine, lo, hi, k0, k1, t, sp) -> None:
+    """_plan_segment_np on blocks lo..hi-1 of a run (a, L, vn, me2: its columns), the results of
+    blocks k0..k1-1 written there in t (time) and sp (_SPEEDS' arrays, or Nones): by the compiled
+    planner (_plan.c) when it is built, which gives the same numbers (host/tests/gcode/test_plan_c.py)."""
+    n = hi - lo
+    W = -1 if m.lookahead is None or m.lookahead - 2 >= n else max(1, m.lookahead - 2)
+    if _plan is not None and W <= 64:       # a longer window: numpy's sliding minimum is quicker
+        _plan.segment(a, L, vn, me2, m.min_planner_speed ** 2, W, lo, hi, k0, k1, t, *sp)
+        return
+    res = _plan_segment_np(a[lo:hi], L[lo:hi], vn[lo:hi], me2[lo:hi], m)
+    w = slice(k0 - lo, k1 - lo)
+    t[k0:k1] = (res[3] + res[4] + res[5])[w]
+    for o, r in zip(sp, res):
+        if o is not None:
+            o[k0:k1] = r[w]
 
 
 def _columns(rows) -> dict:
@@ -599,98 +655,269 @@ def _columns(rows) -> dict:
 
 
 CHUNK = 1 << 16          # blocks computed at once (a large file's temporaries stay small)
+_SPEEDS = ("entry_speed", "exit_speed", "cruise_speed", "t_accel", "t_cruise", "t_decel")
 
 
-def _plan_parts(p: "_Parser", m: Machine, source: str) -> np.ndarray:
-    """The parser's columns -> planned blocks, a chunk of blocks at a time."""
-    parts, p.parts = p.parts, None
-    n = sum(len(q["v"]) for q in parts)
-    b = np.zeros(n, dtype=BLOCK_DTYPE)
-    if not n:
-        return b
-    v, jd, brk = np.empty(n), np.empty(n), np.empty(n, bool)
-    amax, vmax = np.empty((n, 4)), np.empty((n, 4))
-    n_e, spm_e = np.empty(n), np.empty(n)
-    jerk = None if parts[0]["jerk"] is None else np.empty((n, 4))
-    off = 0
-    while parts:                                    # copied in, each part dropped once copied
-        q = parts.pop(0)
+class _Planner:
+    """The parser's parts (column arrays) -> planned blocks, part by part as the file is read.
+    Per part: each block's length, speed and acceleration under the axis limits and its junction
+    with the block before; the blocks are gathered into runs (no stop in between), and each run is
+    planned (_plan_run) once its end is known. What is kept: each block's time, feature and (of
+    extruding ones) filament, for the totals; with blocks=True also every block's row
+    (BLOCK_DTYPE), for callers that ask for them."""
+
+    def __init__(self, m: Machine, source: str, blocks: bool = True):
+        self.m, self.source, self.keep = m, source, blocks
+        self.prev = None                 # the last block so far: its junction with the next one
+        self.prev_c = None               # the same for _plan.blocks: its unit vector, speed, 1
+        self.run = _Run()
+        self.e_only = []                 # the run's moves of E alone: (index in the run, n_e, spm_e, vn)
+        self.t, self.de = [], []
+        self.feature = []                # the run's blocks' features
+        self.by_feature = {}             # time per feature index, summed block by block in order
+        self.parts, self.speeds = [], []      # blocks=True: BLOCK_DTYPE rows; planned speeds per run
+        self.n = 0
+        self.bad = None                  # the line of the first move with feed rate 0
+
+    def feed(self, p: "_Parser") -> None:
+        """Takes the parser's parts so far."""
+        parts, p.parts = p.parts, []
+        for q in parts:
+            self.add(q)
+
+    def add(self, q: dict) -> None:
         k = len(q["v"])
-        sl = slice(off, off + k)
-        for name in ("line", "feature", "layer", "dx", "dy", "dz", "de", "accel"):
-            b[name][sl] = q[name]
-        v[sl], jd[sl], brk[sl], amax[sl], vmax[sl] = q["v"], q["jd"], q["brk"], q["amax"], q["vmax"]
-        n_e[sl], spm_e[sl] = q["n_e"], q["spm_e"]
-        if jerk is not None:
-            jerk[sl] = q["jerk"]
-        off += k
-    for c0 in range(0, n, CHUNK):
-        c = slice(c0, min(n, c0 + CHUNK))
-        bc = b[c]
-        d = np.column_stack([bc["dx"], bc["dy"], bc["dz"], bc["de"]])
-        xyz = np.linalg.norm(d[:, :3], axis=1)
+        if not k:
+            return
+        self.n += k
+        if self.bad is not None:                # nothing more is planned; the parse goes on
+            return
+        f8 = np.float64
+        if _plan is not None and q["jerk"] is None and self.prev is None:
+            self._add_c(q, k)
+            return
+        d = np.column_stack([np.asarray(q[c], f8) for c in ("dx", "dy", "dz", "de")])
+        v, accel = np.asarray(q["v"], f8), np.asarray(q["accel"], f8)
+        xyz = _norm(d[:, 0], d[:, 1], d[:, 2])
         L = np.where(xyz > 0, xyz, np.abs(d[:, 3]))
-        b["length"][c] = L
         # per-axis limits: speed so no axis exceeds its M203, accel so none exceeds its M201
+        vmax, amax = q["vmax"], q["amax"]
         with np.errstate(divide="ignore", invalid="ignore"):
-            ratio = np.abs(d) / L[:, None]
-            vlim = np.where(ratio > 0, vmax[c] / ratio, np.inf).min(axis=1)
-            alim = np.where(ratio > 0, amax[c] / ratio, np.inf).min(axis=1)
-        b["nominal_speed"][c] = np.minimum(v[c], vlim)
-        b["accel"][c] = np.where(xyz > 0, np.minimum(bc["accel"], alim), bc["accel"])
-    del v, vmax
-    if np.any(b["nominal_speed"] <= 0):
-        i = int(np.argmax(b["nominal_speed"] <= 0))
-        raise EstimateError(f"{source}:{b['line'][i]}: move with feed rate 0")
-    # junctions: each block's only with the one before (chunks overlap by one block)
-    maxentry2 = np.zeros(n)
-    for c0 in range(0, n, CHUNK):
-        lo, hi = max(0, c0 - 1), min(n, c0 + CHUNK)
-        part = _junctions(b[lo:hi], jd[lo:hi], None if jerk is None else jerk[lo:hi], amax[lo:hi], m)
-        maxentry2[c0:hi] = part[c0 - lo:]
-    del jd, amax, jerk
-    starts = np.flatnonzero(brk)
-    if len(starts) == 0 or starts[0] != 0:
-        starts = np.concatenate([[0], starts])
-    bounds = list(starts) + [n]
-    for s0, e0 in zip(bounds[:-1], bounds[1:]):
-        if e0 > s0:
-            _plan_long(b, s0, e0, maxentry2, m)
-    _slow_e_only(b, (b["dx"] == 0) & (b["dy"] == 0) & (b["dz"] == 0), n_e, spm_e)
-    return b
+            ratio = [np.abs(d[:, i]) / L for i in range(4)]
+            vlim = _row_min(*(np.where(r > 0, vmax[:, i] / r, np.inf) for i, r in enumerate(ratio)))
+            alim = _row_min(*(np.where(r > 0, amax[:, i] / r, np.inf) for i, r in enumerate(ratio)))
+        vn = np.minimum(v, vlim)
+        acc = np.where(xyz > 0, np.minimum(accel, alim), accel)
+        del ratio, vlim, alim
+        if np.any(vn <= 0):
+            self.bad = int(np.asarray(q["line"])[int(np.argmax(vn <= 0))])
+            return
+        # junctions: each block's with the one before (the previous part's last block first)
+        jd, amax = np.asarray(q["jd"], f8), np.asarray(q["amax"], f8)
+        jerk = None if q["jerk"] is None else np.asarray(q["jerk"], f8)
+        cols = (d, L, vn, acc, jd, jerk, amax)
+        last = tuple(None if c is None else c[-1:].copy() for c in cols)
+        if self.prev is not None:
+            cols = tuple(None if c is None else np.concatenate([pc, c]) for pc, c in zip(self.prev, cols))
+        me2 = _junctions(*cols, self.m)
+        if self.prev is not None:
+            me2 = me2[1:]
+        self.prev = last
+        del cols, jd, amax, jerk
+        self._keep(q, k, d[:, 0], d[:, 1], d[:, 2], d[:, 3], L, vn, acc, me2)
+
+    def _add_c(self, q: dict, k: int) -> None:
+        """add's numbers by the compiled planner (_plan.blocks: the same, operation for operation)."""
+        f8 = np.float64
+        dx, dy, dz, de = (np.asarray(q[c], f8) for c in ("dx", "dy", "dz", "de"))
+        L, vn, acc, me2 = np.empty(k), np.empty(k), np.empty(k), np.empty(k)
+        if self.prev_c is None:
+            self.prev_c = np.zeros(6)
+        _plan.blocks(dx, dy, dz, de, np.asarray(q["v"], f8), np.asarray(q["accel"], f8),
+                     np.asarray(q["jd"], f8), np.asarray(q["amax"], f8), np.asarray(q["vmax"], f8),
+                     self.prev_c, bool(self.m.jd_small_segments), self.m.min_planner_speed ** 2,
+                     L, vn, acc, me2)
+        if np.any(vn <= 0):
+            self.bad = int(np.asarray(q["line"])[int(np.argmax(vn <= 0))])
+            return
+        self._keep(q, k, dx, dy, dz, de, L, vn, acc, me2)
+
+    def _keep(self, q, k, dx, dy, dz, de, L, vn, acc, me2) -> None:
+        """A part's planned numbers: into the run, and what the totals (and blocks) need."""
+        f8 = np.float64
+        e_only = np.flatnonzero((dx == 0) & (dy == 0) & (dz == 0) & (de != 0))
+        n_e, spm_e, vn_e = np.asarray(q["n_e"], f8)[e_only], np.asarray(q["spm_e"], f8)[e_only], vn[e_only]
+        feature = np.asarray(q["feature"])
+        self.de.append(de[(de > 0) & ((dx != 0) | (dy != 0) | (dz != 0))])
+        if self.keep:
+            b = np.zeros(k, dtype=BLOCK_DTYPE)
+            for name in ("line", "feature", "layer"):
+                b[name] = q[name]
+            b["dx"], b["dy"], b["dz"], b["de"] = dx, dy, dz, de
+            b["length"], b["nominal_speed"], b["accel"] = L, vn, acc
+            self.parts.append(b)
+        # runs: a block after a stop starts one
+        lo = 0
+        for hi in np.flatnonzero(q["brk"]).tolist() + [k]:
+            if hi > lo:
+                w = (e_only >= lo) & (e_only < hi)
+                if w.any():
+                    self.e_only.append((e_only[w] - lo + self.run.n, n_e[w], spm_e[w], vn_e[w]))
+                self.run.add(acc[lo:hi], L[lo:hi], vn[lo:hi], me2[lo:hi])
+                self.feature.append(feature[lo:hi].astype(np.int32))
+            if hi < k:
+                self.close()
+            lo = hi
+
+    def close(self) -> None:
+        """Plans the run gathered so far."""
+        if not self.run.n:
+            return
+        run, self.run = self.run, _Run()
+        t, sp = _plan_run(run, self.m, self.keep)
+        if self.e_only:
+            sel, n_e, spm_e, vn = (np.concatenate(c) for c in zip(*self.e_only))
+            k, tc = _slow_e_only(vn, sel, n_e, spm_e)
+            if sp[3] is not None:
+                sp[3][k], sp[4][k], sp[5][k] = 0.0, tc, 0.0
+            t[k] = (0.0 + tc) + 0.0                      # t_accel + t_cruise + t_decel
+        self.t.append(t)
+        # the time per feature as np.bincount(feature, weights=t) adds it up over the whole file:
+        # block by block in order (cumsum continues each feature's sum exactly so)
+        feature = np.concatenate(self.feature)
+        self.feature = []
+        for c0 in range(0, len(t), CHUNK):
+            f, tt = feature[c0:c0 + CHUNK], t[c0:c0 + CHUNK]
+            for i in np.flatnonzero(np.bincount(f)).tolist():
+                self.by_feature[i] = np.cumsum(np.concatenate([[self.by_feature.get(i, 0.0)], tt[f == i]]))[-1]
+        if self.keep:
+            self.speeds.append(sp)
+        self.e_only = []
+
+    def finish(self):
+        """(each block's time, the time per feature index, the filament of extruding blocks,
+        the blocks or None, the number of blocks)."""
+        self.close()
+        if self.bad is not None:
+            raise EstimateError(f"{self.source}:{self.bad}: move with feed rate 0")
+        t = self.t[0] if len(self.t) == 1 else np.concatenate(self.t) if self.t else np.zeros(0)
+        self.t = []
+        de, self.de = self.de, []
+        filament = float(np.concatenate(de).sum()) if de else 0.0
+        del de
+        b = None
+        if self.keep:
+            b = np.concatenate(self.parts) if self.parts else np.zeros(0, dtype=BLOCK_DTYPE)
+            self.parts = []
+            for i, name in enumerate(_SPEEDS):
+                if len(b):
+                    b[name] = np.concatenate([s[i] for s in self.speeds])
+        return t, self.by_feature, filament, b, self.n
 
 
-def _plan_long(b, s0, e0, maxentry2, m: Machine) -> None:
-    """_plan_segment on blocks s0..e0 (no stop between them), a chunk at a time. A block's speeds
-    depend only on blocks within the distance the head needs to reach or lose its highest
-    speed (v^2 / 2a), so each chunk is planned with that much on both sides and only its own
-    blocks are kept: the same result as planning the whole run at once."""
-    n = e0 - s0
+class _Run:
+    """A run of blocks (no stop between them) as its columns came, piece by piece: acceleration,
+    length, nominal speed, junction speed squared; and cum, the prefix sums of the lengths
+    (np.cumsum over the whole run, to the bit: each piece's sums continue from the last one's
+    total), made piece by piece when needed. Windows are copied out as they are planned
+    (window()), and pieces behind them are let go (drop()), so that planning needs no second copy
+    of the run."""
+
+    def __init__(self):
+        self.pieces = []                 # (a, L, vn, me2) or None once dropped
+        self.cums = {}                   # piece -> its cum values, made when a search needs them
+        self.starts = []                 # each piece's first block
+        self.lasts = []                  # each piece's last cum
+        self.n = 0
+        self.vn_max = self.a_min = None
+
+    def _sums(self, j: int) -> np.ndarray:
+        total = self.lasts[j - 1] if j else 0.0
+        return np.cumsum(np.concatenate([[total], self.pieces[j][1]]))[1:]
+
+    def add(self, a, L, vn, me2) -> None:
+        self.pieces.append((a, L, vn, me2))
+        self.starts.append(self.n)
+        self.lasts.append(float(self._sums(len(self.pieces) - 1)[-1]))     # kept: one number
+        self.n += len(a)
+        vm, am = vn.max(), a.min()
+        self.vn_max = vm if self.vn_max is None else np.maximum(self.vn_max, vm)
+        self.a_min = am if self.a_min is None else np.minimum(self.a_min, am)
+
+    def cum(self, i: int) -> float:
+        """The run's cum[i] (cum[0] = 0: before the first block)."""
+        if i == 0:
+            return 0.0
+        j = bisect.bisect_right(self.starts, i - 1) - 1
+        return self._cum(j)[i - 1 - self.starts[j]]
+
+    def _cum(self, j: int) -> np.ndarray:
+        if j not in self.cums:
+            self.cums[j] = self._sums(j)
+        return self.cums[j]
+
+    def searchsorted(self, x: float, side: str) -> int:
+        """np.searchsorted(cum, x, side) on the run's n + 1 cum values."""
+        if x < 0 or (side == "left" and x <= 0):       # cum[0] = 0, and every cum >= 0
+            return 0
+        j = (bisect.bisect_right if side == "right" else bisect.bisect_left)(self.lasts, x)
+        if j == len(self.pieces):
+            return self.n + 1
+        return 1 + self.starts[j] + int(np.searchsorted(self._cum(j), x, side=side))
+
+    def window(self, lo: int, hi: int):
+        """(a, L, vn, me2) of blocks lo..hi-1, contiguous."""
+        j = bisect.bisect_right(self.starts, lo) - 1
+        parts = []
+        while j < len(self.pieces) and self.starts[j] < hi:
+            s0 = self.starts[j]
+            parts.append(tuple(c[max(lo - s0, 0):hi - s0] for c in self.pieces[j]))
+            j += 1
+        if len(parts) == 1:
+            return parts[0]
+        return tuple(np.concatenate(c) for c in zip(*parts))
+
+    def drop(self, lo: int) -> None:
+        """Lets go of the pieces that end before block lo."""
+        for j in range(len(self.pieces) - 1):
+            if self.starts[j + 1] > lo:
+                break
+            self.pieces[j] = None
+            self.cums.pop(j, None)
+
+
+def _plan_run(run: _Run, m: Machine, speeds: bool):
+    """Plans a run of blocks (no stop between them), a chunk at a time when it is long: (each
+    block's time, _SPEEDS' arrays or Nones). A block's speeds depend only on blocks within the
+    distance the head needs to reach or lose its highest speed (v^2 / 2a), so each chunk is
+    planned with that much on both sides and only its own blocks are kept: the same result as
+    planning the whole run at once."""
+    n = run.n
+    t = np.empty(n)
+    sp = [np.empty(n) if speeds else None for _ in _SPEEDS]
     if n <= 2 * CHUNK:
-        seg = b[s0:e0]
-        _plan_segment(seg, maxentry2[s0:e0], m)
-        b[s0:e0] = seg
-        return
-    L = b["length"][s0:e0]
-    cum = np.concatenate([[0.0], np.cumsum(L)])
-    reach = float((b["nominal_speed"][s0:e0] ** 2).max() / (2 * b["accel"][s0:e0].min())) * 1.5 + 1.0
+        _plan_window(*run.window(0, n), m, 0, n, 0, n, t, sp)
+        return t, sp
+    reach = float(run.vn_max * run.vn_max / (2 * run.a_min)) * 1.5 + 1.0
     for c0 in range(0, n, CHUNK):
         c1 = min(n, c0 + CHUNK)
-        lo = int(np.searchsorted(cum, cum[c0] - reach, side="right")) - 1
-        hi = int(np.searchsorted(cum, cum[c1] + reach, side="left")) + 1
+        lo = run.searchsorted(run.cum(c0) - reach, "right") - 1
+        hi = run.searchsorted(run.cum(c1) + reach, "left") + 1
         lo, hi = max(0, lo - m.lookahead if m.lookahead else lo), min(n, hi + (m.lookahead or 0))
-        seg = b[s0 + lo:s0 + hi].copy()              # its edges are planned wrongly: not kept
-        me = maxentry2[s0 + lo:s0 + hi]
-        _plan_segment(seg, me, m)
-        keep = slice(c0 - lo, c1 - lo)
-        for f in ("entry_speed", "exit_speed", "cruise_speed", "t_accel", "t_cruise", "t_decel"):
-            b[f][s0 + c0:s0 + c1] = seg[f][keep]
+        # the window's edges are planned wrongly: not kept
+        _plan_window(*run.window(lo, hi), m, 0, hi - lo, c0 - lo, c1 - lo, t[lo:],
+                     [None if o is None else o[lo:] for o in sp])
+        run.drop(lo)
+    return t, sp
 
 
-def estimate_lines(lines, machine: Machine | None = None, source: str = "<gcode>") -> Result:
-    """Items of `lines`: G-code lines, or MoveBlocks standing for the lines of their moves."""
+def estimate_lines(lines, machine: Machine | None = None, source: str = "<gcode>",
+                   blocks: bool = True) -> Result:
+    """Items of `lines`: G-code lines, or MoveBlocks standing for the lines of their moves.
+    blocks=False: Result.blocks is None (the totals only, in less memory)."""
     m = machine or Machine()
     p = _Parser(m, source)
+    plan = _Planner(m, source, blocks)
     count = 0
     for raw in lines:
         if isinstance(raw, MoveBlock):
@@ -699,49 +926,47 @@ def estimate_lines(lines, machine: Machine | None = None, source: str = "<gcode>
         else:
             count += 1
             p.line(count, raw)
+        if p.parts:
+            plan.feed(p)
     p.flush()
-    return _result(p, _plan_parts(p, m, source), count)
+    plan.feed(p)
+    return _result(p, plan, count)
 
 
-def _result(p: _Parser, b: np.ndarray, count: int) -> Result:
-    t = b["t_accel"] + b["t_cruise"] + b["t_decel"]
+def _result(p: _Parser, plan: _Planner, count: int) -> Result:
+    t, sums, filament, b, n = plan.finish()
     feats = p.features
     by = {}
-    if len(b):
-        sums = np.bincount(b["feature"], weights=t, minlength=len(feats))
-        by = {feats[i]: float(sums[i]) for i in range(len(feats)) if sums[i] > 0}
+    if n:
+        by = {feats[i]: float(sums.get(i, 0.0)) for i in range(len(feats)) if sums.get(i, 0.0) > 0}
     for f, dt in p.dwell_by_feature.items():
         by[f] = by.get(f, 0.0) + dt
     moves = float(t.sum())
     return Result(total_s=moves + p.dwell, moves_s=moves, dwell_s=p.dwell, by_feature=by,
-                  features=feats, blocks=b, lines=count)
+                  features=feats, blocks=b, lines=count, n_blocks=n, filament=filament)
 
 
 def _lround(v: float) -> int:
     return int(math.floor(v + 0.5)) if v >= 0 else -int(math.floor(-v + 0.5))
 
 
-def _slow_e_only(b, e_alone, steps_e, spm_e) -> None:
-    """Moves of E alone whose step rate is under MINIMAL_STEP_RATE: 1/120 + (n - 1)/r s, all at
-    their speed (see the module's doc); faster ones keep their trapezoid, which is n/r plus the
-    ramp."""
-    sel = np.flatnonzero(e_alone & (b["de"] != 0))
-    if not len(sel):
-        return
-    n = steps_e[sel]
+def _slow_e_only(vn, sel, steps_e, spm_e):
+    """Moves of E alone (indices sel, their nominal speed, whole steps and steps/mm) whose step rate is under
+    MINIMAL_STEP_RATE: 1/120 + (n - 1)/r s, all at their speed (see the module's doc); faster
+    ones keep their trapezoid, which is n/r plus the ramp. -> (those moves, their cruise time)."""
+    n = steps_e
     # Marlin's length of the block is its whole steps in mm: the rate is speed x steps/mm
-    rate = np.ceil(b["nominal_speed"][sel] * spm_e[sel] - 1e-9)
+    rate = np.ceil(vn * spm_e - 1e-9)
     slow = (rate < MINIMAL_STEP_RATE) & (n >= 1)
-    k = sel[slow]
-    b["t_accel"][k] = 0.0
-    b["t_decel"][k] = 0.0
-    b["t_cruise"][k] = 1 / MINIMAL_STEP_RATE + (n[slow] - 1) / rate[slow]
+    return sel[slow], 1 / MINIMAL_STEP_RATE + (n[slow] - 1) / rate[slow]
 
 
-def estimate_file(path, machine: Machine | None = None, scanned: bool | None = None) -> Result:
+def estimate_file(path, machine: Machine | None = None, scanned: bool | None = None,
+                  blocks: bool = True) -> Result:
     """The file's estimate: from the compiled scanner's move records (movescan, events mode)
     when it is built, else (or scanned=False) from its lines; both give the same blocks
-    (host/tests/gcode/test_estimate_scan.py)."""
+    (host/tests/gcode/test_estimate_scan.py). blocks=False: Result.blocks is None (the totals
+    only, in less memory: what `bulgekit estimate` prints)."""
     from . import movescan
     path = os.fspath(path)
     try:
@@ -749,11 +974,11 @@ def estimate_file(path, machine: Machine | None = None, scanned: bool | None = N
             scanned = movescan.available()
         if scanned:
             try:
-                return _estimate_scanned(path, machine or Machine(), path)
+                return _estimate_scanned(path, machine or Machine(), path, blocks)
             except movescan.Unsupported:
                 pass                                   # a line only the text parser takes
         with open(path, encoding="utf-8", errors="replace") as f:
-            return estimate_lines(f, machine, source=path)
+            return estimate_lines(f, machine, source=path, blocks=blocks)
     except OSError as e:
         raise EstimateError(f"{path}: {e.strerror or e}") from None
 
@@ -767,6 +992,7 @@ _HARD = frozenset(("G0", "G1", "G00", "G01", "G2", "G3", "G02", "G03", "G92", "G
 _G92_WORD = re.compile(r"[XYZEF][-+]?(?:\d+\.?\d*|\.\d+)$")
 
 
+@functools.lru_cache(maxsize=4096)                     # slicers repeat the same few event lines
 def _command(raw: str) -> str | None:
     """The command of a line as _Parser.line reads it (None: a comment or blank)."""
     toks = raw.partition(";")[0].split()
@@ -777,18 +1003,19 @@ def _command(raw: str) -> str | None:
     return toks[0].upper()
 
 
-def _estimate_scanned(path: str, m: Machine, source: str) -> Result:
+def _estimate_scanned(path: str, m: Machine, source: str, blocks: bool = True) -> Result:
     """estimate_lines on the file, its plain moves taken from the scanner's records as arrays
     (what _Parser.move and emit would compute, operation for operation) and every other line
     (the scanner's events: comments with TYPE:/LAYER, other commands, odd moves) given to
     _Parser.line in order. A move whose start is not where the parser stands (after a G28, a bare
-    G92 ...: the scanner does not follow those) is read from its text too."""
+    G92 ...: the scanner does not follow those) is read from its text too. Each chunk's blocks are
+    planned as it is read (_Planner)."""
     from . import movescan
     p = _Parser(m, source)
+    plan = _Planner(m, source, blocks)
     if movescan._scan is None:
         raise movescan.Unsupported("bulgekit.gcode._scan is not built")
     sc = movescan._scan.Scanner((), (), movescan._classify, 1.0, events=True)
-    carry = None                                        # (record, its line's text): a chunk's last move
     base, buf = 0, b""
 
     def text_at(off: int) -> str:
@@ -806,18 +1033,10 @@ def _estimate_scanned(path: str, m: Machine, source: str) -> Result:
                 buf = buf + data if buf else data
                 recs, used = sc.feed(buf, final, base)
                 a = np.frombuffer(recs, dtype=movescan.RECORD)
-                texts = {}
-                if carry is not None:
-                    a = np.concatenate([carry[0], a])
-                    texts[int(carry[0]["line_no"][0])] = carry[1]
-                    carry = None
-                e_last = sc.e                           # the E the chunk ends at: the next record's start
-                if not final and len(a):
-                    # the chunk's last record waits for the next chunk, where its end E is
-                    carry = (a[-1:].copy(), text_at(int(a["offset"][-1])))
-                    e_last = float(a["e_start"][-1])
-                    a = a[:-1]
-                _take(p, a, lambda r: texts.get(int(r["line_no"])) or text_at(int(r["offset"])), e_last)
+                # the E the chunk ends at: the next record's start (every line that sets E, an
+                # event or a move, has a record, so none comes between)
+                _take(p, a, text_at, sc.e)
+                plan.feed(p)
                 _progress_tick(sc.lines)
                 base += used
                 buf = buf[used:]
@@ -826,7 +1045,8 @@ def _estimate_scanned(path: str, m: Machine, source: str) -> Result:
     except movescan._scan.ScanUnsupported:
         raise movescan.Unsupported("the scanner refused a line") from None
     p.flush()
-    return _result(p, _plan_parts(p, m, source), sc.lines)
+    plan.feed(p)
+    return _result(p, plan, sc.lines)
 
 
 _EVENT = 16                                             # the scanner's flag for an event record
@@ -841,22 +1061,23 @@ def _progress_tick(n: int) -> None:
 def _take(p: _Parser, a: np.ndarray, text, e_last: float) -> None:
     """One chunk of records (see _estimate_scanned). Moves are gathered in ranges while only
     lines that leave the position alone come between them (_SOFT, comments), each range with the
-    parser's state at its start, and taken as arrays when another line comes (or the chunk ends)."""
+    parser's state at its start, and taken as arrays when another line comes (or the chunk ends).
+    text(byte offset): a record's line."""
     n = len(a)
     if not n:
         return
     ev = np.flatnonzero(a["flags"] & _EVENT)
+    ev_line = a["line_no"][ev].tolist()
+    ev_off = a["offset"][ev].tolist()
     # a move's end E is the next record's start E (an event's record holds the state before it)
     e_next = np.append(a["e_start"][1:], e_last)
-    ranges = []
-    i = k = 0
-    while i < n:
-        while k < len(ev) and ev[k] < i:
-            k += 1
-        j = int(ev[k]) if k < len(ev) else n
-        if j > i:                                       # moves i .. j-1
+    ranges = []                                         # (start, end, state, E steps at its start)
+    i = 0
+    for q, j in enumerate(ev.tolist() + [n]):
+        while j > i:                                    # moves i .. j-1
             if not ranges and not _in_step(p, a[i]):
-                p.line(int(a[i]["line_no"]), text(a[i]))     # from its text until in step again
+                r = a[i]
+                p.line(int(r["line_no"]), text(int(r["offset"])))    # from its text until in step again
                 i += 1
                 continue
             # the E steps a range starts from: the first one's are the parser's now (a G92
@@ -864,27 +1085,31 @@ def _take(p: _Parser, a: np.ndarray, text, e_last: float) -> None:
             at = p.e_at if not ranges and p.g92_at is None else p.g92_at
             ranges.append((i, j, _state(p), at))
             p.g92_at = None
-            p.g92_lines = []
+            if p.g92_lines:
+                p.g92_lines = []
             p.brk = False                               # taken by the range's first block (or carried)
             i = j
-            continue
-        raw = text(a[j])
+        if j == n:
+            break
+        ln = ev_line[q]
+        raw = text(ev_off[q])
         cmd = _command(raw)
         if ranges and cmd in _HARD:
             if cmd == "G92" and _plain_g92(raw):
-                p.line(int(a[j]["line_no"]), raw)
+                p.line(ln, raw)
                 p.g92_at = p.e_at                       # the E steps the next range starts from
-                p.g92_lines.append((int(a[j]["line_no"]), raw))   # again once the moves are taken
+                p.g92_lines.append((ln, raw))           # again once the moves are taken
                 i = j + 1
                 continue
             _vector_moves(p, a, e_next, ranges)
             ranges = []
-        p.line(int(a[j]["line_no"]), raw)
+        p.line(ln, raw)
         i = j + 1
     if ranges:
         _vector_moves(p, a, e_next, ranges)
 
 
+@functools.lru_cache(maxsize=4096)
 def _plain_g92(raw: str) -> bool:
     """A G92 that sets E, and only axes given as numbers (as the scanner sets them)."""
     toks = raw.partition(";")[0].split()
@@ -910,40 +1135,136 @@ def _lround_array(v: np.ndarray) -> np.ndarray:
 def _vector_moves(p: _Parser, a: np.ndarray, e_next: np.ndarray, ranges) -> None:
     """_Parser.move + emit for the moves of `ranges`, as arrays (see _take)."""
     m = p.m
-    counts = [e - s for s, e, _, _ in ranges]
-    idx = np.concatenate([np.arange(s, e) for s, e, _, _ in ranges])
-    k = len(idx)
-    r = a[idx]
-    states = [st for _, _, st, _ in ranges]
+    R = len(ranges)
+    rs = np.array([s for s, _, _, _ in ranges], np.int64)
+    counts = np.array([e for _, e, _, _ in ranges], np.int64) - rs
+    starts = np.cumsum(counts) - counts                 # each range's first move among the k taken
+    k = int(counts.sum())
+    rid = np.repeat(np.arange(R), counts)               # each move's range
+    idx = np.arange(k) + (rs - starts)[rid]
+    # the records as rows of 8-byte words (movescan.RECORD; np.take of plain rows is quick)
+    w = a.dtype.itemsize // 8
+    g = np.take(a.view(np.float64).reshape(len(a), w), idx, axis=0)
+    x0, y0, z0, x1, y1, z1, de, f = (g[:, a.dtype.fields[c][1] // 8]
+                                     for c in ("x0", "y0", "z0", "x1", "y1", "z1", "e", "f"))
+    off = a.dtype.fields["line_no"][1]
+    line_no = g.view(np.int32).reshape(k, 2 * w)[:, off // 4] if off % 4 == 0 else a["line_no"][idx]
     # the states as one matrix, a row per range: feature, layer, M220, accel x3, jd, jerk x4,
-    # M201 x4, M203 x4, brk
-    S = np.array([st[:7] + (st[7] or (0.0,) * 4) + st[8] + st[9] + (st[10],) for st in states], float)
-    starts = np.cumsum([0] + counts[:-1])
+    # M201 x4, M203 x4, brk (_state)
+    S = np.array([st for _, _, st, _ in ranges], float)
     brk_in = np.zeros(k, bool)
     brk_in[starts] = S[:, 19] != 0
     sx, sy, sz, se = (p.spm[ax] for ax in AXES)
-    D = np.column_stack([r["x1"] - r["x0"], r["y1"] - r["y0"], r["z1"] - r["z0"], r["e"]])
     ea = e_next[idx]
     e_to = _lround_array(ea * se)
     e_prev = np.concatenate([[p.e_at], e_to[:-1]])
     reset = np.zeros(k, bool)                      # a G92 before it set the E steps
-    for q, (_, _, _, g92) in enumerate(ranges):
-        if g92 is not None:
-            e_prev[starts[q]] = g92
-            reset[starts[q]] = True
+    g92 = [(q, r[3]) for q, r in enumerate(ranges) if r[3] is not None]
+    if g92:
+        q, at = zip(*g92)
+        e_prev[starts[list(q)]] = at
+        reset[starts[list(q)]] = True
+    if _plan is not None:                          # the same, move by move in C
+        D, ne, emitted = np.empty((k, 4)), np.empty(k), np.empty(k, bool)
+        pend = np.array(p.pending, float)
+        _plan.moves(x0, y0, z0, x1, y1, z1, de, e_to, e_prev, reset, np.array([sx, sy, sz, se], float),
+                    float(m.min_segment_steps), pend, D, ne, emitted)
+        p.pending = pend.tolist()
+    else:
+        D, ne, emitted = _drop_tiny(p, k, x0, y0, z0, x1, y1, z1, de, e_to, e_prev, reset)
+    E = np.flatnonzero(emitted)
+    cs = np.cumsum(brk_in)
+    if len(E):
+        before = np.concatenate([[0], cs[E[:-1]]])
+        brk = (cs[E] - before) > 0
+        p.brk = p.brk or bool(cs[-1] - cs[E[-1]] > 0)
+        p.e_at = int(e_to[E[-1]])
+        DE = D[E] if len(E) < k else D
+        xyzE = np.sqrt(DE[:, 0] * DE[:, 0] + DE[:, 1] * DE[:, 1] + DE[:, 2] * DE[:, 2])
+        rE = rid[E]                                     # each emitted block's range
+        nE = len(E)
+
+        def state(c0, c1=None):
+            """State columns c0 (..c1) per emitted block; a column the same in every range is
+            given as a broadcast view, not copied."""
+            cols = S[:, c0:c1 or c0 + 1]
+            if (cols == cols[0]).all():
+                out = np.broadcast_to(cols[0], (nE, cols.shape[1]))
+            else:
+                out = cols[rE]
+            return out if c1 else out[:, 0]
+
+        acc = np.where(xyzE > 0, np.where(DE[:, 3] != 0, state(3), state(4)), state(5))
+        p.flush()
+        p.parts.append({
+            "line": line_no[E].astype(np.int64), "feature": state(0).astype(np.int64),
+            "layer": state(1).astype(np.int64), "dx": DE[:, 0], "dy": DE[:, 1], "dz": DE[:, 2],
+            "de": DE[:, 3], "v": f[E] / 60 * state(2) / 100, "accel": acc, "brk": brk,
+            "jd": state(6), "jerk": None if p.jerk is None else state(7, 11),
+            "amax": state(11, 15), "vmax": state(15, 19),
+            "n_e": ne[E], "spm_e": np.broadcast_to(float(se), (nE,))})
+    else:
+        p.brk = p.brk or bool(cs[-1] > 0)
+    p.pos = [float(x1[-1]), float(y1[-1]), float(z1[-1]), float(ea[-1])]
+    p.F = float(f[-1])
+    p.f = p.F / 60
+    for n, raw in p.g92_lines:                    # G92s after the last range: on the position now
+        p.line(n, raw)
+    p.g92_lines, p.g92_at = [], None
+
+
+def _drop_tiny(p: _Parser, k, x0, y0, z0, x1, y1, z1, de, e_to, e_prev, reset):
+    """_vector_moves' Marlin rule for tiny moves, on arrays (_plan.moves does it in C):
+    -> (D: dx dy dz de as planned, ne: E-alone whole steps, emitted); sets p.pending."""
+    m = p.m
+    sx, sy, sz, se = (p.spm[ax] for ax in AXES)
+    D = np.empty((k, 4))
+    np.subtract(x1, x0, out=D[:, 0])
+    np.subtract(y1, y0, out=D[:, 1])
+    np.subtract(z1, z0, out=D[:, 2])
+    D[:, 3] = de
     xyz = np.sqrt(D[:, 0] * D[:, 0] + D[:, 1] * D[:, 1] + D[:, 2] * D[:, 2])
     st_e = np.where(xyz == 0, np.abs(e_to - e_prev), np.abs(D[:, 3]) * se)
     mx = np.maximum(np.maximum(np.abs(D[:, 0]) * sx, np.abs(D[:, 1]) * sy), np.maximum(np.abs(D[:, 2]) * sz, st_e))
     ne = np.where(xyz == 0, st_e, 0.0)
     emitted = np.ones(k, bool)
-    # dropped moves (too few steps, Marlin's rule) and the ones after them: one at a time
-    todo = list(np.flatnonzero((mx < m.min_segment_steps) | (mx == 0)))
-    if any(p.pending) and (not todo or todo[0] != 0):
-        todo.insert(0, 0)
+    # Dropped moves (too few steps, Marlin's rule): their distance goes to the next move. A move
+    # the arrays above drop does drop when the move before it was planned (its E steps and
+    # distance are then the ones used above); the usual case, one dropped move (a lone F word)
+    # whose next move is planned, is computed on arrays ("single"), chains of them one at a time.
+    drop = (mx < m.min_segment_steps) | (mx == 0)
+    todo = np.flatnonzero(drop)
+    pending = any(p.pending)
+    nxt_ok = np.zeros(len(todo), bool)
+    if len(todo):
+        s1 = todo + 1
+        nxt_ok = s1 < k
+        nxt_ok[nxt_ok] = ~drop[s1[nxt_ok]]
+        if pending and todo[0] == 0:
+            nxt_ok[0] = False
+    single = todo[nxt_ok]
+    if len(single):
+        # as the loop below computes it: the dropped move's distance (plus nothing pending)
+        # added to the next move's, whose E steps count from the dropped one's start
+        s1 = single + 1
+        d1 = D[s1] + (D[single] + 0.0)
+        xs1 = np.sqrt(d1[:, 0] * d1[:, 0] + d1[:, 1] * d1[:, 1] + d1[:, 2] * d1[:, 2])
+        e_at1 = np.where(reset[s1], e_prev[s1], e_prev[single])
+        st1 = np.where(xs1 == 0, np.abs(e_to[s1] - e_at1), np.abs(d1[:, 3]) * se)
+        mx1 = np.maximum(np.maximum(np.abs(d1[:, 0]) * sx, np.abs(d1[:, 1]) * sy),
+                         np.maximum(np.abs(d1[:, 2]) * sz, st1))
+        ok = ~((mx1 < m.min_segment_steps) | (mx1 == 0))
+        nxt_ok[np.flatnonzero(nxt_ok)[~ok]] = False
+        single, s1, d1, xs1, st1 = single[ok], s1[ok], d1[ok], xs1[ok], st1[ok]
+    chains = list(todo[~nxt_ok])
+    if pending and (not chains or chains[0] != 0):
+        chains.insert(0, 0)
+    covered = []                                   # (first, end) of each chain taken one by one
     nxt, last_pend = 0, [0.0, 0.0, 0.0, 0.0]
-    for j in todo:
+    for j in chains:
         if j < nxt:
             continue
+        j0 = j
         pend, e_at = (list(p.pending) if j == 0 else [0.0, 0.0, 0.0, 0.0]), int(e_prev[j])
         while j < k:
             if reset[j]:
@@ -964,43 +1285,32 @@ def _vector_moves(p: _Parser, a: np.ndarray, e_next: np.ndarray, ranges) -> None
             e_at, pend = et, [0.0, 0.0, 0.0, 0.0]
             break
         nxt = j
+        covered.append((j0, j))
         last_pend = pend if j == k else [0.0, 0.0, 0.0, 0.0]
+    if len(single):
+        if covered:                                # a single one inside a chain is the chain's
+            c0, c1 = np.array(covered).T
+            w = np.searchsorted(c0, single, side="right") - 1
+            free = (w < 0) | (single >= c1[np.maximum(w, 0)])
+            single, s1, d1, xs1, st1 = single[free], s1[free], d1[free], xs1[free], st1[free]
+        emitted[single] = False
+        D[s1] = d1
+        ne[s1] = np.where(xs1 == 0, st1, 0.0)
     p.pending = last_pend if nxt == k else [0.0, 0.0, 0.0, 0.0]
-    E = np.flatnonzero(emitted)
-    cs = np.cumsum(brk_in)
-    if len(E):
-        before = np.concatenate([[0], cs[E[:-1]]])
-        brk = (cs[E] - before) > 0
-        p.brk = p.brk or bool(cs[-1] - cs[E[-1]] > 0)
-        p.e_at = int(e_to[E[-1]])
-        DE = D[E]
-        xyzE = np.sqrt(DE[:, 0] * DE[:, 0] + DE[:, 1] * DE[:, 1] + DE[:, 2] * DE[:, 2])
-        X = np.repeat(np.arange(len(states)), counts)[E]   # each emitted block's range
-        SE = S[X]
-        acc = np.where(xyzE > 0, np.where(DE[:, 3] != 0, SE[:, 3], SE[:, 4]), SE[:, 5])
-        p.flush()
-        p.parts.append({
-            "line": r["line_no"][E].astype(np.int64), "feature": SE[:, 0].astype(np.int64),
-            "layer": SE[:, 1].astype(np.int64), "dx": DE[:, 0], "dy": DE[:, 1], "dz": DE[:, 2],
-            "de": DE[:, 3], "v": r["f"][E] / 60 * SE[:, 2] / 100, "accel": acc, "brk": brk,
-            "jd": SE[:, 6], "jerk": None if p.jerk is None else SE[:, 7:11],
-            "amax": SE[:, 11:15], "vmax": SE[:, 15:19],
-            "n_e": ne[E].astype(float), "spm_e": np.full(len(E), float(se))})
-    else:
-        p.brk = p.brk or bool(cs[-1] > 0)
-    last = r[-1]
-    p.pos = [float(last["x1"]), float(last["y1"]), float(last["z1"]), float(ea[-1])]
-    p.F = float(last["f"])
-    p.f = p.F / 60
-    for n, raw in p.g92_lines:                    # G92s after the last range: on the position now
-        p.line(n, raw)
-    p.g92_lines, p.g92_at = [], None
+    return D, ne, emitted
+
+
+_XYZE = operator.itemgetter(*AXES)
 
 
 def _state(p: _Parser) -> tuple:
-    return (p.fidx[p.feature], p.layer, p.pct, p.accel, p.travel_accel, p.retract_accel, p.jd,
-            None if p.jerk is None else tuple(p.jerk[a] for a in AXES),
-            tuple(p.max_accel[a] for a in AXES), tuple(p.max_fr[a] for a in AXES), p.brk)
+    """The parser's state a range of moves starts with, as one row of numbers (see _vector_moves)."""
+    return ((p.fidx[p.feature], p.layer, p.pct, p.accel, p.travel_accel, p.retract_accel, p.jd)
+            + (_NO_JERK if p.jerk is None else _XYZE(p.jerk)) + _XYZE(p.max_accel) + _XYZE(p.max_fr)
+            + (p.brk,))
+
+
+_NO_JERK = (0.0, 0.0, 0.0, 0.0)
 
 
 def block_times(res: Result) -> np.ndarray:
@@ -1016,6 +1326,10 @@ def extruding(res: Result) -> np.ndarray:
 
 def deposited_filament(res: Result, mask=None) -> float:
     """Filament (mm) laid by extruding moves (retractions and their primes are not counted)."""
+    if res.blocks is None:                                 # blocks=False: the sum kept
+        if mask is not None:
+            raise ValueError("deposited_filament with a mask needs the blocks (blocks=True)")
+        return res.filament
     sel = extruding(res) if mask is None else (extruding(res) & mask)
     return float(res.blocks["de"][sel].sum())
 

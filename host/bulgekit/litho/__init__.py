@@ -1096,7 +1096,7 @@ def write_gcode(plan: Plan, path, mode: str, name: str = "lithophane", estimate_
     for m in estimate_with:
         every = "" if m.min_segment_steps else ", every move planned"
         with pg.phase(f"estimating {_shown(path)}{every}", 1, unit="estimates"):
-            out.append(estimate.estimate_lines(w.lines(), m, source=os.fspath(path)).total_s)
+            out.append(estimate.estimate_lines(w.lines(), m, source=os.fspath(path), blocks=False).total_s)
     return out
 
 
