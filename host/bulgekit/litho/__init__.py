@@ -403,17 +403,51 @@ class _Band:
         return (h[:-1] + h[1:]) / 2 * np.abs(np.diff(self.x))
 
 
+def _width_runs(seg, area, laid) -> np.ndarray:
+    """Where runs of pieces that may merge start (and the end): a run is all laid or all not, and
+    a laid run's merged width (its area over its length) stays within WIDTH_TOL of every
+    member's, greedily as long as it can. Neighbours that differ a little merge wherever they
+    lie, not only inside a fixed bin of widths."""
+    n = len(seg)
+    wd = np.where(seg > 1e-12, area / np.maximum(seg, 1e-12), 0.0)
+    # runs of one width (the plain wall, flat areas) are taken as one item: the loop below sees
+    # only where the width changes
+    step = np.flatnonzero((laid[1:] != laid[:-1]) | (np.abs(wd[1:] - wd[:-1]) > 1e-9 * wd[1:]))
+    first = np.concatenate([[0], step + 1])
+    A, L = np.add.reduceat(area, first).tolist(), np.add.reduceat(seg, first).tolist()
+    W, on = wd[first].tolist(), laid[first].tolist()
+    lo_tol, hi_tol = 1 - WIDTH_TOL, 1 + WIDTH_TOL
+    starts = [0]
+    a = l_ = lo = hi = 0.0
+    state = None
+    for i, (ai, li, wi, oi) in enumerate(zip(A, L, W, on)):
+        if oi != state:
+            starts.append(i)
+            state, a, l_, lo, hi = oi, ai, li, wi, wi
+            continue
+        if not oi:
+            continue
+        a2, l2 = a + ai, l_ + li
+        lo2, hi2 = min(lo, wi), max(hi, wi)
+        w = a2 / l2 if l2 > 1e-12 else wi
+        if w > lo2 * hi_tol or w < hi2 * lo_tol:
+            starts.append(i)
+            a, l_, lo, hi = ai, li, wi, wi
+        else:
+            a, l_, lo, hi = a2, l2, lo2, hi2
+    b = first[np.unique(starts)]
+    return np.append(b, n)
+
+
 def _keep_straight(pts, area, laid):
-    """Points to keep when neighbouring pieces merge: pieces run on as one where both are laid at
-    the same width (within WIDTH_TOL) or both are not laid, and the path strays no more than
-    CHORD_TOL from the points it drops (Douglas-Peucker, GEOS, per run)."""
+    """Points to keep when neighbouring pieces merge: pieces run on as one where they are laid at
+    one width (the merged width within WIDTH_TOL of every piece's, _width_runs) or not laid, and
+    the path strays no more than CHORD_TOL from the points it drops (Douglas-Peucker, GEOS, per
+    run)."""
     import shapely
 
     seg = np.linalg.norm(np.diff(pts, axis=0), axis=1)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        wd = np.where(seg > 1e-12, area / np.maximum(seg, 1e-12), 0.0)
-        key = np.where(laid, np.floor(np.log(np.maximum(wd, 1e-9)) / math.log1p(WIDTH_TOL)), -1e9)
-    bounds = np.concatenate([[0], np.flatnonzero(key[1:] != key[:-1]) + 1, [len(seg)]])
+    bounds = _width_runs(seg, area, laid)
     keep = np.zeros(len(pts), bool)
     keep[bounds] = True
     multi = np.flatnonzero(np.diff(bounds) > 1)
@@ -426,6 +460,20 @@ def _keep_straight(pts, area, laid):
         lines = shapely.linestrings(np.column_stack([pts[idx], idx.astype(float)]), indices=run)
         simple = shapely.simplify(lines, CHORD_TOL, preserve_topology=False)
         keep[np.rint(shapely.get_coordinates(simple, include_z=True)[:, 2]).astype(int)] = True
+        # A part of a run (where the chord split it) has a width of its own, and its chord is
+        # a little shorter than the path: where that width is off a member's by more than the
+        # tolerance, the part keeps all its points.
+        k = np.flatnonzero(keep)
+        chord = np.linalg.norm(pts[k[1:]] - pts[k[:-1]], axis=1)
+        on = laid[k[:-1]] & (np.diff(k) > 1)
+        if on.any():
+            with np.errstate(divide="ignore", invalid="ignore"):
+                wd = np.where(laid, area / np.maximum(seg, 1e-12), 0.0)
+                w = np.add.reduceat(area, k[:-1]) / np.maximum(chord, 1e-12)
+                lo, hi = np.minimum.reduceat(wd, k[:-1]), np.maximum.reduceat(wd, k[:-1])
+            bad = np.flatnonzero(on & ((w > lo * (1 + WIDTH_TOL)) | (w < hi * (1 - WIDTH_TOL))))
+            for j in bad.tolist():
+                keep[k[j]:k[j + 1]] = True
     return keep
 
 
