@@ -827,15 +827,56 @@ def _fmt(v: float, nd: int) -> str:
     return "0" if s in ("-0", "") else s
 
 
-def _words(letter: str, a: np.ndarray, nd: int) -> list:
-    """`letter` + each value to nd decimals (Python's shortest repr of the rounded value: fast,
-    exact to the decimals asked, no trailing zeros but a whole number's ".0")."""
-    r = np.round(a, nd) + 0.0                       # + 0.0: no "-0.0"
-    out = [f"{letter}{x!r}" for x in r.tolist()]
-    small = np.flatnonzero((np.abs(r) < 1e-4) | (np.abs(r) >= 1e15))
-    for i in small.tolist():                        # repr would use an exponent there
-        out[i] = letter + _fmt(float(r[i]), nd)
-    return out
+def _word_chars(letter: str, a: np.ndarray, nd: int, on=None) -> tuple[np.ndarray, np.ndarray]:
+    """The words `letter` + each value to nd decimals (Python's shortest repr of the rounded value:
+    no trailing zeros but a whole number's ".0"; zero as "0"), as a character matrix and which of its characters
+    are written, computed on the whole array at once. `on`: which rows have the word at all (it
+    then starts with a space)."""
+    k = np.rint(np.asarray(a, float) * 10 ** nd).astype(np.int64)
+    neg, m = k < 0, np.abs(k)
+    ip, fp = np.divmod(m, 10 ** nd)
+    D = max(1, len(str(int(ip.max())))) if len(m) else 1
+    n = len(k)
+    digits = lambda v, count: (v[:, None] // 10 ** np.arange(count - 1, -1, -1)) % 10 + ord("0")
+    # trailing zeros of the fraction: written up to its last non-zero digit, at least one
+    tz = np.zeros(n, int)
+    rest = fp.copy()
+    for _ in range(nd):
+        z = (rest % 10 == 0) & (rest > 0)
+        tz += z
+        rest = np.where(z, rest // 10, rest)
+    shown_f = np.where(fp > 0, nd - tz, 1)
+    chars = np.empty((n, 4 + D + nd), np.uint8)
+    chars[:, 0], chars[:, 1], chars[:, 2] = ord(" "), ord(letter), ord("-")
+    chars[:, 3:3 + D] = digits(ip, D)
+    chars[:, 3 + D] = ord(".")
+    chars[:, 4 + D:] = digits(fp, nd)
+    mask = np.zeros((n, 4 + D + nd), bool)
+    mask[:, :2] = True
+    mask[:, 2] = neg
+    mask[:, 3:3 + D] = ip[:, None] >= 10 ** np.arange(D - 1, -1, -1)
+    mask[:, 2 + D] = True                               # the units digit
+    mask[:, 3 + D:] = (m[:, None] > 0) & (np.arange(nd + 1) <= shown_f[:, None])
+    if on is not None:
+        mask &= np.asarray(on, bool)[:, None]
+    return chars, mask
+
+
+def _move_texts(x, y, amount, f, laid, newf, sizes) -> list:
+    """Lines "G1 X Y [E|W] [F]" for rounded columns (X, Y to 3 decimals, E 5 or W 4, F 1), where
+    `amount` is (letter, values, decimals), one text per group of `sizes` lines (without its
+    last newline). Built as one character matrix: the writer's hot loop (a cylinder has half a
+    million moves per file)."""
+    n = len(x)
+    parts = [(np.frombuffer(b"G1", np.uint8)[None, :].repeat(n, 0), None),
+             _word_chars("X", x, 3), _word_chars("Y", y, 3),
+             _word_chars(amount[0], amount[1], amount[2], on=laid), _word_chars("F", f, 1, on=newf),
+             (np.full((n, 1), ord("\n"), np.uint8), None)]
+    chars = np.hstack([c for c, _ in parts])
+    mask = np.hstack([np.ones_like(c, bool) if m is None else m for c, m in parts])
+    text = chars[mask].tobytes().decode("ascii")
+    ends = np.cumsum(mask.sum(axis=1))[np.cumsum(sizes) - 1].tolist()
+    return [text[a:b - 1] for a, b in zip([0] + ends[:-1], ends)]
 
 
 class _Writer:
@@ -851,6 +892,18 @@ class _Writer:
         self.f = None
         self.retracted = False
         self.flow = None
+        self.pending: list = []       # sections whose text is still to be made
+
+    def flush(self):
+        """Make the text of the sections written since the last flush."""
+        if not self.pending:
+            return
+        idx, *cols = zip(*self.pending)
+        X, Y, A, F, laid, newf = (np.concatenate(c) for c in cols)
+        amount = ("W", A, 4) if self.mode == "litho" and self.o.words == "w" else ("E", A, 5)
+        for i, text in zip(idx, _move_texts(X, Y, amount, F, laid, newf, [len(c) for c in cols[0]])):
+            self.items[i][0] = text
+        self.pending = []
 
     def out(self, s):
         self.items.append(s)
@@ -934,12 +987,9 @@ class _Writer:
         Wd = np.where(laid, np.round(s.width, 4), 0.0) if use_w else None
         prev = np.concatenate([[self.f if self.f is not None else -1.0], F[:-1]])
         newf = np.abs(F - prev) > 1e-6
-        xs, ys, fs = _words("X", X, 3), _words("Y", Y, 3), _words("F", F, 1)
-        amount = _words("W", Wd, 4) if use_w else _words("E", E, 5)
-        text = "\n".join(
-            f"G1 {x} {y}" + (f" {a}" if on else "") + (f" {f}" if nf else "")
-            for x, y, a, f, on, nf in zip(xs, ys, amount, fs, laid.tolist(), newf.tolist()))
-        self.items.append((text, MoveBlock(X, Y, E, F, Wd)))
+        # the text is made with the layer's other sections (flush): fewer, larger array steps
+        self.pending.append((len(self.items), X, Y, Wd if use_w else E, F, laid, newf))
+        self.items.append([None, MoveBlock(X, Y, E, F, Wd)])
         self.f = float(F[-1])
         self.x, self.y = s.pts[-1]
 
@@ -994,6 +1044,7 @@ def write_gcode(plan: Plan, path, mode: str, name: str = "lithophane", estimate_
             mid_q = o.mid_flow * (ratio if k == 0 else 1.0)
             for s in L.sections:
                 w.section(s, wall_q, mid_q)
+            w.flush()
             if k % 16 == 0:
                 pg.tick(k)
         if mode == "litho":
@@ -1002,6 +1053,9 @@ def write_gcode(plan: Plan, path, mode: str, name: str = "lithophane", estimate_
             w.out(f"G1 E-{_fmt(o.retract, 4)} F{_fmt(o.retract_speed * 60, 1)}")
         w.out(fill(end).rstrip("\n"))
         _write_atomic(path, w.text())
+    for it in w.items:                              # the estimate needs the moves' numbers only
+        if not isinstance(it, str):
+            it[0] = None
     from ..gcode import estimate
 
     out = []
