@@ -307,6 +307,7 @@ def calibration_field(o: LithoOptions) -> tuple[Field, dict]:
 CHORD_TOL = 0.01       # mm: how far a merged piece may stray from the points it replaces
 WIDTH_TOL = 0.005      # pieces merge only where their widths agree within this share
 MIN_MOVE = 0.075       # mm: 6 steps at 80 steps/mm, the shortest move Marlin executes
+ROUNDING = 0.0015      # mm: a move written to 0.001 mm in X and Y is up to this much shorter
 
 
 @dataclass
@@ -403,84 +404,138 @@ class _Band:
         return (h[:-1] + h[1:]) / 2 * np.abs(np.diff(self.x))
 
 
-def _width_runs(seg, area, laid) -> np.ndarray:
+def _width_runs(seg, area, laid, du) -> np.ndarray:
     """Where runs of pieces that may merge start (and the end): a run is all laid or all not, and
-    a laid run's merged width (its area over its length) stays within WIDTH_TOL of every
-    member's, greedily as long as it can. Neighbours that differ a little merge wherever they
-    lie, not only inside a fixed bin of widths."""
+    in a laid run the merged piece's width (area / length) and its area per sample interval
+    (area / du, what each sample it spans gets) stay within WIDTH_TOL of every member's,
+    greedily as long as they can. Neighbours that differ a little merge wherever they lie, not
+    only inside a fixed bin. A piece across the layer (du = 0: a planar plate's end) stands
+    alone."""
     n = len(seg)
-    wd = np.where(seg > 1e-12, area / np.maximum(seg, 1e-12), 0.0)
-    # runs of one width (the plain wall, flat areas) are taken as one item: the loop below sees
-    # only where the width changes
-    step = np.flatnonzero((laid[1:] != laid[:-1]) | (np.abs(wd[1:] - wd[:-1]) > 1e-9 * wd[1:]))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        wd = np.where(seg > 1e-12, area / seg, 0.0)
+        pu = np.where(du > 1e-9, area / du, -1.0)
+    # runs of one width and one area per sample (the plain wall, flat areas) are taken as one
+    # item: the loop below sees only where they change
+    step = np.flatnonzero((laid[1:] != laid[:-1]) | (np.abs(wd[1:] - wd[:-1]) > 1e-9 * wd[1:])
+                          | (np.abs(pu[1:] - pu[:-1]) > 1e-9 * np.abs(pu[1:])) | (pu[1:] < 0))
     first = np.concatenate([[0], step + 1])
-    A, L = np.add.reduceat(area, first).tolist(), np.add.reduceat(seg, first).tolist()
-    W, on = wd[first].tolist(), laid[first].tolist()
+    A, L, U = (np.add.reduceat(x, first).tolist() for x in (area, seg, du))
+    W, P, on = wd[first].tolist(), pu[first].tolist(), laid[first].tolist()
     lo_tol, hi_tol = 1 - WIDTH_TOL, 1 + WIDTH_TOL
     starts = [0]
-    a = l_ = lo = hi = 0.0
+    a = l_ = u_ = wlo = whi = plo = phi = 0.0
     state = None
-    for i, (ai, li, wi, oi) in enumerate(zip(A, L, W, on)):
-        if oi != state:
+    for i, (ai, li, ui, wi, pi, oi) in enumerate(zip(A, L, U, W, P, on)):
+        if oi != state or pi < 0 or plo < 0:
             starts.append(i)
-            state, a, l_, lo, hi = oi, ai, li, wi, wi
+            state, a, l_, u_, wlo, whi, plo, phi = oi, ai, li, ui, wi, wi, pi, pi
             continue
         if not oi:
             continue
-        a2, l2 = a + ai, l_ + li
-        lo2, hi2 = min(lo, wi), max(hi, wi)
-        w = a2 / l2 if l2 > 1e-12 else wi
-        if w > lo2 * hi_tol or w < hi2 * lo_tol:
+        a2, l2, u2 = a + ai, l_ + li, u_ + ui
+        wlo2, whi2, plo2, phi2 = min(wlo, wi), max(whi, wi), min(plo, pi), max(phi, pi)
+        w, pm = a2 / max(l2, 1e-12), a2 / u2
+        if (w > wlo2 * hi_tol or w < whi2 * lo_tol or pm > plo2 * hi_tol or pm < phi2 * lo_tol):
             starts.append(i)
-            a, l_, lo, hi = ai, li, wi, wi
+            a, l_, u_, wlo, whi, plo, phi = ai, li, ui, wi, wi, pi, pi
         else:
-            a, l_, lo, hi = a2, l2, lo2, hi2
+            a, l_, u_, wlo, whi, plo, phi = a2, l2, u2, wlo2, whi2, plo2, phi2
     b = first[np.unique(starts)]
     return np.append(b, n)
 
 
-def _keep_straight(pts, area, laid):
-    """Points to keep when neighbouring pieces merge: pieces run on as one where they are laid at
-    one width (the merged width within WIDTH_TOL of every piece's, _width_runs) or not laid, and
-    the path strays no more than CHORD_TOL from the points it drops (Douglas-Peucker, GEOS, per
-    run)."""
-    import shapely
+def _sleeve(px, py, i0, i1, last, keep, out):
+    """Merged pieces over points i0..i1 (lists px, py), each within CHORD_TOL of every point it
+    replaces: from its start, the longest run of points that one line can pass within the
+    tolerance of (the directions each point allows, intersected), ending on that line beside its
+    last point (so not always on a point). Ends are written to `out` and marked in `keep`; the
+    path's last point (`last`) stays where it is. Starts from out[i0]."""
+    tol = CHORD_TOL
+    sx, sy = out[i0]
+    lo, hi = -math.inf, math.inf
+    ref = None
+    j = i0 + 1
+    while j <= i1:
+        qx, qy = px[j] - sx, py[j] - sy
+        r = math.hypot(qx, qy)
+        if r > tol:
+            phi = math.atan2(qy, qx)
+            if ref is not None:                     # the same turn as the cone
+                phi -= 2 * math.pi * round((phi - ref) / (2 * math.pi))
+            da = 0.0 if j == last else math.asin(tol / r)
+            nlo, nhi = max(lo, phi - da), min(hi, phi + da)
+            if nlo > nhi:
+                # (a fresh cone takes any point: here at least one lies between start and j)
+                # the line ends beside point j - 1; the next one starts there
+                c, sn = math.cos((lo + hi) / 2), math.sin((lo + hi) / 2)
+                d = (px[j - 1] - sx) * c + (py[j - 1] - sy) * sn
+                sx, sy = sx + d * c, sy + d * sn
+                out[j - 1] = (sx, sy)
+                keep[j - 1] = True
+                lo, hi, ref = -math.inf, math.inf, None
+                continue
+            lo, hi, ref = nlo, nhi, phi if ref is None else ref
+        j += 1
+    # the run's end: on the line beside point i1 (the path's last point: on it)
+    if i1 == last or ref is None:
+        out[i1] = (px[i1], py[i1])
+    else:
+        th = (lo + hi) / 2
+        c, sn = math.cos(th), math.sin(th)
+        d = (px[i1] - sx) * c + (py[i1] - sy) * sn
+        out[i1] = (sx + d * c, sy + d * sn)
+    keep[i1] = True
 
+
+def _keep_straight(pts, area, laid, u):
+    """Points to keep when neighbouring pieces merge, and where they are: pieces run on as one
+    where they are laid at one width (the merged width within WIDTH_TOL of every piece's,
+    _width_runs) or not laid, and the path strays no more than CHORD_TOL from the points it
+    drops (_sleeve). Returns (keep, points)."""
     seg = np.linalg.norm(np.diff(pts, axis=0), axis=1)
-    bounds = _width_runs(seg, area, laid)
+    bounds = _width_runs(seg, area, laid, np.abs(np.diff(u)))
     keep = np.zeros(len(pts), bool)
     keep[bounds] = True
     multi = np.flatnonzero(np.diff(bounds) > 1)
-    if len(multi):
-        starts, counts = bounds[multi], bounds[multi + 1] - bounds[multi] + 1
-        first = np.repeat(np.cumsum(counts) - counts, counts)
-        idx = np.repeat(starts, counts) + np.arange(counts.sum()) - first
-        run = np.repeat(np.arange(len(multi)), counts)
-        # the vertex index rides along as z: the simplified runs tell which points stay
-        lines = shapely.linestrings(np.column_stack([pts[idx], idx.astype(float)]), indices=run)
-        simple = shapely.simplify(lines, CHORD_TOL, preserve_topology=False)
-        keep[np.rint(shapely.get_coordinates(simple, include_z=True)[:, 2]).astype(int)] = True
-        # A part of a run (where the chord split it) has a width of its own, and its chord is
-        # a little shorter than the path: where that width is off a member's by more than the
-        # tolerance, the part keeps all its points.
-        k = np.flatnonzero(keep)
-        chord = np.linalg.norm(pts[k[1:]] - pts[k[:-1]], axis=1)
-        on = laid[k[:-1]] & (np.diff(k) > 1)
-        if on.any():
-            with np.errstate(divide="ignore", invalid="ignore"):
-                wd = np.where(laid, area / np.maximum(seg, 1e-12), 0.0)
-                w = np.add.reduceat(area, k[:-1]) / np.maximum(chord, 1e-12)
-                lo, hi = np.minimum.reduceat(wd, k[:-1]), np.maximum.reduceat(wd, k[:-1])
-            bad = np.flatnonzero(on & ((w > lo * (1 + WIDTH_TOL)) | (w < hi * (1 - WIDTH_TOL))))
-            for j in bad.tolist():
-                keep[k[j]:k[j + 1]] = True
-    return keep
+    if not len(multi):
+        return keep, pts
+    px, py = pts[:, 0].tolist(), pts[:, 1].tolist()
+    out = [None] * len(pts)
+    for i in bounds.tolist():
+        out[i] = (px[i], py[i])
+    last = len(pts) - 1
+    for i0, i1 in zip(bounds[multi].tolist(), bounds[multi + 1].tolist()):
+        _sleeve(px, py, i0, i1, last, keep, out)
+    k = np.flatnonzero(keep)
+    pts = pts.copy()
+    pts[k] = np.array([out[i] for i in k.tolist()])
+    # A merged piece's width is its area over its chord, a little shorter than the path, and a
+    # run the chord split has widths of its own: where a merged piece is off a member by more
+    # than the tolerance, it keeps all its points.
+    chord = np.linalg.norm(pts[k[1:]] - pts[k[:-1]], axis=1)
+    on = laid[k[:-1]] & (np.diff(k) > 1)
+    if on.any():
+        du = np.abs(np.diff(u))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            a = np.add.reduceat(area, k[:-1])
+            bad = np.zeros(len(a), bool)
+            # the width on the chord, and the area per sample interval, against every member's
+            for per, merged in ((seg, chord), (du, np.add.reduceat(du, k[:-1]))):
+                each = np.where(laid, area / np.maximum(per, 1e-12), 0.0)
+                m = a / np.maximum(merged, 1e-12)
+                lo, hi = np.minimum.reduceat(each, k[:-1]), np.maximum.reduceat(each, k[:-1])
+                bad |= (m > lo * (1 + WIDTH_TOL)) | (m < hi * (1 - WIDTH_TOL))
+        bad = np.flatnonzero(on & bad)
+        for j in bad.tolist():
+            keep[k[j]:k[j + 1]] = True
+    return keep, pts
 
 
 def _long_enough(pts, area, laid, o: LithoOptions, flow, rate):
-    """Points to keep so that every laid piece is at least MIN_MOVE long and, with a block-rate
-    budget, no shorter than its speed / rate: short pieces merge with their laid neighbours (the
-    areas add up, width = area / length, so the volume is kept). Also the pieces of laid runs that
+    """Points to keep so that every laid piece is at least MIN_MOVE long as written (ROUNDING)
+    and, with a block-rate budget, no shorter than its speed / rate: short pieces merge with
+    their laid neighbours (the areas add up, width = area / length, so the volume is kept). Also the pieces of laid runs that
     cannot be made long enough at all (too short in total)."""
     n = len(area)
     keep = np.ones(n + 1, bool)
@@ -489,7 +544,7 @@ def _long_enough(pts, area, laid, o: LithoOptions, flow, rate):
     H = o.layer_height
     with np.errstate(divide="ignore", invalid="ignore"):
         v = np.clip(flow * L / np.maximum(area * H, 1e-12), o.min_speed, o.max_speed)
-    need = np.maximum(MIN_MOVE, v / rate) if rate else np.full(n, MIN_MOVE)
+    need = np.maximum(MIN_MOVE + ROUNDING, v / rate) if rate else np.full(n, MIN_MOVE + ROUNDING)
     short = laid & (L < need - 1e-9)
     if not short.any():
         return keep, lonely
@@ -505,7 +560,7 @@ def _long_enough(pts, area, laid, o: LithoOptions, flow, rate):
             acc += al[q]
             ln = math.hypot(px[q + 1] - px[s], py[q + 1] - py[s])
             sp = min(max(flow * ln / max(acc * H, 1e-12), lo), hi)
-            if ln >= max(MIN_MOVE, sp * inv_rate) - 1e-9:
+            if ln >= max(MIN_MOVE + ROUNDING, sp * inv_rate) - 1e-9:
                 groups.append((s, q + 1))
                 s, acc = q + 1, 0.0
         if s < j:                                   # a short tail joins the group before it
@@ -523,7 +578,8 @@ def _pieces(kind, pts, area, laid, u, o: LithoOptions, flow, merge=True) -> tupl
     merged (block-rate budget). Returns (section or None if nothing is laid, lonely) where
     lonely marks laid pieces that could not be made long enough (the caller gives them away)."""
     if merge:
-        k1 = np.flatnonzero(_keep_straight(pts, area, laid))
+        keep, pts = _keep_straight(pts, area, laid, u)
+        k1 = np.flatnonzero(keep)
         pts, area, laid, u = pts[k1], np.add.reduceat(area, k1[:-1]), laid[k1[:-1]], u[k1]
         back = k1
     else:
@@ -675,7 +731,9 @@ def _rotate_loop(s: Section, near, o: LithoOptions | None = None) -> Section:
     q = a + d * f[:, None]
     j = int(np.argmin(np.linalg.norm(q - near, axis=1)))
     Lj = math.sqrt(L2[j])
-    need = MIN_MOVE if o is None else max(MIN_MOVE, s.v[j] / o.block_rate if o.block_rate else 0.0)
+    need = MIN_MOVE + ROUNDING
+    if o is not None and o.block_rate:
+        need = max(need, s.v[j] / o.block_rate)
     if f[j] * Lj >= need and (1 - f[j]) * Lj >= need:         # split piece j at q
         fj = f[j]
         pts = np.vstack([s.pts[:j + 1], q[j:j + 1], s.pts[j + 1:]])
@@ -711,7 +769,7 @@ def _join(s: Section, at, o: LithoOptions, flow) -> Section:
     d = float(np.linalg.norm(s.pts[0] - at))
     if d <= 1e-6 or d >= o.retract_min:
         return s
-    need = max(MIN_MOVE, s.v[0] / o.block_rate if o.block_rate else 0.0)
+    need = max(MIN_MOVE + ROUNDING, s.v[0] / o.block_rate if o.block_rate else 0.0)
     if d >= need:
         return s                                    # a connector of its own (_Writer)
     pts = s.pts.copy()
@@ -987,7 +1045,7 @@ class _Writer:
         Wd = np.where(laid, np.round(s.width, 4), 0.0) if use_w else None
         prev = np.concatenate([[self.f if self.f is not None else -1.0], F[:-1]])
         newf = np.abs(F - prev) > 1e-6
-        # the text is made with the layer's other sections (flush): fewer, larger array steps
+        # the text is made with the next sections' (flush): fewer, larger array steps
         self.pending.append((len(self.items), X, Y, Wd if use_w else E, F, laid, newf))
         self.items.append([None, MoveBlock(X, Y, E, F, Wd)])
         self.f = float(F[-1])
@@ -1044,7 +1102,8 @@ def write_gcode(plan: Plan, path, mode: str, name: str = "lithophane", estimate_
             mid_q = o.mid_flow * (ratio if k == 0 else 1.0)
             for s in L.sections:
                 w.section(s, wall_q, mid_q)
-            w.flush()
+            if sum(len(q[1]) for q in w.pending) > 16384:
+                w.flush()
             if k % 16 == 0:
                 pg.tick(k)
         if mode == "litho":
@@ -1052,6 +1111,7 @@ def write_gcode(plan: Plan, path, mode: str, name: str = "lithophane", estimate_
         if o.retract > 0:
             w.out(f"G1 E-{_fmt(o.retract, 4)} F{_fmt(o.retract_speed * 60, 1)}")
         w.out(fill(end).rstrip("\n"))
+        w.flush()
         _write_atomic(path, w.text())
     for it in w.items:                              # the estimate needs the moves' numbers only
         if not isinstance(it, str):
