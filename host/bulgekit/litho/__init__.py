@@ -434,9 +434,12 @@ def _width_runs(seg, area, laid, du) -> np.ndarray:
         if not oi:
             continue
         a2, l2, u2 = a + ai, l_ + li, u_ + ui
-        wlo2, whi2, plo2, phi2 = min(wlo, wi), max(whi, wi), min(plo, pi), max(phi, pi)
-        w, pm = a2 / max(l2, 1e-12), a2 / u2
-        if (w > wlo2 * hi_tol or w < whi2 * lo_tol or pm > plo2 * hi_tol or pm < phi2 * lo_tol):
+        wlo2 = wi if wi < wlo else wlo
+        whi2 = wi if wi > whi else whi
+        plo2 = pi if pi < plo else plo
+        phi2 = pi if pi > phi else phi
+        w, pm = a2 / (l2 if l2 > 1e-12 else 1e-12), a2 / u2
+        if w > wlo2 * hi_tol or w < whi2 * lo_tol or pm > plo2 * hi_tol or pm < phi2 * lo_tol:
             starts.append(i)
             a, l_, u_, wlo, whi, plo, phi = ai, li, ui, wi, wi, pi, pi
         else:
@@ -462,9 +465,16 @@ def _sleeve(px, py, i0, i1, last, keep, out):
         if r > tol:
             phi = math.atan2(qy, qx)
             if ref is not None:                     # the same turn as the cone
-                phi -= 2 * math.pi * round((phi - ref) / (2 * math.pi))
+                if phi - ref > math.pi:
+                    phi -= 2 * math.pi
+                elif ref - phi > math.pi:
+                    phi += 2 * math.pi
             da = 0.0 if j == last else math.asin(tol / r)
-            nlo, nhi = max(lo, phi - da), min(hi, phi + da)
+            nlo, nhi = phi - da, phi + da
+            if nlo < lo:
+                nlo = lo
+            if nhi > hi:
+                nhi = hi
             if nlo > nhi:
                 # (a fresh cone takes any point: here at least one lies between start and j)
                 # the line ends beside point j - 1; the next one starts there
