@@ -25,9 +25,11 @@ piece lays its band's area (width = area / length: the filament is the body's vo
   - A wall along a slope is longer than its band is wide; it keeps its width (so its speed) and
     takes what it lays beyond its band from the mid-line beside it.
   - Wider than `max_line`: the layer gets n = ceil(gap / max_line) mid-lines of gap / n each.
-  - Pieces merge where they run on straight (within CHORD_TOL) at one width (within WIDTH_TOL),
-    none is shorter than MIN_MOVE (6 steps), and with `block_rate` none is shorter than its
-    speed / block_rate: short pieces merge with their neighbours (area summed: the volume is kept).
+  - Pieces merge where they run on straight (a line within CHORD_TOL of every point they
+    replace, its ends free) at one width (the merged width and area per sample within WIDTH_TOL
+    of every piece's), none is shorter than MIN_MOVE (6 steps), and with `block_rate` none is
+    shorter than its speed / block_rate: short pieces merge with their neighbours (area summed:
+    the volume is kept).
 """
 from __future__ import annotations
 
