@@ -50,7 +50,7 @@ def where(plan) -> str:
                 continue
             mid = (s.pts[:-1] + s.pts[1:]) / 2
             if o.shape == "planar":
-                end = np.abs(np.diff(s.pts[:, 0])) < 1e-9
+                end = np.abs(np.diff(s.u)) < 1e-9     # across the layer, at one sample
                 off = mid[:, 1]                       # from the back face
             else:
                 end = np.zeros(len(on), bool)

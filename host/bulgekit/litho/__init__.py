@@ -450,12 +450,36 @@ def _width_runs(seg, area, laid, du) -> np.ndarray:
     return np.append(b, n)
 
 
+def _line_end(px, py, sx, sy, th, j, last):
+    """Where a merged piece from (sx, sy) at angle th ends beside point j: on its line within
+    CHORD_TOL of the point, and there as far from point j + 1 as point j is (the next piece keeps
+    its length, so its width, if it stays alone), else as near that as the tolerance allows."""
+    c, sn = math.cos(th), math.sin(th)
+    ox, oy = px[j] - sx, py[j] - sy
+    d = ox * c + oy * sn                            # point j's foot on the line
+    h2 = (ox * sn - oy * c) ** 2
+    if j == last or h2 >= CHORD_TOL ** 2:
+        return sx + d * c, sy + d * sn
+    room = math.sqrt(CHORD_TOL ** 2 - h2)          # the line's stretch within the tolerance
+    qx, qy = sx - px[j + 1], sy - py[j + 1]
+    L2 = (px[j + 1] - px[j]) ** 2 + (py[j + 1] - py[j]) ** 2
+    b = qx * c + qy * sn                            # |E - point j + 1|^2 = (t + b)^2 + const
+    disc = b * b - (qx * qx + qy * qy) + L2
+    if disc >= 0:                                   # the root nearer point j's foot
+        r = math.sqrt(disc)
+        t = -b - r if abs(-b - r - d) < abs(-b + r - d) else -b + r
+    else:                                           # no such place: the nearest approach
+        t = -b
+    t = min(max(t, d - room), d + room)
+    return sx + t * c, sy + t * sn
+
+
 def _sleeve(px, py, i0, i1, last, keep, out):
     """Merged pieces over points i0..i1 (lists px, py), each within CHORD_TOL of every point it
     replaces: from its start, the longest run of points that one line can pass within the
     tolerance of (the directions each point allows, intersected), ending on that line beside its
-    last point (so not always on a point). Ends are written to `out` and marked in `keep`; the
-    path's last point (`last`) stays where it is. Starts from out[i0]."""
+    last point (so not always on a point: _line_end). Ends are written to `out` and marked in
+    `keep`; the path's last point (`last`) stays where it is. Starts from out[i0]."""
     tol = CHORD_TOL
     sx, sy = out[i0]
     lo, hi = -math.inf, math.inf
@@ -480,10 +504,7 @@ def _sleeve(px, py, i0, i1, last, keep, out):
             if nlo > nhi:
                 # (a fresh cone takes any point: here at least one lies between start and j)
                 # the line ends beside point j - 1; the next one starts there
-                c, sn = math.cos((lo + hi) / 2), math.sin((lo + hi) / 2)
-                d = (px[j - 1] - sx) * c + (py[j - 1] - sy) * sn
-                sx, sy = sx + d * c, sy + d * sn
-                out[j - 1] = (sx, sy)
+                sx, sy = out[j - 1] = _line_end(px, py, sx, sy, (lo + hi) / 2, j - 1, last)
                 keep[j - 1] = True
                 lo, hi, ref = -math.inf, math.inf, None
                 continue
@@ -493,10 +514,7 @@ def _sleeve(px, py, i0, i1, last, keep, out):
     if i1 == last or ref is None:
         out[i1] = (px[i1], py[i1])
     else:
-        th = (lo + hi) / 2
-        c, sn = math.cos(th), math.sin(th)
-        d = (px[i1] - sx) * c + (py[i1] - sy) * sn
-        out[i1] = (sx + d * c, sy + d * sn)
+        out[i1] = _line_end(px, py, sx, sy, (lo + hi) / 2, i1, last)
     keep[i1] = True
 
 
@@ -520,7 +538,7 @@ def _keep_straight(pts, area, laid, u):
     for i0, i1 in zip(bounds[multi].tolist(), bounds[multi + 1].tolist()):
         _sleeve(px, py, i0, i1, last, keep, out)
     k = np.flatnonzero(keep)
-    pts = pts.copy()
+    orig, pts = pts, pts.copy()
     pts[k] = np.array([out[i] for i in k.tolist()])
     # A merged piece's width is its area over its chord, a little shorter than the path, and a
     # run the chord split has widths of its own: where a merged piece is off a member by more
@@ -541,6 +559,28 @@ def _keep_straight(pts, area, laid, u):
         bad = np.flatnonzero(on & bad)
         for j in bad.tolist():
             keep[k[j]:k[j + 1]] = True
+    # A piece left on its own beside a moved end is longer or shorter by the move: where that
+    # puts its width off by more than the tolerance, the end goes back to its point, and the
+    # merged pieces that end also ends keep all their points (so they stay on the tolerance).
+    with np.errstate(divide="ignore", invalid="ignore"):
+        wd = area / np.maximum(seg, 1e-12)
+    moved = np.any(pts != orig, axis=1)
+    while moved.any():
+        k = np.flatnonzero(keep)
+        i = k[:-1][(np.diff(k) == 1) & laid[k[:-1]]]
+        w = area[i] / np.maximum(np.linalg.norm(pts[i + 1] - pts[i], axis=1), 1e-12)
+        bad = i[np.abs(w - wd[i]) > WIDTH_TOL * wd[i]]
+        ends = np.union1d(bad, bad + 1)
+        ends = ends[moved[ends]]
+        if not len(ends):
+            break
+        for e in ends.tolist():
+            pts[e], moved[e] = orig[e], False
+            pos = int(np.searchsorted(k, e))
+            if pos > 0:
+                keep[k[pos - 1]:e] = True
+            if pos < len(k) - 1:
+                keep[e:k[pos + 1]] = True
     return keep, pts
 
 
