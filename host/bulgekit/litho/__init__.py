@@ -470,52 +470,58 @@ def _line_end(px, py, sx, sy, th, j, last):
         t = -b - r if abs(-b - r - d) < abs(-b + r - d) else -b + r
     else:                                           # no such place: the nearest approach
         t = -b
-    t = min(max(t, d - room), d + room)
+    if t < d - room:
+        t = d - room
+    elif t > d + room:
+        t = d + room
     return sx + t * c, sy + t * sn
 
 
-def _sleeve(px, py, i0, i1, last, keep, out):
-    """Merged pieces over points i0..i1 (lists px, py), each within CHORD_TOL of every point it
-    replaces: from its start, the longest run of points that one line can pass within the
-    tolerance of (the directions each point allows, intersected), ending on that line beside its
-    last point (so not always on a point: _line_end). Ends are written to `out` and marked in
-    `keep`; the path's last point (`last`) stays where it is. Starts from out[i0]."""
-    tol = CHORD_TOL
-    sx, sy = out[i0]
-    lo, hi = -math.inf, math.inf
-    ref = None
-    j = i0 + 1
-    while j <= i1:
-        qx, qy = px[j] - sx, py[j] - sy
-        r = math.hypot(qx, qy)
-        if r > tol:
-            phi = math.atan2(qy, qx)
-            if ref is not None:                     # the same turn as the cone
-                if phi - ref > math.pi:
-                    phi -= 2 * math.pi
-                elif ref - phi > math.pi:
-                    phi += 2 * math.pi
-            da = 0.0 if j == last else math.asin(tol / r)
-            nlo, nhi = phi - da, phi + da
-            if nlo < lo:
-                nlo = lo
-            if nhi > hi:
-                nhi = hi
-            if nlo > nhi:
-                # (a fresh cone takes any point: here at least one lies between start and j)
-                # the line ends beside point j - 1; the next one starts there
-                sx, sy = out[j - 1] = _line_end(px, py, sx, sy, (lo + hi) / 2, j - 1, last)
-                keep[j - 1] = True
-                lo, hi, ref = -math.inf, math.inf, None
-                continue
-            lo, hi, ref = nlo, nhi, phi if ref is None else ref
-        j += 1
-    # the run's end: on the line beside point i1 (the path's last point: on it)
-    if i1 == last or ref is None:
-        out[i1] = (px[i1], py[i1])
-    else:
-        out[i1] = _line_end(px, py, sx, sy, (lo + hi) / 2, i1, last)
-    keep[i1] = True
+def _sleeve(px, py, runs, last, keep, ox, oy):
+    """Merged pieces over each run (i0, i1) of points (lists px, py), each within CHORD_TOL of
+    every point it replaces: from its start, the longest run of points that one line can pass
+    within the tolerance of (the directions each point allows, intersected), ending on that line
+    beside its last point (so not always on a point: _line_end). Ends are written to ox, oy
+    (the points' places, given as px, py) and marked in `keep`; the path's last point (`last`)
+    stays where it is. A run starts from ox[i0], oy[i0] (where the run before it ended)."""
+    tol, inf, pi, two_pi = CHORD_TOL, math.inf, math.pi, 2 * math.pi
+    hypot, atan2, asin = math.hypot, math.atan2, math.asin
+    for i0, i1 in runs:
+        sx, sy = ox[i0], oy[i0]
+        lo, hi = -inf, inf
+        ref = None
+        j = i0 + 1
+        while j <= i1:
+            qx, qy = px[j] - sx, py[j] - sy
+            r = hypot(qx, qy)
+            if r > tol:
+                phi = atan2(qy, qx)
+                if ref is not None:                 # the same turn as the cone
+                    if phi - ref > pi:
+                        phi -= two_pi
+                    elif ref - phi > pi:
+                        phi += two_pi
+                da = 0.0 if j == last else asin(tol / r)
+                nlo, nhi = phi - da, phi + da
+                if nlo < lo:
+                    nlo = lo
+                if nhi > hi:
+                    nhi = hi
+                if nlo > nhi:
+                    # (a fresh cone takes any point: here at least one lies between start and j)
+                    # the line ends beside point j - 1; the next one starts there
+                    sx, sy = ox[j - 1], oy[j - 1] = _line_end(px, py, sx, sy, (lo + hi) / 2, j - 1, last)
+                    keep[j - 1] = True
+                    lo, hi, ref = -inf, inf, None
+                    continue
+                lo, hi = nlo, nhi
+                if ref is None:
+                    ref = phi
+            j += 1
+        # the run's end: on the line beside point i1 (the path's last point: on it)
+        if i1 != last and ref is not None:
+            ox[i1], oy[i1] = _line_end(px, py, sx, sy, (lo + hi) / 2, i1, last)
+        keep[i1] = True
 
 
 def _keep_straight(pts, area, laid, u):
@@ -531,15 +537,11 @@ def _keep_straight(pts, area, laid, u):
     if not len(multi):
         return keep, pts
     px, py = pts[:, 0].tolist(), pts[:, 1].tolist()
-    out = [None] * len(pts)
-    for i in bounds.tolist():
-        out[i] = (px[i], py[i])
+    ox, oy = px[:], py[:]                           # where the points are after the merge
     last = len(pts) - 1
-    for i0, i1 in zip(bounds[multi].tolist(), bounds[multi + 1].tolist()):
-        _sleeve(px, py, i0, i1, last, keep, out)
+    _sleeve(px, py, zip(bounds[multi].tolist(), bounds[multi + 1].tolist()), last, keep, ox, oy)
+    orig, pts = pts, np.column_stack([ox, oy])
     k = np.flatnonzero(keep)
-    orig, pts = pts, pts.copy()
-    pts[k] = np.array([out[i] for i in k.tolist()])
     # A merged piece's width is its area over its chord, a little shorter than the path, and a
     # run the chord split has widths of its own: where a merged piece is off a member by more
     # than the tolerance, it keeps all its points.
