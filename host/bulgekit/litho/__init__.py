@@ -510,7 +510,8 @@ def _sleeve(px, py, runs, last, keep, ox, oy):
                 if nlo > nhi:
                     # (a fresh cone takes any point: here at least one lies between start and j)
                     # the line ends beside point j - 1; the next one starts there
-                    sx, sy = ox[j - 1], oy[j - 1] = _line_end(px, py, sx, sy, (lo + hi) / 2, j - 1, last)
+                    e = _line_end(px, py, sx, sy, (lo + hi) / 2, j - 1, last)
+                    sx, sy = ox[j - 1], oy[j - 1] = e
                     keep[j - 1] = True
                     lo, hi, ref = -inf, inf, None
                     continue
@@ -589,8 +590,8 @@ def _keep_straight(pts, area, laid, u):
 def _long_enough(pts, area, laid, o: LithoOptions, flow, rate):
     """Points to keep so that every laid piece is at least MIN_MOVE long as written (ROUNDING)
     and, with a block-rate budget, no shorter than its speed / rate: short pieces merge with
-    their laid neighbours (the areas add up, width = area / length, so the volume is kept). Also the pieces of laid runs that
-    cannot be made long enough at all (too short in total)."""
+    their laid neighbours (the areas add up, width = area / length, so the volume is kept). Also
+    the pieces of laid runs that cannot be made long enough at all (too short in total)."""
     n = len(area)
     keep = np.ones(n + 1, bool)
     lonely = np.zeros(n, bool)
@@ -940,10 +941,10 @@ def _fmt(v: float, nd: int) -> str:
 
 
 def _word_chars(letter: str, a: np.ndarray, nd: int, on=None) -> tuple[np.ndarray, np.ndarray]:
-    """The words `letter` + each value to nd decimals (Python's shortest repr of the rounded value:
-    no trailing zeros but a whole number's ".0"; zero as "0"), as a character matrix and which of its characters
-    are written, computed on the whole array at once. `on`: which rows have the word at all (it
-    then starts with a space)."""
+    """The words `letter` + each value to nd decimals (Python's shortest repr of the rounded
+    value: no trailing zeros but a whole number's ".0"; zero as "0"), as a character matrix and
+    which of its characters are written, computed on the whole array at once. Each word starts
+    with a space; `on`: which rows have the word at all."""
     k = np.rint(np.asarray(a, float) * 10 ** nd).astype(np.int64)
     neg, m = k < 0, np.abs(k)
     ip, fp = np.divmod(m, 10 ** nd)

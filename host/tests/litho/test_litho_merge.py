@@ -28,7 +28,8 @@ def photo(tmp_path, w=60, h=20, seed=3):
 def plan(p, monkeypatch=None, merge=True, **kw):
     o = lt.LithoOptions(**{**dict(width=24.0, height=4.0, foot=0.0), **kw})
     if not merge:                                   # every sample's piece on its own
-        monkeypatch.setattr(lt, "_keep_straight", lambda pts, area, laid, u: (np.ones(len(pts), bool), pts))
+        alone = lambda pts, area, laid, u: (np.ones(len(pts), bool), pts)
+        monkeypatch.setattr(lt, "_keep_straight", alone)
     try:
         return lt.plan_lithophane(p, o)
     finally:
@@ -112,7 +113,8 @@ def test_merged_pieces_stay_within_the_tolerances(tmp_path, monkeypatch, shape):
                 A = area[a:b].sum()
                 w = A / np.linalg.norm(out[b] - out[a])
                 assert np.all(np.abs(w / (area[a:b] / seg[a:b]) - 1) <= lt.WIDTH_TOL + 1e-9)
-                assert np.all(np.abs(A / du[a:b].sum() / (area[a:b] / du[a:b]) - 1) <= lt.WIDTH_TOL + 1e-9)
+                per_sample = A / du[a:b].sum()
+                assert np.all(np.abs(per_sample / (area[a:b] / du[a:b]) - 1) <= lt.WIDTH_TOL + 1e-9)
     assert dropped > 0 and moved > 0                           # the test saw merges, and free ends
 
 
@@ -134,8 +136,8 @@ def test_move_text_is_the_rounded_numbers_repr():
     exponent: small values in full, zero as "0")."""
     rng = np.random.default_rng(5)
     for nd in (1, 3, 4, 5):
-        a = np.round(np.concatenate([rng.normal(0, 80, 3000), rng.normal(0, 2e-4, 500),
-                                     [0.0, -0.0, 1.0, -1.0, 10.0, 0.5, 1e-5, -1e-5, 99.999, 1234.5]]), nd) + 0.0
+        odd = [0.0, -0.0, 1.0, -1.0, 10.0, 0.5, 1e-5, -1e-5, 99.999, 1234.5]
+        a = np.round(np.concatenate([rng.normal(0, 80, 3000), rng.normal(0, 2e-4, 500), odd]), nd) + 0.0
         chars, mask = lt._word_chars("X", a, nd)
         got = [bytes(c[m]).decode() for c, m in zip(chars, mask)]
         want = []
@@ -147,6 +149,7 @@ def test_move_text_is_the_rounded_numbers_repr():
                 r = f"{v:.{nd}f}".rstrip("0")
             want.append(" X" + r)
         assert got == want
+    on = np.array([True, False])
     texts = lt._move_texts(np.array([1.5, 2.0]), np.array([-3.25, 4.0]), ("E", np.array([0.0123, 0.0]), 5),
-                           np.array([2400.0, 2400.0]), np.array([True, False]), np.array([True, False]), [1, 1])
+                           np.array([2400.0, 2400.0]), on, on, [1, 1])
     assert texts == ["G1 X1.5 Y-3.25 E0.0123 F2400.0", "G1 X2.0 Y4.0"]
