@@ -1,8 +1,9 @@
 #!/usr/bin/env python3
 """Figures of `bulgekit litho`'s paths on one picture (docs/lithophane.md, "Clean paths"):
-extruding moves, the shortest extruding move, the estimate with Marlin's 6-step rule and with
-every move planned (as Klipper does), the volume laid per sample interval against the body's,
-and a linear grey ramp's printed thickness.
+extruding moves (and where the plan's pieces lie: front wall, back wall, mid-line), the shortest
+extruding move, the estimate with Marlin's 6-step rule and with every move planned (as Klipper
+does), the volume laid per sample interval against the body's, and a linear grey ramp's printed
+thickness.
 
     python3 tools/litho_paths_check.py PICTURE [--shape cylinder] [--block-rate N] [--out DIR]
     python3 tools/litho_paths_check.py PICTURE --gcode OLD.litho.gcode   # time an existing file only
@@ -34,6 +35,36 @@ def timed(path) -> str:
             f"({100 * (r0.total_s / r6.total_s - 1):+.2f} %)")
 
 
+def where(plan) -> str:
+    """Laid pieces per layer of the picture (the foot left out) by where they lie: the front wall
+    (the relief's side; a cylinder's outer wall), the back wall (inner), a planar plate's two
+    ends, the mid-line(s). Joins written as connectors are not pieces of the plan."""
+    o, fld = plan.options, plan.field
+    n = {"front wall": 0, "back wall": 0, "ends": 0, "mid-line": 0}
+    r_in = o.diameter / 2 - o.max_thickness
+    for L in plan.layers[fld.n_foot:]:
+        for s in L.sections:
+            on = s.e > 0
+            if s.kind != "wall":
+                n["mid-line"] += int(on.sum())
+                continue
+            mid = (s.pts[:-1] + s.pts[1:]) / 2
+            if o.shape == "planar":
+                end = np.abs(np.diff(s.u)) < 1e-9     # across the layer, at one sample
+                off = mid[:, 1]                       # from the back face
+            else:
+                end = np.zeros(len(on), bool)
+                off = np.linalg.norm(mid, axis=1) - r_in
+            front = off > o.min_thickness / 2
+            n["ends"] += int((on & end).sum())
+            n["front wall"] += int((on & ~end & front).sum())
+            n["back wall"] += int((on & ~end & ~front).sum())
+    k = len(plan.layers) - fld.n_foot
+    return ("laid pieces per picture layer: "
+            + ", ".join(f"{key} {v / k:.1f}" for key, v in n.items() if v or key != "ends")
+            + f" ({k} layers, {len(fld.s)} samples each)")
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("picture")
@@ -52,6 +83,7 @@ def main(argv=None) -> int:
     for key in ("gcode", "stock"):
         print(timed(res.paths[key]))
     plan = res.plan
+    print(where(plan))
     dev, tot = [], []
     for k in range(plan.field.n_foot + 1, len(plan.layers)):        # the first layer runs slower only
         laid, body = lt.laid_area(plan, k)

@@ -415,15 +415,17 @@ class _Parser:
             v = np.where(ext, vw, v)
         brk = np.zeros(k, bool)
         brk[0] = self.brk
-        full = lambda val: np.full(k, val)
+        # what is the same for every move is held once (_plan_parts broadcasts it), not per move:
+        # a large file's parts are all held until planned
+        rows = lambda vals: np.array(vals, float)
         self.parts.append({
-            "line": n + np.arange(k), "feature": full(self.fidx[self.feature]), "layer": full(self.layer),
-            "dx": dx, "dy": dy, "dz": np.zeros(k), "de": de, "v": v,
-            "accel": np.where(de != 0, self.accel, self.travel_accel), "brk": brk, "jd": full(self.jd),
-            "jerk": None if self.jerk is None else np.tile([self.jerk[a] for a in AXES], (k, 1)),
-            "amax": np.tile([self.max_accel[a] for a in AXES], (k, 1)),
-            "vmax": np.tile([self.max_fr[a] for a in AXES], (k, 1)),
-            "n_e": np.zeros(k), "spm_e": full(spm["E"])})
+            "line": n + np.arange(k), "feature": self.fidx[self.feature], "layer": self.layer,
+            "dx": dx, "dy": dy, "dz": 0.0, "de": de, "v": v,
+            "accel": np.where(de != 0, self.accel, self.travel_accel), "brk": brk, "jd": self.jd,
+            "jerk": None if self.jerk is None else rows([self.jerk[a] for a in AXES]),
+            "amax": rows([self.max_accel[a] for a in AXES]),
+            "vmax": rows([self.max_fr[a] for a in AXES]),
+            "n_e": 0.0, "spm_e": spm["E"]})
         self.brk = False
         self.f = float(mb.f[-1]) / 60
         self.F = float(mb.f[-1])

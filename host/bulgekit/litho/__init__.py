@@ -31,9 +31,11 @@ body's volume). Only the split between the lines changes below, never the thickn
   - A wall along a slope is longer than its band is wide; it keeps its width (so its speed) and
     takes what it lays beyond its band from the mid-line beside it.
   - Wider than `max_line`: the layer gets n = ceil(gap / max_line) mid-lines of gap / n each.
-  - Pieces merge where they run on straight (within CHORD_TOL) at one width (within WIDTH_TOL),
-    none is shorter than MIN_MOVE (6 steps), and with `block_rate` none is shorter than its
-    speed / block_rate: short pieces merge with their neighbours (area summed: the volume is kept).
+  - Pieces merge where they run on straight (a line within CHORD_TOL of every point they
+    replace, its ends free) at one width (the merged width and area per sample within WIDTH_TOL
+    of every piece's), none is shorter than MIN_MOVE (6 steps), and with `block_rate` none is
+    shorter than its speed / block_rate: short pieces merge with their neighbours (area summed:
+    the volume is kept).
 """
 from __future__ import annotations
 
@@ -444,6 +446,7 @@ def calibration_field(o: LithoOptions) -> tuple[Field, dict]:
 CHORD_TOL = 0.01       # mm: how far a merged piece may stray from the points it replaces
 WIDTH_TOL = 0.005      # pieces merge only where their widths agree within this share
 MIN_MOVE = 0.075       # mm: 6 steps at 80 steps/mm, the shortest move Marlin executes
+ROUNDING = 0.0015      # mm: a move written to 0.001 mm in X and Y is up to this much shorter
 
 
 @dataclass
@@ -540,37 +543,192 @@ class _Band:
         return (h[:-1] + h[1:]) / 2 * np.abs(np.diff(self.x))
 
 
-def _keep_straight(pts, area, laid):
-    """Points to keep when neighbouring pieces merge: pieces run on as one where both are laid at
-    the same width (within WIDTH_TOL) or both are not laid, and the path strays no more than
-    CHORD_TOL from the points it drops (Douglas-Peucker, GEOS, per run)."""
-    import shapely
-
-    seg = np.linalg.norm(np.diff(pts, axis=0), axis=1)
+def _width_runs(seg, area, laid, du) -> np.ndarray:
+    """Where runs of pieces that may merge start (and the end): a run is all laid or all not, and
+    in a laid run the merged piece's width (area / length) and its area per sample interval
+    (area / du, what each sample it spans gets) stay within WIDTH_TOL of every member's,
+    greedily as long as they can. Neighbours that differ a little merge wherever they lie, not
+    only inside a fixed bin. A piece across the layer (du = 0: a planar plate's end) stands
+    alone."""
+    n = len(seg)
     with np.errstate(divide="ignore", invalid="ignore"):
-        wd = np.where(seg > 1e-12, area / np.maximum(seg, 1e-12), 0.0)
-        key = np.where(laid, np.floor(np.log(np.maximum(wd, 1e-9)) / math.log1p(WIDTH_TOL)), -1e9)
-    bounds = np.concatenate([[0], np.flatnonzero(key[1:] != key[:-1]) + 1, [len(seg)]])
+        wd = np.where(seg > 1e-12, area / seg, 0.0)
+        pu = np.where(du > 1e-9, area / du, -1.0)
+    # runs of one width and one area per sample (the plain wall, flat areas) are taken as one
+    # item: the loop below sees only where they change
+    step = np.flatnonzero((laid[1:] != laid[:-1]) | (np.abs(wd[1:] - wd[:-1]) > 1e-9 * wd[1:])
+                          | (np.abs(pu[1:] - pu[:-1]) > 1e-9 * np.abs(pu[1:])) | (pu[1:] < 0))
+    first = np.concatenate([[0], step + 1])
+    A, L, U = (np.add.reduceat(x, first).tolist() for x in (area, seg, du))
+    W, P, on = wd[first].tolist(), pu[first].tolist(), laid[first].tolist()
+    lo_tol, hi_tol = 1 - WIDTH_TOL, 1 + WIDTH_TOL
+    starts = [0]
+    a = l_ = u_ = wlo = whi = plo = phi = 0.0
+    state = None
+    for i, (ai, li, ui, wi, pi, oi) in enumerate(zip(A, L, U, W, P, on)):
+        if oi != state or pi < 0 or plo < 0:
+            starts.append(i)
+            state, a, l_, u_, wlo, whi, plo, phi = oi, ai, li, ui, wi, wi, pi, pi
+            continue
+        if not oi:
+            continue
+        a2, l2, u2 = a + ai, l_ + li, u_ + ui
+        wlo2 = wi if wi < wlo else wlo
+        whi2 = wi if wi > whi else whi
+        plo2 = pi if pi < plo else plo
+        phi2 = pi if pi > phi else phi
+        w, pm = a2 / (l2 if l2 > 1e-12 else 1e-12), a2 / u2
+        if w > wlo2 * hi_tol or w < whi2 * lo_tol or pm > plo2 * hi_tol or pm < phi2 * lo_tol:
+            starts.append(i)
+            a, l_, u_, wlo, whi, plo, phi = ai, li, ui, wi, wi, pi, pi
+        else:
+            a, l_, u_, wlo, whi, plo, phi = a2, l2, u2, wlo2, whi2, plo2, phi2
+    b = first[np.unique(starts)]
+    return np.append(b, n)
+
+
+def _line_end(px, py, sx, sy, th, j, last):
+    """Where a merged piece from (sx, sy) at angle th ends beside point j: on its line within
+    CHORD_TOL of the point, and there as far from point j + 1 as point j is (the next piece keeps
+    its length, so its width, if it stays alone), else as near that as the tolerance allows."""
+    c, sn = math.cos(th), math.sin(th)
+    ox, oy = px[j] - sx, py[j] - sy
+    d = ox * c + oy * sn                            # point j's foot on the line
+    h2 = (ox * sn - oy * c) ** 2
+    if j == last or h2 >= CHORD_TOL ** 2:
+        return sx + d * c, sy + d * sn
+    room = math.sqrt(CHORD_TOL ** 2 - h2)          # the line's stretch within the tolerance
+    qx, qy = sx - px[j + 1], sy - py[j + 1]
+    L2 = (px[j + 1] - px[j]) ** 2 + (py[j + 1] - py[j]) ** 2
+    b = qx * c + qy * sn                            # |E - point j + 1|^2 = (t + b)^2 + const
+    disc = b * b - (qx * qx + qy * qy) + L2
+    if disc >= 0:                                   # the root nearer point j's foot
+        r = math.sqrt(disc)
+        t = -b - r if abs(-b - r - d) < abs(-b + r - d) else -b + r
+    else:                                           # no such place: the nearest approach
+        t = -b
+    if t < d - room:
+        t = d - room
+    elif t > d + room:
+        t = d + room
+    return sx + t * c, sy + t * sn
+
+
+def _sleeve(px, py, runs, last, keep, ox, oy):
+    """Merged pieces over each run (i0, i1) of points (lists px, py), each within CHORD_TOL of
+    every point it replaces: from its start, the longest run of points that one line can pass
+    within the tolerance of (the directions each point allows, intersected), ending on that line
+    beside its last point (so not always on a point: _line_end). Ends are written to ox, oy
+    (the points' places, given as px, py) and marked in `keep`; the path's last point (`last`)
+    stays where it is. A run starts from ox[i0], oy[i0] (where the run before it ended)."""
+    tol, inf, pi, two_pi = CHORD_TOL, math.inf, math.pi, 2 * math.pi
+    hypot, atan2, asin = math.hypot, math.atan2, math.asin
+    for i0, i1 in runs:
+        sx, sy = ox[i0], oy[i0]
+        lo, hi = -inf, inf
+        ref = None
+        j = i0 + 1
+        while j <= i1:
+            qx, qy = px[j] - sx, py[j] - sy
+            r = hypot(qx, qy)
+            if r > tol:
+                phi = atan2(qy, qx)
+                if ref is not None:                 # the same turn as the cone
+                    if phi - ref > pi:
+                        phi -= two_pi
+                    elif ref - phi > pi:
+                        phi += two_pi
+                da = 0.0 if j == last else asin(tol / r)
+                nlo, nhi = phi - da, phi + da
+                if nlo < lo:
+                    nlo = lo
+                if nhi > hi:
+                    nhi = hi
+                if nlo > nhi:
+                    # (a fresh cone takes any point: here at least one lies between start and j)
+                    # the line ends beside point j - 1; the next one starts there
+                    e = _line_end(px, py, sx, sy, (lo + hi) / 2, j - 1, last)
+                    sx, sy = ox[j - 1], oy[j - 1] = e
+                    keep[j - 1] = True
+                    lo, hi, ref = -inf, inf, None
+                    continue
+                lo, hi = nlo, nhi
+                if ref is None:
+                    ref = phi
+            j += 1
+        # the run's end: on the line beside point i1 (the path's last point: on it)
+        if i1 != last and ref is not None:
+            ox[i1], oy[i1] = _line_end(px, py, sx, sy, (lo + hi) / 2, i1, last)
+        keep[i1] = True
+
+
+def _keep_straight(pts, area, laid, u):
+    """Points to keep when neighbouring pieces merge, and where they are: pieces run on as one
+    where they are laid at one width (the merged width within WIDTH_TOL of every piece's,
+    _width_runs) or not laid, and the path strays no more than CHORD_TOL from the points it
+    drops (_sleeve). Returns (keep, points)."""
+    seg = np.linalg.norm(np.diff(pts, axis=0), axis=1)
+    bounds = _width_runs(seg, area, laid, np.abs(np.diff(u)))
     keep = np.zeros(len(pts), bool)
     keep[bounds] = True
     multi = np.flatnonzero(np.diff(bounds) > 1)
-    if len(multi):
-        starts, counts = bounds[multi], bounds[multi + 1] - bounds[multi] + 1
-        first = np.repeat(np.cumsum(counts) - counts, counts)
-        idx = np.repeat(starts, counts) + np.arange(counts.sum()) - first
-        run = np.repeat(np.arange(len(multi)), counts)
-        # the vertex index rides along as z: the simplified runs tell which points stay
-        lines = shapely.linestrings(np.column_stack([pts[idx], idx.astype(float)]), indices=run)
-        simple = shapely.simplify(lines, CHORD_TOL, preserve_topology=False)
-        keep[np.rint(shapely.get_coordinates(simple, include_z=True)[:, 2]).astype(int)] = True
-    return keep
+    if not len(multi):
+        return keep, pts
+    px, py = pts[:, 0].tolist(), pts[:, 1].tolist()
+    ox, oy = px[:], py[:]                           # where the points are after the merge
+    last = len(pts) - 1
+    _sleeve(px, py, zip(bounds[multi].tolist(), bounds[multi + 1].tolist()), last, keep, ox, oy)
+    orig, pts = pts, np.column_stack([ox, oy])
+    k = np.flatnonzero(keep)
+    # A merged piece's width is its area over its chord, a little shorter than the path, and a
+    # run the chord split has widths of its own: where a merged piece is off a member by more
+    # than the tolerance, it keeps all its points.
+    chord = np.linalg.norm(pts[k[1:]] - pts[k[:-1]], axis=1)
+    on = laid[k[:-1]] & (np.diff(k) > 1)
+    if on.any():
+        du = np.abs(np.diff(u))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            a = np.add.reduceat(area, k[:-1])
+            bad = np.zeros(len(a), bool)
+            # the width on the chord, and the area per sample interval, against every member's
+            for per, merged in ((seg, chord), (du, np.add.reduceat(du, k[:-1]))):
+                each = np.where(laid, area / np.maximum(per, 1e-12), 0.0)
+                m = a / np.maximum(merged, 1e-12)
+                lo, hi = np.minimum.reduceat(each, k[:-1]), np.maximum.reduceat(each, k[:-1])
+                bad |= (m > lo * (1 + WIDTH_TOL)) | (m < hi * (1 - WIDTH_TOL))
+        bad = np.flatnonzero(on & bad)
+        for j in bad.tolist():
+            keep[k[j]:k[j + 1]] = True
+    # A piece left on its own beside a moved end is longer or shorter by the move: where that
+    # puts its width off by more than the tolerance, the end goes back to its point, and the
+    # merged pieces that end also ends keep all their points (so they stay on the tolerance).
+    with np.errstate(divide="ignore", invalid="ignore"):
+        wd = area / np.maximum(seg, 1e-12)
+    moved = np.any(pts != orig, axis=1)
+    while moved.any():
+        k = np.flatnonzero(keep)
+        i = k[:-1][(np.diff(k) == 1) & laid[k[:-1]]]
+        w = area[i] / np.maximum(np.linalg.norm(pts[i + 1] - pts[i], axis=1), 1e-12)
+        bad = i[np.abs(w - wd[i]) > WIDTH_TOL * wd[i]]
+        ends = np.union1d(bad, bad + 1)
+        ends = ends[moved[ends]]
+        if not len(ends):
+            break
+        for e in ends.tolist():
+            pts[e], moved[e] = orig[e], False
+            pos = int(np.searchsorted(k, e))
+            if pos > 0:
+                keep[k[pos - 1]:e] = True
+            if pos < len(k) - 1:
+                keep[e:k[pos + 1]] = True
+    return keep, pts
 
 
 def _long_enough(pts, area, laid, o: LithoOptions, flow, rate):
-    """Points to keep so that every laid piece is at least MIN_MOVE long and, with a block-rate
-    budget, no shorter than its speed / rate: short pieces merge with their laid neighbours (the
-    areas add up, width = area / length, so the volume is kept). Also the pieces of laid runs that
-    cannot be made long enough at all (too short in total)."""
+    """Points to keep so that every laid piece is at least MIN_MOVE long as written (ROUNDING)
+    and, with a block-rate budget, no shorter than its speed / rate: short pieces merge with
+    their laid neighbours (the areas add up, width = area / length, so the volume is kept). Also
+    the pieces of laid runs that cannot be made long enough at all (too short in total)."""
     n = len(area)
     keep = np.ones(n + 1, bool)
     lonely = np.zeros(n, bool)
@@ -578,7 +736,7 @@ def _long_enough(pts, area, laid, o: LithoOptions, flow, rate):
     H = o.layer_height
     with np.errstate(divide="ignore", invalid="ignore"):
         v = np.clip(flow * L / np.maximum(area * H, 1e-12), o.min_speed, o.max_speed)
-    need = np.maximum(MIN_MOVE, v / rate) if rate else np.full(n, MIN_MOVE)
+    need = np.maximum(MIN_MOVE + ROUNDING, v / rate) if rate else np.full(n, MIN_MOVE + ROUNDING)
     short = laid & (L < need - 1e-9)
     if not short.any():
         return keep, lonely
@@ -594,7 +752,7 @@ def _long_enough(pts, area, laid, o: LithoOptions, flow, rate):
             acc += al[q]
             ln = math.hypot(px[q + 1] - px[s], py[q + 1] - py[s])
             sp = min(max(flow * ln / max(acc * H, 1e-12), lo), hi)
-            if ln >= max(MIN_MOVE, sp * inv_rate) - 1e-9:
+            if ln >= max(MIN_MOVE + ROUNDING, sp * inv_rate) - 1e-9:
                 groups.append((s, q + 1))
                 s, acc = q + 1, 0.0
         if s < j:                                   # a short tail joins the group before it
@@ -612,7 +770,8 @@ def _pieces(kind, pts, area, laid, u, o: LithoOptions, flow, merge=True) -> tupl
     merged (block-rate budget). Returns (section or None if nothing is laid, lonely) where
     lonely marks laid pieces that could not be made long enough (the caller gives them away)."""
     if merge:
-        k1 = np.flatnonzero(_keep_straight(pts, area, laid))
+        keep, pts = _keep_straight(pts, area, laid, u)
+        k1 = np.flatnonzero(keep)
         pts, area, laid, u = pts[k1], np.add.reduceat(area, k1[:-1]), laid[k1[:-1]], u[k1]
         back = k1
     else:
@@ -763,7 +922,9 @@ def _rotate_loop(s: Section, near, o: LithoOptions | None = None) -> Section:
     q = a + d * f[:, None]
     j = int(np.argmin(np.linalg.norm(q - near, axis=1)))
     Lj = math.sqrt(L2[j])
-    need = MIN_MOVE if o is None else max(MIN_MOVE, s.v[j] / o.block_rate if o.block_rate else 0.0)
+    need = MIN_MOVE + ROUNDING
+    if o is not None and o.block_rate:
+        need = max(need, s.v[j] / o.block_rate)
     if f[j] * Lj >= need and (1 - f[j]) * Lj >= need:         # split piece j at q
         fj = f[j]
         pts = np.vstack([s.pts[:j + 1], q[j:j + 1], s.pts[j + 1:]])
@@ -799,7 +960,7 @@ def _join(s: Section, at, o: LithoOptions, flow) -> Section:
     d = float(np.linalg.norm(s.pts[0] - at))
     if d <= 1e-6 or d >= o.retract_min:
         return s
-    need = max(MIN_MOVE, s.v[0] / o.block_rate if o.block_rate else 0.0)
+    need = max(MIN_MOVE + ROUNDING, s.v[0] / o.block_rate if o.block_rate else 0.0)
     if d >= need:
         return s                                    # a connector of its own (_Writer)
     pts = s.pts.copy()
@@ -915,15 +1076,56 @@ def _fmt(v: float, nd: int) -> str:
     return "0" if s in ("-0", "") else s
 
 
-def _words(letter: str, a: np.ndarray, nd: int) -> list:
-    """`letter` + each value to nd decimals (Python's shortest repr of the rounded value: fast,
-    exact to the decimals asked, no trailing zeros but a whole number's ".0")."""
-    r = np.round(a, nd) + 0.0                       # + 0.0: no "-0.0"
-    out = [f"{letter}{x!r}" for x in r.tolist()]
-    small = np.flatnonzero((np.abs(r) < 1e-4) | (np.abs(r) >= 1e15))
-    for i in small.tolist():                        # repr would use an exponent there
-        out[i] = letter + _fmt(float(r[i]), nd)
-    return out
+def _word_chars(letter: str, a: np.ndarray, nd: int, on=None) -> tuple[np.ndarray, np.ndarray]:
+    """The words `letter` + each value to nd decimals (Python's shortest repr of the rounded
+    value: no trailing zeros but a whole number's ".0"; zero as "0"), as a character matrix and
+    which of its characters are written, computed on the whole array at once. Each word starts
+    with a space; `on`: which rows have the word at all."""
+    k = np.rint(np.asarray(a, float) * 10 ** nd).astype(np.int64)
+    neg, m = k < 0, np.abs(k)
+    ip, fp = np.divmod(m, 10 ** nd)
+    D = max(1, len(str(int(ip.max())))) if len(m) else 1
+    n = len(k)
+    digits = lambda v, count: (v[:, None] // 10 ** np.arange(count - 1, -1, -1)) % 10 + ord("0")
+    # trailing zeros of the fraction: written up to its last non-zero digit, at least one
+    tz = np.zeros(n, int)
+    rest = fp.copy()
+    for _ in range(nd):
+        z = (rest % 10 == 0) & (rest > 0)
+        tz += z
+        rest = np.where(z, rest // 10, rest)
+    shown_f = np.where(fp > 0, nd - tz, 1)
+    chars = np.empty((n, 4 + D + nd), np.uint8)
+    chars[:, 0], chars[:, 1], chars[:, 2] = ord(" "), ord(letter), ord("-")
+    chars[:, 3:3 + D] = digits(ip, D)
+    chars[:, 3 + D] = ord(".")
+    chars[:, 4 + D:] = digits(fp, nd)
+    mask = np.zeros((n, 4 + D + nd), bool)
+    mask[:, :2] = True
+    mask[:, 2] = neg
+    mask[:, 3:3 + D] = ip[:, None] >= 10 ** np.arange(D - 1, -1, -1)
+    mask[:, 2 + D] = True                               # the units digit
+    mask[:, 3 + D:] = (m[:, None] > 0) & (np.arange(nd + 1) <= shown_f[:, None])
+    if on is not None:
+        mask &= np.asarray(on, bool)[:, None]
+    return chars, mask
+
+
+def _move_texts(x, y, amount, f, laid, newf, sizes) -> list:
+    """Lines "G1 X Y [E|W] [F]" for rounded columns (X, Y to 3 decimals, E 5 or W 4, F 1), where
+    `amount` is (letter, values, decimals), one text per group of `sizes` lines (without its
+    last newline). Built as one character matrix: the writer's hot loop (a cylinder has half a
+    million moves per file)."""
+    n = len(x)
+    parts = [(np.frombuffer(b"G1", np.uint8)[None, :].repeat(n, 0), None),
+             _word_chars("X", x, 3), _word_chars("Y", y, 3),
+             _word_chars(amount[0], amount[1], amount[2], on=laid), _word_chars("F", f, 1, on=newf),
+             (np.full((n, 1), ord("\n"), np.uint8), None)]
+    chars = np.hstack([c for c, _ in parts])
+    mask = np.hstack([np.ones_like(c, bool) if m is None else m for c, m in parts])
+    text = chars[mask].tobytes().decode("ascii")
+    ends = np.cumsum(mask.sum(axis=1))[np.cumsum(sizes) - 1].tolist()
+    return [text[a:b - 1] for a, b in zip([0] + ends[:-1], ends)]
 
 
 class _Writer:
@@ -939,6 +1141,18 @@ class _Writer:
         self.f = None
         self.retracted = False
         self.flow = None
+        self.pending: list = []       # sections whose text is still to be made
+
+    def flush(self):
+        """Make the text of the sections written since the last flush."""
+        if not self.pending:
+            return
+        idx, *cols = zip(*self.pending)
+        X, Y, A, F, laid, newf = (np.concatenate(c) for c in cols)
+        amount = ("W", A, 4) if self.mode == "litho" and self.o.words == "w" else ("E", A, 5)
+        for i, text in zip(idx, _move_texts(X, Y, amount, F, laid, newf, [len(c) for c in cols[0]])):
+            self.items[i][0] = text
+        self.pending = []
 
     def out(self, s):
         self.items.append(s)
@@ -1022,12 +1236,9 @@ class _Writer:
         Wd = np.where(laid, np.round(s.width, 4), 0.0) if use_w else None
         prev = np.concatenate([[self.f if self.f is not None else -1.0], F[:-1]])
         newf = np.abs(F - prev) > 1e-6
-        xs, ys, fs = _words("X", X, 3), _words("Y", Y, 3), _words("F", F, 1)
-        amount = _words("W", Wd, 4) if use_w else _words("E", E, 5)
-        text = "\n".join(
-            f"G1 {x} {y}" + (f" {a}" if on else "") + (f" {f}" if nf else "")
-            for x, y, a, f, on, nf in zip(xs, ys, amount, fs, laid.tolist(), newf.tolist()))
-        self.items.append((text, MoveBlock(X, Y, E, F, Wd)))
+        # the text is made with the next sections' (flush): fewer, larger array steps
+        self.pending.append((len(self.items), X, Y, Wd if use_w else E, F, laid, newf))
+        self.items.append([None, MoveBlock(X, Y, E, F, Wd)])
         self.f = float(F[-1])
         self.x, self.y = s.pts[-1]
 
@@ -1082,6 +1293,8 @@ def write_gcode(plan: Plan, path, mode: str, name: str = "lithophane", estimate_
             mid_q = o.mid_flow * (ratio if k == 0 else 1.0)
             for s in L.sections:
                 w.section(s, wall_q, mid_q)
+            if sum(len(q[1]) for q in w.pending) > 16384:
+                w.flush()
             if k % 16 == 0:
                 pg.tick(k)
         if mode == "litho":
@@ -1089,7 +1302,11 @@ def write_gcode(plan: Plan, path, mode: str, name: str = "lithophane", estimate_
         if o.retract > 0:
             w.out(f"G1 E-{_fmt(o.retract, 4)} F{_fmt(o.retract_speed * 60, 1)}")
         w.out(fill(end).rstrip("\n"))
+        w.flush()
         _write_atomic(path, w.text())
+    for it in w.items:                              # the estimate needs the moves' numbers only
+        if not isinstance(it, str):
+            it[0] = None
     from ..gcode import estimate
 
     out = []
