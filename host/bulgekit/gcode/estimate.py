@@ -656,6 +656,19 @@ def _columns(rows) -> dict:
     return out
 
 
+def _full(q: dict, k: int) -> dict:
+    """A part whose constants are held once (a MoveBlock's: a number, or one row of axis
+    limits) with them repeated for each of its k moves, as the planner's passes take them."""
+    out = dict(q)
+    for name in ("dz", "jd", "n_e", "spm_e", "accel", "v", "feature", "layer"):
+        if np.ndim(q[name]) == 0:
+            out[name] = np.full(k, q[name])
+    for name in ("amax", "vmax", "jerk"):
+        if q[name] is not None and np.ndim(q[name]) == 1:
+            out[name] = np.ascontiguousarray(np.broadcast_to(np.asarray(q[name], float), (k, len(q[name]))))
+    return out
+
+
 CHUNK = 1 << 16          # blocks computed at once (a large file's temporaries stay small)
 _SPEEDS = ("entry_speed", "exit_speed", "cruise_speed", "t_accel", "t_cruise", "t_decel")
 
@@ -691,6 +704,7 @@ class _Planner:
         k = len(q["v"])
         if not k:
             return
+        q = _full(q, k)
         self.n += k
         if self.bad is not None:                # nothing more is planned; the parse goes on
             return
