@@ -411,8 +411,10 @@ class Skipper:
     its Python code (a 100 MB file has three million moves; a map's points lie on a few
     thousand). A move is planned when
       - it is a candidate (eligible but for the layer window: mode, outer wall, extruding in
-        float32) whose z (0.01 mm, float32) differs from the last candidate's: only then can the
-        window load, switch or miss a layer (the same z gives the same window, see _window);
+        float32) whose z (0.01 mm, float32) differs from the last candidate's and has a map layer
+        within half a layer height: only then can the window load or switch a layer (the same z
+        gives the same window, see _window; a z with no layer near only misses, which changes
+        nothing but the cache miss_z, and that only saves a search that would miss as well);
       - it is a candidate whose box, widened by plan()'s own margin, holds a point of a map layer
         within half a layer height of its z: only such moves stop or defer points;
       - it is the first move after one of those that moves anything (null moves change nothing):
@@ -441,6 +443,8 @@ class Skipper:
                     px.append(x * q)
                     py.append(y * q)
         order = np.lexsort((np.array(px), np.array(pz))) if pz else np.empty(0, np.int64)
+        # every layer's z, points or none: the window can load any of them (_find)
+        self.lz = np.sort(np.array(planner._zs, dtype=np.int64))
         self.pz = np.array(pz, dtype=np.int64)[order]
         self.px = np.array(px, dtype=np.float64)[order]
         self.py = np.array(py, dtype=np.float64)[order]
@@ -475,7 +479,12 @@ class Skipper:
         if len(ci):
             zc = movescan.z_cmm(a["z1"][ci])
             prev = np.concatenate([[self.last_zc if self.last_zc is not None else zc[0] + 1], zc[:-1]])
-            pick[ci[zc != prev]] = True
+            # a new z with no map layer within half a layer height cannot load or switch the
+            # window (_find finds nothing, whatever the floor): planned, it would only miss
+            change = zc != prev
+            lo = np.searchsorted(self.lz, zc - self.lh / 2, side="left")
+            hi = np.searchsorted(self.lz, zc + self.lh / 2, side="right")
+            pick[ci[change & (hi > lo)]] = True
             self.last_zc = int(zc[-1])
             pick[ci[self._near(a[ci], zc)]] = True
         # the first moving move after each picked one (and after the last chunk's)

@@ -130,6 +130,38 @@ def test_skipping_moves_changes_nothing_the_planner_does(path):
             assert fast.arcs == ref.arcs
 
 
+@pytest.mark.parametrize("path", FILES, ids=lambda p: p.name)
+def test_skipping_the_layers_no_map_layer_is_near_changes_nothing(path):
+    """A map on a few layers (a text on a tall print): the moves of layers with no map layer
+    within half a layer height are not planned, yet the stops, the window's layer loads and the
+    drops are those of a planner that saw every move; also with a layer record without points
+    (a BulgeMap built in code), which the window loads like any other."""
+    rng = random.Random("sparse" + path.name)
+    geometric = path.name.startswith("slic3r")
+    full = _random_map(path, rng, geometric)
+    zs = sorted({l.z_cmm for l in full.layers})
+    keep = set(zs[len(zs) // 3: len(zs) // 3 + 3])
+    layers = [l for l in full.layers if l.z_cmm in keep]
+    empty = mapformat.Layer(zs[len(zs) // 2], ())
+    bm = mapformat.BulgeMap(full.quantum_um, full.layer_height_cmm, full.has_weights,
+                            sorted(layers + [empty], key=lambda l: l.z_cmm))
+    settings = Settings(mode=2 if geometric else 1, extra_e=0.9)
+    for bypass in (False, True):
+        ref = _full(path, bm, settings, bypass)
+        fast = RefPlanner(bm, settings)
+        picked = []
+        movescan.run(path, lambda ch: plan_records(fast, ch, lambda m, a: picked.append(m),
+                                                   arcs_bypass=bypass))
+        assert ref.stops and ref.stats.layers_loaded >= 3
+        assert fast.stops == ref.stops
+        assert fast.stats == ref.stats and fast.top_z == ref.top_z
+        assert fast.arcs == ref.arcs
+        # and the layers far from the map's went by unplanned
+        half = bm.layer_height_cmm / 2
+        assert all(any(abs(round(m.z1 * 100) - l.z_cmm) <= half + 1 for l in bm.layers)
+                   or m.e <= 0 for m in picked)
+
+
 @pytest.mark.parametrize("stops", [StockStops(), StockStops("g4"), StockStops(e_steps=415, stop_e_steps=9)],
                          ids=["move", "g4", "move415"])
 @pytest.mark.parametrize("path", FILES, ids=lambda p: p.name)
