@@ -349,11 +349,13 @@ def walls_from_records(chunks: Iterable[np.ndarray], layer_height: float | None 
         if geometric and upper is not None:
             near = [c for c in pool if _median_distance(np.array(c.pts), upper) <= max(1.0, 3 * h)]
             pool = near or pool
-        best = max(pool, key=lambda c: abs(_signed_area(np.array(c.pts))))
+        # (most layers have one wall: no areas to compare)
+        best = pool[0] if len(pool) == 1 else max(pool, key=lambda c: abs(_signed_area(np.array(c.pts))))
         if not closed:
             notes.append(f"layer z {b / 100:.2f}: no closed outer loop, using the largest open one")
         chosen[b] = best
-        upper = np.array(best.pts, dtype=float)
+        if geometric:
+            upper = np.array(best.pts, dtype=float)
     walls: list[Wall] = []
     prev_z = None
     for b in sorted(chosen):
