@@ -948,13 +948,16 @@ class RewriteResult:
     stats: PlanStats | None = None
     unreached: str | None = None     # message when map points get no stop
     stock: StopWriter | None = None  # how the stops were written, and their counts
+    planner: RefPlanner | None = None  # the planner after its run over the file
 
 
 def rewrite(lines: Iterable[str], bmap: mapformat.BulgeMap, settings: Settings,
             source: str = "<gcode>", result: RewriteResult | None = None,
-            stops: StockStops = StockStops()) -> Iterator[str]:
-    """Yield the stock-firmware G-code (lines end with '\\n')."""
-    planner = RefPlanner(bmap, settings)
+            stops: StockStops = StockStops(), planner: RefPlanner | None = None,
+            on_move=None) -> Iterator[str]:
+    """Yield the stock-firmware G-code (lines end with '\\n'). planner: a new one to run (else
+    one is made); on_move(move, actions) is called for every move as it is planned."""
+    planner = planner if planner is not None else RefPlanner(bmap, settings)
     st = GcodeState()
     res = result if result is not None else RewriteResult()
     sw = res.stock = StopWriter(stops)
@@ -968,6 +971,9 @@ def rewrite(lines: Iterable[str], bmap: mapformat.BulgeMap, settings: Settings,
             yield raw
             continue
         per_move = [(m, planner.plan(m)) for m in ln.moves]
+        if on_move is not None:
+            for m, acts in per_move:
+                on_move(m, acts)
         if all(_unchanged(m, a) for m, a in per_move):
             if any(a.dropped for _, acts in per_move for a in acts):
                 sw.drop()
@@ -977,6 +983,7 @@ def rewrite(lines: Iterable[str], bmap: mapformat.BulgeMap, settings: Settings,
         yield from _emit(ln, per_move, st, sw)
     res.stops = planner.stops
     res.stats = planner.stats
+    res.planner = planner
     res.unreached = unreached_message(planner, source)
 
 
@@ -1107,12 +1114,14 @@ def _header(bmap: mapformat.BulgeMap, settings: Settings, stops: StockStops) -> 
 
 def _rewrite_records(src, out, chunks, bmap: mapformat.BulgeMap, settings: Settings,
                      source: str, res: RewriteResult, stops: StockStops = StockStops(),
-                     m92: list | None = None) -> None:
+                     m92: list | None = None, planner: RefPlanner | None = None,
+                     on_move=None) -> None:
     """rewrite() on the compiled scanner's chunks: the same output, but lines that stay as they
-    are copied as bytes and only the moves that can change planned (Skipper). Needs a file
-    whose lines end in \n or \r\n and that is valid UTF-8 (rewrite_file checks)."""
+    are copied as bytes and only the moves that can change planned (Skipper; on_move sees
+    those). Needs a file whose lines end in \n or \r\n and that is valid UTF-8 (rewrite_file
+    checks)."""
     from ..gcode import parse_words, split_code
-    planner = RefPlanner(bmap, settings)
+    planner = planner if planner is not None else RefPlanner(bmap, settings)
     sw = res.stock = StopWriter(stops, m92)
     out.write(_header(bmap, settings, stops).encode())
     pos = 0                                   # bytes of src copied so far
@@ -1150,7 +1159,7 @@ def _rewrite_records(src, out, chunks, bmap: mapformat.BulgeMap, settings: Setti
             res.moves_split += 1
             out.write("".join(_emit(Line(ln_no, text, head[0].upper(), words, [], None),
                                     per_move, st, sw)).encode())
-    plan_records(planner, chunks, on_chunk=emit_changed)
+    plan_records(planner, chunks, on_move, on_chunk=emit_changed)
     rest = src.read()
     out.write(rest)
     if rest and not rest.endswith(b"\n"):
@@ -1158,14 +1167,19 @@ def _rewrite_records(src, out, chunks, bmap: mapformat.BulgeMap, settings: Setti
     res.lines_in = chunks.lines
     res.stops = planner.stops
     res.stats = planner.stats
+    res.planner = planner
     res.unreached = unreached_message(planner, source)
 
 
 def rewrite_file(src, dst, bmap: mapformat.BulgeMap, settings: Settings,
-                 allow_unreached: bool = False, stops: StockStops = StockStops()) -> RewriteResult:
+                 allow_unreached: bool = False, stops: StockStops = StockStops(),
+                 on_plan=None) -> RewriteResult:
     """Rewrite src into dst.  Map points no move reaches are an error (the
     map is likely for another file) unless allow_unreached; then the message
-    is in result.unreached.  dst is only written when the rewrite succeeds."""
+    is in result.unreached.  dst is only written when the rewrite succeeds.
+    on_plan(planner) is called with each planner made to run over the file (a second one when
+    the compiled scanner leaves the file to the text path) and returns an on_move hook (see
+    rewrite()), or None: build's statistics count on the rewrite's run (result.planner)."""
     import os
     from ..gcode import check_not_processed, open_checked
     res = RewriteResult()
@@ -1181,6 +1195,10 @@ def rewrite_file(src, dst, bmap: mapformat.BulgeMap, settings: Settings,
     else:
         _, lines = open_checked(src, checks=(check_not_processed, plain))     # streamed, not held
     tmp = f"{os.fspath(dst)}.part"
+
+    def new_planner():
+        p = RefPlanner(bmap, settings)
+        return p, (on_plan(p) if on_plan is not None else None)
     try:
         done = False
         if byte_path:
@@ -1188,7 +1206,8 @@ def rewrite_file(src, dst, bmap: mapformat.BulgeMap, settings: Settings,
                 r = RewriteResult()
                 with open(tmp, "wb") as f, open(src, "rb") as g:
                     m92 = None if stops.stop != STOP_MOVE else kept.m92 if kept else scan_m92(src)
-                    _rewrite_records(g, f, chunks, bmap, settings, str(src), r, stops, m92)
+                    _rewrite_records(g, f, chunks, bmap, settings, str(src), r, stops, m92,
+                                     *new_planner())
                 return r
             try:
                 res = movescan.run(src, fast, fast=True)
@@ -1198,7 +1217,7 @@ def rewrite_file(src, dst, bmap: mapformat.BulgeMap, settings: Settings,
         if not done:
             with open(tmp, "w", encoding="utf-8", newline="") as f:
                 buf = []
-                for out in rewrite(lines, bmap, settings, str(src), res, stops):
+                for out in rewrite(lines, bmap, settings, str(src), res, stops, *new_planner()):
                     buf.append(out)
                     if len(buf) >= 4096:
                         f.write("".join(buf))
