@@ -246,6 +246,12 @@ def check_reach(gcode, map_bytes: bytes, settings: Settings, source: str) -> str
     the map points no move reaches (the map is for another file? arcs?), or None. G2/G3 arcs
     count for nothing, as in the firmware (RefPlanner.bypass). Only the moves that can change
     the planner's work go through its Python code (fallback.Skipper)."""
+    return _reach(gcode, map_bytes, settings, source)[0]
+
+
+def _reach(gcode, map_bytes: bytes, settings: Settings, source: str) -> tuple[str | None, int | None]:
+    """check_reach's message, and the lines the compiled scanner flagged on the way (None when
+    it did not read the file): none means check_not_processed would find nothing."""
     from ..gcode import movescan
     from .fallback import RefPlanner, plan_records, unreached_message
     bm = mapformat.decode_map(map_bytes, source="map")
@@ -253,7 +259,7 @@ def check_reach(gcode, map_bytes: bytes, settings: Settings, source: str) -> str
     def run(chunks):
         planner = RefPlanner(bm, settings)
         plan_records(planner, chunks, arcs_bypass=True)
-        return unreached_message(planner, source)
+        return unreached_message(planner, source), chunks.flagged
     return movescan.run(gcode, run, source)
 
 
@@ -266,13 +272,24 @@ def annotate_file(src, dst, map_bytes: bytes, settings: Settings, arena: int = A
     from ..gcode import movescan
     with open(src, "rb") as f:
         data = f.read()
-    if movescan.kept(src) is None:            # build's one scan checked it already
+    kept = movescan.kept(src) is not None     # build's one scan checked it already
+    if not kept:
         check_complete(data, str(src))
+    msg = flagged = failed = None
+    if check:
+        # the reach check's scan comes first, as it also tells where check_not_processed can
+        # find something; what it finds wrong is said in the order the checks always had
+        try:
+            msg, flagged = _reach(src if kept else data, map_bytes, settings, str(src))
+        except (BulgekitError, mapformat.MapFormatError) as e:
+            failed = e
+    if not kept and flagged != 0:
         check_not_processed(data, str(src))
     res = AnnotateResult()
     out = annotate_bytes(data, map_bytes, settings, arena, stream, str(src), res)
+    if failed is not None:
+        raise failed
     if check:
-        msg = check_reach(src, map_bytes, settings, str(src))
         if msg and not allow_unreached:
             raise AnnotateError(msg)
         if msg:

@@ -53,10 +53,13 @@ class Unsupported(Exception):
 
 class Chunks:
     """What consume gets: iterate for RECORD arrays (moves in file order); `roles` names the
-    role indices seen so far (complete once iteration ends); `lines` counts the lines read."""
+    role indices seen so far (complete once iteration ends); `lines` counts the lines read;
+    `flagged` the lines read that gcode.check_not_processed's or scan_m92's regexes may match
+    (the compiled scanner's count, a superset; None from the Python parser or a kept Scan)."""
 
-    def __init__(self, it: Iterator[np.ndarray], roles: list[str], lines: Callable[[], int]):
-        self._it, self.roles, self._lines = it, roles, lines
+    def __init__(self, it: Iterator[np.ndarray], roles: list[str], lines: Callable[[], int],
+                 flagged: Callable[[], int] | None = None):
+        self._it, self.roles, self._lines, self._flagged = it, roles, lines, flagged
 
     def __iter__(self):
         return self._it
@@ -64,6 +67,10 @@ class Chunks:
     @property
     def lines(self) -> int:
         return self._lines()
+
+    @property
+    def flagged(self) -> int | None:
+        return None if self._flagged is None else self._flagged()
 
 
 def z_cmm(z: np.ndarray) -> np.ndarray:
@@ -106,7 +113,7 @@ def _fast(path) -> Chunks:
                 buf = buf[used:]
                 if final:
                     return
-    return Chunks(gen(), roles, lambda: sc.lines)
+    return Chunks(gen(), roles, lambda: sc.lines, lambda: sc.flagged)
 
 
 def from_moves(moves, roles: list[str] | None = None,

@@ -298,3 +298,41 @@ def test_fast_reach_check_says_what_the_reference_planner_says(name):
         assert check_reach(data, m, settings, str(g)) == unreached_message(ref, str(g))
     assert check_reach(data, good, settings, str(g)) is None
     assert check_reach(data, wrong, settings, str(g)) is not None
+
+
+@pytest.mark.parametrize("compiled", [True, False], ids=["scanner", "python-parser"])
+def test_annotate_looks_for_earlier_bulgekit_lines_where_its_scan_flags_one(tmp_path, data_dir,
+                                                                            monkeypatch, compiled):
+    """annotate's reach-check scan counts the lines check_not_processed could refuse: with none
+    flagged the regexes are not run over the file; with one (or no count: the Python parser
+    read it) they are, and refuse it before anything else annotate finds wrong; a bad line
+    the scan stops at is still reported after annotate's own findings."""
+    from bulgekit import gcode
+    from bulgekit.bulge import annotate
+    from bulgekit.gcode import GcodeError, movescan
+    if not compiled:
+        monkeypatch.setattr(movescan, "_scan", None)
+    g = data_dir / "prusa_cyl.gcode"
+    bm = build([Stroke(((10.0, 1.0), (10.0, 4.0)))], walls_from_gcode(g)).map_bytes
+    calls = []
+    real = annotate.check_not_processed
+    monkeypatch.setattr(annotate, "check_not_processed", lambda d, s: (calls.append(s), real(d, s)))
+    annotate.annotate_file(g, tmp_path / "a.gcode", bm, Settings())
+    assert len(calls) == (0 if compiled else 1)
+    text = g.read_text().splitlines(keepends=True)
+    custom = tmp_path / "custom.gcode"
+    # an M721 in the middle, and no outer-wall comments: the M721 is named, not the comments
+    custom.write_text("".join(l.replace("External perimeter", "Perimeter")
+                              for l in text[:50] + ["N7 M721 X\n"] + text[50:]))
+    with pytest.raises(GcodeError, match=r"custom\.gcode:51: 'N7 M721 X'.*bulge twice"):
+        annotate.annotate_file(custom, tmp_path / "o.gcode", bm, Settings())
+    # a line no parser reads, and no outer-wall comments: annotate's own finding first
+    bad = tmp_path / "bad.gcode"
+    bad.write_text("".join(l.replace("External perimeter", "Perimeter")
+                           for l in text[:50] + ["G1 X1O Y2\n"] + text[50:]))
+    with pytest.raises(AnnotateError, match="none marks the outer wall"):
+        annotate.annotate_file(bad, tmp_path / "o.gcode", bm, Settings())
+    bad.write_text("".join(text[:50] + ["G1 X1O Y2\n"] + text[50:]))
+    with pytest.raises(GcodeError, match=r"bad\.gcode:51: unparsable value 'X1O'"):
+        annotate.annotate_file(bad, tmp_path / "o.gcode", bm, Settings())
+    assert not (tmp_path / "o.gcode").exists()
