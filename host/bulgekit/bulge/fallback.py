@@ -466,16 +466,17 @@ class Skipper:
             self.top_z = z if self.top_z is None else max(self.top_z, z)
         null = ~moved & (a["z0"] == a["z1"]) & (e == 0)
         mode = self.p.s.mode
-        if mode == MODE_OFF or len(self.pz) == 0:
-            cand = np.zeros(len(a), bool)
-        else:
-            f = np.float32
-            cand = (e.astype(f) > 0) & ((x0.astype(f) != x1.astype(f)) | (y0.astype(f) != y1.astype(f)))
+        ci = np.empty(0, np.intp)
+        if mode != MODE_OFF and len(self.pz):
+            # moves that extrude in XY in double (ext) hold every one that does in float32
+            pre = ext & seen
             if mode == MODE_MARKED:
-                cand &= (a["flags"] & movescan.OUTER) != 0
-            cand &= seen
+                pre &= (a["flags"] & movescan.OUTER) != 0
+            ci = np.flatnonzero(pre)
+            f = np.float32
+            ci = ci[(e[ci].astype(f) > 0) & ((x0[ci].astype(f) != x1[ci].astype(f))
+                                             | (y0[ci].astype(f) != y1[ci].astype(f)))]
         pick = np.zeros(len(a), bool)
-        ci = np.flatnonzero(cand)
         if len(ci):
             zc = movescan.z_cmm(a["z1"][ci])
             prev = np.concatenate([[self.last_zc if self.last_zc is not None else zc[0] + 1], zc[:-1]])
