@@ -56,8 +56,25 @@ def _line_start(data: bytes, pos: int) -> int:
     return data.rfind(b"\n", 0, pos) + 1
 
 
+def _scanner():
+    from ..gcode import movescan
+    return movescan._scan
+
+
 def _feature_comments(data: bytes):
-    """(end of line offset, role) of every whole-line feature comment."""
+    """(end of line offset, role) of every whole-line feature comment: the compiled scanner
+    finds the lines (_scan.feature_lines), else the regular expression."""
+    sc = _scanner()
+    if sc is None:
+        yield from _feature_comments_rx(data)
+        return
+    for end, comment in sc.feature_lines(data):
+        role = feature_of_comment(comment.decode("utf-8", "replace"))
+        if role is not None:
+            yield end, role
+
+
+def _feature_comments_rx(data: bytes):
     for mt in _FEATURE_RX.finditer(data):
         ls = _line_start(data, mt.start())
         if data[ls:mt.start()].strip(b" \t"):
@@ -84,7 +101,13 @@ def _record_bytes(bm: mapformat.BulgeMap) -> list[bytes]:
 
 def _z_events(data: bytes):
     """[(offset, z_cmm)] for each G0/G1 Z move followed by XY extrusion
-    before the next Z move (real layer changes; z-hops are skipped)."""
+    before the next Z move (real layer changes; z-hops are skipped): from the compiled
+    scanner (_scan.z_events, the same in C), else the regular expressions."""
+    sc = _scanner()
+    return _z_events_rx(data) if sc is None else sc.z_events(data)
+
+
+def _z_events_rx(data: bytes):
     # G90/G91 switch Z between absolute and relative (end G-code often lifts
     # with G91 / G1 Z10 / G90)
     modes = [(m.start(), m.group(1) == b"0") for m in _G9X_RX.finditer(data)

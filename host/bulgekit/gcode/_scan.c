@@ -597,8 +597,201 @@ static PyTypeObject ScannerType = {
     .tp_getset = Scanner_getset,
 };
 
+/* ---- annotate's line marks (bulge/annotate.py: _feature_comments, _z_events) ----
+ * The same lines annotate's regular expressions find, in one pass in C. Lines end at '\n' only
+ * (as the regexes' [^\n]); blanks are ' ' and '\t' (their [ \t]). annotate.py keeps the regexes
+ * as the fallback, and host/tests/bulge/test_annotate.py checks both give the same on every
+ * test file and on odd and random lines. */
+
+/* _MOVE_HEAD, [ \t]*G0?[01][ \t], at p: where the words start, or -1. */
+static Py_ssize_t move_head(const char *d, Py_ssize_t p, Py_ssize_t n) {
+    while (p < n && (d[p] == ' ' || d[p] == '\t')) p++;
+    if (p >= n || d[p] != 'G') return -1;
+    p++;
+    if (p + 2 < n && d[p] == '0' && (d[p + 1] == '0' || d[p + 1] == '1') &&
+        (d[p + 2] == ' ' || d[p + 2] == '\t'))
+        return p + 3;
+    if (p + 1 < n && (d[p] == '0' || d[p] == '1') && (d[p + 1] == ' ' || d[p + 1] == '\t'))
+        return p + 2;
+    return -1;
+}
+
+static const char *const FEATURE_WORDS[] = {
+    "TYPE:", "FEATURE:", "outer perimeter", "inner perimeter", "infill", "solid layer", "support",
+    "dense support", "skirt", "raft", "bridge", "gap fill", "prime pillar", "ooze shield", NULL};
+
+/* feature_lines(data) -> [(end, comment)]: every line whose first byte other than ' ' and '\t'
+ * is ';' followed by blanks and a feature word (_FEATURE_RX); end: its '\n' (or the data's end),
+ * comment: the bytes after the ';' up to end, for gcode.feature_of_comment. */
+static PyObject *feature_lines(PyObject *self, PyObject *args) {
+    (void)self;
+    Py_buffer buf;
+    if (!PyArg_ParseTuple(args, "y*", &buf)) return NULL;
+    const char *d = buf.buf;
+    Py_ssize_t n = buf.len, ls = 0;
+    PyObject *out = PyList_New(0);
+    while (out && ls <= n) {
+        const char *nl = ls < n ? memchr(d + ls, '\n', (size_t)(n - ls)) : NULL;
+        Py_ssize_t le = nl ? nl - d : n;
+        Py_ssize_t p = ls;
+        while (p < le && (d[p] == ' ' || d[p] == '\t')) p++;
+        if (p < le && d[p] == ';') {
+            Py_ssize_t q = p + 1;
+            while (q < le && (d[q] == ' ' || d[q] == '\t')) q++;
+            for (int k = 0; FEATURE_WORDS[k]; k++) {
+                size_t l = strlen(FEATURE_WORDS[k]);
+                if ((size_t)(le - q) >= l && memcmp(d + q, FEATURE_WORDS[k], l) == 0) {
+                    PyObject *t = Py_BuildValue("(ny#)", le, d + p + 1, le - p - 1);
+                    if (!t || PyList_Append(out, t) < 0) Py_CLEAR(out);
+                    Py_XDECREF(t);
+                    break;
+                }
+            }
+        }
+        if (!nl) break;
+        ls = le + 1;
+    }
+    PyBuffer_Release(&buf);
+    return out;
+}
+
+static int is_word(char c) {
+    return (c >= '0' && c <= '9') || (c >= 'A' && c <= 'Z') || (c >= 'a' && c <= 'z') || c == '_';
+}
+
+typedef struct { Py_ssize_t start, end; double z; } ZLine;
+
+/* z_events(data) -> [(offset, z in 0.01 mm)]: annotate._z_events. Each Z word (_Z_RX:
+ * Z[ \t]*[-+]?[0-9]*\.?[0-9]+) before any ';' of a G0/G1 line sets z (added to it under G91;
+ * G90/G91 at a line's start switch); such a line is a layer change when it, or a line after it
+ * and before the next one, extrudes in XY, and its z in 0.01 mm (round(), half to even)
+ * differs from the last layer change's. */
+static PyObject *z_events(PyObject *self, PyObject *args) {
+    (void)self;
+    Py_buffer buf;
+    if (!PyArg_ParseTuple(args, "y*", &buf)) return NULL;
+    const char *d = buf.buf;
+    Py_ssize_t n = buf.len, ls = 0, h;
+    ZLine *zl = NULL;
+    Py_ssize_t nz = 0, cz = 0;
+    Py_ssize_t *ext = NULL;             /* starts of the lines that extrude, in order */
+    Py_ssize_t ne = 0, ce = 0;
+    int absolute = 1, failed = 0;
+    double z = 0.0;
+    char small[64];
+    while (ls <= n && !failed) {
+        const char *nl = ls < n ? memchr(d + ls, '\n', (size_t)(n - ls)) : NULL;
+        Py_ssize_t le = nl ? nl - d : n;
+        Py_ssize_t p = ls;
+        while (p < le && (d[p] == ' ' || d[p] == '\t')) p++;
+        if (p + 2 < n && d[p] == 'G' && d[p + 1] == '9' && (d[p + 2] == '0' || d[p + 2] == '1') &&
+            (p + 3 >= n || !is_word(d[p + 3]))) {
+            absolute = d[p + 2] == '0';
+        } else if ((h = move_head(d, ls, n)) >= 0) {
+            /* one walk to the ';' or line end: X/Y and E (_EXTRUDE_RX), and the Z words */
+            int xy = 0, e = 0;
+            for (Py_ssize_t zp = h; zp < le && d[zp] != ';'; zp++) {
+                char c = d[zp];
+                if (c == 'X' || c == 'Y') { xy = 1; continue; }
+                if (c == 'E') { e = 1; continue; }
+                if (c != 'Z') continue;
+                Py_ssize_t q = zp + 1;
+                while (q < n && (d[q] == ' ' || d[q] == '\t')) q++;
+                Py_ssize_t ns = q;
+                if (q < n && (d[q] == '-' || d[q] == '+')) q++;
+                Py_ssize_t d1 = q;
+                while (q < n && d[q] >= '0' && d[q] <= '9') q++;
+                if (q + 1 < n && d[q] == '.' && d[q + 1] >= '0' && d[q + 1] <= '9') {
+                    q++;
+                    while (q < n && d[q] >= '0' && d[q] <= '9') q++;
+                } else if (q == d1) {
+                    continue;                      /* no number: not a Z word */
+                }
+                char *num = small;
+                if (q - ns >= (Py_ssize_t)sizeof small) {
+                    num = PyMem_Malloc((size_t)(q - ns + 1));
+                    if (!num) { failed = 1; break; }
+                }
+                memcpy(num, d + ns, (size_t)(q - ns));
+                num[q - ns] = 0;
+                double v = PyOS_string_to_double(num, NULL, NULL);   /* float()'s own */
+                if (num != small) PyMem_Free(num);
+                if (v == -1.0 && PyErr_Occurred()) { failed = 1; break; }
+                z = absolute ? v : z + v;
+                if (nz == cz) {
+                    cz = cz ? 2 * cz : 1024;
+                    ZLine *t = PyMem_Realloc(zl, (size_t)cz * sizeof *t);
+                    if (!t) { failed = 1; break; }
+                    zl = t;
+                }
+                zl[nz].start = ls;
+                zl[nz].end = q;
+                zl[nz].z = z;
+                nz++;
+                zp = q - 1;                        /* the number holds no X, Y, E, Z or ';' */
+            }
+            if (xy && e && !failed) {
+                if (ne == ce) {
+                    ce = ce ? 2 * ce : 1024;
+                    Py_ssize_t *t = PyMem_Realloc(ext, (size_t)ce * sizeof *t);
+                    if (!t) { failed = 1; break; }
+                    ext = t;
+                }
+                ext[ne++] = ls;
+            }
+        }
+        if (!nl) break;
+        ls = le + 1;
+    }
+    PyObject *out = failed ? NULL : PyList_New(0);
+    if (failed && !PyErr_Occurred()) PyErr_NoMemory();
+    Py_ssize_t ei = 0;
+    PyObject *last = NULL;                     /* the last layer change's z in 0.01 mm */
+    for (Py_ssize_t k = 0; out && k < nz; k++) {
+        Py_ssize_t start = zl[k].start, end = zl[k].end;
+        Py_ssize_t stop = k + 1 < nz ? zl[k + 1].start : n;
+        /* the Z line itself (a line the data starts with is not: the regex wants a '\n' first) */
+        while (ei < ne && ext[ei] < start) ei++;
+        int layer = start > 0 && ei < ne && ext[ei] == start;
+        if (!layer) {                          /* or a line starting after end, before stop */
+            Py_ssize_t j = ei;
+            while (j < ne && ext[j] <= end) j++;
+            layer = j < ne && ext[j] < stop;
+        }
+        if (!layer) continue;
+        double x = zl[k].z * 100;
+        PyObject *zc;
+        if (fabs(x) < 4e15) {
+            zc = PyLong_FromLongLong((long long)rint(x));   /* round(): half to even */
+        } else {                               /* huge, inf or nan: Python's round() says */
+            PyObject *f = PyFloat_FromDouble(x);
+            zc = f ? PyObject_CallMethod(f, "__round__", NULL) : NULL;
+            Py_XDECREF(f);
+        }
+        int same = zc && last ? PyObject_RichCompareBool(zc, last, Py_EQ) : 0;
+        if (!zc || same < 0) { Py_XDECREF(zc); Py_CLEAR(out); break; }
+        if (same) { Py_DECREF(zc); continue; }
+        Py_XSETREF(last, zc);
+        PyObject *t = Py_BuildValue("(nO)", start, zc);
+        if (!t || PyList_Append(out, t) < 0) Py_CLEAR(out);
+        Py_XDECREF(t);
+    }
+    Py_XDECREF(last);
+    PyMem_Free(zl);
+    PyMem_Free(ext);
+    PyBuffer_Release(&buf);
+    return out;
+}
+
+static PyMethodDef module_methods[] = {
+    {"feature_lines", feature_lines, METH_VARARGS,
+     "feature_lines(data) -> [(end, comment)]: annotate's feature comment lines"},
+    {"z_events", z_events, METH_VARARGS,
+     "z_events(data) -> [(offset, z_cmm)]: annotate's layer changes"},
+    {NULL, NULL, 0, NULL}};
+
 static struct PyModuleDef scan_module = {
-    PyModuleDef_HEAD_INIT, "_scan", "G-code move scanner (C)", -1, NULL, NULL, NULL, NULL, NULL};
+    PyModuleDef_HEAD_INIT, "_scan", "G-code move scanner (C)", -1, module_methods, NULL, NULL, NULL, NULL};
 
 PyMODINIT_FUNC PyInit__scan(void) {
     if (PyType_Ready(&ScannerType) < 0) return NULL;
