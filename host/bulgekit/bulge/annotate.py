@@ -145,6 +145,13 @@ def _z_events_rx(data: bytes):
 def annotate_bytes(data: bytes, map_bytes: bytes, settings: Settings,
                    arena: int = ARENA_BYTES, stream: bool = True, source: str = "<gcode>",
                    result: AnnotateResult | None = None) -> bytes:
+    return b"".join(_annotated(data, map_bytes, settings, arena, stream, source, result))
+
+
+def _annotated(data: bytes, map_bytes: bytes, settings: Settings, arena: int, stream: bool,
+               source: str, result: AnnotateResult | None) -> list:
+    """annotate_bytes' output as pieces: slices of data (memoryviews, not copies) with the
+    inserted lines between them, to be joined or written one after the other."""
     res = result if result is not None else AnnotateResult()
     bm = mapformat.decode_map(map_bytes, source="map")
     geometric = settings.mode == MODE_GEOMETRIC
@@ -255,13 +262,14 @@ def annotate_bytes(data: bytes, map_bytes: bytes, settings: Settings,
     inserts.sort(key=lambda t: (t[0], t[1]))
     parts = []
     pos = 0
+    view = memoryview(data)
     for off, _, txt in inserts:
-        parts.append(data[pos:off])
+        parts.append(view[pos:off])
         parts.append(txt)
         res.lines_added += txt.count(b"\n")
         pos = off
-    parts.append(data[pos:])
-    return b"".join(parts)
+    parts.append(view[pos:])
+    return parts
 
 
 def check_reach(gcode, map_bytes: bytes, settings: Settings, source: str) -> str | None:
@@ -309,7 +317,7 @@ def annotate_file(src, dst, map_bytes: bytes, settings: Settings, arena: int = A
     if not kept and flagged != 0:
         check_not_processed(data, str(src))
     res = AnnotateResult()
-    out = annotate_bytes(data, map_bytes, settings, arena, stream, str(src), res)
+    out = _annotated(data, map_bytes, settings, arena, stream, str(src), res)
     if failed is not None:
         raise failed
     if check:
@@ -318,5 +326,5 @@ def annotate_file(src, dst, map_bytes: bytes, settings: Settings, arena: int = A
         if msg:
             res.notes.append(msg)
     with open(dst, "wb") as f:
-        f.write(out)
+        f.writelines(out)                     # the file's own bytes between the lines added
     return res
