@@ -454,28 +454,21 @@ class Skipper:
 
     def select(self, a: np.ndarray) -> np.ndarray:
         """Indices into the RECORD array a (one chunk, in file order) to plan."""
-        x0, y0, x1, y1, e = a["x0"], a["y0"], a["x1"], a["y1"], a["e"]
-        moved = (x0 != x1) | (y0 != y1)
-        ext = (e > 0) & moved
-        seen = np.ones(len(a), bool)            # moves the planner sees
+        c, top, top_line = movescan.classes(a)      # (one pass over the records)
         if self.arcs_bypass:
-            seen = (a["flags"] & movescan.ARC) == 0
-            ext &= seen
-        if ext.any():
-            z = float(a["z1"][ext].max())
-            self.top_z = z if self.top_z is None else max(self.top_z, z)
-        null = ~moved & (a["z0"] == a["z1"]) & (e == 0)
+            seen = (c & movescan.ARC) == 0          # moves the planner sees
+            top = top_line
+        else:
+            seen = np.ones(len(a), bool)
+        if top is not None:
+            self.top_z = top if self.top_z is None else max(self.top_z, top)
+        null = (c & movescan.NULL) != 0
         mode = self.p.s.mode
         ci = np.empty(0, np.intp)
         if mode != MODE_OFF and len(self.pz):
-            # moves that extrude in XY in double (ext) hold every one that does in float32
-            pre = ext & seen
-            if mode == MODE_MARKED:
-                pre &= (a["flags"] & movescan.OUTER) != 0
-            ci = np.flatnonzero(pre)
-            f = np.float32
-            ci = ci[(e[ci].astype(f) > 0) & ((x0[ci].astype(f) != x1[ci].astype(f))
-                                             | (y0[ci].astype(f) != y1[ci].astype(f)))]
+            # candidates: extruding in XY in float32, in the outer wall in marked mode
+            want = movescan.EXTRUDES_F32 | (movescan.OUTER if mode == MODE_MARKED else 0)
+            ci = np.flatnonzero(((c & want) == want) & seen)
         pick = np.zeros(len(a), bool)
         if len(ci):
             zc = movescan.z_cmm(a["z1"][ci])

@@ -253,11 +253,11 @@ def walls_from_records(chunks: Iterable[np.ndarray], layer_height: float | None 
     last_was_break = False
     done = 0                                   # moves before this chunk
     for a in chunks:
-        x0, y0, x1, y1, e = a["x0"], a["y0"], a["x1"], a["y1"], a["e"]
-        outer = (a["flags"] & movescan.OUTER) != 0
+        c, _, _ = movescan.classes(a)          # (one pass over the records)
+        outer = (c & movescan.OUTER) != 0
         any_outer = any_outer or bool(outer.any())
-        moved = (x0 != x1) | (y0 != y1)
-        ok = (e > 0.0) & moved
+        moved = (c & movescan.MOVED) != 0
+        ok = (c & movescan.EXTRUDES) != 0       # e > 0, moving in XY
         if not geometric:
             ok &= outer
         other = ~ok & (moved | (~outer if not geometric else False))
@@ -267,13 +267,15 @@ def walls_from_records(chunks: Iterable[np.ndarray], layer_height: float | None 
         ev = ev[~is_brk | ~prev]                 # a run of breaks makes one row
         if len(ev):
             last_was_break = bool(other[ev[-1]])
-        rows = np.stack([x0[ev], y0[ev], x1[ev], y1[ev], a["z0"][ev], a["z1"][ev]], axis=1)
+        sub = a[ev]
+        rows = np.stack([sub["x0"], sub["y0"], sub["x1"], sub["y1"], sub["z0"], sub["z1"]], axis=1)
         brk = other[ev]
         rows[brk] = np.nan
         parts.append(rows)
         nums.append(np.where(brk, -1, ev + done))
-        flat = ok & (np.abs(a["z1"] - a["z0"]) < 1e-6)
-        planar_z.append(movescan.z_cmm(a["z1"][flat]))
+        ok_rows = sub[~brk]
+        flat = np.abs(ok_rows["z1"] - ok_rows["z0"]) < 1e-6
+        planar_z.append(movescan.z_cmm(ok_rows["z1"][flat]))
         done += len(a)
     if not geometric and not any_outer:
         raise WallError(

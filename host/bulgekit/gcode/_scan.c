@@ -783,11 +783,53 @@ static PyObject *z_events(PyObject *self, PyObject *args) {
     return out;
 }
 
+/* move_classes(records) -> (classes, top, top_not_arc): one byte per move record of what the
+ * passes ask of every move (movescan.classes, which says the bits and does the same in numpy
+ * without this module), read in one pass over the records rather than one per field; top: the
+ * highest z1 of the moves that extrude in XY (None: none), top_not_arc: of those not on an arc. */
+static PyObject *move_classes(PyObject *self, PyObject *args) {
+    (void)self;
+    Py_buffer buf;
+    if (!PyArg_ParseTuple(args, "y*", &buf)) return NULL;
+    Py_ssize_t n = buf.len / (Py_ssize_t)sizeof(Record);
+    PyObject *out = PyBytes_FromStringAndSize(NULL, n);
+    if (!out) { PyBuffer_Release(&buf); return NULL; }
+    unsigned char *c = (unsigned char *)PyBytes_AS_STRING(out);
+    const Record *r = buf.buf;              /* (numpy's records: aligned as this struct) */
+    double top = 0, top_line = 0;
+    int have = 0, have_line = 0;
+    for (Py_ssize_t i = 0; i < n; i++, r++) {
+        Record m;
+        memcpy(&m, r, sizeof m);
+        int moved = m.x0 != m.x1 || m.y0 != m.y1;
+        int ext = moved && m.e > 0;
+        unsigned char k = (unsigned char)(m.flags & 3);
+        if (moved) k |= 4;
+        if (ext) {
+            k |= 8;
+            /* numpy's max: a NaN wins */
+            if (!have || m.z1 > top || isnan(m.z1)) top = m.z1, have = 1;
+            if (!(m.flags & 2) && (!have_line || m.z1 > top_line || isnan(m.z1)))
+                top_line = m.z1, have_line = 1;
+        }
+        if (!moved && m.z0 == m.z1 && m.e == 0) k |= 16;
+        if ((float)m.e > 0 && ((float)m.x0 != (float)m.x1 || (float)m.y0 != (float)m.y1)) k |= 32;
+        c[i] = k;
+    }
+    PyBuffer_Release(&buf);
+    PyObject *t = have ? PyFloat_FromDouble(top) : Py_NewRef(Py_None);
+    PyObject *tl = have_line ? PyFloat_FromDouble(top_line) : Py_NewRef(Py_None);
+    if (!t || !tl) { Py_DECREF(out); Py_XDECREF(t); Py_XDECREF(tl); return NULL; }
+    return Py_BuildValue("(NNN)", out, t, tl);
+}
+
 static PyMethodDef module_methods[] = {
     {"feature_lines", feature_lines, METH_VARARGS,
      "feature_lines(data) -> [(end, comment)]: annotate's feature comment lines"},
     {"z_events", z_events, METH_VARARGS,
      "z_events(data) -> [(offset, z_cmm)]: annotate's layer changes"},
+    {"move_classes", move_classes, METH_VARARGS,
+     "move_classes(records) -> (classes, top, top_not_arc): see movescan.classes"},
     {NULL, NULL, 0, NULL}};
 
 static struct PyModuleDef scan_module = {

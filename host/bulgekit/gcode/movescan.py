@@ -42,6 +42,12 @@ ARC = 2                      # flags: a chord of a linearised G2/G3
 ABS_XYZ = 4                  # flags: G90 in force (else G91)
 ABS_E = 8                    # flags: absolute E in force (M82/G90; else M83/G91)
 
+# movescan.classes: one byte per move of what the passes ask of every move (OUTER and ARC as in flags)
+MOVED = 4                    # moves in XY (x0 != x1 or y0 != y1)
+EXTRUDES = 8                 # moves in XY with e > 0
+NULL = 16                    # moves nothing (no XY, no Z, no E)
+EXTRUDES_F32 = 32            # extrudes in XY in float32, as the firmware sees it (RefPlanner._eligible)
+
 CHUNK_BYTES = 2 << 20        # 2 MB of G-code: about 7 MB of records at a time
 T = TypeVar("T")
 
@@ -78,6 +84,33 @@ def z_cmm(z: np.ndarray) -> np.ndarray:
     (bulge_planner.cpp; fallback.RefPlanner._cmm and wall._z_cmm one at a time)."""
     v = (np.asarray(z).astype(np.float32) * np.float32(100.0)).astype(np.float64)
     return np.where(v >= 0, np.floor(v + 0.5), -np.floor(0.5 - v)).astype(np.int64)
+
+
+def classes(a: np.ndarray) -> tuple[np.ndarray, float | None, float | None]:
+    """The class bits of each move of a RECORD array (OUTER | ARC | MOVED | EXTRUDES | NULL |
+    EXTRUDES_F32), and the highest z1 of the moves that extrude in XY, and of those not on an
+    arc (None: none). From the compiled scanner in one pass over the records (the numpy way
+    reads the records' memory once per field); both the same (host/tests/gcode/test_movescan.py)."""
+    if _scan is not None:
+        c, top, top_line = _scan.move_classes(np.ascontiguousarray(a, dtype=RECORD))
+        return np.frombuffer(c, np.uint8), top, top_line
+    return _classes_np(a)
+
+
+def _classes_np(a: np.ndarray) -> tuple[np.ndarray, float | None, float | None]:
+    x0, y0, x1, y1, e, fl = a["x0"], a["y0"], a["x1"], a["y1"], a["e"], a["flags"]
+    moved = (x0 != x1) | (y0 != y1)
+    ext = (e > 0) & moved
+    null = ~moved & (a["z0"] == a["z1"]) & (e == 0)
+    f = np.float32
+    with np.errstate(over="ignore"):           # beyond float32: inf, as the C cast gives
+        ext32 = (e.astype(f) > 0) & ((x0.astype(f) != x1.astype(f)) | (y0.astype(f) != y1.astype(f)))
+    c = ((fl & (OUTER | ARC)) | (moved * MOVED) | (ext * EXTRUDES) | (null * NULL)
+         | (ext32 * EXTRUDES_F32)).astype(np.uint8)
+    line = ext & ((fl & ARC) == 0)
+    top = float(a["z1"][ext].max()) if ext.any() else None
+    top_line = float(a["z1"][line].max()) if line.any() else None
+    return c, top, top_line
 
 
 def available() -> bool:

@@ -195,3 +195,28 @@ def test_scanner_numbers_are_floats_bit_for_bit():
     text = "".join(f"G1 X{v} Y1\n" for v in vals).encode()
     got = movescan.run(text, lambda ch: np.concatenate(list(ch)), fast=True)["x1"]
     assert np.array_equal(got.view(np.uint64), np.array([float(v) for v in vals]).view(np.uint64))
+
+
+def test_move_classes_compiled_are_numpys():
+    """movescan.classes from the compiled scanner (one pass over the records) gives numpy's
+    bits and highest z to the bit, on every test file's moves and on edge values: coordinates
+    equal in float32 but not in double, an E that float32 rounds to 0, -0.0, inf, a NaN z."""
+    assert movescan.available()
+    arrays = [a.copy() for path in FILES for a in movescan.run(path, lambda ch: list(ch))]
+    rng = np.random.default_rng(26)
+    edge = np.zeros(4000, movescan.RECORD)
+    vals = np.array([0.0, -0.0, 1.0, 1.0 + 1e-12, 1e-46, -1e-46, 0.3, np.inf, -np.inf, 2.5, 1e39])
+    for k in ("x0", "y0", "z0", "x1", "y1", "z1", "e"):
+        edge[k] = rng.choice(vals, len(edge))
+    edge["z1"][rng.choice(len(edge), 5)] = np.nan
+    edge["flags"] = rng.integers(0, 16, len(edge))
+    arrays += [edge, edge[:0], edge[edge["e"] <= 0][:50]]
+    bits = 0
+    for a in arrays:
+        c, top, top_line = movescan.classes(a)
+        n, ntop, ntop_line = movescan._classes_np(a)
+        assert np.array_equal(c, n)
+        for x, y in ((top, ntop), (top_line, ntop_line)):
+            assert (x is None and y is None) or np.array(x).tobytes() == np.array(y).tobytes()
+        bits |= int(np.bitwise_or.reduce(c)) if len(c) else 0
+    assert bits == 63                               # every bit seen set
