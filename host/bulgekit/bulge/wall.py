@@ -154,14 +154,55 @@ def _signed_area(xy: np.ndarray) -> float:
     return 0.5 * float(np.dot(x, _next(y)) - np.dot(y, _next(x)))
 
 
-def _centroid(xy: np.ndarray) -> tuple[float, float]:
+def _area_centroid(xy: np.ndarray) -> tuple[float, tuple[float, float]]:
+    """_signed_area and the centroid of one polygon, the same operations on the same arrays, the
+    rolled columns made once."""
     x, y = xy[:, 0], xy[:, 1]
     xn, yn = _next(x), _next(y)
+    area = 0.5 * float(np.dot(x, yn) - np.dot(y, xn))
     cr = x * yn - xn * y
     a = cr.sum() / 2
     if abs(a) < 1e-12:
-        return float(x.mean()), float(y.mean())
-    return float(((x + xn) * cr).sum() / (6 * a)), float(((y + yn) * cr).sum() / (6 * a))
+        return area, (float(x.mean()), float(y.mean()))
+    return area, (float(((x + xn) * cr).sum() / (6 * a)), float(((y + yn) * cr).sum() / (6 * a)))
+
+
+def _ray_hits(xys: list, ss: list, cens: list, direction) -> list[float]:
+    """_ray_hit of many walls: the arithmetic per segment as there, for all of them at once
+    (a file has thousands of layers); per wall the crossing of greatest t (the first of equal
+    ones, as argmax), or _ray_hit's fallback."""
+    dx, dy = direction
+    nseg = np.array([len(xy) - 1 for xy in xys])
+    a = np.concatenate([xy[:-1] for xy in xys])
+    b = np.concatenate([xy[1:] for xy in xys])
+    cx = np.repeat([c[0] for c in cens], nseg)
+    cy = np.repeat([c[1] for c in cens], nseg)
+    ex = b[:, 0] - a[:, 0]
+    ey = b[:, 1] - a[:, 1]
+    den = dx * ey - dy * ex
+    wx = a[:, 0] - cx
+    wy = a[:, 1] - cy
+    ok = np.abs(den) > 1e-12
+    t = np.divide(wx * ey - wy * ex, den, out=np.zeros_like(den), where=ok)   # along the ray
+    w = np.divide(wx * dy - wy * dx, den, out=np.zeros_like(den), where=ok)   # along the segment
+    ok &= (t > 0) & (w >= 0) & (w <= 1)
+    wall = np.repeat(np.arange(len(xys)), nseg)
+    idx = np.flatnonzero(ok)
+    order = np.lexsort((idx, -t[idx], wall[idx]))       # per wall: greatest t, first index
+    first = idx[order]
+    hit_wall, at = np.unique(wall[first], return_index=True)
+    k = first[at]
+    start = np.concatenate([[0], np.cumsum(nseg)[:-1]])
+    j = k - start[hit_wall]                              # segment within its wall
+    s_all = np.concatenate(ss)
+    s_at = np.concatenate([[0], np.cumsum(nseg + 1)[:-1]])[hit_wall] + j
+    out = [None] * len(xys)
+    for i, v in zip(hit_wall.tolist(), (s_all[s_at] + w[k] * (s_all[s_at + 1] - s_all[s_at])).tolist()):
+        out[i] = v
+    for i in range(len(xys)):
+        if out[i] is None:
+            out[i] = _ray_hit(xys[i], ss[i], cens[i], direction)
+    return out
 
 
 def _ray_hit(xy: np.ndarray, s: np.ndarray, c, direction) -> float:
@@ -173,12 +214,12 @@ def _ray_hit(xy: np.ndarray, s: np.ndarray, c, direction) -> float:
     ex = b[:, 0] - a[:, 0]
     ey = b[:, 1] - a[:, 1]
     den = dx * ey - dy * ex
-    with np.errstate(divide="ignore", invalid="ignore"):
-        wx = a[:, 0] - cx
-        wy = a[:, 1] - cy
-        t = (wx * ey - wy * ex) / den            # along the ray
-        w = (wx * dy - wy * dx) / den            # along the segment
-    ok = (np.abs(den) > 1e-12) & (t > 0) & (w >= 0) & (w <= 1)
+    wx = a[:, 0] - cx
+    wy = a[:, 1] - cy
+    ok = np.abs(den) > 1e-12
+    t = np.divide(wx * ey - wy * ex, den, out=np.zeros_like(den), where=ok)   # along the ray
+    w = np.divide(wx * dy - wy * dx, den, out=np.zeros_like(den), where=ok)   # along the segment
+    ok &= (t > 0) & (w >= 0) & (w <= 1)
     if ok.any():
         idx = np.nonzero(ok)[0]
         k = idx[np.argmax(t[idx])]
@@ -362,20 +403,30 @@ def walls_from_records(chunks: Iterable[np.ndarray], layer_height: float | None 
     prev_z = None
     for b in sorted(chosen):
         best = chosen[b]
-        xy = np.array(best.pts, dtype=float)
-        seg = np.hypot(np.diff(xy[:, 0]), np.diff(xy[:, 1]))
-        s = np.concatenate([[0.0], np.cumsum(seg)])
-        area = _signed_area(xy)
-        cen = _centroid(xy)
+        r0, r1 = best.r0, best.r1
+        # (the arrays as before, with fewer numpy calls: thousands of layers)
+        xy = np.empty((r1 - r0 + 1, 2))
+        xy[0] = ends[r0, 0:2]
+        xy[1:] = ends[r0:r1, 2:4]
+        x = xy[:, 0]
+        y = xy[:, 1]
+        s = np.empty(len(xy))
+        s[0] = 0.0
+        np.cumsum(np.hypot(x[1:] - x[:-1], y[1:] - y[:-1]), out=s[1:])
+        area, cen = _area_centroid(xy)
         z = b / 100
         height = (z - prev_z) if prev_z is not None else min(z, h)
         if prev_z is not None and height > 1.5 * h:
             height = h  # a layer without wall in between
         prev_z = z
-        w = Wall(z=z, xy=xy, s=s, move_index=index[best.r0:best.r1].copy(), height=height,
+        w = Wall(z=z, xy=xy, s=s, move_index=index[r0:r1].copy(), height=height,
                  ccw=area >= 0, centroid=cen, closed=_closed(best, gap))
-        w.s_ref = _ray_hit(xy, s, cen, direction)
         walls.append(w)
+    for k in range(0, len(walls), 512):                 # (memory: 512 walls at a time)
+        part = walls[k:k + 512]
+        for w, ref in zip(part, _ray_hits([w.xy for w in part], [w.s for w in part],
+                                          [w.centroid for w in part], direction)):
+            w.s_ref = ref
     loops = [w for w in walls if w.closed]
     for w in walls:
         if not w.closed and loops:
