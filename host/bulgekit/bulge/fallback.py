@@ -1122,7 +1122,7 @@ def _rewrite_records(src, out, chunks, bmap: mapformat.BulgeMap, settings: Setti
 
     def emit_changed(a, done, planned):
         nonlocal pos
-        lines = a["line_no"]
+        lines = np.ascontiguousarray(a["line_no"])      # in file order: a line's moves by bisection
         seen = set()
         for i, (m, acts) in sorted(planned.items()):     # in file order, as rewrite() goes
             ln_no = int(lines[i])
@@ -1133,7 +1133,7 @@ def _rewrite_records(src, out, chunks, bmap: mapformat.BulgeMap, settings: Setti
                     sw.drop()
                 continue
             seen.add(ln_no)
-            idx = np.flatnonzero(lines == ln_no)      # the line's moves (an arc's chords)
+            idx = np.arange(*np.searchsorted(lines, [ln_no, ln_no + 1]))   # the line's moves (an arc's chords)
             r0 = a[idx[0]]
             start = int(r0["offset"])
             out.write(src.read(start - pos))

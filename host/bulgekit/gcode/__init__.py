@@ -473,6 +473,9 @@ def scan_m92(path) -> list[tuple[int, float]]:
         except ValueError:                    # an empty file
             return out
         with data:
+            # might_hold's quick look first: the regex, at every line start, is far slower
+            if not any(data.find(w) >= 0 for w in (b"M92", b"m92", b"M0", b"m0")):
+                return out
             line, pos = 1, 0
             for mt in _M92_RX.finditer(data):
                 line += data[pos:mt.start()].count(b"\n")     # (mmap has no count before 3.13)
@@ -485,8 +488,11 @@ def scan_m92(path) -> list[tuple[int, float]]:
 
 def _plain_lines(data) -> bool:
     """rewrite_file's byte path needs \n or \r\n line ends and UTF-8 (else rewrite() runs)."""
-    if data.count(b"\r") != data.count(b"\r\n"):
+    n_cr = data.count(b"\r")
+    if n_cr and n_cr != data.count(b"\r\n"):
         return False
+    if data.isascii():                                # (ASCII is UTF-8: no decoding needed)
+        return True
     import codecs
     dec = codecs.getincrementaldecoder("utf-8")()
     try:
