@@ -371,8 +371,22 @@ def might_hold(data: bytes, words) -> bool:
     return any(w in data for w in words) or b"M0" in data or b"m0" in data
 
 
+def _flag_counts(data) -> tuple[int, int] | None:
+    """(ours, m92): how many lines of data (bytes, mmap) _OURS_RX and _M92_RX may match, counted
+    by the compiled scanner in one pass (_scan.flag_lines, a superset: the regexes decide); None
+    without it. A count of 0: the regex, at every line start, need not run."""
+    try:
+        from . import _scan
+    except ImportError:
+        return None
+    return _scan.flag_lines(data)
+
+
 def _refuse_processed(data: bytes, source: str, lines_before: int, at: int = 0) -> None:
     """check_not_processed on a file's whole lines from `data[at]`, `lines_before` lines in."""
+    counts = _flag_counts(data)
+    if counts is not None and counts[0] == 0:
+        return
     if not might_hold(data, (b"; bulgekit", b"M72", b"m72")):
         return
     mt = _OURS_RX.search(data, at)
@@ -473,8 +487,11 @@ def scan_m92(path) -> list[tuple[int, float]]:
         except ValueError:                    # an empty file
             return out
         with data:
-            # might_hold's quick look first: the regex, at every line start, is far slower
-            if not any(data.find(w) >= 0 for w in (b"M92", b"m92", b"M0", b"m0")):
+            # a quick look first: the regex, at every line start, is far slower
+            counts = _flag_counts(data)
+            if counts is not None and counts[1] == 0:
+                return out
+            if not any(data.find(w) >= 0 for w in (b"M92", b"m92", b"M0", b"m0")):   # (might_hold)
                 return out
             line, pos = 1, 0
             for mt in _M92_RX.finditer(data):

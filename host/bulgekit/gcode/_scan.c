@@ -823,11 +823,52 @@ static PyObject *move_classes(PyObject *self, PyObject *args) {
     return Py_BuildValue("(NNN)", out, t, tl);
 }
 
+/* flag_lines(data) -> (ours, m92): the lines of data (split as feed() splits them) that
+ * gcode.check_not_processed's regex (a comment starting "; bulgekit", an M0...72x) and
+ * scan_m92's (an M0...92) may match, by flag()'s look at each line start: supersets, so that
+ * with a count of 0 the regex need not run over the file (gcode._flag_counts). */
+static PyObject *flag_lines(PyObject *self, PyObject *args) {
+    (void)self;
+    Py_buffer buf;
+    if (!PyArg_ParseTuple(args, "y*", &buf)) return NULL;
+    const char *p = buf.buf, *end = p + buf.len;
+    long ours = 0, m92 = 0;
+    while (p < end) {
+        const char *q = p;
+        while (q < end && *q != '\n' && *q != '\r') q++;
+        const char *a = p, *b = q;
+        while (a < b && is_ws((unsigned char)*a)) a++;
+        if (a < b) {
+            if (*a == ';') {
+                if (b - a >= 10 && memcmp(a, "; bulgekit", 10) == 0) ours++;
+            } else {
+                if (*a == 'N' || *a == 'n') {
+                    while (a < b && !is_ws((unsigned char)*a)) a++;
+                    while (a < b && is_ws((unsigned char)*a)) a++;
+                }
+                if (a < b && (*a == 'M' || *a == 'm')) {
+                    a++;
+                    while (a < b && *a == '0') a++;
+                    if (b - a >= 2 && a[1] == '2') {
+                        if (a[0] == '7') ours++;
+                        else if (a[0] == '9') m92++;
+                    }
+                }
+            }
+        }
+        p = q < end ? q + 1 : q;
+    }
+    PyBuffer_Release(&buf);
+    return Py_BuildValue("(ll)", ours, m92);
+}
+
 static PyMethodDef module_methods[] = {
     {"feature_lines", feature_lines, METH_VARARGS,
      "feature_lines(data) -> [(end, comment)]: annotate's feature comment lines"},
     {"z_events", z_events, METH_VARARGS,
      "z_events(data) -> [(offset, z_cmm)]: annotate's layer changes"},
+    {"flag_lines", flag_lines, METH_VARARGS,
+     "flag_lines(data) -> (ours, m92): lines check_not_processed's / scan_m92's regexes may match"},
     {"move_classes", move_classes, METH_VARARGS,
      "move_classes(records) -> (classes, top, top_not_arc): see movescan.classes"},
     {NULL, NULL, 0, NULL}};
