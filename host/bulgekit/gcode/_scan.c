@@ -54,6 +54,7 @@ typedef struct {
     int events;        /* gcode/estimate.py's mode: see event_line() */
     int quiet;         /* the line is an event: its moves change the state, no records */
     long flagged;      /* lines that may be gcode.check_not_processed's or an M92 (see flag()) */
+    long long n_lf, n_cr, n_crlf;   /* line-end bytes consumed: '\n', '\r', "\r\n" pairs */
     /* output */
     Record *out;
     Py_ssize_t n, cap;
@@ -484,8 +485,10 @@ static PyObject *Scanner_feed(Scanner *s, PyObject *args) {
     const char *p = buf.buf, *end = p + buf.len;
     s->n = 0;
     s->base = p;
-    if (s->pending_cr && p < end && *p == '\n') p++;
-    s->pending_cr = 0;
+    if (p < end) {                         /* (an empty feed keeps the pending '\r') */
+        if (s->pending_cr && *p == '\n') { p++; s->n_lf++; s->n_crlf++; }
+        s->pending_cr = 0;
+    }
     const char *used = p;
     while (p < end) {
         const char *q = p;
@@ -495,8 +498,11 @@ static PyObject *Scanner_feed(Scanner *s, PyObject *args) {
         if (do_line(s, p, q) < 0) { PyBuffer_Release(&buf); return NULL; }
         if (q < end) {
             if (*q == '\r') {
-                if (q + 1 < end) { if (q[1] == '\n') q++; }
+                s->n_cr++;
+                if (q + 1 < end) { if (q[1] == '\n') { q++; s->n_lf++; s->n_crlf++; } }
                 else if (!final) s->pending_cr = 1;
+            } else {
+                s->n_lf++;
             }
             q++;
         }
@@ -521,6 +527,7 @@ static int Scanner_init(Scanner *s, PyObject *args, PyObject *kw) {
     s->events = events;
     s->quiet = 0;
     s->flagged = 0;
+    s->n_lf = s->n_cr = s->n_crlf = 0;
     s->x = s->y = s->z = s->e = 0.0;
     s->f = 1500.0;
     s->abs_xyz = s->abs_e = 1;
@@ -567,6 +574,11 @@ static PyObject *Scanner_flagged(Scanner *s, void *c) {
     return PyLong_FromLong(s->flagged);
 }
 
+static PyObject *Scanner_line_ends(Scanner *s, void *c) {
+    (void)c;
+    return Py_BuildValue("(LLL)", s->n_lf, s->n_cr, s->n_crlf);
+}
+
 static PyObject *Scanner_e(Scanner *s, void *c) {
     (void)c;
     return PyFloat_FromDouble(s->e);
@@ -582,6 +594,8 @@ static PyGetSetDef Scanner_getset[] = {
     {"lines", (getter)Scanner_lines, NULL, "lines scanned so far", NULL},
     {"e", (getter)Scanner_e, NULL, "E position after the lines scanned so far", NULL},
     {"flagged", (getter)Scanner_flagged, NULL, "lines so far that may be bulgekit's or an M92", NULL},
+    {"line_ends", (getter)Scanner_line_ends, NULL,
+     "(\\n, \\r, \\r\\n) bytes and pairs so far: bytes.count's of the data consumed", NULL},
     {NULL, NULL, NULL, NULL, NULL}};
 
 static PyTypeObject ScannerType = {

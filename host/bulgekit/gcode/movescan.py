@@ -250,29 +250,37 @@ class Scan:
                 buf = buf + data if buf else data
                 used = len(buf)
                 look = True                            # whether the part may hold what the regexes find
+                ends = None                            # the part's line ends, counted by the scanner
                 if sc is not None:
-                    flagged = sc.flagged
+                    flagged, ends0 = sc.flagged, sc.line_ends
                     try:
                         recs, used = sc.feed(buf, final, base)
+                        # (a line with a byte >= 0x80 is flagged too: an unflagged part is ASCII)
                         look = sc.flagged != flagged
                     except _scan.ScanUnsupported:
                         sc, self.fast = None, False        # the Python parser does it below
                     else:
+                        ends = [b - a for a, b in zip(ends0, sc.line_ends)]
                         if recs:
                             self._store.write(recs)
                         self.chunks.append((len(recs) // RECORD.itemsize, sc.lines))
                         progress.tick(sc.lines)
                 if sc is None and not final:           # checks only: whole lines still
                     used = buf.rfind(b"\n") + 1
-                part = buf[:used]
+                part = buf[:used] if look or ends is None else None
                 # the checks, on whole lines (a \r\n cut between two parts counted once)
                 # (a part after a lone \r does not start a line for the regexes' ^, as in one piece)
                 at = 0 if not last or last == b"\n" else 1
                 if look:
                     gcode._refuse_processed(part, self.source, nl, at)
-                n_cr += part.count(b"\r")
-                n_crlf += part.count(b"\r\n") + (last[-1:] == b"\r" and part[:1] == b"\n")
-                if plain and not part.isascii():
+                if ends is not None:
+                    d_nl, d_cr, d_crlf = ends
+                else:
+                    d_nl, d_cr = part.count(b"\n"), part.count(b"\r")
+                    d_crlf = part.count(b"\r\n") + (last[-1:] == b"\r" and part[:1] == b"\n")
+                n_cr += d_cr
+                n_crlf += d_crlf
+                if plain and part is not None and not part.isascii():
                     try:                               # parts end at line ends: no character cut
                         part.decode("utf-8")
                     except UnicodeDecodeError:
@@ -282,9 +290,9 @@ class Scan:
                         e = gcode._m92_e(mt.group(1))
                         if e is not None:
                             self.m92.append((nl + part.count(b"\n", 0, mt.start()) + 1, e))
-                nl += part.count(b"\n")
-                if part:
-                    last = part[-1:]
+                nl += d_nl
+                if used:
+                    last = buf[used - 1:used]
                 base += used
                 buf = buf[used:]
                 if final:

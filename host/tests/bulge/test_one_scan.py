@@ -50,6 +50,7 @@ def test_build_opens_the_file_three_times_and_scans_it_once(tmp_path, monkeypatc
             roles = property(lambda self: self._s.roles)
             lines = property(lambda self: self._s.lines)
             flagged = property(lambda self: self._s.flagged)
+            line_ends = property(lambda self: self._s.line_ends)
 
         class Proxy:
             Scanner = Counting

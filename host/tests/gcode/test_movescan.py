@@ -220,3 +220,30 @@ def test_move_classes_compiled_are_numpys():
             assert (x is None and y is None) or np.array(x).tobytes() == np.array(y).tobytes()
         bits |= int(np.bitwise_or.reduce(c)) if len(c) else 0
     assert bits == 63                               # every bit seen set
+
+
+def test_scanner_counts_the_line_ends_it_consumes():
+    """Scanner.line_ends, which Scan takes in place of counting each part's bytes, is bytes.count
+    of \\n, \\r and \\r\\n over what feed() consumed, a \\r\\n cut between two feeds counted once."""
+    from bulgekit import gcode
+    rng = random.Random(26)
+    for trial in range(200):
+        data = b"".join(rng.choice([b"G1 X1 E1", b"; c", b"", b"M83"]) + rng.choice([b"\n", b"\r\n", b"\r"])
+                        for _ in range(rng.randint(0, 30)))
+        if trial % 3 == 0:
+            data += b"G1 X2"                                   # no line end at the end
+        sc = movescan._scan.Scanner(sorted(gcode.OUTER_ROLES), sorted(gcode._S3D_ROLES),
+                                    movescan._classify, gcode.ARC_CHORD_MM)
+        buf, pos = b"", 0
+        while True:
+            step = rng.randint(0, 9)
+            piece = data[pos:pos + step]
+            pos += len(piece)
+            final = pos >= len(data) and (step > 0 or rng.random() < 0.5)
+            buf += piece
+            _, used = sc.feed(buf, final)
+            consumed = buf[:used]
+            buf = buf[used:]
+            if final:
+                break
+        assert sc.line_ends == (data.count(b"\n"), data.count(b"\r"), data.count(b"\r\n")), data
