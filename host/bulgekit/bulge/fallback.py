@@ -475,12 +475,12 @@ class Skipper:
             prev = np.concatenate([[self.last_zc if self.last_zc is not None else zc[0] + 1], zc[:-1]])
             # a new z with no map layer within half a layer height cannot load or switch the
             # window (_find finds nothing, whatever the floor): planned, it would only miss
-            change = zc != prev
-            lo = np.searchsorted(self.lz, zc - self.lh / 2, side="left")
-            hi = np.searchsorted(self.lz, zc + self.lh / 2, side="right")
-            pick[ci[change & (hi > lo)]] = True
+            change = np.flatnonzero(zc != prev)
+            lo = np.searchsorted(self.lz, zc[change] - self.lh / 2, side="left")
+            hi = np.searchsorted(self.lz, zc[change] + self.lh / 2, side="right")
+            pick[ci[change[hi > lo]]] = True
             self.last_zc = int(zc[-1])
-            pick[ci[self._near(a[ci], zc)]] = True
+            pick[ci[self._near(a, ci, zc)]] = True
         # the first moving move after each picked one (and after the last chunk's)
         moving = np.flatnonzero(~null & seen)
         if self.owed and len(moving):
@@ -492,17 +492,18 @@ class Skipper:
             self.owed = bool((k >= len(moving)).any())
         return np.flatnonzero(pick)
 
-    def _near(self, c: np.ndarray, zc: np.ndarray) -> np.ndarray:
-        """Candidates (RECORD rows c, z in 0.01 mm) whose widened box holds a map point of a layer
-        within half a layer height of their z."""
+    def _near(self, a: np.ndarray, ci: np.ndarray, zc: np.ndarray) -> np.ndarray:
+        """Candidates (rows ci of the RECORD array a, z in 0.01 mm) whose widened box holds a map
+        point of a layer within half a layer height of their z."""
         half = self.lh / 2
         lo = np.searchsorted(self.pz, zc - half, side="left")
         hi = np.searchsorted(self.pz, zc + half, side="right")
-        out = np.zeros(len(c), bool)
+        out = np.zeros(len(ci), bool)
         span = hi - lo
         has = np.flatnonzero(span > 0)
         if not len(has):
             return out
+        c = a[ci[has]]                           # only the candidates with a layer near
         m = self.margin
         bx0 = np.minimum(c["x0"], c["x1"]) - m
         bx1 = np.maximum(c["x0"], c["x1"]) + m
@@ -514,14 +515,13 @@ class Skipper:
         while start < len(has):
             stop = int(np.searchsorted(csum, (csum[start - 1] if start else 0) + 4_000_000, side="right"))
             stop = max(stop, start + 1)
-            sel = has[start:stop]
-            n = span[sel]
-            rep = np.repeat(sel, n)
+            n = span[has[start:stop]]
+            rep = np.repeat(np.arange(start, stop), n)          # positions in has (rows of c)
             off = np.arange(len(rep)) - np.repeat(np.cumsum(n) - n, n)
-            j = lo[rep] + off
+            j = lo[has[rep]] + off
             px, py = self.px[j], self.py[j]
             ok = (px >= bx0[rep]) & (px <= bx1[rep]) & (py >= by0[rep]) & (py <= by1[rep])
-            out[np.unique(rep[ok])] = True
+            out[has[np.unique(rep[ok])]] = True
             start = stop
         return out
 
