@@ -455,6 +455,7 @@ class Skipper:
     def select(self, a: np.ndarray) -> np.ndarray:
         """Indices into the RECORD array a (one chunk, in file order) to plan."""
         c, top, top_line = movescan.classes(a)      # (one pass over the records)
+        self.classes = c
         if self.arcs_bypass:
             seen = (c & movescan.ARC) == 0          # moves the planner sees
             top = top_line
@@ -535,6 +536,15 @@ def record_move(r, index: int, roles) -> Move:
                 bool(fl & movescan.ARC))
 
 
+def record_moves(a, rows, done: int, roles) -> list[Move]:
+    """record_move of the RECORD array a's rows (moves before a: done), converted together."""
+    out = []
+    for i, (x0, y0, z0, x1, y1, z1, e, e0, f, _, line, role, fl, _) in zip(rows.tolist(), a[rows].tolist()):
+        out.append(Move(done + i, line, x0, y0, z0, x1, y1, z1, e, e0, f, bool(fl & movescan.OUTER),
+                        roles[role] if role >= 0 else None, bool(fl & movescan.ARC)))
+    return out
+
+
 def plan_records(planner: RefPlanner, chunks, on_move=None, arcs_bypass: bool = False,
                  on_chunk=None) -> None:
     """Run a file's moves (movescan chunks) through the planner, skipping the moves that cannot
@@ -545,17 +555,18 @@ def plan_records(planner: RefPlanner, chunks, on_move=None, arcs_bypass: bool = 
     done = 0
     for a in chunks:
         planned = {}
-        for i in sk.select(a):
-            m = record_move(a[i], done + int(i), chunks.roles)
+        rows = sk.select(a)
+        for i, m in zip(rows.tolist(), record_moves(a, rows, done, chunks.roles)):
             acts = planner.plan(m)
-            planned[int(i)] = (m, acts)
+            planned[i] = (m, acts)
             if on_move is not None:
                 on_move(m, acts)
         if on_chunk is not None:
             on_chunk(a, done, planned)
         if arcs_bypass:
-            for i in np.flatnonzero(((a["flags"] & movescan.ARC) != 0) & (a["e"] > 0)):
-                planner.bypass(record_move(a[i], done + int(i), chunks.roles))
+            arcs = np.flatnonzero(sk.classes & movescan.ARC)       # (the chunk's, from select)
+            for m in record_moves(a, arcs[a["e"][arcs] > 0], done, chunks.roles):
+                planner.bypass(m)
         done += len(a)
     if sk.top_z is not None and (planner.top_z is None or sk.top_z > planner.top_z):
         planner.top_z = sk.top_z
