@@ -182,31 +182,35 @@ static int parse_words(Scanner *s, const char *p, const char *end, Words *w) {
         if (ch >= 'a' && ch <= 'z') ch = (char)(ch - 32);
         if (ch < 'A' || ch > 'Z') { p++; continue; }
         const char *v = ++p;
-        while (p < end && !is_ws((unsigned char)*p) &&
-               !((*p >= 'A' && *p <= 'Z') || (*p >= 'a' && *p <= 'z'))) p++;
-        if (ch == 'N' && w->have == 0) continue;
-        /* [-+]?(\d+\.?\d*|\.\d+) */
+        if (ch == 'N' && w->have == 0) {      /* a line number: skipped, not read */
+            while (p < end && !is_ws((unsigned char)*p) &&
+                   !((*p >= 'A' && *p <= 'Z') || (*p >= 'a' && *p <= 'z'))) p++;
+            continue;
+        }
+        /* [-+]?(\d+\.?\d*|\.\d+), read as it is matched: the digits as an integer */
         const char *q = v;
-        if (q < p && (*q == '-' || *q == '+')) q++;
+        if (q < end && (*q == '-' || *q == '+')) q++;
         const char *d0 = q;
-        while (q < p && *q >= '0' && *q <= '9') q++;
+        uint64_t m = 0;
+        while (q < end && *q >= '0' && *q <= '9') m = m * 10 + (uint64_t)(*q++ - '0');
         int lead = (int)(q - d0);
         int frac = 0;
-        if (q < p && *q == '.') {
+        if (q < end && *q == '.') {
             q++;
             const char *f0 = q;
-            while (q < p && *q >= '0' && *q <= '9') q++;
+            while (q < end && *q >= '0' && *q <= '9') m = m * 10 + (uint64_t)(*q++ - '0');
             frac = (int)(q - f0);
         }
+        /* the word runs to the next letter or blank: anything else in it is refused */
+        p = q;
+        while (p < end && !is_ws((unsigned char)*p) &&
+               !((*p >= 'A' && *p <= 'Z') || (*p >= 'a' && *p <= 'z'))) p++;
         if (q != p || (lead == 0 && frac == 0)) return unsupported(s);
         if (lead + frac <= 15) {
             /* Up to 15 digits: the digits as an integer (< 2^53, exact) over a power of ten
              * (<= 1e15, exact): one correctly rounded division, strtod's result (Clinger). */
             static const double p10[16] = {1e0, 1e1, 1e2, 1e3, 1e4, 1e5, 1e6, 1e7, 1e8,
                                            1e9, 1e10, 1e11, 1e12, 1e13, 1e14, 1e15};
-            uint64_t m = 0;
-            for (const char *c = d0; c < p; c++)
-                if (*c != '.') m = m * 10 + (uint64_t)(*c - '0');
             double val = (double)m / p10[frac];
             w->v[ch - 'A'] = (*v == '-') ? -val : val;
             w->have |= 1u << (ch - 'A');
@@ -364,14 +368,12 @@ static int arc(Scanner *s, const char *line, Words *w, int cw) {
 }
 
 /* One line without its line end (gcode.split_code + parse_lines). */
-static int do_line_state(Scanner *s, const char *p, const char *end);
+static int do_line_state(Scanner *s, const char *p, const char *end, int ascii);
 
-static int do_line(Scanner *s, const char *p, const char *end) {
-    if (!s->events) return do_line_state(s, p, end);
-    int ascii = 1;
-    for (const char *q = p; q < end; q++)
-        if ((unsigned char)*q >= 0x80) { ascii = 0; break; }
-    if (ascii && !is_event(s, p, end)) return do_line_state(s, p, end);
+/* One line without its line end; ascii: it has no byte >= 0x80 (feed() saw as it split). */
+static int do_line(Scanner *s, const char *p, const char *end, int ascii) {
+    if (!s->events) return do_line_state(s, p, end, ascii);
+    if (ascii && !is_event(s, p, end)) return do_line_state(s, p, end, 1);
     Record r;
     memset(&r, 0, sizeof r);
     r.x0 = r.x1 = s->x; r.y0 = r.y1 = s->y; r.z0 = r.z1 = s->z;
@@ -384,7 +386,7 @@ static int do_line(Scanner *s, const char *p, const char *end) {
     if (push(s, &r) < 0) return -1;
     if (!ascii) return 0;                  /* the state is the estimator's to follow */
     s->quiet = 1;                          /* the line's own state changes, without records */
-    int rc = do_line_state(s, p, end);
+    int rc = do_line_state(s, p, end, 1);
     s->quiet = 0;
     if (rc < 0 && PyErr_ExceptionMatches(ScanUnsupported)) {
         PyErr_Clear();                     /* the estimator reads (or refuses) it */
@@ -413,10 +415,9 @@ static void flag(Scanner *s, const char *p, const char *end) {
     }
 }
 
-static int do_line_state(Scanner *s, const char *p, const char *end) {
+static int do_line_state(Scanner *s, const char *p, const char *end, int ascii) {
     const char *line = p;
-    for (const char *q = p; q < end; q++)
-        if ((unsigned char)*q >= 0x80) { s->flagged++; return foreign_line(s, p, end); }
+    if (!ascii) { s->flagged++; return foreign_line(s, p, end); }
     while (p < end && is_ws((unsigned char)*p)) p++;
     while (end > p && is_ws((unsigned char)end[-1])) end--;
     if (p == end) return 0;
@@ -492,10 +493,11 @@ static PyObject *Scanner_feed(Scanner *s, PyObject *args) {
     const char *used = p;
     while (p < end) {
         const char *q = p;
-        while (q < end && *q != '\n' && *q != '\r') q++;
+        unsigned char high = 0;                /* the line's bytes or'ed: >= 0x80 if any is */
+        while (q < end && *q != '\n' && *q != '\r') high |= (unsigned char)*q++;
         if (q == end && !final) break;
         s->line_no++;
-        if (do_line(s, p, q) < 0) { PyBuffer_Release(&buf); return NULL; }
+        if (do_line(s, p, q, high < 0x80) < 0) { PyBuffer_Release(&buf); return NULL; }
         if (q < end) {
             if (*q == '\r') {
                 s->n_cr++;
