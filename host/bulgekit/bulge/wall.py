@@ -278,6 +278,15 @@ def extract_walls(moves: Iterable[Move], layer_height: float | None = None,
                               ref_angle_deg, source, header_height)
 
 
+_ENDS_COLS = np.array([0, 1, 3, 4, 2, 5])        # RECORD's x0 y0 z0 x1 y1 z1 -> x0 y0 x1 y1 z0 z1
+
+
+def _coords(a: np.ndarray) -> np.ndarray:
+    """The RECORD array a's x0 y0 z0 x1 y1 z1 as an (n, 6) float64 view (no copy)."""
+    a = np.ascontiguousarray(a)
+    return np.ndarray((len(a), 6), np.dtype("<f8"), a, 0, (a.itemsize, 8))
+
+
 def walls_from_records(chunks: Iterable[np.ndarray], layer_height: float | None = None,
                        geometric: bool = False, ref_angle_deg: float = -90.0,
                        source: str = "<gcode>", header_height: float | None = None
@@ -308,15 +317,15 @@ def walls_from_records(chunks: Iterable[np.ndarray], layer_height: float | None 
         ev = ev[~is_brk | ~prev]                 # a run of breaks makes one row
         if len(ev):
             last_was_break = bool(other[ev[-1]])
-        sub = a[ev]
-        rows = np.stack([sub["x0"], sub["y0"], sub["x1"], sub["y1"], sub["z0"], sub["z1"]], axis=1)
+        # the rows' x0 y0 x1 y1 z0 z1, gathered in one go from the records' first six numbers
+        rows = _coords(a)[ev[:, None], _ENDS_COLS]
         brk = other[ev]
         rows[brk] = np.nan
         parts.append(rows)
         nums.append(np.where(brk, -1, ev + done))
-        ok_rows = sub[~brk]
-        flat = np.abs(ok_rows["z1"] - ok_rows["z0"]) < 1e-6
-        planar_z.append(movescan.z_cmm(ok_rows["z1"][flat]))
+        ok_rows = rows[~brk]
+        flat = np.abs(ok_rows[:, 5] - ok_rows[:, 4]) < 1e-6
+        planar_z.append(movescan.z_cmm(ok_rows[flat, 5]))
         done += len(a)
     if not geometric and not any_outer:
         raise WallError(

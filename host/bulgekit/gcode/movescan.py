@@ -82,7 +82,17 @@ class Chunks:
 def z_cmm(z: np.ndarray) -> np.ndarray:
     """Move z (mm) as the firmware reads it: 0.01 mm, rounded in float32, half away from zero
     (bulge_planner.cpp; fallback.RefPlanner._cmm and wall._z_cmm one at a time)."""
-    v = (np.asarray(z).astype(np.float32) * np.float32(100.0)).astype(np.float64)
+    z = np.asarray(z)
+    if z.ndim == 1 and len(z) > 64:
+        # a file's moves come in runs of one z (its layers): each run's value once
+        starts = np.flatnonzero(np.concatenate(([True], z[1:] != z[:-1])))
+        if 4 * len(starts) < len(z):
+            return np.repeat(_z_cmm(z[starts]), np.diff(np.append(starts, len(z))))
+    return _z_cmm(z)
+
+
+def _z_cmm(z: np.ndarray) -> np.ndarray:
+    v = (z.astype(np.float32) * np.float32(100.0)).astype(np.float64)
     return np.where(v >= 0, np.floor(v + 0.5), -np.floor(0.5 - v)).astype(np.int64)
 
 

@@ -247,3 +247,21 @@ def test_scanner_counts_the_line_ends_it_consumes():
             if final:
                 break
         assert sc.line_ends == (data.count(b"\n"), data.count(b"\r"), data.count(b"\r\n")), data
+
+
+def test_z_cmm_of_runs_is_z_cmm_of_each():
+    """z_cmm takes each run of one z once (a file's layers): the same as one value at a time,
+    -0.0 in a run of 0.0, halves, and values beyond an int's range included."""
+    rng = np.random.default_rng(26)
+    vals = np.array([0.2, 0.3, -0.0, 0.0, 0.25, -0.35, 0.005, 0.015, 0.125, 1234.565, -0.004999])
+    z = np.repeat(rng.choice(vals, 5000), rng.integers(1, 30, 5000))
+    runs = movescan.z_cmm(z)
+    assert len(np.flatnonzero(np.diff(z))) * 4 < len(z)            # the runs path was taken
+    assert np.array_equal(runs, movescan._z_cmm(z))
+    assert np.array_equal(runs, [fallback_cmm(v) for v in z])
+    short = z[:50]
+    assert np.array_equal(movescan.z_cmm(short), movescan._z_cmm(short))
+
+
+def fallback_cmm(v):
+    return RefPlanner._cmm(v)
