@@ -68,8 +68,11 @@ def _feature_comments(data: bytes):
     if sc is None:
         yield from _feature_comments_rx(data)
         return
+    roles: dict[bytes, str | None] = {}       # a file repeats a few comments thousands of times
     for end, comment in sc.feature_lines(data):
-        role = feature_of_comment(comment.decode("utf-8", "replace"))
+        role = roles.get(comment, roles)
+        if role is roles:
+            role = roles[comment] = feature_of_comment(comment.decode("utf-8", "replace"))
         if role is not None:
             yield end, role
 
