@@ -15,11 +15,14 @@ below it.  At an append point the host therefore counts as resident every
 record sent whose z is at or above the record of the layer printed last,
 and sends only what fits in the rest of the arena (BK_MAP_ARENA_BYTES).
 
-The scan is a few regular-expression passes over the whole file (no per-line
-Python work), so 100 MB annotate in a few seconds.  The check that every map
-point is reached (check_reach, on by default) runs the reference planner on the
-moves that can stop or change its state (fallback.Skipper), read by the
-compiled scanner (movescan): a few seconds per 100 MB as well.
+The feature comment lines and layer changes are found by the compiled scanner's
+line walkers (_scan.feature_lines, _scan.z_events), or without it by the regular
+expressions they mirror (no per-line Python work either way), and the output is
+the file's own bytes between the added lines.  The check that every map point is
+reached (check_reach, on by default) runs the reference planner on the moves that
+can stop or change its state (fallback.Skipper), read by the compiled scanner
+(movescan); its scan also tells whether check_not_processed has anything to look
+at.  100 MB annotate in about a second of CPU (docs/host.md).
 """
 from __future__ import annotations
 

@@ -6,6 +6,7 @@ estimator reads the scanner's records in its events mode (estimate.estimate_file
 
     run(path, consume)      # consume(chunks) gets an iterator of RECORD arrays and the role names
     with Scan(path).kept(): # build: the file checked and scanned once, every run() above replays it
+    classes(a)              # what the passes ask of every move of a chunk, one byte each
 
 consume must start from nothing each time it is called: when the compiled scanner meets a line it
 leaves to the Python parser (a command with non-ASCII bytes, a value or arc gcode/__init__.py refuses),
