@@ -371,15 +371,26 @@ def might_hold(data: bytes, words) -> bool:
     return any(w in data for w in words) or b"M0" in data or b"m0" in data
 
 
-def _flag_counts(data) -> tuple[int, int] | None:
-    """(ours, m92): how many lines of data (bytes, mmap) _OURS_RX and _M92_RX may match, counted
-    by the compiled scanner in one pass (_scan.flag_lines, a superset: the regexes decide); None
-    without it. A count of 0: the regex, at every line start, need not run."""
+SCAN_VERSION = 2      # the compiled scanner's VERSION this code calls (_scan.c's module init)
+
+
+def compiled_scanner():
+    """The compiled scanner module (bulgekit.gcode._scan), or None: not built (no C compiler), or
+    built from an older _scan.c that lacks what this code calls (build it again:
+    `cd host && python3 setup.py build_ext --inplace`); the Python paths then do the work."""
     try:
         from . import _scan
     except ImportError:
         return None
-    return _scan.flag_lines(data)
+    return _scan if getattr(_scan, "VERSION", 1) == SCAN_VERSION else None
+
+
+def _flag_counts(data) -> tuple[int, int] | None:
+    """(ours, m92): how many lines of data (bytes, mmap) _OURS_RX and _M92_RX may match, counted
+    by the compiled scanner in one pass (_scan.flag_lines, a superset: the regexes decide); None
+    without it. A count of 0: the regex, at every line start, need not run."""
+    sc = compiled_scanner()
+    return None if sc is None else sc.flag_lines(data)
 
 
 def _refuse_processed(data: bytes, source: str, lines_before: int, at: int = 0) -> None:

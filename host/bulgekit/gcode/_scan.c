@@ -901,5 +901,7 @@ PyMODINIT_FUNC PyInit__scan(void) {
     Py_INCREF(&ScannerType);
     PyModule_AddObject(m, "Scanner", (PyObject *)&ScannerType);
     PyModule_AddIntConstant(m, "RECORD_SIZE", (long)sizeof(Record));
+    /* what gcode.SCAN_VERSION expects: a module built from an older _scan.c is not used */
+    PyModule_AddIntConstant(m, "VERSION", 2);
     return m;
 }

@@ -27,10 +27,8 @@ import numpy as np
 
 from .. import gcode, progress
 
-try:
-    from . import _scan
-except ImportError:          # built without a C compiler: the Python parser does all the work
-    _scan = None
+# None without a C compiler (or built from an older _scan.c): the Python parser does all the work
+_scan = gcode.compiled_scanner()
 
 RECORD = np.dtype([
     ("x0", "<f8"), ("y0", "<f8"), ("z0", "<f8"), ("x1", "<f8"), ("y1", "<f8"), ("z1", "<f8"),

@@ -191,3 +191,19 @@ def test_flag_counts_hold_every_line_the_regexes_match(tmp_path, monkeypatch):
                     want.append(str(e))
             assert got == want
     assert gcode._flag_counts(b"G1 X1\n; bulgekit: 3\nN1 M092 E5\r\nm721\n") == (2, 1)
+
+
+def test_a_scanner_built_from_an_older_source_is_not_used(monkeypatch):
+    """A compiled scanner built before _scan.c gained what the code now calls (no VERSION, or
+    another one) is left alone: the Python paths do the work until it is built again."""
+    import sys
+    import types
+    from bulgekit import gcode
+    assert gcode.compiled_scanner() is not None and gcode.compiled_scanner().VERSION == gcode.SCAN_VERSION
+    stale = types.ModuleType("bulgekit.gcode._scan")
+    monkeypatch.setitem(sys.modules, "bulgekit.gcode._scan", stale)
+    monkeypatch.setattr(gcode, "_scan", stale, raising=False)
+    assert gcode.compiled_scanner() is None
+    assert gcode._flag_counts(b"M720 S1\n") is None
+    stale.VERSION = gcode.SCAN_VERSION
+    assert gcode.compiled_scanner() is stale
