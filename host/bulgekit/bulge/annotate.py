@@ -15,11 +15,14 @@ below it.  At an append point the host therefore counts as resident every
 record sent whose z is at or above the record of the layer printed last,
 and sends only what fits in the rest of the arena (BK_MAP_ARENA_BYTES).
 
-The scan is a few regular-expression passes over the whole file (no per-line
-Python work), so 100 MB annotate in a few seconds.  The check that every map
-point is reached (check_reach, on by default) runs the reference planner on the
-moves that can stop or change its state (fallback.Skipper), read by the
-compiled scanner (movescan): a few seconds per 100 MB as well.
+The feature comment lines and layer changes are found by the compiled scanner's
+line walkers (_scan.feature_lines, _scan.z_events), or without it by the regular
+expressions they mirror (no per-line Python work either way), and the output is
+the file's own bytes between the added lines.  The check that every map point is
+reached (check_reach, on by default) runs the reference planner on the moves that
+can stop or change its state (fallback.Skipper), read by the compiled scanner
+(movescan); its scan also tells whether check_not_processed has anything to look
+at.  100 MB annotate in about a second of CPU (docs/host.md).
 """
 from __future__ import annotations
 
@@ -56,8 +59,28 @@ def _line_start(data: bytes, pos: int) -> int:
     return data.rfind(b"\n", 0, pos) + 1
 
 
+def _scanner():
+    from ..gcode import movescan
+    return movescan._scan
+
+
 def _feature_comments(data: bytes):
-    """(end of line offset, role) of every whole-line feature comment."""
+    """(end of line offset, role) of every whole-line feature comment: the compiled scanner
+    finds the lines (_scan.feature_lines), else the regular expression."""
+    sc = _scanner()
+    if sc is None:
+        yield from _feature_comments_rx(data)
+        return
+    roles: dict[bytes, str | None] = {}       # a file repeats a few comments thousands of times
+    for end, comment in sc.feature_lines(data):
+        role = roles.get(comment, roles)
+        if role is roles:
+            role = roles[comment] = feature_of_comment(comment.decode("utf-8", "replace"))
+        if role is not None:
+            yield end, role
+
+
+def _feature_comments_rx(data: bytes):
     for mt in _FEATURE_RX.finditer(data):
         ls = _line_start(data, mt.start())
         if data[ls:mt.start()].strip(b" \t"):
@@ -84,7 +107,13 @@ def _record_bytes(bm: mapformat.BulgeMap) -> list[bytes]:
 
 def _z_events(data: bytes):
     """[(offset, z_cmm)] for each G0/G1 Z move followed by XY extrusion
-    before the next Z move (real layer changes; z-hops are skipped)."""
+    before the next Z move (real layer changes; z-hops are skipped): from the compiled
+    scanner (_scan.z_events, the same in C), else the regular expressions."""
+    sc = _scanner()
+    return _z_events_rx(data) if sc is None else sc.z_events(data)
+
+
+def _z_events_rx(data: bytes):
     # G90/G91 switch Z between absolute and relative (end G-code often lifts
     # with G91 / G1 Z10 / G90)
     modes = [(m.start(), m.group(1) == b"0") for m in _G9X_RX.finditer(data)
@@ -122,6 +151,13 @@ def _z_events(data: bytes):
 def annotate_bytes(data: bytes, map_bytes: bytes, settings: Settings,
                    arena: int = ARENA_BYTES, stream: bool = True, source: str = "<gcode>",
                    result: AnnotateResult | None = None) -> bytes:
+    return b"".join(_annotated(data, map_bytes, settings, arena, stream, source, result))
+
+
+def _annotated(data: bytes, map_bytes: bytes, settings: Settings, arena: int, stream: bool,
+               source: str, result: AnnotateResult | None) -> list:
+    """annotate_bytes' output as pieces: slices of data (memoryviews, not copies) with the
+    inserted lines between them, to be joined or written one after the other."""
     res = result if result is not None else AnnotateResult()
     bm = mapformat.decode_map(map_bytes, source="map")
     geometric = settings.mode == MODE_GEOMETRIC
@@ -232,13 +268,14 @@ def annotate_bytes(data: bytes, map_bytes: bytes, settings: Settings,
     inserts.sort(key=lambda t: (t[0], t[1]))
     parts = []
     pos = 0
+    view = memoryview(data)
     for off, _, txt in inserts:
-        parts.append(data[pos:off])
+        parts.append(view[pos:off])
         parts.append(txt)
         res.lines_added += txt.count(b"\n")
         pos = off
-    parts.append(data[pos:])
-    return b"".join(parts)
+    parts.append(view[pos:])
+    return parts
 
 
 def check_reach(gcode, map_bytes: bytes, settings: Settings, source: str) -> str | None:
@@ -246,6 +283,12 @@ def check_reach(gcode, map_bytes: bytes, settings: Settings, source: str) -> str
     the map points no move reaches (the map is for another file? arcs?), or None. G2/G3 arcs
     count for nothing, as in the firmware (RefPlanner.bypass). Only the moves that can change
     the planner's work go through its Python code (fallback.Skipper)."""
+    return _reach(gcode, map_bytes, settings, source)[0]
+
+
+def _reach(gcode, map_bytes: bytes, settings: Settings, source: str) -> tuple[str | None, int | None]:
+    """check_reach's message, and the lines the compiled scanner flagged on the way (None when
+    it did not read the file): none means check_not_processed would find nothing."""
     from ..gcode import movescan
     from .fallback import RefPlanner, plan_records, unreached_message
     bm = mapformat.decode_map(map_bytes, source="map")
@@ -253,7 +296,7 @@ def check_reach(gcode, map_bytes: bytes, settings: Settings, source: str) -> str
     def run(chunks):
         planner = RefPlanner(bm, settings)
         plan_records(planner, chunks, arcs_bypass=True)
-        return unreached_message(planner, source)
+        return unreached_message(planner, source), chunks.flagged
     return movescan.run(gcode, run, source)
 
 
@@ -266,17 +309,28 @@ def annotate_file(src, dst, map_bytes: bytes, settings: Settings, arena: int = A
     from ..gcode import movescan
     with open(src, "rb") as f:
         data = f.read()
-    if movescan.kept(src) is None:            # build's one scan checked it already
+    kept = movescan.kept(src) is not None     # build's one scan checked it already
+    if not kept:
         check_complete(data, str(src))
+    msg = flagged = failed = None
+    if check:
+        # the reach check's scan comes first, as it also tells where check_not_processed can
+        # find something; what it finds wrong is said in the order the checks always had
+        try:
+            msg, flagged = _reach(src if kept else data, map_bytes, settings, str(src))
+        except (BulgekitError, mapformat.MapFormatError) as e:
+            failed = e
+    if not kept and flagged != 0:
         check_not_processed(data, str(src))
     res = AnnotateResult()
-    out = annotate_bytes(data, map_bytes, settings, arena, stream, str(src), res)
+    out = _annotated(data, map_bytes, settings, arena, stream, str(src), res)
+    if failed is not None:
+        raise failed
     if check:
-        msg = check_reach(src, map_bytes, settings, str(src))
         if msg and not allow_unreached:
             raise AnnotateError(msg)
         if msg:
             res.notes.append(msg)
     with open(dst, "wb") as f:
-        f.write(out)
+        f.writelines(out)                     # the file's own bytes between the lines added
     return res

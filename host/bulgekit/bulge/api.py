@@ -75,20 +75,21 @@ def annotate_gcode(gcode, map_bytes: bytes, out, settings: Settings = Settings()
 
 def fallback_gcode(gcode, map_bytes: bytes, out, settings: Settings = Settings(), *,
                    allow_unreached: bool = False,
-                   stops: _fallback.StockStops = _fallback.StockStops()) -> _fallback.RewriteResult:
+                   stops: _fallback.StockStops = _fallback.StockStops(),
+                   _on_plan=None) -> _fallback.RewriteResult:
     """Map points no move reaches are an error unless allow_unreached. stops: how the stops
     are written (E-only moves by default, or G4)."""
     with progress.phase("stock fallback", path=gcode):
         return _fallback.rewrite_file(gcode, out, mapformat.decode_map(map_bytes, source="map"),
-                                      settings, allow_unreached, stops)
+                                      settings, allow_unreached, stops, _on_plan)
 
 
 def bulge_stats(map_bytes: bytes, settings: Settings = Settings(), gcode=None,
-          arena: int = _stats.ARENA_BYTES) -> _stats.Stats:
+          arena: int = _stats.ARENA_BYTES, _planned: _stats.StopTimer | None = None) -> _stats.Stats:
     if gcode is None:
         return _stats.map_stats(map_bytes, settings, arena)
     with progress.phase("statistics", path=gcode):
-        return _stats.print_stats(gcode, map_bytes, settings, arena)
+        return _stats.print_stats(gcode, map_bytes, settings, arena, planned=_planned)
 
 
 @dataclass
@@ -152,10 +153,15 @@ def _build(gcode: Path, strokes, outdir, name, geometric, spacing, line_width, l
         ann = annotate_gcode(gcode, res.map_bytes, gpath, settings, stream=stream, arena=arena,
                              check=False)
         stock = None
+        timers: list[_stats.StopTimer] = []
         if fpath is not None:
+            # the statistics count on the stock file's planner run: the planner runs once
+            def on_plan(planner):
+                timers.append(_stats.StopTimer(planner))
+                return timers[-1]
             stock = fallback_gcode(gcode, res.map_bytes, fpath, settings, allow_unreached=True,
-                                   stops=stops).stock
-        st = bulge_stats(res.map_bytes, settings, gcode, arena)
+                                   stops=stops, _on_plan=on_plan).stock
+        st = bulge_stats(res.map_bytes, settings, gcode, arena, timers[-1] if timers else None)
         st.stock = stock
         spath.write_text(st.text() + "\n", encoding="utf-8")
     except BaseException:

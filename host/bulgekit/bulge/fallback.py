@@ -411,8 +411,10 @@ class Skipper:
     its Python code (a 100 MB file has three million moves; a map's points lie on a few
     thousand). A move is planned when
       - it is a candidate (eligible but for the layer window: mode, outer wall, extruding in
-        float32) whose z (0.01 mm, float32) differs from the last candidate's: only then can the
-        window load, switch or miss a layer (the same z gives the same window, see _window);
+        float32) whose z (0.01 mm, float32) differs from the last candidate's and has a map layer
+        within half a layer height: only then can the window load or switch a layer (the same z
+        gives the same window, see _window; a z with no layer near only misses, which changes
+        nothing but the cache miss_z, and that only saves a search that would miss as well);
       - it is a candidate whose box, widened by plan()'s own margin, holds a point of a map layer
         within half a layer height of its z: only such moves stop or defer points;
       - it is the first move after one of those that moves anything (null moves change nothing):
@@ -441,6 +443,8 @@ class Skipper:
                     px.append(x * q)
                     py.append(y * q)
         order = np.lexsort((np.array(px), np.array(pz))) if pz else np.empty(0, np.int64)
+        # every layer's z, points or none: the window can load any of them (_find)
+        self.lz = np.sort(np.array(planner._zs, dtype=np.int64))
         self.pz = np.array(pz, dtype=np.int64)[order]
         self.px = np.array(px, dtype=np.float64)[order]
         self.py = np.array(py, dtype=np.float64)[order]
@@ -450,34 +454,34 @@ class Skipper:
 
     def select(self, a: np.ndarray) -> np.ndarray:
         """Indices into the RECORD array a (one chunk, in file order) to plan."""
-        x0, y0, x1, y1, e = a["x0"], a["y0"], a["x1"], a["y1"], a["e"]
-        moved = (x0 != x1) | (y0 != y1)
-        ext = (e > 0) & moved
-        seen = np.ones(len(a), bool)            # moves the planner sees
+        c, top, top_line = movescan.classes(a)      # (one pass over the records)
+        self.classes = c
         if self.arcs_bypass:
-            seen = (a["flags"] & movescan.ARC) == 0
-            ext &= seen
-        if ext.any():
-            z = float(a["z1"][ext].max())
-            self.top_z = z if self.top_z is None else max(self.top_z, z)
-        null = ~moved & (a["z0"] == a["z1"]) & (e == 0)
-        mode = self.p.s.mode
-        if mode == MODE_OFF or len(self.pz) == 0:
-            cand = np.zeros(len(a), bool)
+            seen = (c & movescan.ARC) == 0          # moves the planner sees
+            top = top_line
         else:
-            f = np.float32
-            cand = (e.astype(f) > 0) & ((x0.astype(f) != x1.astype(f)) | (y0.astype(f) != y1.astype(f)))
-            if mode == MODE_MARKED:
-                cand &= (a["flags"] & movescan.OUTER) != 0
-            cand &= seen
+            seen = np.ones(len(a), bool)
+        if top is not None:
+            self.top_z = top if self.top_z is None else max(self.top_z, top)
+        null = (c & movescan.NULL) != 0
+        mode = self.p.s.mode
+        ci = np.empty(0, np.intp)
+        if mode != MODE_OFF and len(self.pz):
+            # candidates: extruding in XY in float32, in the outer wall in marked mode
+            want = movescan.EXTRUDES_F32 | (movescan.OUTER if mode == MODE_MARKED else 0)
+            ci = np.flatnonzero(((c & want) == want) & seen)
         pick = np.zeros(len(a), bool)
-        ci = np.flatnonzero(cand)
         if len(ci):
             zc = movescan.z_cmm(a["z1"][ci])
             prev = np.concatenate([[self.last_zc if self.last_zc is not None else zc[0] + 1], zc[:-1]])
-            pick[ci[zc != prev]] = True
+            # a new z with no map layer within half a layer height cannot load or switch the
+            # window (_find finds nothing, whatever the floor): planned, it would only miss
+            change = np.flatnonzero(zc != prev)
+            lo = np.searchsorted(self.lz, zc[change] - self.lh / 2, side="left")
+            hi = np.searchsorted(self.lz, zc[change] + self.lh / 2, side="right")
+            pick[ci[change[hi > lo]]] = True
             self.last_zc = int(zc[-1])
-            pick[ci[self._near(a[ci], zc)]] = True
+            pick[ci[self._near(a, ci, zc)]] = True
         # the first moving move after each picked one (and after the last chunk's)
         moving = np.flatnonzero(~null & seen)
         if self.owed and len(moving):
@@ -489,17 +493,18 @@ class Skipper:
             self.owed = bool((k >= len(moving)).any())
         return np.flatnonzero(pick)
 
-    def _near(self, c: np.ndarray, zc: np.ndarray) -> np.ndarray:
-        """Candidates (RECORD rows c, z in 0.01 mm) whose widened box holds a map point of a layer
-        within half a layer height of their z."""
+    def _near(self, a: np.ndarray, ci: np.ndarray, zc: np.ndarray) -> np.ndarray:
+        """Candidates (rows ci of the RECORD array a, z in 0.01 mm) whose widened box holds a map
+        point of a layer within half a layer height of their z."""
         half = self.lh / 2
         lo = np.searchsorted(self.pz, zc - half, side="left")
         hi = np.searchsorted(self.pz, zc + half, side="right")
-        out = np.zeros(len(c), bool)
+        out = np.zeros(len(ci), bool)
         span = hi - lo
         has = np.flatnonzero(span > 0)
         if not len(has):
             return out
+        c = a[ci[has]]                           # only the candidates with a layer near
         m = self.margin
         bx0 = np.minimum(c["x0"], c["x1"]) - m
         bx1 = np.maximum(c["x0"], c["x1"]) + m
@@ -511,14 +516,13 @@ class Skipper:
         while start < len(has):
             stop = int(np.searchsorted(csum, (csum[start - 1] if start else 0) + 4_000_000, side="right"))
             stop = max(stop, start + 1)
-            sel = has[start:stop]
-            n = span[sel]
-            rep = np.repeat(sel, n)
+            n = span[has[start:stop]]
+            rep = np.repeat(np.arange(start, stop), n)          # positions in has (rows of c)
             off = np.arange(len(rep)) - np.repeat(np.cumsum(n) - n, n)
-            j = lo[rep] + off
+            j = lo[has[rep]] + off
             px, py = self.px[j], self.py[j]
             ok = (px >= bx0[rep]) & (px <= bx1[rep]) & (py >= by0[rep]) & (py <= by1[rep])
-            out[np.unique(rep[ok])] = True
+            out[has[np.unique(rep[ok])]] = True
             start = stop
         return out
 
@@ -532,6 +536,15 @@ def record_move(r, index: int, roles) -> Move:
                 bool(fl & movescan.ARC))
 
 
+def record_moves(a, rows, done: int, roles) -> list[Move]:
+    """record_move of the RECORD array a's rows (moves before a: done), converted together."""
+    out = []
+    for i, (x0, y0, z0, x1, y1, z1, e, e0, f, _, line, role, fl, _) in zip(rows.tolist(), a[rows].tolist()):
+        out.append(Move(done + i, line, x0, y0, z0, x1, y1, z1, e, e0, f, bool(fl & movescan.OUTER),
+                        roles[role] if role >= 0 else None, bool(fl & movescan.ARC)))
+    return out
+
+
 def plan_records(planner: RefPlanner, chunks, on_move=None, arcs_bypass: bool = False,
                  on_chunk=None) -> None:
     """Run a file's moves (movescan chunks) through the planner, skipping the moves that cannot
@@ -542,17 +555,18 @@ def plan_records(planner: RefPlanner, chunks, on_move=None, arcs_bypass: bool = 
     done = 0
     for a in chunks:
         planned = {}
-        for i in sk.select(a):
-            m = record_move(a[i], done + int(i), chunks.roles)
+        rows = sk.select(a)
+        for i, m in zip(rows.tolist(), record_moves(a, rows, done, chunks.roles)):
             acts = planner.plan(m)
-            planned[int(i)] = (m, acts)
+            planned[i] = (m, acts)
             if on_move is not None:
                 on_move(m, acts)
         if on_chunk is not None:
             on_chunk(a, done, planned)
         if arcs_bypass:
-            for i in np.flatnonzero(((a["flags"] & movescan.ARC) != 0) & (a["e"] > 0)):
-                planner.bypass(record_move(a[i], done + int(i), chunks.roles))
+            arcs = np.flatnonzero(sk.classes & movescan.ARC)       # (the chunk's, from select)
+            for m in record_moves(a, arcs[a["e"][arcs] > 0], done, chunks.roles):
+                planner.bypass(m)
         done += len(a)
     if sk.top_z is not None and (planner.top_z is None or sk.top_z > planner.top_z):
         planner.top_z = sk.top_z
@@ -939,13 +953,16 @@ class RewriteResult:
     stats: PlanStats | None = None
     unreached: str | None = None     # message when map points get no stop
     stock: StopWriter | None = None  # how the stops were written, and their counts
+    planner: RefPlanner | None = None  # the planner after its run over the file
 
 
 def rewrite(lines: Iterable[str], bmap: mapformat.BulgeMap, settings: Settings,
             source: str = "<gcode>", result: RewriteResult | None = None,
-            stops: StockStops = StockStops()) -> Iterator[str]:
-    """Yield the stock-firmware G-code (lines end with '\\n')."""
-    planner = RefPlanner(bmap, settings)
+            stops: StockStops = StockStops(), planner: RefPlanner | None = None,
+            on_move=None) -> Iterator[str]:
+    """Yield the stock-firmware G-code (lines end with '\\n'). planner: a new one to run (else
+    one is made); on_move(move, actions) is called for every move as it is planned."""
+    planner = planner if planner is not None else RefPlanner(bmap, settings)
     st = GcodeState()
     res = result if result is not None else RewriteResult()
     sw = res.stock = StopWriter(stops)
@@ -959,6 +976,9 @@ def rewrite(lines: Iterable[str], bmap: mapformat.BulgeMap, settings: Settings,
             yield raw
             continue
         per_move = [(m, planner.plan(m)) for m in ln.moves]
+        if on_move is not None:
+            for m, acts in per_move:
+                on_move(m, acts)
         if all(_unchanged(m, a) for m, a in per_move):
             if any(a.dropped for _, acts in per_move for a in acts):
                 sw.drop()
@@ -968,6 +988,7 @@ def rewrite(lines: Iterable[str], bmap: mapformat.BulgeMap, settings: Settings,
         yield from _emit(ln, per_move, st, sw)
     res.stops = planner.stops
     res.stats = planner.stats
+    res.planner = planner
     res.unreached = unreached_message(planner, source)
 
 
@@ -1098,19 +1119,21 @@ def _header(bmap: mapformat.BulgeMap, settings: Settings, stops: StockStops) -> 
 
 def _rewrite_records(src, out, chunks, bmap: mapformat.BulgeMap, settings: Settings,
                      source: str, res: RewriteResult, stops: StockStops = StockStops(),
-                     m92: list | None = None) -> None:
+                     m92: list | None = None, planner: RefPlanner | None = None,
+                     on_move=None) -> None:
     """rewrite() on the compiled scanner's chunks: the same output, but lines that stay as they
-    are copied as bytes and only the moves that can change planned (Skipper). Needs a file
-    whose lines end in \n or \r\n and that is valid UTF-8 (rewrite_file checks)."""
+    are copied as bytes and only the moves that can change planned (Skipper; on_move sees
+    those). Needs a file whose lines end in \n or \r\n and that is valid UTF-8 (rewrite_file
+    checks)."""
     from ..gcode import parse_words, split_code
-    planner = RefPlanner(bmap, settings)
+    planner = planner if planner is not None else RefPlanner(bmap, settings)
     sw = res.stock = StopWriter(stops, m92)
     out.write(_header(bmap, settings, stops).encode())
     pos = 0                                   # bytes of src copied so far
 
     def emit_changed(a, done, planned):
         nonlocal pos
-        lines = a["line_no"]
+        lines = np.ascontiguousarray(a["line_no"])      # in file order: a line's moves by bisection
         seen = set()
         for i, (m, acts) in sorted(planned.items()):     # in file order, as rewrite() goes
             ln_no = int(lines[i])
@@ -1121,7 +1144,7 @@ def _rewrite_records(src, out, chunks, bmap: mapformat.BulgeMap, settings: Setti
                     sw.drop()
                 continue
             seen.add(ln_no)
-            idx = np.flatnonzero(lines == ln_no)      # the line's moves (an arc's chords)
+            idx = np.arange(*np.searchsorted(lines, [ln_no, ln_no + 1]))   # the line's moves (an arc's chords)
             r0 = a[idx[0]]
             start = int(r0["offset"])
             out.write(src.read(start - pos))
@@ -1141,7 +1164,7 @@ def _rewrite_records(src, out, chunks, bmap: mapformat.BulgeMap, settings: Setti
             res.moves_split += 1
             out.write("".join(_emit(Line(ln_no, text, head[0].upper(), words, [], None),
                                     per_move, st, sw)).encode())
-    plan_records(planner, chunks, on_chunk=emit_changed)
+    plan_records(planner, chunks, on_move, on_chunk=emit_changed)
     rest = src.read()
     out.write(rest)
     if rest and not rest.endswith(b"\n"):
@@ -1149,14 +1172,19 @@ def _rewrite_records(src, out, chunks, bmap: mapformat.BulgeMap, settings: Setti
     res.lines_in = chunks.lines
     res.stops = planner.stops
     res.stats = planner.stats
+    res.planner = planner
     res.unreached = unreached_message(planner, source)
 
 
 def rewrite_file(src, dst, bmap: mapformat.BulgeMap, settings: Settings,
-                 allow_unreached: bool = False, stops: StockStops = StockStops()) -> RewriteResult:
+                 allow_unreached: bool = False, stops: StockStops = StockStops(),
+                 on_plan=None) -> RewriteResult:
     """Rewrite src into dst.  Map points no move reaches are an error (the
     map is likely for another file) unless allow_unreached; then the message
-    is in result.unreached.  dst is only written when the rewrite succeeds."""
+    is in result.unreached.  dst is only written when the rewrite succeeds.
+    on_plan(planner) is called with each planner made to run over the file (a second one when
+    the compiled scanner leaves the file to the text path) and returns an on_move hook (see
+    rewrite()), or None: build's statistics count on the rewrite's run (result.planner)."""
     import os
     from ..gcode import check_not_processed, open_checked
     res = RewriteResult()
@@ -1172,6 +1200,10 @@ def rewrite_file(src, dst, bmap: mapformat.BulgeMap, settings: Settings,
     else:
         _, lines = open_checked(src, checks=(check_not_processed, plain))     # streamed, not held
     tmp = f"{os.fspath(dst)}.part"
+
+    def new_planner():
+        p = RefPlanner(bmap, settings)
+        return p, (on_plan(p) if on_plan is not None else None)
     try:
         done = False
         if byte_path:
@@ -1179,7 +1211,8 @@ def rewrite_file(src, dst, bmap: mapformat.BulgeMap, settings: Settings,
                 r = RewriteResult()
                 with open(tmp, "wb") as f, open(src, "rb") as g:
                     m92 = None if stops.stop != STOP_MOVE else kept.m92 if kept else scan_m92(src)
-                    _rewrite_records(g, f, chunks, bmap, settings, str(src), r, stops, m92)
+                    _rewrite_records(g, f, chunks, bmap, settings, str(src), r, stops, m92,
+                                     *new_planner())
                 return r
             try:
                 res = movescan.run(src, fast, fast=True)
@@ -1189,7 +1222,7 @@ def rewrite_file(src, dst, bmap: mapformat.BulgeMap, settings: Settings,
         if not done:
             with open(tmp, "w", encoding="utf-8", newline="") as f:
                 buf = []
-                for out in rewrite(lines, bmap, settings, str(src), res, stops):
+                for out in rewrite(lines, bmap, settings, str(src), res, stops, *new_planner()):
                     buf.append(out)
                     if len(buf) >= 4096:
                         f.write("".join(buf))

@@ -138,26 +138,38 @@ def slicer_time(text: str) -> float | None:
     return None
 
 
+class StopTimer:
+    """An on_move hook of a planner's run (plan_records, fallback.rewrite): the time the stops
+    cost over cruising, decelerating to each and back, v/a at its move's feed rate."""
+
+    def __init__(self, planner: RefPlanner, accel_mm_s2: float = 1000.0):
+        self.planner, self.accel = planner, accel_mm_s2
+        self.seen = 0
+        self.decel_s = 0.0
+
+    def __call__(self, m, actions) -> None:
+        k = len(self.planner.stops) - self.seen      # stops this move made
+        self.seen = len(self.planner.stops)
+        if k:
+            self.decel_s += k * (m.f / 60.0) / self.accel
+
+
 def print_stats(gcode_path, map_bytes: bytes, settings: Settings, arena: int = ARENA_BYTES,
-                accel_mm_s2: float = 1000.0) -> Stats:
-    """map_stats plus a run of the G-code through the reference planner."""
+                accel_mm_s2: float = 1000.0, planned: StopTimer | None = None) -> Stats:
+    """map_stats plus a run of the G-code through the reference planner. planned: the hook of
+    a run of a planner with this map and these settings over this file that has already
+    happened (build: the stock fallback's), which is then not run again."""
     st = map_stats(map_bytes, settings, arena)
     bm = mapformat.decode_map(map_bytes)
     ends, _ = open_checked(gcode_path)             # checked; its moves are scanned in chunks
 
     def run(chunks):
-        planner = RefPlanner(bm, settings)
-        acc = {"stops": 0, "decel": 0.0}
-
-        def count(m, actions):
-            k = len(planner.stops) - acc["stops"]      # stops this move made
-            acc["stops"] = len(planner.stops)
-            if k:
-                # decelerating to a stop and back costs v/a over cruising
-                acc["decel"] += k * (m.f / 60.0) / accel_mm_s2
-        plan_records(planner, chunks, count)
-        return planner, acc["decel"]
-    planner, decel = movescan.run(gcode_path, run)
+        timer = StopTimer(RefPlanner(bm, settings), accel_mm_s2)
+        plan_records(timer.planner, chunks, timer)
+        return timer
+    if planned is None:
+        planned = movescan.run(gcode_path, run)
+    planner, decel = planned.planner, planned.decel_s
     fired: dict[int, set] = {}
     per_z: dict[int, int] = {}
     dwell_ms = 0

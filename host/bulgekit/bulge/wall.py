@@ -154,14 +154,55 @@ def _signed_area(xy: np.ndarray) -> float:
     return 0.5 * float(np.dot(x, _next(y)) - np.dot(y, _next(x)))
 
 
-def _centroid(xy: np.ndarray) -> tuple[float, float]:
+def _area_centroid(xy: np.ndarray) -> tuple[float, tuple[float, float]]:
+    """_signed_area and the centroid of one polygon, the same operations on the same arrays, the
+    rolled columns made once."""
     x, y = xy[:, 0], xy[:, 1]
     xn, yn = _next(x), _next(y)
+    area = 0.5 * float(np.dot(x, yn) - np.dot(y, xn))
     cr = x * yn - xn * y
     a = cr.sum() / 2
     if abs(a) < 1e-12:
-        return float(x.mean()), float(y.mean())
-    return float(((x + xn) * cr).sum() / (6 * a)), float(((y + yn) * cr).sum() / (6 * a))
+        return area, (float(x.mean()), float(y.mean()))
+    return area, (float(((x + xn) * cr).sum() / (6 * a)), float(((y + yn) * cr).sum() / (6 * a)))
+
+
+def _ray_hits(xys: list, ss: list, cens: list, direction) -> list[float]:
+    """_ray_hit of many walls: the arithmetic per segment as there, for all of them at once
+    (a file has thousands of layers); per wall the crossing of greatest t (the first of equal
+    ones, as argmax), or _ray_hit's fallback."""
+    dx, dy = direction
+    nseg = np.array([len(xy) - 1 for xy in xys])
+    a = np.concatenate([xy[:-1] for xy in xys])
+    b = np.concatenate([xy[1:] for xy in xys])
+    cx = np.repeat([c[0] for c in cens], nseg)
+    cy = np.repeat([c[1] for c in cens], nseg)
+    ex = b[:, 0] - a[:, 0]
+    ey = b[:, 1] - a[:, 1]
+    den = dx * ey - dy * ex
+    wx = a[:, 0] - cx
+    wy = a[:, 1] - cy
+    ok = np.abs(den) > 1e-12
+    t = np.divide(wx * ey - wy * ex, den, out=np.zeros_like(den), where=ok)   # along the ray
+    w = np.divide(wx * dy - wy * dx, den, out=np.zeros_like(den), where=ok)   # along the segment
+    ok &= (t > 0) & (w >= 0) & (w <= 1)
+    wall = np.repeat(np.arange(len(xys)), nseg)
+    idx = np.flatnonzero(ok)
+    order = np.lexsort((idx, -t[idx], wall[idx]))       # per wall: greatest t, first index
+    first = idx[order]
+    hit_wall, at = np.unique(wall[first], return_index=True)
+    k = first[at]
+    start = np.concatenate([[0], np.cumsum(nseg)[:-1]])
+    j = k - start[hit_wall]                              # segment within its wall
+    s_all = np.concatenate(ss)
+    s_at = np.concatenate([[0], np.cumsum(nseg + 1)[:-1]])[hit_wall] + j
+    out = [None] * len(xys)
+    for i, v in zip(hit_wall.tolist(), (s_all[s_at] + w[k] * (s_all[s_at + 1] - s_all[s_at])).tolist()):
+        out[i] = v
+    for i in range(len(xys)):
+        if out[i] is None:
+            out[i] = _ray_hit(xys[i], ss[i], cens[i], direction)
+    return out
 
 
 def _ray_hit(xy: np.ndarray, s: np.ndarray, c, direction) -> float:
@@ -173,12 +214,12 @@ def _ray_hit(xy: np.ndarray, s: np.ndarray, c, direction) -> float:
     ex = b[:, 0] - a[:, 0]
     ey = b[:, 1] - a[:, 1]
     den = dx * ey - dy * ex
-    with np.errstate(divide="ignore", invalid="ignore"):
-        wx = a[:, 0] - cx
-        wy = a[:, 1] - cy
-        t = (wx * ey - wy * ex) / den            # along the ray
-        w = (wx * dy - wy * dx) / den            # along the segment
-    ok = (np.abs(den) > 1e-12) & (t > 0) & (w >= 0) & (w <= 1)
+    wx = a[:, 0] - cx
+    wy = a[:, 1] - cy
+    ok = np.abs(den) > 1e-12
+    t = np.divide(wx * ey - wy * ex, den, out=np.zeros_like(den), where=ok)   # along the ray
+    w = np.divide(wx * dy - wy * dx, den, out=np.zeros_like(den), where=ok)   # along the segment
+    ok &= (t > 0) & (w >= 0) & (w <= 1)
     if ok.any():
         idx = np.nonzero(ok)[0]
         k = idx[np.argmax(t[idx])]
@@ -237,6 +278,15 @@ def extract_walls(moves: Iterable[Move], layer_height: float | None = None,
                               ref_angle_deg, source, header_height)
 
 
+_ENDS_COLS = np.array([0, 1, 3, 4, 2, 5])        # RECORD's x0 y0 z0 x1 y1 z1 -> x0 y0 x1 y1 z0 z1
+
+
+def _coords(a: np.ndarray) -> np.ndarray:
+    """The RECORD array a's x0 y0 z0 x1 y1 z1 as an (n, 6) float64 view (no copy)."""
+    a = np.ascontiguousarray(a)
+    return np.ndarray((len(a), 6), np.dtype("<f8"), a, 0, (a.itemsize, 8))
+
+
 def walls_from_records(chunks: Iterable[np.ndarray], layer_height: float | None = None,
                        geometric: bool = False, ref_angle_deg: float = -90.0,
                        source: str = "<gcode>", header_height: float | None = None
@@ -253,11 +303,11 @@ def walls_from_records(chunks: Iterable[np.ndarray], layer_height: float | None 
     last_was_break = False
     done = 0                                   # moves before this chunk
     for a in chunks:
-        x0, y0, x1, y1, e = a["x0"], a["y0"], a["x1"], a["y1"], a["e"]
-        outer = (a["flags"] & movescan.OUTER) != 0
+        c, _, _ = movescan.classes(a)          # (one pass over the records)
+        outer = (c & movescan.OUTER) != 0
         any_outer = any_outer or bool(outer.any())
-        moved = (x0 != x1) | (y0 != y1)
-        ok = (e > 0.0) & moved
+        moved = (c & movescan.MOVED) != 0
+        ok = (c & movescan.EXTRUDES) != 0       # e > 0, moving in XY
         if not geometric:
             ok &= outer
         other = ~ok & (moved | (~outer if not geometric else False))
@@ -267,13 +317,15 @@ def walls_from_records(chunks: Iterable[np.ndarray], layer_height: float | None 
         ev = ev[~is_brk | ~prev]                 # a run of breaks makes one row
         if len(ev):
             last_was_break = bool(other[ev[-1]])
-        rows = np.stack([x0[ev], y0[ev], x1[ev], y1[ev], a["z0"][ev], a["z1"][ev]], axis=1)
+        # the rows' x0 y0 x1 y1 z0 z1, gathered in one go from the records' first six numbers
+        rows = _coords(a)[ev[:, None], _ENDS_COLS]
         brk = other[ev]
         rows[brk] = np.nan
         parts.append(rows)
         nums.append(np.where(brk, -1, ev + done))
-        flat = ok & (np.abs(a["z1"] - a["z0"]) < 1e-6)
-        planar_z.append(movescan.z_cmm(a["z1"][flat]))
+        ok_rows = rows[~brk]
+        flat = np.abs(ok_rows[:, 5] - ok_rows[:, 4]) < 1e-6
+        planar_z.append(movescan.z_cmm(ok_rows[flat, 5]))
         done += len(a)
     if not geometric and not any_outer:
         raise WallError(
@@ -349,29 +401,41 @@ def walls_from_records(chunks: Iterable[np.ndarray], layer_height: float | None 
         if geometric and upper is not None:
             near = [c for c in pool if _median_distance(np.array(c.pts), upper) <= max(1.0, 3 * h)]
             pool = near or pool
-        best = max(pool, key=lambda c: abs(_signed_area(np.array(c.pts))))
+        # (most layers have one wall: no areas to compare)
+        best = pool[0] if len(pool) == 1 else max(pool, key=lambda c: abs(_signed_area(np.array(c.pts))))
         if not closed:
             notes.append(f"layer z {b / 100:.2f}: no closed outer loop, using the largest open one")
         chosen[b] = best
-        upper = np.array(best.pts, dtype=float)
+        if geometric:
+            upper = np.array(best.pts, dtype=float)
     walls: list[Wall] = []
     prev_z = None
     for b in sorted(chosen):
         best = chosen[b]
-        xy = np.array(best.pts, dtype=float)
-        seg = np.hypot(np.diff(xy[:, 0]), np.diff(xy[:, 1]))
-        s = np.concatenate([[0.0], np.cumsum(seg)])
-        area = _signed_area(xy)
-        cen = _centroid(xy)
+        r0, r1 = best.r0, best.r1
+        # (the arrays as before, with fewer numpy calls: thousands of layers)
+        xy = np.empty((r1 - r0 + 1, 2))
+        xy[0] = ends[r0, 0:2]
+        xy[1:] = ends[r0:r1, 2:4]
+        x = xy[:, 0]
+        y = xy[:, 1]
+        s = np.empty(len(xy))
+        s[0] = 0.0
+        np.cumsum(np.hypot(x[1:] - x[:-1], y[1:] - y[:-1]), out=s[1:])
+        area, cen = _area_centroid(xy)
         z = b / 100
         height = (z - prev_z) if prev_z is not None else min(z, h)
         if prev_z is not None and height > 1.5 * h:
             height = h  # a layer without wall in between
         prev_z = z
-        w = Wall(z=z, xy=xy, s=s, move_index=index[best.r0:best.r1].copy(), height=height,
+        w = Wall(z=z, xy=xy, s=s, move_index=index[r0:r1].copy(), height=height,
                  ccw=area >= 0, centroid=cen, closed=_closed(best, gap))
-        w.s_ref = _ray_hit(xy, s, cen, direction)
         walls.append(w)
+    for k in range(0, len(walls), 512):                 # (memory: 512 walls at a time)
+        part = walls[k:k + 512]
+        for w, ref in zip(part, _ray_hits([w.xy for w in part], [w.s for w in part],
+                                          [w.centroid for w in part], direction)):
+            w.s_ref = ref
     loops = [w for w in walls if w.closed]
     for w in walls:
         if not w.closed and loops:

@@ -371,8 +371,33 @@ def might_hold(data: bytes, words) -> bool:
     return any(w in data for w in words) or b"M0" in data or b"m0" in data
 
 
+SCAN_VERSION = 2      # the compiled scanner's VERSION this code calls (_scan.c's module init)
+
+
+def compiled_scanner():
+    """The compiled scanner module (bulgekit.gcode._scan), or None: not built (no C compiler), or
+    built from an older _scan.c that lacks what this code calls (build it again:
+    `cd host && python3 setup.py build_ext --inplace`); the Python paths then do the work."""
+    try:
+        from . import _scan
+    except ImportError:
+        return None
+    return _scan if getattr(_scan, "VERSION", 1) == SCAN_VERSION else None
+
+
+def _flag_counts(data) -> tuple[int, int] | None:
+    """(ours, m92): how many lines of data (bytes, mmap) _OURS_RX and _M92_RX may match, counted
+    by the compiled scanner in one pass (_scan.flag_lines, a superset: the regexes decide); None
+    without it. A count of 0: the regex, at every line start, need not run."""
+    sc = compiled_scanner()
+    return None if sc is None else sc.flag_lines(data)
+
+
 def _refuse_processed(data: bytes, source: str, lines_before: int, at: int = 0) -> None:
     """check_not_processed on a file's whole lines from `data[at]`, `lines_before` lines in."""
+    counts = _flag_counts(data)
+    if counts is not None and counts[0] == 0:
+        return
     if not might_hold(data, (b"; bulgekit", b"M72", b"m72")):
         return
     mt = _OURS_RX.search(data, at)
@@ -473,6 +498,12 @@ def scan_m92(path) -> list[tuple[int, float]]:
         except ValueError:                    # an empty file
             return out
         with data:
+            # a quick look first: the regex, at every line start, is far slower
+            counts = _flag_counts(data)
+            if counts is not None and counts[1] == 0:
+                return out
+            if not any(data.find(w) >= 0 for w in (b"M92", b"m92", b"M0", b"m0")):   # (might_hold)
+                return out
             line, pos = 1, 0
             for mt in _M92_RX.finditer(data):
                 line += data[pos:mt.start()].count(b"\n")     # (mmap has no count before 3.13)
@@ -485,8 +516,11 @@ def scan_m92(path) -> list[tuple[int, float]]:
 
 def _plain_lines(data) -> bool:
     """rewrite_file's byte path needs \n or \r\n line ends and UTF-8 (else rewrite() runs)."""
-    if data.count(b"\r") != data.count(b"\r\n"):
+    n_cr = data.count(b"\r")
+    if n_cr and n_cr != data.count(b"\r\n"):
         return False
+    if data.isascii():                                # (ASCII is UTF-8: no decoding needed)
+        return True
     import codecs
     dec = codecs.getincrementaldecoder("utf-8")()
     try:

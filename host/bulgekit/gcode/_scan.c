@@ -54,6 +54,7 @@ typedef struct {
     int events;        /* gcode/estimate.py's mode: see event_line() */
     int quiet;         /* the line is an event: its moves change the state, no records */
     long flagged;      /* lines that may be gcode.check_not_processed's or an M92 (see flag()) */
+    long long n_lf, n_cr, n_crlf;   /* line-end bytes consumed: '\n', '\r', "\r\n" pairs */
     /* output */
     Record *out;
     Py_ssize_t n, cap;
@@ -181,31 +182,35 @@ static int parse_words(Scanner *s, const char *p, const char *end, Words *w) {
         if (ch >= 'a' && ch <= 'z') ch = (char)(ch - 32);
         if (ch < 'A' || ch > 'Z') { p++; continue; }
         const char *v = ++p;
-        while (p < end && !is_ws((unsigned char)*p) &&
-               !((*p >= 'A' && *p <= 'Z') || (*p >= 'a' && *p <= 'z'))) p++;
-        if (ch == 'N' && w->have == 0) continue;
-        /* [-+]?(\d+\.?\d*|\.\d+) */
+        if (ch == 'N' && w->have == 0) {      /* a line number: skipped, not read */
+            while (p < end && !is_ws((unsigned char)*p) &&
+                   !((*p >= 'A' && *p <= 'Z') || (*p >= 'a' && *p <= 'z'))) p++;
+            continue;
+        }
+        /* [-+]?(\d+\.?\d*|\.\d+), read as it is matched: the digits as an integer */
         const char *q = v;
-        if (q < p && (*q == '-' || *q == '+')) q++;
+        if (q < end && (*q == '-' || *q == '+')) q++;
         const char *d0 = q;
-        while (q < p && *q >= '0' && *q <= '9') q++;
+        uint64_t m = 0;
+        while (q < end && *q >= '0' && *q <= '9') m = m * 10 + (uint64_t)(*q++ - '0');
         int lead = (int)(q - d0);
         int frac = 0;
-        if (q < p && *q == '.') {
+        if (q < end && *q == '.') {
             q++;
             const char *f0 = q;
-            while (q < p && *q >= '0' && *q <= '9') q++;
+            while (q < end && *q >= '0' && *q <= '9') m = m * 10 + (uint64_t)(*q++ - '0');
             frac = (int)(q - f0);
         }
+        /* the word runs to the next letter or blank: anything else in it is refused */
+        p = q;
+        while (p < end && !is_ws((unsigned char)*p) &&
+               !((*p >= 'A' && *p <= 'Z') || (*p >= 'a' && *p <= 'z'))) p++;
         if (q != p || (lead == 0 && frac == 0)) return unsupported(s);
         if (lead + frac <= 15) {
             /* Up to 15 digits: the digits as an integer (< 2^53, exact) over a power of ten
              * (<= 1e15, exact): one correctly rounded division, strtod's result (Clinger). */
             static const double p10[16] = {1e0, 1e1, 1e2, 1e3, 1e4, 1e5, 1e6, 1e7, 1e8,
                                            1e9, 1e10, 1e11, 1e12, 1e13, 1e14, 1e15};
-            uint64_t m = 0;
-            for (const char *c = d0; c < p; c++)
-                if (*c != '.') m = m * 10 + (uint64_t)(*c - '0');
             double val = (double)m / p10[frac];
             w->v[ch - 'A'] = (*v == '-') ? -val : val;
             w->have |= 1u << (ch - 'A');
@@ -363,14 +368,12 @@ static int arc(Scanner *s, const char *line, Words *w, int cw) {
 }
 
 /* One line without its line end (gcode.split_code + parse_lines). */
-static int do_line_state(Scanner *s, const char *p, const char *end);
+static int do_line_state(Scanner *s, const char *p, const char *end, int ascii);
 
-static int do_line(Scanner *s, const char *p, const char *end) {
-    if (!s->events) return do_line_state(s, p, end);
-    int ascii = 1;
-    for (const char *q = p; q < end; q++)
-        if ((unsigned char)*q >= 0x80) { ascii = 0; break; }
-    if (ascii && !is_event(s, p, end)) return do_line_state(s, p, end);
+/* One line without its line end; ascii: it has no byte >= 0x80 (feed() saw as it split). */
+static int do_line(Scanner *s, const char *p, const char *end, int ascii) {
+    if (!s->events) return do_line_state(s, p, end, ascii);
+    if (ascii && !is_event(s, p, end)) return do_line_state(s, p, end, 1);
     Record r;
     memset(&r, 0, sizeof r);
     r.x0 = r.x1 = s->x; r.y0 = r.y1 = s->y; r.z0 = r.z1 = s->z;
@@ -383,7 +386,7 @@ static int do_line(Scanner *s, const char *p, const char *end) {
     if (push(s, &r) < 0) return -1;
     if (!ascii) return 0;                  /* the state is the estimator's to follow */
     s->quiet = 1;                          /* the line's own state changes, without records */
-    int rc = do_line_state(s, p, end);
+    int rc = do_line_state(s, p, end, 1);
     s->quiet = 0;
     if (rc < 0 && PyErr_ExceptionMatches(ScanUnsupported)) {
         PyErr_Clear();                     /* the estimator reads (or refuses) it */
@@ -412,10 +415,9 @@ static void flag(Scanner *s, const char *p, const char *end) {
     }
 }
 
-static int do_line_state(Scanner *s, const char *p, const char *end) {
+static int do_line_state(Scanner *s, const char *p, const char *end, int ascii) {
     const char *line = p;
-    for (const char *q = p; q < end; q++)
-        if ((unsigned char)*q >= 0x80) { s->flagged++; return foreign_line(s, p, end); }
+    if (!ascii) { s->flagged++; return foreign_line(s, p, end); }
     while (p < end && is_ws((unsigned char)*p)) p++;
     while (end > p && is_ws((unsigned char)end[-1])) end--;
     if (p == end) return 0;
@@ -484,19 +486,25 @@ static PyObject *Scanner_feed(Scanner *s, PyObject *args) {
     const char *p = buf.buf, *end = p + buf.len;
     s->n = 0;
     s->base = p;
-    if (s->pending_cr && p < end && *p == '\n') p++;
-    s->pending_cr = 0;
+    if (p < end) {                         /* (an empty feed keeps the pending '\r') */
+        if (s->pending_cr && *p == '\n') { p++; s->n_lf++; s->n_crlf++; }
+        s->pending_cr = 0;
+    }
     const char *used = p;
     while (p < end) {
         const char *q = p;
-        while (q < end && *q != '\n' && *q != '\r') q++;
+        unsigned char high = 0;                /* the line's bytes or'ed: >= 0x80 if any is */
+        while (q < end && *q != '\n' && *q != '\r') high |= (unsigned char)*q++;
         if (q == end && !final) break;
         s->line_no++;
-        if (do_line(s, p, q) < 0) { PyBuffer_Release(&buf); return NULL; }
+        if (do_line(s, p, q, high < 0x80) < 0) { PyBuffer_Release(&buf); return NULL; }
         if (q < end) {
             if (*q == '\r') {
-                if (q + 1 < end) { if (q[1] == '\n') q++; }
+                s->n_cr++;
+                if (q + 1 < end) { if (q[1] == '\n') { q++; s->n_lf++; s->n_crlf++; } }
                 else if (!final) s->pending_cr = 1;
+            } else {
+                s->n_lf++;
             }
             q++;
         }
@@ -521,6 +529,7 @@ static int Scanner_init(Scanner *s, PyObject *args, PyObject *kw) {
     s->events = events;
     s->quiet = 0;
     s->flagged = 0;
+    s->n_lf = s->n_cr = s->n_crlf = 0;
     s->x = s->y = s->z = s->e = 0.0;
     s->f = 1500.0;
     s->abs_xyz = s->abs_e = 1;
@@ -567,6 +576,11 @@ static PyObject *Scanner_flagged(Scanner *s, void *c) {
     return PyLong_FromLong(s->flagged);
 }
 
+static PyObject *Scanner_line_ends(Scanner *s, void *c) {
+    (void)c;
+    return Py_BuildValue("(LLL)", s->n_lf, s->n_cr, s->n_crlf);
+}
+
 static PyObject *Scanner_e(Scanner *s, void *c) {
     (void)c;
     return PyFloat_FromDouble(s->e);
@@ -582,6 +596,8 @@ static PyGetSetDef Scanner_getset[] = {
     {"lines", (getter)Scanner_lines, NULL, "lines scanned so far", NULL},
     {"e", (getter)Scanner_e, NULL, "E position after the lines scanned so far", NULL},
     {"flagged", (getter)Scanner_flagged, NULL, "lines so far that may be bulgekit's or an M92", NULL},
+    {"line_ends", (getter)Scanner_line_ends, NULL,
+     "(\\n, \\r, \\r\\n) bytes and pairs so far: bytes.count's of the data consumed", NULL},
     {NULL, NULL, NULL, NULL, NULL}};
 
 static PyTypeObject ScannerType = {
@@ -597,8 +613,284 @@ static PyTypeObject ScannerType = {
     .tp_getset = Scanner_getset,
 };
 
+/* ---- annotate's line marks (bulge/annotate.py: _feature_comments, _z_events) ----
+ * The same lines annotate's regular expressions find, in one pass in C. Lines end at '\n' only
+ * (as the regexes' [^\n]); blanks are ' ' and '\t' (their [ \t]). annotate.py keeps the regexes
+ * as the fallback, and host/tests/bulge/test_annotate.py checks both give the same on every
+ * test file and on odd and random lines. */
+
+/* _MOVE_HEAD, [ \t]*G0?[01][ \t], at p: where the words start, or -1. */
+static Py_ssize_t move_head(const char *d, Py_ssize_t p, Py_ssize_t n) {
+    while (p < n && (d[p] == ' ' || d[p] == '\t')) p++;
+    if (p >= n || d[p] != 'G') return -1;
+    p++;
+    if (p + 2 < n && d[p] == '0' && (d[p + 1] == '0' || d[p + 1] == '1') &&
+        (d[p + 2] == ' ' || d[p + 2] == '\t'))
+        return p + 3;
+    if (p + 1 < n && (d[p] == '0' || d[p] == '1') && (d[p + 1] == ' ' || d[p + 1] == '\t'))
+        return p + 2;
+    return -1;
+}
+
+static const char *const FEATURE_WORDS[] = {
+    "TYPE:", "FEATURE:", "outer perimeter", "inner perimeter", "infill", "solid layer", "support",
+    "dense support", "skirt", "raft", "bridge", "gap fill", "prime pillar", "ooze shield", NULL};
+
+/* feature_lines(data) -> [(end, comment)]: every line whose first byte other than ' ' and '\t'
+ * is ';' followed by blanks and a feature word (_FEATURE_RX); end: its '\n' (or the data's end),
+ * comment: the bytes after the ';' up to end, for gcode.feature_of_comment. */
+static PyObject *feature_lines(PyObject *self, PyObject *args) {
+    (void)self;
+    Py_buffer buf;
+    if (!PyArg_ParseTuple(args, "y*", &buf)) return NULL;
+    const char *d = buf.buf;
+    Py_ssize_t n = buf.len, ls = 0;
+    PyObject *out = PyList_New(0);
+    while (out && ls <= n) {
+        const char *nl = ls < n ? memchr(d + ls, '\n', (size_t)(n - ls)) : NULL;
+        Py_ssize_t le = nl ? nl - d : n;
+        Py_ssize_t p = ls;
+        while (p < le && (d[p] == ' ' || d[p] == '\t')) p++;
+        if (p < le && d[p] == ';') {
+            Py_ssize_t q = p + 1;
+            while (q < le && (d[q] == ' ' || d[q] == '\t')) q++;
+            for (int k = 0; FEATURE_WORDS[k]; k++) {
+                size_t l = strlen(FEATURE_WORDS[k]);
+                if ((size_t)(le - q) >= l && memcmp(d + q, FEATURE_WORDS[k], l) == 0) {
+                    PyObject *t = Py_BuildValue("(ny#)", le, d + p + 1, le - p - 1);
+                    if (!t || PyList_Append(out, t) < 0) Py_CLEAR(out);
+                    Py_XDECREF(t);
+                    break;
+                }
+            }
+        }
+        if (!nl) break;
+        ls = le + 1;
+    }
+    PyBuffer_Release(&buf);
+    return out;
+}
+
+static int is_word(char c) {
+    return (c >= '0' && c <= '9') || (c >= 'A' && c <= 'Z') || (c >= 'a' && c <= 'z') || c == '_';
+}
+
+typedef struct { Py_ssize_t start, end; double z; } ZLine;
+
+/* z_events(data) -> [(offset, z in 0.01 mm)]: annotate._z_events. Each Z word (_Z_RX:
+ * Z[ \t]*[-+]?[0-9]*\.?[0-9]+) before any ';' of a G0/G1 line sets z (added to it under G91;
+ * G90/G91 at a line's start switch); such a line is a layer change when it, or a line after it
+ * and before the next one, extrudes in XY, and its z in 0.01 mm (round(), half to even)
+ * differs from the last layer change's. */
+static PyObject *z_events(PyObject *self, PyObject *args) {
+    (void)self;
+    Py_buffer buf;
+    if (!PyArg_ParseTuple(args, "y*", &buf)) return NULL;
+    const char *d = buf.buf;
+    Py_ssize_t n = buf.len, ls = 0, h;
+    ZLine *zl = NULL;
+    Py_ssize_t nz = 0, cz = 0;
+    Py_ssize_t *ext = NULL;             /* starts of the lines that extrude, in order */
+    Py_ssize_t ne = 0, ce = 0;
+    int absolute = 1, failed = 0;
+    double z = 0.0;
+    char small[64];
+    while (ls <= n && !failed) {
+        const char *nl = ls < n ? memchr(d + ls, '\n', (size_t)(n - ls)) : NULL;
+        Py_ssize_t le = nl ? nl - d : n;
+        Py_ssize_t p = ls;
+        while (p < le && (d[p] == ' ' || d[p] == '\t')) p++;
+        if (p + 2 < n && d[p] == 'G' && d[p + 1] == '9' && (d[p + 2] == '0' || d[p + 2] == '1') &&
+            (p + 3 >= n || !is_word(d[p + 3]))) {
+            absolute = d[p + 2] == '0';
+        } else if ((h = move_head(d, ls, n)) >= 0) {
+            /* one walk to the ';' or line end: X/Y and E (_EXTRUDE_RX), and the Z words */
+            int xy = 0, e = 0;
+            for (Py_ssize_t zp = h; zp < le && d[zp] != ';'; zp++) {
+                char c = d[zp];
+                if (c == 'X' || c == 'Y') { xy = 1; continue; }
+                if (c == 'E') { e = 1; continue; }
+                if (c != 'Z') continue;
+                Py_ssize_t q = zp + 1;
+                while (q < n && (d[q] == ' ' || d[q] == '\t')) q++;
+                Py_ssize_t ns = q;
+                if (q < n && (d[q] == '-' || d[q] == '+')) q++;
+                Py_ssize_t d1 = q;
+                while (q < n && d[q] >= '0' && d[q] <= '9') q++;
+                if (q + 1 < n && d[q] == '.' && d[q + 1] >= '0' && d[q + 1] <= '9') {
+                    q++;
+                    while (q < n && d[q] >= '0' && d[q] <= '9') q++;
+                } else if (q == d1) {
+                    continue;                      /* no number: not a Z word */
+                }
+                char *num = small;
+                if (q - ns >= (Py_ssize_t)sizeof small) {
+                    num = PyMem_Malloc((size_t)(q - ns + 1));
+                    if (!num) { failed = 1; break; }
+                }
+                memcpy(num, d + ns, (size_t)(q - ns));
+                num[q - ns] = 0;
+                double v = PyOS_string_to_double(num, NULL, NULL);   /* float()'s own */
+                if (num != small) PyMem_Free(num);
+                if (v == -1.0 && PyErr_Occurred()) { failed = 1; break; }
+                z = absolute ? v : z + v;
+                if (nz == cz) {
+                    cz = cz ? 2 * cz : 1024;
+                    ZLine *t = PyMem_Realloc(zl, (size_t)cz * sizeof *t);
+                    if (!t) { failed = 1; break; }
+                    zl = t;
+                }
+                zl[nz].start = ls;
+                zl[nz].end = q;
+                zl[nz].z = z;
+                nz++;
+                zp = q - 1;                        /* the number holds no X, Y, E, Z or ';' */
+            }
+            if (xy && e && !failed) {
+                if (ne == ce) {
+                    ce = ce ? 2 * ce : 1024;
+                    Py_ssize_t *t = PyMem_Realloc(ext, (size_t)ce * sizeof *t);
+                    if (!t) { failed = 1; break; }
+                    ext = t;
+                }
+                ext[ne++] = ls;
+            }
+        }
+        if (!nl) break;
+        ls = le + 1;
+    }
+    PyObject *out = failed ? NULL : PyList_New(0);
+    if (failed && !PyErr_Occurred()) PyErr_NoMemory();
+    Py_ssize_t ei = 0;
+    PyObject *last = NULL;                     /* the last layer change's z in 0.01 mm */
+    for (Py_ssize_t k = 0; out && k < nz; k++) {
+        Py_ssize_t start = zl[k].start, end = zl[k].end;
+        Py_ssize_t stop = k + 1 < nz ? zl[k + 1].start : n;
+        /* the Z line itself (a line the data starts with is not: the regex wants a '\n' first) */
+        while (ei < ne && ext[ei] < start) ei++;
+        int layer = start > 0 && ei < ne && ext[ei] == start;
+        if (!layer) {                          /* or a line starting after end, before stop */
+            Py_ssize_t j = ei;
+            while (j < ne && ext[j] <= end) j++;
+            layer = j < ne && ext[j] < stop;
+        }
+        if (!layer) continue;
+        double x = zl[k].z * 100;
+        PyObject *zc;
+        if (fabs(x) < 4e15) {
+            zc = PyLong_FromLongLong((long long)rint(x));   /* round(): half to even */
+        } else {                               /* huge, inf or nan: Python's round() says */
+            PyObject *f = PyFloat_FromDouble(x);
+            zc = f ? PyObject_CallMethod(f, "__round__", NULL) : NULL;
+            Py_XDECREF(f);
+        }
+        int same = zc && last ? PyObject_RichCompareBool(zc, last, Py_EQ) : 0;
+        if (!zc || same < 0) { Py_XDECREF(zc); Py_CLEAR(out); break; }
+        if (same) { Py_DECREF(zc); continue; }
+        Py_XSETREF(last, zc);
+        PyObject *t = Py_BuildValue("(nO)", start, zc);
+        if (!t || PyList_Append(out, t) < 0) Py_CLEAR(out);
+        Py_XDECREF(t);
+    }
+    Py_XDECREF(last);
+    PyMem_Free(zl);
+    PyMem_Free(ext);
+    PyBuffer_Release(&buf);
+    return out;
+}
+
+/* move_classes(records) -> (classes, top, top_not_arc): one byte per move record of what the
+ * passes ask of every move (movescan.classes, which says the bits and does the same in numpy
+ * without this module), read in one pass over the records rather than one per field; top: the
+ * highest z1 of the moves that extrude in XY (None: none), top_not_arc: of those not on an arc. */
+static PyObject *move_classes(PyObject *self, PyObject *args) {
+    (void)self;
+    Py_buffer buf;
+    if (!PyArg_ParseTuple(args, "y*", &buf)) return NULL;
+    Py_ssize_t n = buf.len / (Py_ssize_t)sizeof(Record);
+    PyObject *out = PyBytes_FromStringAndSize(NULL, n);
+    if (!out) { PyBuffer_Release(&buf); return NULL; }
+    unsigned char *c = (unsigned char *)PyBytes_AS_STRING(out);
+    const Record *r = buf.buf;              /* (numpy's records: aligned as this struct) */
+    double top = 0, top_line = 0;
+    int have = 0, have_line = 0;
+    for (Py_ssize_t i = 0; i < n; i++, r++) {
+        Record m;
+        memcpy(&m, r, sizeof m);
+        int moved = m.x0 != m.x1 || m.y0 != m.y1;
+        int ext = moved && m.e > 0;
+        unsigned char k = (unsigned char)(m.flags & 3);
+        if (moved) k |= 4;
+        if (ext) {
+            k |= 8;
+            /* numpy's max: a NaN wins */
+            if (!have || m.z1 > top || isnan(m.z1)) top = m.z1, have = 1;
+            if (!(m.flags & 2) && (!have_line || m.z1 > top_line || isnan(m.z1)))
+                top_line = m.z1, have_line = 1;
+        }
+        if (!moved && m.z0 == m.z1 && m.e == 0) k |= 16;
+        if ((float)m.e > 0 && ((float)m.x0 != (float)m.x1 || (float)m.y0 != (float)m.y1)) k |= 32;
+        c[i] = k;
+    }
+    PyBuffer_Release(&buf);
+    PyObject *t = have ? PyFloat_FromDouble(top) : Py_NewRef(Py_None);
+    PyObject *tl = have_line ? PyFloat_FromDouble(top_line) : Py_NewRef(Py_None);
+    if (!t || !tl) { Py_DECREF(out); Py_XDECREF(t); Py_XDECREF(tl); return NULL; }
+    return Py_BuildValue("(NNN)", out, t, tl);
+}
+
+/* flag_lines(data) -> (ours, m92): the lines of data (split as feed() splits them) that
+ * gcode.check_not_processed's regex (a comment starting "; bulgekit", an M0...72x) and
+ * scan_m92's (an M0...92) may match, by flag()'s look at each line start: supersets, so that
+ * with a count of 0 the regex need not run over the file (gcode._flag_counts). */
+static PyObject *flag_lines(PyObject *self, PyObject *args) {
+    (void)self;
+    Py_buffer buf;
+    if (!PyArg_ParseTuple(args, "y*", &buf)) return NULL;
+    const char *p = buf.buf, *end = p + buf.len;
+    long ours = 0, m92 = 0;
+    while (p < end) {
+        const char *q = p;
+        while (q < end && *q != '\n' && *q != '\r') q++;
+        const char *a = p, *b = q;
+        while (a < b && is_ws((unsigned char)*a)) a++;
+        if (a < b) {
+            if (*a == ';') {
+                if (b - a >= 10 && memcmp(a, "; bulgekit", 10) == 0) ours++;
+            } else {
+                if (*a == 'N' || *a == 'n') {
+                    while (a < b && !is_ws((unsigned char)*a)) a++;
+                    while (a < b && is_ws((unsigned char)*a)) a++;
+                }
+                if (a < b && (*a == 'M' || *a == 'm')) {
+                    a++;
+                    while (a < b && *a == '0') a++;
+                    if (b - a >= 2 && a[1] == '2') {
+                        if (a[0] == '7') ours++;
+                        else if (a[0] == '9') m92++;
+                    }
+                }
+            }
+        }
+        p = q < end ? q + 1 : q;
+    }
+    PyBuffer_Release(&buf);
+    return Py_BuildValue("(ll)", ours, m92);
+}
+
+static PyMethodDef module_methods[] = {
+    {"feature_lines", feature_lines, METH_VARARGS,
+     "feature_lines(data) -> [(end, comment)]: annotate's feature comment lines"},
+    {"z_events", z_events, METH_VARARGS,
+     "z_events(data) -> [(offset, z_cmm)]: annotate's layer changes"},
+    {"flag_lines", flag_lines, METH_VARARGS,
+     "flag_lines(data) -> (ours, m92): lines check_not_processed's / scan_m92's regexes may match"},
+    {"move_classes", move_classes, METH_VARARGS,
+     "move_classes(records) -> (classes, top, top_not_arc): see movescan.classes"},
+    {NULL, NULL, 0, NULL}};
+
 static struct PyModuleDef scan_module = {
-    PyModuleDef_HEAD_INIT, "_scan", "G-code move scanner (C)", -1, NULL, NULL, NULL, NULL, NULL};
+    PyModuleDef_HEAD_INIT, "_scan", "G-code move scanner (C)", -1, module_methods, NULL, NULL, NULL, NULL};
 
 PyMODINIT_FUNC PyInit__scan(void) {
     if (PyType_Ready(&ScannerType) < 0) return NULL;
@@ -609,5 +901,7 @@ PyMODINIT_FUNC PyInit__scan(void) {
     Py_INCREF(&ScannerType);
     PyModule_AddObject(m, "Scanner", (PyObject *)&ScannerType);
     PyModule_AddIntConstant(m, "RECORD_SIZE", (long)sizeof(Record));
+    /* what gcode.SCAN_VERSION expects: a module built from an older _scan.c is not used */
+    PyModule_AddIntConstant(m, "VERSION", 2);
     return m;
 }

@@ -6,6 +6,7 @@ estimator reads the scanner's records in its events mode (estimate.estimate_file
 
     run(path, consume)      # consume(chunks) gets an iterator of RECORD arrays and the role names
     with Scan(path).kept(): # build: the file checked and scanned once, every run() above replays it
+    classes(a)              # what the passes ask of every move of a chunk, one byte each
 
 consume must start from nothing each time it is called: when the compiled scanner meets a line it
 leaves to the Python parser (a command with non-ASCII bytes, a value or arc gcode/__init__.py refuses),
@@ -26,10 +27,8 @@ import numpy as np
 
 from .. import gcode, progress
 
-try:
-    from . import _scan
-except ImportError:          # built without a C compiler: the Python parser does all the work
-    _scan = None
+# None without a C compiler (or built from an older _scan.c): the Python parser does all the work
+_scan = gcode.compiled_scanner()
 
 RECORD = np.dtype([
     ("x0", "<f8"), ("y0", "<f8"), ("z0", "<f8"), ("x1", "<f8"), ("y1", "<f8"), ("z1", "<f8"),
@@ -42,6 +41,12 @@ ARC = 2                      # flags: a chord of a linearised G2/G3
 ABS_XYZ = 4                  # flags: G90 in force (else G91)
 ABS_E = 8                    # flags: absolute E in force (M82/G90; else M83/G91)
 
+# movescan.classes: one byte per move of what the passes ask of every move (OUTER and ARC as in flags)
+MOVED = 4                    # moves in XY (x0 != x1 or y0 != y1)
+EXTRUDES = 8                 # moves in XY with e > 0
+NULL = 16                    # moves nothing (no XY, no Z, no E)
+EXTRUDES_F32 = 32            # extrudes in XY in float32, as the firmware sees it (RefPlanner._eligible)
+
 CHUNK_BYTES = 2 << 20        # 2 MB of G-code: about 7 MB of records at a time
 T = TypeVar("T")
 
@@ -53,10 +58,13 @@ class Unsupported(Exception):
 
 class Chunks:
     """What consume gets: iterate for RECORD arrays (moves in file order); `roles` names the
-    role indices seen so far (complete once iteration ends); `lines` counts the lines read."""
+    role indices seen so far (complete once iteration ends); `lines` counts the lines read;
+    `flagged` the lines read that gcode.check_not_processed's or scan_m92's regexes may match
+    (the compiled scanner's count, a superset; None from the Python parser or a kept Scan)."""
 
-    def __init__(self, it: Iterator[np.ndarray], roles: list[str], lines: Callable[[], int]):
-        self._it, self.roles, self._lines = it, roles, lines
+    def __init__(self, it: Iterator[np.ndarray], roles: list[str], lines: Callable[[], int],
+                 flagged: Callable[[], int] | None = None):
+        self._it, self.roles, self._lines, self._flagged = it, roles, lines, flagged
 
     def __iter__(self):
         return self._it
@@ -65,12 +73,53 @@ class Chunks:
     def lines(self) -> int:
         return self._lines()
 
+    @property
+    def flagged(self) -> int | None:
+        return None if self._flagged is None else self._flagged()
+
 
 def z_cmm(z: np.ndarray) -> np.ndarray:
     """Move z (mm) as the firmware reads it: 0.01 mm, rounded in float32, half away from zero
     (bulge_planner.cpp; fallback.RefPlanner._cmm and wall._z_cmm one at a time)."""
-    v = (np.asarray(z).astype(np.float32) * np.float32(100.0)).astype(np.float64)
+    z = np.asarray(z)
+    if z.ndim == 1 and len(z) > 64:
+        # a file's moves come in runs of one z (its layers): each run's value once
+        starts = np.flatnonzero(np.concatenate(([True], z[1:] != z[:-1])))
+        if 4 * len(starts) < len(z):
+            return np.repeat(_z_cmm(z[starts]), np.diff(np.append(starts, len(z))))
+    return _z_cmm(z)
+
+
+def _z_cmm(z: np.ndarray) -> np.ndarray:
+    v = (z.astype(np.float32) * np.float32(100.0)).astype(np.float64)
     return np.where(v >= 0, np.floor(v + 0.5), -np.floor(0.5 - v)).astype(np.int64)
+
+
+def classes(a: np.ndarray) -> tuple[np.ndarray, float | None, float | None]:
+    """The class bits of each move of a RECORD array (OUTER | ARC | MOVED | EXTRUDES | NULL |
+    EXTRUDES_F32), and the highest z1 of the moves that extrude in XY, and of those not on an
+    arc (None: none). From the compiled scanner in one pass over the records (the numpy way
+    reads the records' memory once per field); both the same (host/tests/gcode/test_movescan.py)."""
+    if _scan is not None:
+        c, top, top_line = _scan.move_classes(np.ascontiguousarray(a, dtype=RECORD))
+        return np.frombuffer(c, np.uint8), top, top_line
+    return _classes_np(a)
+
+
+def _classes_np(a: np.ndarray) -> tuple[np.ndarray, float | None, float | None]:
+    x0, y0, x1, y1, e, fl = a["x0"], a["y0"], a["x1"], a["y1"], a["e"], a["flags"]
+    moved = (x0 != x1) | (y0 != y1)
+    ext = (e > 0) & moved
+    null = ~moved & (a["z0"] == a["z1"]) & (e == 0)
+    f = np.float32
+    with np.errstate(over="ignore"):           # beyond float32: inf, as the C cast gives
+        ext32 = (e.astype(f) > 0) & ((x0.astype(f) != x1.astype(f)) | (y0.astype(f) != y1.astype(f)))
+    c = ((fl & (OUTER | ARC)) | (moved * MOVED) | (ext * EXTRUDES) | (null * NULL)
+         | (ext32 * EXTRUDES_F32)).astype(np.uint8)
+    line = ext & ((fl & ARC) == 0)
+    top = float(a["z1"][ext].max()) if ext.any() else None
+    top_line = float(a["z1"][line].max()) if line.any() else None
+    return c, top, top_line
 
 
 def available() -> bool:
@@ -106,7 +155,7 @@ def _fast(path) -> Chunks:
                 buf = buf[used:]
                 if final:
                     return
-    return Chunks(gen(), roles, lambda: sc.lines)
+    return Chunks(gen(), roles, lambda: sc.lines, lambda: sc.flagged)
 
 
 def from_moves(moves, roles: list[str] | None = None,
@@ -210,29 +259,37 @@ class Scan:
                 buf = buf + data if buf else data
                 used = len(buf)
                 look = True                            # whether the part may hold what the regexes find
+                ends = None                            # the part's line ends, counted by the scanner
                 if sc is not None:
-                    flagged = sc.flagged
+                    flagged, ends0 = sc.flagged, sc.line_ends
                     try:
                         recs, used = sc.feed(buf, final, base)
+                        # (a line with a byte >= 0x80 is flagged too: an unflagged part is ASCII)
                         look = sc.flagged != flagged
                     except _scan.ScanUnsupported:
                         sc, self.fast = None, False        # the Python parser does it below
                     else:
+                        ends = [b - a for a, b in zip(ends0, sc.line_ends)]
                         if recs:
                             self._store.write(recs)
                         self.chunks.append((len(recs) // RECORD.itemsize, sc.lines))
                         progress.tick(sc.lines)
                 if sc is None and not final:           # checks only: whole lines still
                     used = buf.rfind(b"\n") + 1
-                part = buf[:used]
+                part = buf[:used] if look or ends is None else None
                 # the checks, on whole lines (a \r\n cut between two parts counted once)
                 # (a part after a lone \r does not start a line for the regexes' ^, as in one piece)
                 at = 0 if not last or last == b"\n" else 1
                 if look:
                     gcode._refuse_processed(part, self.source, nl, at)
-                n_cr += part.count(b"\r")
-                n_crlf += part.count(b"\r\n") + (last[-1:] == b"\r" and part[:1] == b"\n")
-                if plain and not part.isascii():
+                if ends is not None:
+                    d_nl, d_cr, d_crlf = ends
+                else:
+                    d_nl, d_cr = part.count(b"\n"), part.count(b"\r")
+                    d_crlf = part.count(b"\r\n") + (last[-1:] == b"\r" and part[:1] == b"\n")
+                n_cr += d_cr
+                n_crlf += d_crlf
+                if plain and part is not None and not part.isascii():
                     try:                               # parts end at line ends: no character cut
                         part.decode("utf-8")
                     except UnicodeDecodeError:
@@ -242,9 +299,9 @@ class Scan:
                         e = gcode._m92_e(mt.group(1))
                         if e is not None:
                             self.m92.append((nl + part.count(b"\n", 0, mt.start()) + 1, e))
-                nl += part.count(b"\n")
-                if part:
-                    last = part[-1:]
+                nl += d_nl
+                if used:
+                    last = buf[used - 1:used]
                 base += used
                 buf = buf[used:]
                 if final:

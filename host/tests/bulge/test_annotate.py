@@ -298,3 +298,90 @@ def test_fast_reach_check_says_what_the_reference_planner_says(name):
         assert check_reach(data, m, settings, str(g)) == unreached_message(ref, str(g))
     assert check_reach(data, good, settings, str(g)) is None
     assert check_reach(data, wrong, settings, str(g)) is not None
+
+
+@pytest.mark.parametrize("compiled", [True, False], ids=["scanner", "python-parser"])
+def test_annotate_looks_for_earlier_bulgekit_lines_where_its_scan_flags_one(tmp_path, data_dir,
+                                                                            monkeypatch, compiled):
+    """annotate's reach-check scan counts the lines check_not_processed could refuse: with none
+    flagged the regexes are not run over the file; with one (or no count: the Python parser
+    read it) they are, and refuse it before anything else annotate finds wrong; a bad line
+    the scan stops at is still reported after annotate's own findings."""
+    from bulgekit import gcode
+    from bulgekit.bulge import annotate
+    from bulgekit.gcode import GcodeError, movescan
+    if not compiled:
+        monkeypatch.setattr(movescan, "_scan", None)
+    g = data_dir / "prusa_cyl.gcode"
+    bm = build([Stroke(((10.0, 1.0), (10.0, 4.0)))], walls_from_gcode(g)).map_bytes
+    calls = []
+    real = annotate.check_not_processed
+    monkeypatch.setattr(annotate, "check_not_processed", lambda d, s: (calls.append(s), real(d, s)))
+    annotate.annotate_file(g, tmp_path / "a.gcode", bm, Settings())
+    assert len(calls) == (0 if compiled else 1)
+    text = g.read_text().splitlines(keepends=True)
+    custom = tmp_path / "custom.gcode"
+    # an M721 in the middle, and no outer-wall comments: the M721 is named, not the comments
+    custom.write_text("".join(l.replace("External perimeter", "Perimeter")
+                              for l in text[:50] + ["N7 M721 X\n"] + text[50:]))
+    with pytest.raises(GcodeError, match=r"custom\.gcode:51: 'N7 M721 X'.*bulge twice"):
+        annotate.annotate_file(custom, tmp_path / "o.gcode", bm, Settings())
+    # a line no parser reads, and no outer-wall comments: annotate's own finding first
+    bad = tmp_path / "bad.gcode"
+    bad.write_text("".join(l.replace("External perimeter", "Perimeter")
+                           for l in text[:50] + ["G1 X1O Y2\n"] + text[50:]))
+    with pytest.raises(AnnotateError, match="none marks the outer wall"):
+        annotate.annotate_file(bad, tmp_path / "o.gcode", bm, Settings())
+    bad.write_text("".join(text[:50] + ["G1 X1O Y2\n"] + text[50:]))
+    with pytest.raises(GcodeError, match=r"bad\.gcode:51: unparsable value 'X1O'"):
+        annotate.annotate_file(bad, tmp_path / "o.gcode", bm, Settings())
+    assert not (tmp_path / "o.gcode").exists()
+
+
+ODD_MARKS = (b"G1 Z5 X1 Y1 E1\n;TYPE:External perimeter\r\n  \t; TYPE:Perimeter\nG1 X1 ;TYPE:Skirt\n"
+             b";infill2\n; outer perimeter  \n;\xc2\xa0TYPE:x\n; TYPE:\xe2\x80\x94 wall\n"
+             b"G0 Z1\nG00 Z1.\nG01\tZ-.5 X1 E1\nG10 Z7\nG1Z3\n  G1 Z.\nG1 Z+ Z2 ; Z9\nG1 X2 E1\n"
+             b"G91\nG1 Z0.2\nG1 X1 E.1\nG90_\nG1 Z0.4\nG1 Y1 E1\nG900\nG1 Z1 Z2\nG1 X3 E3\n"
+             b"G90\nG1 Z0.015\nG1 X1 E1\nG1 Z0.025\nG1 X1 E1\nG1 Z1.5e3\nG1 X1 E1\n"
+             b"G1 Z" + b"1" * 80 + b"\nG1 X1 E1\rG1 Z4\rG1 X1 E1\nG1 Z6\nG1 E1 ;X\nG1 Z8\nG1 X1 E1")
+
+
+def _mark_lines(rng):
+    words = ["G1", "G0", "G01", "G00", "G10", " G1", "\tG1", "G90", "G91", "G92 E0", ";TYPE:Outer wall",
+             "; TYPE:Internal infill", ";FEATURE: Outer wall", " ; skirt", ";LAYER_CHANGE", "M83"]
+    parts = ["X1.5", "Y-2", "E.3", "Z0.2", "Z.45", "Z 1", "Z-0.1", "F1200", "; Z5", ";c", "E", "Z", "X"]
+    out = []
+    for _ in range(400):
+        w = rng.choice(words)
+        if w.lstrip().startswith("G") and not w.startswith("G9"):
+            w += " " + " ".join(rng.sample(parts, rng.randint(0, 4)))
+        out.append(w + rng.choice(["\n", "\n", "\r\n", "\r"]))
+    return "".join(out).encode()
+
+
+def test_compiled_marks_are_the_regular_expressions(data_dir):
+    """annotate's feature comments and layer changes from the compiled scanner (_scan.feature_lines,
+    _scan.z_events) are the regular expressions' (the fallback without it), on every test file,
+    on odd lines (blanks, G00/G10, G90/G91 and their word ends, Z without a number, Z after a
+    ';', long and rounding-edge numbers, lone \\r, no line end at the end) and on random ones."""
+    import random
+    from pathlib import Path
+    from bulgekit.bulge import annotate
+    from bulgekit.gcode import movescan
+    assert movescan._scan is not None
+    files = sorted(data_dir.glob("*.gcode")) + sorted((Path(__file__).parents[3] / "examples").glob("*.gcode"))
+    rng = random.Random(26)
+    datas = [p.read_bytes() for p in files] + [ODD_MARKS, ODD_MARKS[1:], b"", b"\n"]
+    datas += [_mark_lines(rng) for _ in range(60)]
+    seen_z = seen_f = 0
+    for d in datas:
+        z = annotate._z_events(d)
+        assert z == annotate._z_events_rx(d)
+        f = list(annotate._feature_comments(d))
+        assert f == list(annotate._feature_comments_rx(d))
+        seen_z += len(z)
+        seen_f += len(f)
+    assert seen_z > 1000 and seen_f > 1000
+    z = annotate._z_events(ODD_MARKS)
+    assert (ODD_MARKS.index(b"G1 Z0.015"), 2) in z       # round(1.5) is 2, half to even
+    assert (ODD_MARKS.index(b"G1 Z1.5e3"), 150) in z     # "1.5", as the regex reads it

@@ -50,11 +50,17 @@ def test_build_opens_the_file_three_times_and_scans_it_once(tmp_path, monkeypatc
             roles = property(lambda self: self._s.roles)
             lines = property(lambda self: self._s.lines)
             flagged = property(lambda self: self._s.flagged)
+            line_ends = property(lambda self: self._s.line_ends)
 
         class Proxy:
             Scanner = Counting
             ScanUnsupported = real.ScanUnsupported
             RECORD_SIZE = real.RECORD_SIZE
+            # annotate's line marks, on the bytes it copies (no move records), and the class
+            # bits of records already made
+            feature_lines = staticmethod(real.feature_lines)
+            z_events = staticmethod(real.z_events)
+            move_classes = staticmethod(real.move_classes)
         monkeypatch.setattr(movescan, "_scan", Proxy)
     out = api.build(src, text_strokes("HI", 6.0, u0=5, v0=3), tmp_path / "out", write_fallback=True)
     assert out.fallback_path.exists() and out.stats.points > 0

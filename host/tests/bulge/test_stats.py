@@ -65,3 +65,30 @@ def test_build_stats_give_the_stock_files_stops_as_printed(data_dir, tmp_path):
     assert f"stock file's added time: {run:.1f} s in the stops + {st.decel_s:.1f} s stopping/starting" in text
     g4 = api.build(g, strokes, tmp_path / "c", write_fallback=True, stops=StockStops("g4"))
     assert f"and the planner's drain and refill at each of its {n} G4" in g4.stats_path.read_text()
+
+
+@pytest.mark.parametrize("byte_path", [True, False], ids=["records", "text"])
+def test_stats_on_the_stock_rewrites_planner_run_are_the_stats_of_their_own(data_dir, tmp_path,
+                                                                            monkeypatch, byte_path):
+    """build runs the planner once: the statistics count on the stock fallback's run (its
+    records path, or its text path when the compiled scanner is not there) and give what a run
+    of their own gives."""
+    from bulgekit.bulge import fallback
+    from bulgekit.bulge.stats import StopTimer
+    g = data_dir / "prusa_cyl.gcode"
+    r = build([Stroke(((5.0, 2.0), (5.0, 4.0))), Stroke(((12.0, 3.0), (14.0, 3.0)))], walls_from_gcode(g))
+    settings = Settings(extra_e=0.4)
+    if not byte_path:
+        monkeypatch.setattr(fallback.movescan, "available", lambda: False)
+    timers = []
+
+    def on_plan(planner):
+        timers.append(StopTimer(planner))
+        return timers[-1]
+    res = fallback.rewrite_file(g, tmp_path / "s.gcode", r.bulge_map, settings,
+                                allow_unreached=True, on_plan=on_plan)
+    assert len(timers) == 1 and res.planner is timers[0].planner
+    shared = print_stats(g, r.map_bytes, settings, planned=timers[0])
+    own = print_stats(g, r.map_bytes, settings)
+    assert own.stops == len(r.points) > 5 and own.decel_s > 0
+    assert vars(shared) == vars(own)

@@ -89,3 +89,32 @@ def test_u_runs_counter_clockwise_whatever_the_print_direction(ccw):
 def test_layer_of_v_uses_the_bead_each_layer_covers():
     m = extract_walls(iter_moves(_square().splitlines()), layer_height=0.2)
     assert list(m.layer_of_v([0.0, 0.1, 0.2, 0.21, 0.4, 0.59, 0.6, 0.61])) == [0, 0, 0, 1, 1, 2, 2, -1]
+
+
+def test_ray_hits_of_many_walls_are_each_walls_own():
+    """The reference crossing of thousands of walls at once (_ray_hits) is, to the bit, what
+    _ray_hit gives for each: loops, open chains the ray misses (its fallback), a crossing at a
+    vertex shared by two segments (equal t: the first), directions along the axes."""
+    import numpy as np
+    from bulgekit.bulge.wall import _ray_hit, _ray_hits
+    rng = np.random.default_rng(26)
+    xys, ss, cens = [], [], []
+    for i in range(300):
+        n = int(rng.integers(3, 40))
+        a = np.sort(rng.uniform(0, 2 * np.pi, n))
+        r = rng.uniform(5, 20) * (1 + 0.2 * rng.random(n))
+        xy = np.stack([r * np.cos(a), r * np.sin(a)], axis=1) + rng.uniform(-50, 50, 2)
+        if i % 3 == 0:
+            xy = np.concatenate([xy, xy[:1]])            # closed
+        if i % 7 == 0:
+            xy = xy[: max(3, n // 4)]                    # a short open arc: the ray may miss
+        if i % 11 == 0:
+            xy = np.array([[0.0, 1.0], [0.0, -1.0], [2.0, -1.0], [2.0, 1.0], [0.0, 1.0]]) + i
+        seg = np.hypot(np.diff(xy[:, 0]), np.diff(xy[:, 1]))
+        xys.append(xy)
+        ss.append(np.concatenate([[0.0], np.cumsum(seg)]))
+        cens.append((float(xy[:, 0].mean()), float(xy[:, 1].mean())) if i % 11 else (1.0 + i, i - 1.0))
+    for d in ((0.0, -1.0), (1.0, 0.0), (0.6, 0.8)):
+        want = [_ray_hit(x, s, c, d) for x, s, c in zip(xys, ss, cens)]
+        got = _ray_hits(xys, ss, cens, d)
+        assert np.array(got).tobytes() == np.array(want).tobytes()

@@ -149,3 +149,61 @@ def test_overhang_sections_of_the_outer_wall_count_as_outer_wall(tag):
     body = out[out.index(";TYPE:External"):]
     assert body.count("M722 S1") == 1 and body.count("M722 S0") == 1
     assert body.index("M722 S0") > body.index("G1 X10 Y10 E0.5")
+
+
+def test_flag_counts_hold_every_line_the_regexes_match(tmp_path, monkeypatch):
+    """The compiled scanner's count of the lines check_not_processed's and scan_m92's regexes
+    may match (gcode._flag_counts) holds every line they do match, so that with a count of 0
+    the regexes are skipped; with it or without it, the checks find the same."""
+    import random
+    from bulgekit import gcode
+    assert gcode._flag_counts(b"") == (0, 0)
+    heads = ["", " ", "\t", "N12 ", "n3\t", "N ", "\x0b"]
+    cmds = ["M720 S1", "m0721", "M722", "M7220", "M72.5", "M92 E415", "M092 E93", "m92 X1",
+            "M920", "; bulgekit: x", ";  bulgekit", "; bulgekit fallback: y", "G1 X1", "; M720",
+            "M72", "M9", "\xe9M720"]
+    ends = ["\n", "\r\n", "\r"]
+    rng = random.Random(26)
+    for trial in range(400):
+        lines = [rng.choice(heads) + rng.choice(cmds) + rng.choice(ends) for _ in range(rng.randint(1, 6))]
+        data = "".join(lines).encode()
+        ours, m92 = gcode._flag_counts(data)
+        if gcode._OURS_RX.search(data):
+            assert ours > 0, data
+        if gcode._M92_RX.search(data):
+            assert m92 > 0, data
+        if trial < 60:                                  # the checks agree with and without it
+            p = tmp_path / f"t{trial}.gcode"
+            p.write_bytes(data)
+            got = [gcode.scan_m92(p)]
+            try:
+                gcode.check_not_processed(data, "t")
+                got.append(None)
+            except gcode.GcodeError as e:
+                got.append(str(e))
+            with monkeypatch.context() as m:
+                m.setattr(gcode, "_flag_counts", lambda d: None)
+                want = [gcode.scan_m92(p)]
+                try:
+                    gcode.check_not_processed(data, "t")
+                    want.append(None)
+                except gcode.GcodeError as e:
+                    want.append(str(e))
+            assert got == want
+    assert gcode._flag_counts(b"G1 X1\n; bulgekit: 3\nN1 M092 E5\r\nm721\n") == (2, 1)
+
+
+def test_a_scanner_built_from_an_older_source_is_not_used(monkeypatch):
+    """A compiled scanner built before _scan.c gained what the code now calls (no VERSION, or
+    another one) is left alone: the Python paths do the work until it is built again."""
+    import sys
+    import types
+    from bulgekit import gcode
+    assert gcode.compiled_scanner() is not None and gcode.compiled_scanner().VERSION == gcode.SCAN_VERSION
+    stale = types.ModuleType("bulgekit.gcode._scan")
+    monkeypatch.setitem(sys.modules, "bulgekit.gcode._scan", stale)
+    monkeypatch.setattr(gcode, "_scan", stale, raising=False)
+    assert gcode.compiled_scanner() is None
+    assert gcode._flag_counts(b"M720 S1\n") is None
+    stale.VERSION = gcode.SCAN_VERSION
+    assert gcode.compiled_scanner() is stale

@@ -130,6 +130,38 @@ def test_skipping_moves_changes_nothing_the_planner_does(path):
             assert fast.arcs == ref.arcs
 
 
+@pytest.mark.parametrize("path", FILES, ids=lambda p: p.name)
+def test_skipping_the_layers_no_map_layer_is_near_changes_nothing(path):
+    """A map on a few layers (a text on a tall print): the moves of layers with no map layer
+    within half a layer height are not planned, yet the stops, the window's layer loads and the
+    drops are those of a planner that saw every move; also with a layer record without points
+    (a BulgeMap built in code), which the window loads like any other."""
+    rng = random.Random("sparse" + path.name)
+    geometric = path.name.startswith("slic3r")
+    full = _random_map(path, rng, geometric)
+    zs = sorted({l.z_cmm for l in full.layers})
+    keep = set(zs[len(zs) // 3: len(zs) // 3 + 3])
+    layers = [l for l in full.layers if l.z_cmm in keep]
+    empty = mapformat.Layer(zs[len(zs) // 2], ())
+    bm = mapformat.BulgeMap(full.quantum_um, full.layer_height_cmm, full.has_weights,
+                            sorted(layers + [empty], key=lambda l: l.z_cmm))
+    settings = Settings(mode=2 if geometric else 1, extra_e=0.9)
+    for bypass in (False, True):
+        ref = _full(path, bm, settings, bypass)
+        fast = RefPlanner(bm, settings)
+        picked = []
+        movescan.run(path, lambda ch: plan_records(fast, ch, lambda m, a: picked.append(m),
+                                                   arcs_bypass=bypass))
+        assert ref.stops and ref.stats.layers_loaded >= 3
+        assert fast.stops == ref.stops
+        assert fast.stats == ref.stats and fast.top_z == ref.top_z
+        assert fast.arcs == ref.arcs
+        # and the layers far from the map's went by unplanned
+        half = bm.layer_height_cmm / 2
+        assert all(any(abs(round(m.z1 * 100) - l.z_cmm) <= half + 1 for l in bm.layers)
+                   or m.e <= 0 for m in picked)
+
+
 @pytest.mark.parametrize("stops", [StockStops(), StockStops("g4"), StockStops(e_steps=415, stop_e_steps=9)],
                          ids=["move", "g4", "move415"])
 @pytest.mark.parametrize("path", FILES, ids=lambda p: p.name)
@@ -163,3 +195,73 @@ def test_scanner_numbers_are_floats_bit_for_bit():
     text = "".join(f"G1 X{v} Y1\n" for v in vals).encode()
     got = movescan.run(text, lambda ch: np.concatenate(list(ch)), fast=True)["x1"]
     assert np.array_equal(got.view(np.uint64), np.array([float(v) for v in vals]).view(np.uint64))
+
+
+def test_move_classes_compiled_are_numpys():
+    """movescan.classes from the compiled scanner (one pass over the records) gives numpy's
+    bits and highest z to the bit, on every test file's moves and on edge values: coordinates
+    equal in float32 but not in double, an E that float32 rounds to 0, -0.0, inf, a NaN z."""
+    assert movescan.available()
+    arrays = [a.copy() for path in FILES for a in movescan.run(path, lambda ch: list(ch))]
+    rng = np.random.default_rng(26)
+    edge = np.zeros(4000, movescan.RECORD)
+    vals = np.array([0.0, -0.0, 1.0, 1.0 + 1e-12, 1e-46, -1e-46, 0.3, np.inf, -np.inf, 2.5, 1e39])
+    for k in ("x0", "y0", "z0", "x1", "y1", "z1", "e"):
+        edge[k] = rng.choice(vals, len(edge))
+    edge["z1"][rng.choice(len(edge), 5)] = np.nan
+    edge["flags"] = rng.integers(0, 16, len(edge))
+    arrays += [edge, edge[:0], edge[edge["e"] <= 0][:50]]
+    bits = 0
+    for a in arrays:
+        c, top, top_line = movescan.classes(a)
+        n, ntop, ntop_line = movescan._classes_np(a)
+        assert np.array_equal(c, n)
+        for x, y in ((top, ntop), (top_line, ntop_line)):
+            assert (x is None and y is None) or np.array(x).tobytes() == np.array(y).tobytes()
+        bits |= int(np.bitwise_or.reduce(c)) if len(c) else 0
+    assert bits == 63                               # every bit seen set
+
+
+def test_scanner_counts_the_line_ends_it_consumes():
+    """Scanner.line_ends, which Scan takes in place of counting each part's bytes, is bytes.count
+    of \\n, \\r and \\r\\n over what feed() consumed, a \\r\\n cut between two feeds counted once."""
+    from bulgekit import gcode
+    rng = random.Random(26)
+    for trial in range(200):
+        data = b"".join(rng.choice([b"G1 X1 E1", b"; c", b"", b"M83"]) + rng.choice([b"\n", b"\r\n", b"\r"])
+                        for _ in range(rng.randint(0, 30)))
+        if trial % 3 == 0:
+            data += b"G1 X2"                                   # no line end at the end
+        sc = movescan._scan.Scanner(sorted(gcode.OUTER_ROLES), sorted(gcode._S3D_ROLES),
+                                    movescan._classify, gcode.ARC_CHORD_MM)
+        buf, pos = b"", 0
+        while True:
+            step = rng.randint(0, 9)
+            piece = data[pos:pos + step]
+            pos += len(piece)
+            final = pos >= len(data) and (step > 0 or rng.random() < 0.5)
+            buf += piece
+            _, used = sc.feed(buf, final)
+            consumed = buf[:used]
+            buf = buf[used:]
+            if final:
+                break
+        assert sc.line_ends == (data.count(b"\n"), data.count(b"\r"), data.count(b"\r\n")), data
+
+
+def test_z_cmm_of_runs_is_z_cmm_of_each():
+    """z_cmm takes each run of one z once (a file's layers): the same as one value at a time,
+    -0.0 in a run of 0.0, halves, and values beyond an int's range included."""
+    rng = np.random.default_rng(26)
+    vals = np.array([0.2, 0.3, -0.0, 0.0, 0.25, -0.35, 0.005, 0.015, 0.125, 1234.565, -0.004999])
+    z = np.repeat(rng.choice(vals, 5000), rng.integers(1, 30, 5000))
+    runs = movescan.z_cmm(z)
+    assert len(np.flatnonzero(np.diff(z))) * 4 < len(z)            # the runs path was taken
+    assert np.array_equal(runs, movescan._z_cmm(z))
+    assert np.array_equal(runs, [fallback_cmm(v) for v in z])
+    short = z[:50]
+    assert np.array_equal(movescan.z_cmm(short), movescan._z_cmm(short))
+
+
+def fallback_cmm(v):
+    return RefPlanner._cmm(v)
