@@ -71,8 +71,8 @@ def register(main):
     @click.option("--pitch", type=POSITIVE, default=0.4, show_default=True,
                   help="Distance between samples along a layer, mm.")
     @click.option("--min-line", type=POSITIVE, default=None,
-                  help="Narrowest mid-line, mm; where the gap between the walls is narrower, the two "
-                       "walls widen and share it. Default: the narrowest line laid at --max-speed "
+                  help="Narrowest mid-line, mm; where the gap between the walls is narrower, see "
+                       "--light-gaps. Default: the narrowest line laid at --max-speed "
                        "(flow / (max-speed x layer height), 0.27 mm at the defaults) but at least half "
                        "a line width, so that no piece is capped.")
     @click.option("--max-line", type=POSITIVE, default=1.6, show_default=True,
