@@ -167,6 +167,21 @@ def _area_centroid(xy: np.ndarray) -> tuple[float, tuple[float, float]]:
     return area, (float(((x + xn) * cr).sum() / (6 * a)), float(((y + yn) * cr).sum() / (6 * a)))
 
 
+def _crossings(a, b, cx, cy, dx, dy):
+    """Where the ray (cx, cy) + t (dx, dy) crosses the segments a -> b: (t along the ray, w along
+    each segment, whether it does with t > 0)."""
+    ex = b[:, 0] - a[:, 0]
+    ey = b[:, 1] - a[:, 1]
+    den = dx * ey - dy * ex
+    wx = a[:, 0] - cx
+    wy = a[:, 1] - cy
+    ok = np.abs(den) > 1e-12
+    t = np.divide(wx * ey - wy * ex, den, out=np.zeros_like(den), where=ok)   # along the ray
+    w = np.divide(wx * dy - wy * dx, den, out=np.zeros_like(den), where=ok)   # along the segment
+    ok &= (t > 0) & (w >= 0) & (w <= 1)
+    return t, w, ok
+
+
 def _ray_hits(xys: list, ss: list, cens: list, direction) -> list[float]:
     """_ray_hit of many walls: the arithmetic per segment as there, for all of them at once
     (a file has thousands of layers); per wall the crossing of greatest t (the first of equal
@@ -177,15 +192,7 @@ def _ray_hits(xys: list, ss: list, cens: list, direction) -> list[float]:
     b = np.concatenate([xy[1:] for xy in xys])
     cx = np.repeat([c[0] for c in cens], nseg)
     cy = np.repeat([c[1] for c in cens], nseg)
-    ex = b[:, 0] - a[:, 0]
-    ey = b[:, 1] - a[:, 1]
-    den = dx * ey - dy * ex
-    wx = a[:, 0] - cx
-    wy = a[:, 1] - cy
-    ok = np.abs(den) > 1e-12
-    t = np.divide(wx * ey - wy * ex, den, out=np.zeros_like(den), where=ok)   # along the ray
-    w = np.divide(wx * dy - wy * dx, den, out=np.zeros_like(den), where=ok)   # along the segment
-    ok &= (t > 0) & (w >= 0) & (w <= 1)
+    t, w, ok = _crossings(a, b, cx, cy, dx, dy)
     wall = np.repeat(np.arange(len(xys)), nseg)
     idx = np.flatnonzero(ok)
     order = np.lexsort((idx, -t[idx], wall[idx]))       # per wall: greatest t, first index
@@ -209,17 +216,7 @@ def _ray_hit(xy: np.ndarray, s: np.ndarray, c, direction) -> float:
     """Arc length of the outermost crossing of the ray c + t*direction."""
     cx, cy = c
     dx, dy = direction
-    a = xy[:-1]
-    b = xy[1:]
-    ex = b[:, 0] - a[:, 0]
-    ey = b[:, 1] - a[:, 1]
-    den = dx * ey - dy * ex
-    wx = a[:, 0] - cx
-    wy = a[:, 1] - cy
-    ok = np.abs(den) > 1e-12
-    t = np.divide(wx * ey - wy * ex, den, out=np.zeros_like(den), where=ok)   # along the ray
-    w = np.divide(wx * dy - wy * dx, den, out=np.zeros_like(den), where=ok)   # along the segment
-    ok &= (t > 0) & (w >= 0) & (w <= 1)
+    t, w, ok = _crossings(xy[:-1], xy[1:], cx, cy, dx, dy)
     if ok.any():
         idx = np.nonzero(ok)[0]
         k = idx[np.argmax(t[idx])]
