@@ -831,3 +831,30 @@ def test_steady_mid_line_keeps_the_extruder_rate(tmp_path):
         time_[mode] = r.moves_s
     assert share["mid-line"] > share["walls"] + 0.05
     assert time_["mid-line"] < time_["walls"]
+
+
+def test_cli_light_gaps_and_rate_accel(tmp_path):
+    """`bulgekit litho --light-gaps walls|mid-line --rate-accel A`: the JSON says the mode and
+    counts the light gaps, the summary names both; bad values are refused naming the option."""
+    import json
+    from click.testing import CliRunner
+    from bulgekit.cli import main
+
+    p = picture(tmp_path, boxes=[(0, 0, 10, 16, 0), (10, 0, 30, 16, 240), (30, 0, 40, 16, 0)])
+    run = lambda *a: CliRunner().invoke(main, ["litho", str(p), "--width", "20", "--height", "3", "--foot", "0",
+                                               *map(str, a)])
+    seen = {}
+    for mode in ("mid-line", "walls"):
+        r = run("-o", tmp_path / mode, "--light-gaps", mode)
+        assert r.exit_code == 0, r.output
+        g = json.loads((tmp_path / mode / "p.litho.json").read_text())["gaps"]
+        assert g["light_gaps"] == mode
+        seen[mode] = (g["narrowed_share"], g["shared_share"])
+        assert "walls narrowed for a thin mid-line" in r.output
+    assert seen["mid-line"][0] > 0 and seen["mid-line"][1] == 0
+    assert seen["walls"][0] == 0 and seen["walls"][1] > 0
+    r = run("-o", tmp_path / "x", "--light-gaps", "middle")
+    assert r.exit_code == 2 and "--light-gaps" in r.output
+    r = run("-o", tmp_path / "y", "--rate-accel", "-5")
+    assert r.exit_code == 2 and "--rate-accel" in r.output
+    assert not (tmp_path / "x").exists() and not (tmp_path / "y").exists()
