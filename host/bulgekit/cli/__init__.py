@@ -83,16 +83,16 @@ def _settings(dwell, extra, tolerance, geometric) -> Settings:
         raise click.BadParameter(str(e), param_hint=f"'{opt}'" if opt else None) from None
 
 
-def _movescan_available() -> bool:
-    from ..gcode import movescan
-    return movescan.available()
+def _scanner_words() -> str:
+    from .. import gcode
+    return {"compiled": "compiled",
+            "stale": f"Python only, the compiled one is out of date: {gcode.SCAN_REBUILD}",
+            "missing": "Python only, bulgekit.gcode._scan not built: slower on large files"}[gcode.scanner_state()]
 
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})
 @click.version_option(__version__, prog_name="bulgekit",
-                      message="%(prog)s %(version)s (G-code scanner: " +
-                      ("compiled" if _movescan_available() else
-                       "Python only, bulgekit.gcode._scan not built: slower on large files") + ")")
+                      message="%(prog)s %(version)s (G-code scanner: " + _scanner_words() + ")")
 def main():
     """Bulges on the outer wall of FDM prints (over-extrusion by dwell + extra filament).
 

@@ -374,15 +374,38 @@ def might_hold(data: bytes, words) -> bool:
 SCAN_VERSION = 2      # the compiled scanner's VERSION this code calls (_scan.c's module init)
 
 
-def compiled_scanner():
-    """The compiled scanner module (bulgekit.gcode._scan), or None: not built (no C compiler), or
-    built from an older _scan.c that lacks what this code calls (build it again:
-    `cd host && python3 setup.py build_ext --inplace`); the Python paths then do the work."""
+SCAN_REBUILD = "cd host && python3 setup.py build_ext --inplace (or make deps)"
+
+
+def scanner_state() -> str:
+    """"compiled", "stale" (built from an older _scan.c: not used) or "missing"."""
     try:
         from . import _scan
     except ImportError:
+        return "missing"
+    return "compiled" if getattr(_scan, "VERSION", 1) == SCAN_VERSION else "stale"
+
+
+def compiled_scanner():
+    """The compiled scanner module (bulgekit.gcode._scan), or None: not built (no C compiler), or
+    built from an older _scan.c that lacks what this code calls; the Python paths then do the
+    work, many times slower on a large file. A stale build is said once (a RuntimeWarning: an
+    update of the source without a rebuild would otherwise only show as slowness)."""
+    global _STALE_SAID
+    state = scanner_state()
+    if state == "stale" and not _STALE_SAID:
+        _STALE_SAID = True
+        import warnings
+        warnings.warn("bulgekit: the compiled G-code scanner was built from older source and is not "
+                      f"used (large files read many times slower); rebuild it: {SCAN_REBUILD}",
+                      RuntimeWarning, stacklevel=2)
+    if state != "compiled":
         return None
-    return _scan if getattr(_scan, "VERSION", 1) == SCAN_VERSION else None
+    from . import _scan
+    return _scan
+
+
+_STALE_SAID = False
 
 
 def _flag_counts(data) -> tuple[int, int] | None:

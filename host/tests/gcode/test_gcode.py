@@ -1,4 +1,5 @@
 import math
+import warnings
 
 import pytest
 
@@ -202,7 +203,14 @@ def test_a_scanner_built_from_an_older_source_is_not_used(monkeypatch):
     stale = types.ModuleType("bulgekit.gcode._scan")
     monkeypatch.setitem(sys.modules, "bulgekit.gcode._scan", stale)
     monkeypatch.setattr(gcode, "_scan", stale, raising=False)
-    assert gcode.compiled_scanner() is None
-    assert gcode._flag_counts(b"M720 S1\n") is None
+    monkeypatch.setattr(gcode, "_STALE_SAID", False)
+    assert gcode.scanner_state() == "stale"
+    with pytest.warns(RuntimeWarning, match="out of date|older source.*setup.py build_ext"):
+        assert gcode.compiled_scanner() is None
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")                   # said once, not on every call
+        assert gcode._flag_counts(b"M720 S1\n") is None
+    from bulgekit.cli import _scanner_words
+    assert "out of date" in _scanner_words() and "build_ext" in _scanner_words()
     stale.VERSION = gcode.SCAN_VERSION
-    assert gcode.compiled_scanner() is stale
+    assert gcode.compiled_scanner() is stale and gcode.scanner_state() == "compiled"
