@@ -309,13 +309,15 @@ def _steady(zt, lo, hi, d, closed):
 
 
 def wall_widths(t: np.ndarray, lines, o: LithoOptions, steps=None) -> tuple:
-    """Wall width ww per sample of thickness t with `lines` mid-lines, and where the gap
-    g = t - 2 w is narrower than those lines (n x min_line): (ww, shared, narrowed).
+    """Back and front wall widths per sample of thickness t with `lines` mid-lines, and where the
+    gap g = t - 2 w is narrower than those lines (n x min_line): (wb, wf, shared, narrowed).
     light_gaps "walls": the two walls widen by g / 2 each and share the gap (shared).
     light_gaps "mid-line": the walls narrow (not below wall_min) so that the mid-line keeps
     n x min_line x (1 + MID_MARGIN) and runs on unbroken through light areas (narrowed); the
     layer's thickness is the same either way, only the split between the lines differs. Where
-    even the narrowest walls leave no room, they widen and share as with "walls"."""
+    even the narrowest walls leave no room, they widen and share as with "walls". With
+    rate_accel and `steps` (t 2-D) the widths are then planned for a steady mid-line
+    (_steady_walls); otherwise the two walls are equal."""
     w = o.line_width
     g = np.maximum(t - 2 * w, 0.0)
     need = lines * o.line_min()
@@ -339,8 +341,8 @@ def _steady_walls(t, ww, shared, lines, o: LithoOptions, steps):
     gap per line) changes from sample to sample by at most RATE_STEP, and by no more than
     RATE_ACCEL_SHARE of `rate_accel` gains over the piece (v2^2 - v1^2 <= 2 a L), so the planner's
     ramps between pieces stay inside the +-5 % band; the walls, whose width may run from wall_min
-    to wall_max (the front wall's is wider), take the rest of each sample's thickness. The layer's thickness is unchanged;
-    only the split between walls and mid-line moves. `steps`: the mid-line's length per sample
+    to wall_max (the front wall's is wider), take the rest of each sample's thickness. The
+    layer's thickness is unchanged; only the split between walls and mid-line moves. `steps`: the mid-line's length per sample
     interval, mm (rows, samples - 1, or samples when closed)."""
     H, q = o.layer_height, o.mid_flow
     nl = lines.astype(float)
