@@ -399,15 +399,16 @@ class Studio:
 
 
 def litho_choices() -> dict:
-    """What the lithophane form offers, from the toolkit itself: the shapes, the curves and the
-    defaults of every option (so the page follows a toolkit that adds a curve or changes one)."""
+    """What the lithophane form offers, from the toolkit itself: the shapes, the curves, the ways
+    of laying light tones and the defaults of every option (so the page follows a toolkit that adds a curve or changes one)."""
     import dataclasses
     from .. import litho as lt
     # None (chosen by the toolkit, e.g. the height from the picture) leaves the field empty, and
     # an empty field is not sent
     defaults = {f.name: f.default for f in dataclasses.fields(lt.LithoOptions)
                 if f.default is None or isinstance(f.default, (int, float, str, bool))}
-    return {"shapes": list(lt.SHAPES), "curves": list(lt.CURVES), "defaults": defaults}
+    return {"shapes": list(lt.SHAPES), "curves": list(lt.CURVES), "light_gaps": list(lt.LIGHT_GAPS),
+            "defaults": defaults}
 
 
 def _b64(a) -> str:

@@ -3,6 +3,7 @@ placement file it writes, per-item messages, sending through the existing sender
 byte-for-byte match of its export with `bulgekit build --placement` (the browser tests are in
 test_studio_browser.py)."""
 import hashlib
+import json
 import time
 import urllib.request
 from pathlib import Path
@@ -373,12 +374,24 @@ def test_litho_view_is_the_relief_and_its_look(studio, tmp_path):
     assert status == 404
 
 
+def test_litho_light_gaps_from_the_form(studio, tmp_path):
+    """The form's "Light tones" and "Plan for acceleration" reach the toolkit."""
+    for mode in ("walls", "mid-line"):
+        _, job = make_litho(studio, tmp_path, {"width": 12, "light_gaps": mode, "rate_accel": 3000}, size=(24, 12))
+        assert job["state"] == "done", job["error"]
+        plan = studio.studio.lithos[job["result"]["key"]]
+        j = json.loads(plan["paths"]["json"].read_text())
+        assert j["gaps"]["light_gaps"] == mode and j["options"]["rate_accel"] == 3000
+
+
 def test_litho_form_choices_come_from_the_toolkit(studio):
     from bulgekit import litho as lt
     status, st = call(studio, "/api/state")
     c = st["litho"]
     assert c["curves"] == list(lt.CURVES) and c["shapes"] == list(lt.SHAPES)
+    assert c["light_gaps"] == list(lt.LIGHT_GAPS)
     assert c["defaults"]["curve"] == lt.LithoOptions().curve and c["defaults"]["foot"] == lt.LithoOptions().foot
+    assert c["defaults"]["light_gaps"] == "mid-line" and c["defaults"]["rate_accel"] == lt.LithoOptions().rate_accel
 
 
 def test_send_a_lithophane_to_the_printer(studio, tmp_path):

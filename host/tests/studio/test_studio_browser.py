@@ -312,6 +312,10 @@ def test_lithophane_tab(browser, studio, tmp_path):
     # the curves are the toolkit's
     from bulgekit import litho as lt
     assert pg.eval_on_selector(form + "select[name=curve]", "s => [...s.options].map(o => o.value)") == list(lt.CURVES)
+    assert pg.eval_on_selector(form + "select[name=light_gaps]", "s => [...s.options].map(o => o.value)") == \
+        list(lt.LIGHT_GAPS)
+    assert pg.eval_on_selector(form + "select[name=light_gaps]", "s => s.value") == lt.LithoOptions().light_gaps
+    assert pg.input_value(form + "input[name=rate_accel]") == "1000"
 
     pic = tmp_path / "astronaut.png"
     Image.fromarray(data.astronaut()).resize((90, 82)).save(pic)

@@ -918,8 +918,10 @@ const L = { asset: null, key: null, srcUrl: null, choices: null };
 // the curves in the page's words (a curve the toolkit adds without one here shows its name)
 const CURVE_WORDS = { linear: "linear (paper)", transmission: "transmission", perceptual: "perceptual" };
 const SHAPE_WORDS = { planar: "flat plate", cylinder: "cylinder" };
+const LIGHT_GAP_WORDS = { "mid-line": "thin mid-line", walls: "walls share" };
 
-// The form's choices and defaults come from the toolkit (litho.SHAPES, CURVES, LithoOptions).
+// The form's choices and defaults come from the toolkit (litho.SHAPES, CURVES, LIGHT_GAPS,
+// LithoOptions).
 function lithoChoices(c) {
   if (!c) return;
   L.choices = c;
@@ -930,6 +932,7 @@ function lithoChoices(c) {
   };
   fill(f.shape, c.shapes, SHAPE_WORDS);
   fill(f.curve, c.curves, CURVE_WORDS);
+  if (c.light_gaps) fill(f.light_gaps, c.light_gaps, LIGHT_GAP_WORDS);
   for (const el of f.elements) {
     if (!el.name || !(el.name in c.defaults)) continue;
     const v = c.defaults[el.name];
