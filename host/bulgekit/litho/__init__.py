@@ -1773,6 +1773,7 @@ class _Staged:
 
 def machine_words(m) -> dict:
     """What an estimate assumes, as the JSON and the CLI name it."""
+    jerk = None if m.jerk is None else [m.jerk[a] for a in "XYZE"]      # mm/s, X Y Z E
     return {"accel_mm_s2": m.accel, "travel_accel_mm_s2": m.travel_accel,
-            "junction_deviation_mm": m.junction_deviation, "classic_jerk": m.jerk,
+            "junction_deviation_mm": m.junction_deviation, "classic_jerk": jerk,
             "lookahead_blocks": m.lookahead, "min_segment_steps": m.min_segment_steps}

@@ -486,7 +486,7 @@ def litho_figures(st: dict) -> list:
         out.append(["Print time, stock firmware", _duration(est["estimated_time_s_stock"])])
     machine = est.get("machine") or st.get("machine")
     if isinstance(machine, dict) and machine:         # what the times assume, when the toolkit says
-        out.append(["Times assume", ", ".join(f"{k.replace('_', ' ')} {v}" for k, v in machine.items())])
+        out.append(["Times assume", _machine_words(machine)])
     size = st.get("size_mm") or {}
     if size:
         out.append(["Picture", f"{round(size['picture_width'], 1):g} × {round(size['picture_height'], 1):g} mm"
@@ -510,15 +510,44 @@ def litho_figures(st: dict) -> list:
     gaps = st.get("gaps") or {}
     if "snapped_share" in gaps:
         out.append(["Gaps too narrow for a line", f"{100 * gaps['snapped_share']:.2f} % of the samples"])
+    if gaps.get("narrowed_share"):
+        out.append(["Light tones", f"a thin mid-line between narrower walls, {100 * gaps['narrowed_share']:.1f} % "
+                                   "of the samples"])
+    if gaps.get("shared_share"):
+        out.append(["Light tones", f"the walls share the gap, {100 * gaps['shared_share']:.1f} % of the samples"])
     if "extruding_moves" in st:
         out.append(["Moves", f"{st['extruding_moves']:,}"])
     out += _look_figures(st.get("look") or {})
     return out
 
 
+def _machine_words(m: dict) -> str:
+    """The estimate's machine (litho.machine_words) in the page's words; keys it does not know
+    are shown under their own name."""
+    m = dict(m)
+    parts = []
+    if "accel_mm_s2" in m:
+        a, t = m.pop("accel_mm_s2"), m.pop("travel_accel_mm_s2", None)
+        parts.append(f"acceleration {a:g} mm/s²" + (f" (travel {t:g})" if t is not None and t != a else ""))
+    if "junction_deviation_mm" in m:
+        jerk = m.pop("classic_jerk", None)
+        jd = m.pop("junction_deviation_mm")
+        if isinstance(jerk, dict):                    # per axis (X, Y, Z, E)
+            jerk = list(jerk.values())
+        parts.append(f"classic jerk {'/'.join(f'{j:g}' for j in jerk)} mm/s" if jerk
+                     else f"junction deviation {jd:g} mm")
+    if "lookahead_blocks" in m:
+        n = m.pop("lookahead_blocks")
+        parts.append("look-ahead over the whole file" if n is None else f"look-ahead of {n} moves")
+    m.pop("min_segment_steps", None)                  # Marlin's rule for tiny moves: always
+    parts += [f"{k.replace('_', ' ')} {v}" for k, v in m.items()]
+    return ", ".join(parts)
+
+
 # the look block's figures as the page words them; numbers without a word here are shown under
 # their key (a newer toolkit may add some), words and settings (curve, attenuation) are left out
 _LOOK_WORDS = {"mean_dL": ("Mean lightness error", "{:.1f} ΔL*"),
+               "mean_abs_dL": ("Mean lightness difference", "{:.1f} ΔL*"),
                "ssim_L": ("Likeness (SSIM on lightness)", "{:.3f}"),
                "ssim": ("Likeness (SSIM)", "{:.3f}"),
                "correlation": ("Correlation with the picture", "{:.3f}")}

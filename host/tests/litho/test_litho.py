@@ -863,3 +863,19 @@ def test_cli_light_gaps_and_rate_accel(tmp_path):
     r = run("-o", tmp_path / "y", "--rate-accel", "-5")
     assert r.exit_code == 2 and "--rate-accel" in r.output
     assert not (tmp_path / "x").exists() and not (tmp_path / "y").exists()
+
+
+def test_summary_names_a_classic_jerk_machine():
+    """An estimate with classic jerk (API callers' Machine(jerk=...)) is named in the summary."""
+    import json
+    from bulgekit.cli.litho import summary
+    from bulgekit.gcode import estimate
+    m = json.loads(json.dumps(lt.machine_words(estimate.Machine(jerk={"X": 10, "Y": 10, "Z": 0.3, "E": 5}))))
+    assert m["classic_jerk"] == [10, 10, 0.3, 5]
+    s = {"name": "x", "shape": "planar", "layers": 3, "size_mm": {"picture_width": 10, "picture_height": 1},
+         "filament_mm": 100.0, "fill_ratio": 1.0, "extruding_moves": 10, "rates": {"mid_line_mm3_s": 8},
+         "mid_line": {"capped_time_share": 0.0, "layers_with_two_or_more": 0},
+         "gaps": {"narrowed_share": 0.1, "shared_share": 0.0},
+         "look": {"plate_L_range": [36, 100], "mean_abs_dL": 0.0, "ssim_L": 1.0, "curve": "perceptual"},
+         "estimate": {"estimated_time_s_gcode": 60.0, "machine": m}}
+    assert "classic jerk 10/10/0.3/5 mm/s" in summary(s)

@@ -344,9 +344,25 @@ def test_litho_figures_show_the_look_block_they_are_given():
                  "Lightness range the plate shows": "38–100 L*", "new figure": "0.25"}
     assert litho_figures({}) == []
     f = dict(litho_figures({"options": {"max_speed": 150}, "estimate": {
-        "estimated_time_s_gcode": 3720, "machine": {"acceleration_mm_s2": 3000}}}))
+        "estimated_time_s_gcode": 3720, "machine": {"new_setting_mm": 3}}}))
     assert f == {"Print time": "1 h 02 min (bulgekit firmware)", "Fastest head speed": "150 mm/s",
-                 "Times assume": "acceleration mm s2 3000"}
+                 "Times assume": "new setting mm 3"}
+
+
+def test_litho_figures_word_what_the_toolkit_writes():
+    """The machine and look blocks as `bulgekit litho` writes them, in the page's words."""
+    from bulgekit import litho as lt
+    from bulgekit.gcode import estimate
+    from bulgekit.studio.server import litho_figures
+    f = dict(litho_figures({"estimate": {"estimated_time_s_gcode": 60, "machine": lt.machine_words(estimate.Machine())},
+                            "look": {"mean_abs_dL": 0.04, "ssim_L": 1.0}, "gaps": {"narrowed_share": 0.187}}))
+    assert f["Times assume"] == "acceleration 3000 mm/s², junction deviation 0.013 mm, look-ahead of 16 moves"
+    assert f["Mean lightness difference"] == "0.0 ΔL*"
+    assert f["Light tones"] == "a thin mid-line between narrower walls, 18.7 % of the samples"
+    m = lt.machine_words(estimate.Machine(accel=1000, travel_accel=3000, jerk={"X": 10, "Y": 10, "Z": 0.3, "E": 5},
+                                          lookahead=None))
+    assert dict(litho_figures({"machine": m}))["Times assume"] == \
+        "acceleration 1000 mm/s² (travel 3000), classic jerk 10/10/0.3/5 mm/s, look-ahead over the whole file"
 
 
 def test_litho_view_is_the_relief_and_its_look(studio, tmp_path):
