@@ -429,4 +429,9 @@ static PyMethodDef methods[] = {
 
 static struct PyModuleDef module = {PyModuleDef_HEAD_INIT, "_plan", NULL, -1, methods};
 
-PyMODINIT_FUNC PyInit__plan(void) { return PyModule_Create(&module); }
+PyMODINIT_FUNC PyInit__plan(void) {
+    PyObject *m = PyModule_Create(&module);
+    /* what estimate.PLAN_VERSION expects: a module built from an older _plan.c is not used */
+    if (m && PyModule_AddIntConstant(m, "VERSION", 1) < 0) { Py_DECREF(m); return NULL; }
+    return m;
+}

@@ -147,3 +147,20 @@ def test_moves_on_random_tiny_moves(seed):
         assert np.array_equal(emitted, want[2]) and np.array_equal(ne[emitted], want[1][emitted])
         assert np.array_equal(D.view(np.int64), want[0].view(np.int64))      # the bits, signed zeros too
         assert pend.tolist() == want_pending
+
+
+def test_a_planner_built_from_an_older_source_is_not_used(monkeypatch):
+    """A compiled planner without this code's VERSION is said once (RuntimeWarning naming the
+    rebuild) and left alone: numpy plans, to the same bits."""
+    import sys
+    import types
+    from bulgekit.gcode import estimate as E
+    assert E._compiled_planner() is not None and E._compiled_planner().VERSION == E.PLAN_VERSION
+    stale = types.ModuleType("bulgekit.gcode._plan")
+    monkeypatch.setitem(sys.modules, "bulgekit.gcode._plan", stale)
+    import bulgekit.gcode as g
+    monkeypatch.setattr(g, "_plan", stale, raising=False)
+    with pytest.warns(RuntimeWarning, match="older source.*build_ext"):
+        assert E._compiled_planner() is None
+    stale.VERSION = E.PLAN_VERSION
+    assert E._compiled_planner() is stale
