@@ -399,11 +399,12 @@ static int do_line(Scanner *s, const char *p, const char *end, int ascii) {
  * that Python runs them only on parts of a file that hold one: comments starting "; bulgekit",
  * commands M[0...]72x / M[0...]92 (after any line number), and lines with bytes >= 0x80. A
  * superset: the regexes decide. */
-static void flag(Scanner *s, const char *p, const char *end) {
-    if (*p == ';') {
-        if (end - p >= 10 && memcmp(p, "; bulgekit", 10) == 0) s->flagged++;
-        return;
-    }
+enum { FLAG_OURS = 1, FLAG_M92 = 2 };
+
+/* What a line (p: its first character that is not blank) may be: FLAG_OURS (a "; bulgekit"
+ * comment or an M0...72x), FLAG_M92 (an M0...92), or 0. */
+static int line_flag(const char *p, const char *end) {
+    if (*p == ';') return end - p >= 10 && memcmp(p, "; bulgekit", 10) == 0 ? FLAG_OURS : 0;
     if (*p == 'N' || *p == 'n') {
         while (p < end && !is_ws((unsigned char)*p)) p++;
         while (p < end && is_ws((unsigned char)*p)) p++;
@@ -411,8 +412,16 @@ static void flag(Scanner *s, const char *p, const char *end) {
     if (p < end && (*p == 'M' || *p == 'm')) {
         p++;
         while (p < end && *p == '0') p++;
-        if (end - p >= 2 && (p[0] == '7' || p[0] == '9') && p[1] == '2') s->flagged++;
+        if (end - p >= 2 && p[1] == '2') {
+            if (p[0] == '7') return FLAG_OURS;
+            if (p[0] == '9') return FLAG_M92;
+        }
     }
+    return 0;
+}
+
+static void flag(Scanner *s, const char *p, const char *end) {
+    if (line_flag(p, end)) s->flagged++;
 }
 
 static int do_line_state(Scanner *s, const char *p, const char *end, int ascii) {
@@ -855,22 +864,9 @@ static PyObject *flag_lines(PyObject *self, PyObject *args) {
         const char *a = p, *b = q;
         while (a < b && is_ws((unsigned char)*a)) a++;
         if (a < b) {
-            if (*a == ';') {
-                if (b - a >= 10 && memcmp(a, "; bulgekit", 10) == 0) ours++;
-            } else {
-                if (*a == 'N' || *a == 'n') {
-                    while (a < b && !is_ws((unsigned char)*a)) a++;
-                    while (a < b && is_ws((unsigned char)*a)) a++;
-                }
-                if (a < b && (*a == 'M' || *a == 'm')) {
-                    a++;
-                    while (a < b && *a == '0') a++;
-                    if (b - a >= 2 && a[1] == '2') {
-                        if (a[0] == '7') ours++;
-                        else if (a[0] == '9') m92++;
-                    }
-                }
-            }
+            int f = line_flag(a, b);
+            ours += f == FLAG_OURS;
+            m92 += f == FLAG_M92;
         }
         p = q < end ? q + 1 : q;
     }
