@@ -350,26 +350,24 @@ def _decode_records(data: bytes, pos: int, has_weights: bool, after_z: int, sour
         def fail(cls, msg):
             raise cls(f"record: {msg}", start, source)
 
+        def varint(at, what):
+            r = _read_varint(data, at, end)
+            if r is None:
+                fail(MapTruncatedError, f"data ends inside {what}")
+            if r == "bad":
+                fail(VarintError, f"over-long varint {what}")
+            return r
+
         if end - pos < 2:
             fail(MapTruncatedError, "data ends inside z")
         z = data[pos] | data[pos + 1] << 8
         pos += 2
-        r = _read_varint(data, pos, end)
-        if r is None:
-            fail(MapTruncatedError, "data ends inside n")
-        if r == "bad":
-            fail(VarintError, "over-long varint n")
-        n, pos = r
+        n, pos = varint(pos, "n")
         if n == 0:
             fail(CountZeroError, f"z {z / 100:.2f} mm has 0 points")
         if n > max_points:
             fail(CountMaxError, f"z {z / 100:.2f} mm has {n} points, at most {max_points}")
-        r = _read_varint(data, pos, end)
-        if r is None:
-            fail(MapTruncatedError, "data ends inside len")
-        if r == "bad":
-            fail(VarintError, "over-long varint len")
-        blen, pos = r
+        blen, pos = varint(pos, "len")
         if blen + 1 > end - pos:
             fail(MapTruncatedError, f"body of {blen} bytes + CRC runs past the end ({end - pos} left)")
         body_end = pos + blen
