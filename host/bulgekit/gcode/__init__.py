@@ -377,35 +377,43 @@ SCAN_VERSION = 2      # the compiled scanner's VERSION this code calls (_scan.c'
 SCAN_REBUILD = "cd host && python3 setup.py build_ext --inplace (or make deps)"
 
 
+def _built(name: str, version: int):
+    """("compiled" | "stale" | "missing", the module or None) for the compiled helper
+    bulgekit.gcode.<name>: stale when built from an older source, whose VERSION is not the one
+    this code calls."""
+    import importlib
+    try:
+        mod = importlib.import_module(f"{__name__}.{name}")
+    except ImportError:
+        return "missing", None
+    return ("compiled", mod) if getattr(mod, "VERSION", 0) == version else ("stale", None)
+
+
+def compiled_helper(name: str, version: int, what: str, slower: str):
+    """The compiled helper bulgekit.gcode.<name> (_scan, _plan), or None: not built (no C
+    compiler), or built from an older source that lacks what this code calls; the Python paths
+    then do the work, slower. A stale build is said once per helper (a RuntimeWarning: an update
+    of the source without a rebuild would otherwise only show as slowness)."""
+    state, mod = _built(name, version)
+    if state == "stale" and name not in _STALE_SAID:
+        _STALE_SAID.add(name)
+        import warnings
+        warnings.warn(f"bulgekit: the compiled {what} was built from older source and is not used "
+                      f"({slower}); rebuild it: {SCAN_REBUILD}", RuntimeWarning, stacklevel=3)
+    return mod
+
+
+_STALE_SAID: set = set()
+
+
 def scanner_state() -> str:
     """"compiled", "stale" (built from an older _scan.c: not used) or "missing"."""
-    try:
-        from . import _scan
-    except ImportError:
-        return "missing"
-    return "compiled" if getattr(_scan, "VERSION", 1) == SCAN_VERSION else "stale"
+    return _built("_scan", SCAN_VERSION)[0]
 
 
 def compiled_scanner():
-    """The compiled scanner module (bulgekit.gcode._scan), or None: not built (no C compiler), or
-    built from an older _scan.c that lacks what this code calls; the Python paths then do the
-    work, many times slower on a large file. A stale build is said once (a RuntimeWarning: an
-    update of the source without a rebuild would otherwise only show as slowness)."""
-    global _STALE_SAID
-    state = scanner_state()
-    if state == "stale" and not _STALE_SAID:
-        _STALE_SAID = True
-        import warnings
-        warnings.warn("bulgekit: the compiled G-code scanner was built from older source and is not "
-                      f"used (large files read many times slower); rebuild it: {SCAN_REBUILD}",
-                      RuntimeWarning, stacklevel=2)
-    if state != "compiled":
-        return None
-    from . import _scan
-    return _scan
-
-
-_STALE_SAID = False
+    """The compiled scanner module (bulgekit.gcode._scan), or None (compiled_helper)."""
+    return compiled_helper("_scan", SCAN_VERSION, "G-code scanner", "large files read many times slower")
 
 
 def _flag_counts(data) -> tuple[int, int] | None:

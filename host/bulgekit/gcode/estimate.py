@@ -86,19 +86,9 @@ PLAN_VERSION = 1       # the compiled planner's VERSION this code calls (_plan.c
 
 def _compiled_planner():
     """The compiled planner passes (_plan.c), or None: not built, or built from an older _plan.c
-    (said once, as for the scanner: gcode.compiled_scanner); numpy then does the work, to the
-    same bits."""
-    try:
-        from . import _plan as p
-    except ImportError:
-        return None
-    if getattr(p, "VERSION", 0) != PLAN_VERSION:
-        import warnings
-        from . import SCAN_REBUILD
-        warnings.warn("bulgekit: the compiled planner (_plan) was built from older source and is not "
-                      f"used (estimates run slower); rebuild it: {SCAN_REBUILD}", RuntimeWarning, stacklevel=2)
-        return None
-    return p
+    (gcode.compiled_helper); numpy then does the work, to the same bits."""
+    from . import compiled_helper
+    return compiled_helper("_plan", PLAN_VERSION, "planner (_plan)", "estimates run slower")
 
 
 _plan = _compiled_planner()

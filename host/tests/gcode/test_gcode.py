@@ -203,7 +203,7 @@ def test_a_scanner_built_from_an_older_source_is_not_used(monkeypatch):
     stale = types.ModuleType("bulgekit.gcode._scan")
     monkeypatch.setitem(sys.modules, "bulgekit.gcode._scan", stale)
     monkeypatch.setattr(gcode, "_scan", stale, raising=False)
-    monkeypatch.setattr(gcode, "_STALE_SAID", False)
+    monkeypatch.setattr(gcode, "_STALE_SAID", set())
     assert gcode.scanner_state() == "stale"
     with pytest.warns(RuntimeWarning, match="out of date|older source.*setup.py build_ext"):
         assert gcode.compiled_scanner() is None

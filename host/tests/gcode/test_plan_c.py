@@ -160,6 +160,7 @@ def test_a_planner_built_from_an_older_source_is_not_used(monkeypatch):
     monkeypatch.setitem(sys.modules, "bulgekit.gcode._plan", stale)
     import bulgekit.gcode as g
     monkeypatch.setattr(g, "_plan", stale, raising=False)
+    monkeypatch.setattr(g, "_STALE_SAID", set())
     with pytest.warns(RuntimeWarning, match="older source.*build_ext"):
         assert E._compiled_planner() is None
     stale.VERSION = E.PLAN_VERSION
