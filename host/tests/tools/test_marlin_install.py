@@ -60,6 +60,11 @@ def read(root, rel):
         return f.read()
 
 
+def write(root, rel, text):
+    with open(os.path.join(root, rel), "w", encoding="utf-8", newline="") as f:
+        f.write(text)
+
+
 def quiet(*_):
     pass
 
@@ -144,8 +149,7 @@ def test_update_replaces_an_outdated_block(tree):
     mi.install(tree, out=quiet)
     rel = "Marlin/src/gcode/host/M115.cpp"
     stale = read(tree, rel).replace('cap_line(F("BULGE_MAP")', 'cap_line(F("OLD_NAME")')
-    with open(os.path.join(tree, rel), "w", encoding="utf-8", newline="") as f:
-        f.write(stale)
+    write(tree, rel, stale)
     mi.install(tree, out=quiet)
     text = read(tree, rel)
     assert "OLD_NAME" not in text and text.count('cap_line(F("BULGE_MAP")') == 1
@@ -242,8 +246,7 @@ def test_unbalanced_markers_are_reported(tree):
     mi.install(tree, out=quiet)
     rel = "Marlin/src/gcode/gcode.h"
     text = read(tree, rel).replace("  // bulgekit:end decls\n", "")
-    with open(os.path.join(tree, rel), "w", encoding="utf-8", newline="") as f:
-        f.write(text)
+    write(tree, rel, text)
     with pytest.raises(mi.InstallError, match="gcode.h:.*'decls' has no end marker"):
         mi.uninstall(tree, out=quiet)
 
@@ -273,8 +276,7 @@ def settings_text(tree):
 def test_eeprom_version_takes_the_b_letter_and_keeps_the_number(tree, stock):
     rel = "Marlin/src/module/settings.cpp"
     text = settings_text(tree).replace('#define EEPROM_VERSION "V88"', '#define EEPROM_VERSION "%s"' % stock)
-    with open(os.path.join(tree, rel), "w", encoding="utf-8", newline="") as f:
-        f.write(text)
+    write(tree, rel, text)
     mi.install(tree, out=quiet)
     lines = settings_text(tree).split("\n")
     num = stock[1:]
@@ -295,8 +297,7 @@ def test_eeprom_version_line_must_be_unique(tree, damage):
     text = settings_text(tree)
     line = '#define EEPROM_VERSION "V88"'
     text = text.replace(line, '#define EEPROM_VERSION_X 1') if damage == "missing" else text + line + "\n"
-    with open(os.path.join(tree, rel), "w", encoding="utf-8", newline="") as f:
-        f.write(text)
+    write(tree, rel, text)
     before = snapshot(tree)
     with pytest.raises(mi.InstallError) as e:
         mi.install(tree, out=quiet)
@@ -347,8 +348,7 @@ def test_missing_arc_anchor_refuses_and_names_it(tree):
     rel = "Marlin/src/gcode/motion/G2_G3.cpp"
     text = read(tree, rel).replace("plan_arc(destination, arc_offset, clockwise, circles_to_do);",
                                    "plan_arc(destination, arc_offset, clockwise);")
-    with open(os.path.join(tree, rel), "w", encoding="utf-8", newline="") as f:
-        f.write(text)
+    write(tree, rel, text)
     before = snapshot(tree)
     with pytest.raises(mi.InstallError) as e:
         mi.install(tree, out=quiet)
