@@ -337,7 +337,9 @@ def test_wide_gaps_get_two_mid_lines(tmp_path):
     mids = [s for s in plan.layers[3].sections if s.kind == "mid-line"]
     assert len(mids) == 2
     assert all(m.width == pytest.approx(1.6, abs=1e-6) for m in mids)   # one straight piece each
-    assert sorted(m.pts[0, 1] for m in mids) == pytest.approx([0.4 + 0.8, 0.4 + 2.4], abs=1e-6)
+    # the back wall at its one width (the mid-line's speed planned), the front wall the rest
+    b = lt.back_wall(plan.options)
+    assert sorted(m.pts[0, 1] for m in mids) == pytest.approx([b + 0.8, b + 2.4], abs=1e-6)
 
 
 def test_speed_from_flow_and_cap(step_plan):
@@ -451,7 +453,8 @@ def test_w_words(tmp_path):
     assert ws and all(m[2] == 0.0 for m in ws)
     # a mid-line joined from where the loop ended spreads its first piece's volume over the
     # longer way (here one piece across the plate, 19.4 mm instead of 19.2): 1 % narrower
-    assert np.median([m[4] for m in ws]) == pytest.approx(res.plan.field.t[5, 20] - 2 * W, rel=0.015)
+    f = res.plan.field
+    assert np.median([m[4] for m in ws]) == pytest.approx(f.t[5, 20] - f.ww[5, 20] - f.wf[5, 20], rel=0.015)
 
 
 def test_outputs_and_stats(made):
