@@ -819,6 +819,44 @@ def test_mid_line_speed_changes_are_planned(tmp_path):
     assert np.abs(np.diff(c, axis=1)).mean() < 0.6 * np.abs(np.diff(c0, axis=1)).mean()
 
 
+def test_back_wall_one_width_and_mid_line_held(tmp_path):
+    """With the mid-line's speed planned, the picture's detail goes to the front wall: on a
+    photo-like picture the back wall keeps back_wall(o) on most samples (with the walls alike,
+    no planning, on none) and the mid-line's width stays the same from sample to sample on
+    several times as many steps; the thickness is the picture's."""
+    p = noisy(tmp_path, w=120, h=12, sigma=30)
+    o = opts(width=48.0, height=2.4)
+    f = lt.thickness_field(p, o)
+    gm = f.t - f.ww - f.wf
+    b = lt.back_wall(o)
+    assert lt.wall_min(o) < b < o.line_width
+    assert b == pytest.approx(o.min_thickness - o.line_min() * (1 + lt.MID_MARGIN) - lt.wall_min(o) - lt.BACK_SLACK)
+    f0 = lt.thickness_field(p, opts(width=48.0, height=2.4, rate_accel=0.0))
+    assert np.mean(np.abs(f.ww - b) < 1e-9) > 0.6 and np.mean(np.abs(f0.ww - b) < 1e-9) == 0
+    same = lambda g: float((np.abs(np.diff(g, axis=1)) < 1e-9 * g[:, 1:]).mean())
+    assert same(gm) > 0.1 and same(gm) > 3 * same(f0.t - f0.ww - f0.wf)
+    assert f.ww + f.wf + gm == pytest.approx(f.t, abs=1e-12)
+
+
+def test_held_gap_moves_only_where_it_must():
+    """_held_gap: inside the band everywhere; where the value held leaves the band it is clipped
+    to the nearer edge (the least change), and otherwise it stays."""
+    lo = np.array([[1.0, 1.1, 1.0, 1.5, 1.5, 0.2, 0.2]])
+    hi = np.array([[2.0, 2.1, 1.9, 2.5, 2.5, 0.9, 1.2]])
+    q = lt._held_gap(lo, hi)
+    assert q.tolist() == [[1.5, 1.5, 1.5, 1.5, 1.5, 0.9, 0.9]]
+    rng = np.random.default_rng(3)
+    lo = rng.uniform(0, 1, (5, 200))
+    hi = lo + rng.uniform(0.05, 0.5, (5, 200))
+    q = lt._held_gap(lo, hi)
+    assert np.all(q >= lo) and np.all(q <= hi)
+    moved = np.abs(np.diff(q, axis=1)) > 0
+    prev_in = (q[:, :-1] >= lo[:, 1:]) & (q[:, :-1] <= hi[:, 1:])
+    assert not np.any(moved & prev_in)
+    edge = np.isclose(q[:, 1:], lo[:, 1:]) | np.isclose(q[:, 1:], hi[:, 1:])
+    assert np.all(edge[moved])
+
+
 def test_steady_mid_line_keeps_the_extruder_rate(tmp_path):
     """Through the estimator (1000 mm/s^2, the defaults' 16-block look-ahead): more of the
     mid-line's time within +-5 % of the set rate with the default --light-gaps mid-line and
