@@ -67,6 +67,28 @@ def test_a_slow_move_falls_outside(tmp_path):
     assert r["mean_rate_mm_s"] == pytest.approx(2 / (t_fast + t_slow), rel=5e-3)
 
 
+def test_a_ramp_inside_one_long_move_is_off_rate_only_where_it_is(tmp_path):
+    """One mid-line move whose first part runs at half the rate (the head ramping up inside a
+    long merged piece): as one window its mean rate is off and all of it counts as off; cut
+    into 40 ms slices only the slow part does. The other move is at the rate throughout."""
+    lines = ["0 A6 1"]
+    first, t = e_steps(0.0, 500, 1.0)
+    lines += first
+    more, t = e_steps(t, 500, RATE)
+    lines += more
+    slow, t = e_steps(t, 100, RATE / 2)         # 0.2 mm of filament slow, then 0.8 mm at the rate
+    fast, t = e_steps(t, 400, RATE)
+    lines += slow + fast
+    (tmp_path / "tr.txt").write_text("\n".join(lines) + "\n")
+    (tmp_path / "a.gcode").write_text(GCODE)
+    r = trace_width.analyse(str(tmp_path / "tr.txt"), str(tmp_path / "a.gcode"), window_ms=40)
+    t1, t_slow, t_fast = 1 / RATE, 0.2 * 2 / RATE, 0.8 / RATE
+    total = t1 + t_slow + t_fast
+    assert r["share_within_5pct"] == pytest.approx(t1 / total, rel=5e-3)
+    # the slices that straddle the change from slow to fast are off too: at most one 40 ms slice
+    assert (t1 + t_fast - 0.04) / total <= r["share_within_5pct_sliced"] <= (t1 + t_fast) / total + 1e-3
+
+
 def test_a_move_without_e_inside_the_mid_line_is_not_extruder_time(tmp_path):
     """Where the walls take a narrow gap the mid-line crosses it without E: the head's time there
     is neither in the mid-line's time nor in its rate."""
