@@ -295,7 +295,7 @@ def _reach(gcode, map_bytes: bytes, settings: Settings, source: str) -> tuple[st
 
     def run(chunks):
         planner = RefPlanner(bm, settings)
-        plan_records(planner, chunks, arcs_bypass=True)
+        plan_records(planner, chunks, arcs_bypass=True, lazy=True)
         return unreached_message(planner, source), chunks.flagged
     return movescan.run(gcode, run, source)
 

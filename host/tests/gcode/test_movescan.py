@@ -122,12 +122,13 @@ def test_skipping_moves_changes_nothing_the_planner_does(path):
         bm = _random_map(path, rng, geometric)
         for bypass in (False, True):
             ref = _full(path, bm, settings, bypass)
-            fast = RefPlanner(bm, settings)
-            movescan.run(path, lambda ch: plan_records(fast, ch, arcs_bypass=bypass))
             assert ref.stops, "the map must make stops for this test to mean something"
-            assert fast.stops == ref.stops
-            assert fast.stats == ref.stats and fast.top_z == ref.top_z
-            assert fast.arcs == ref.arcs
+            for lazy in (False, True):        # lazy: the move after a picked one only when owed
+                fast = RefPlanner(bm, settings)
+                movescan.run(path, lambda ch: plan_records(fast, ch, arcs_bypass=bypass, lazy=lazy))
+                assert fast.stops == ref.stops
+                assert fast.stats == ref.stats and fast.top_z == ref.top_z
+                assert fast.arcs == ref.arcs
 
 
 @pytest.mark.parametrize("path", FILES, ids=lambda p: p.name)
@@ -148,6 +149,9 @@ def test_skipping_the_layers_no_map_layer_is_near_changes_nothing(path):
     settings = Settings(mode=2 if geometric else 1, extra_e=0.9)
     for bypass in (False, True):
         ref = _full(path, bm, settings, bypass)
+        lazy = RefPlanner(bm, settings)
+        movescan.run(path, lambda ch: plan_records(lazy, ch, arcs_bypass=bypass, lazy=True))
+        assert lazy.stops == ref.stops and lazy.stats == ref.stats and lazy.arcs == ref.arcs
         fast = RefPlanner(bm, settings)
         picked = []
         movescan.run(path, lambda ch: plan_records(fast, ch, lambda m, a: picked.append(m),
