@@ -139,10 +139,29 @@ def _fast(path) -> Chunks:
                        gcode.ARC_CHORD_MM)
     roles: list[str] = sc.roles              # the scanner's own list, filled as it reads
 
+    def gen_bytes():
+        # G-code in memory: windows of it, not copies (a line longer than a window widens it)
+        view = memoryview(path)
+        base, size = 0, CHUNK_BYTES
+        while True:
+            stop = min(base + size, len(view))
+            final = stop == len(view)
+            recs, used = sc.feed(view[base:stop], final, base)
+            if recs:
+                yield np.frombuffer(recs, dtype=RECORD)             # read-only, not copied
+            progress.tick(sc.lines)
+            base += used
+            if final:
+                return
+            size = CHUNK_BYTES if used else 2 * size
+
     def gen():
+        if isinstance(path, (bytes, bytearray)):
+            yield from gen_bytes()
+            return
         base = 0                              # file offset of buf[0]
         buf = b""
-        with (io.BytesIO(path) if isinstance(path, (bytes, bytearray)) else open(path, "rb")) as f:
+        with open(path, "rb") as f:
             while True:
                 data = f.read(CHUNK_BYTES)
                 final = not data

@@ -65,6 +65,10 @@ def test_scanner_on_odd_lines_and_every_chunk_boundary(tmp_path, monkeypatch, ch
     fast = movescan.run(g, _all, fast=True)
     _same(fast, movescan.run(g, _all, fast=False))
     a, roles, lines = fast
+    # the same G-code given as bytes is scanned in windows of it: the same records and offsets
+    mem = movescan.run(TRICKY, _all, fast=True)
+    _same(mem, fast)
+    assert np.array_equal(mem[0]["offset"], a["offset"])
     assert lines == 31 and len(a) > 40
     assert roles[0] == "external perimeter" and "wall-outer" in roles and "outer wall — x" in roles
     assert a["offset"][0] == TRICKY.index(b"G1 X10")
