@@ -80,6 +80,20 @@ def _feature_comments(data: bytes):
             yield end, role
 
 
+def _feature_marks(data: bytes) -> list[tuple[int, bool]]:
+    """(end of line offset, whether its role is an outer wall) of every whole-line feature
+    comment with a role (_feature_comments), each distinct comment classified once."""
+    sc = _scanner()
+    if sc is None:
+        return [(end, is_outer(role)) for end, role in _feature_comments_rx(data)]
+    lines = sc.feature_lines(data)
+    outer_of: dict[bytes, bool | None] = {}
+    for comment in {c for _, c in lines}:        # a file repeats a few comments thousands of times
+        role = feature_of_comment(comment.decode("utf-8", "replace"))
+        outer_of[comment] = None if role is None else is_outer(role)
+    return [(end, o) for end, c in lines for o in (outer_of[c],) if o is not None]
+
+
 def _feature_comments_rx(data: bytes):
     for mt in _FEATURE_RX.finditer(data):
         ls = _line_start(data, mt.start())
@@ -193,17 +207,19 @@ def _annotated(data: bytes, map_bytes: bytes, settings: Settings, arena: int, st
     # ---- markers
     if not geometric:
         inside = False
-        for eol_at, role in _feature_comments(data):
-            res.features_seen += 1
-            outer = is_outer(role)
+        marks = _feature_marks(data)
+        res.features_seen = len(marks)
+        on, off = b"M722 S1" + eol, b"M722 S0" + eol
+        n = len(data)
+        for eol_at, outer in marks:
             if outer != inside:
                 inside = outer
-                end = data.find(b"\n", eol_at)
-                pos = len(data) if end < 0 else end + 1
-                txt = b"M722 S1" if outer else b"M722 S0"
-                if end < 0:
-                    txt = eol + txt
-                inserts.append((pos, 1, txt + eol))
+                # (eol_at is the comment's '\n', or the end of data: the line after it, or a
+                # line end first)
+                if eol_at < n:
+                    inserts.append((eol_at + 1, 1, on if outer else off))
+                else:
+                    inserts.append((n, 1, eol + (on if outer else off)))
                 res.markers += 1
                 res.outer_sections += outer
         if res.features_seen == 0:

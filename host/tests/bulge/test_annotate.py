@@ -369,7 +369,7 @@ def _mark_lines(rng, odd: bool = False):
     return "".join(out).encode()
 
 
-def test_compiled_marks_are_the_regular_expressions(data_dir):
+def test_compiled_marks_are_the_regular_expressions(data_dir, monkeypatch):
     """annotate's feature comments and layer changes from the compiled scanner (_scan.feature_lines,
     _scan.z_events) are the regular expressions' (the fallback without it), on every test file,
     on odd lines (blanks, G00/G10, G90/G91 and their word ends, Z without a number, Z after a
@@ -377,7 +377,7 @@ def test_compiled_marks_are_the_regular_expressions(data_dir):
     import random
     from pathlib import Path
     from bulgekit.bulge import annotate
-    from bulgekit.gcode import movescan
+    from bulgekit.gcode import is_outer, movescan
     assert movescan._scan is not None
     files = sorted(data_dir.glob("*.gcode")) + sorted((Path(__file__).parents[3] / "examples").glob("*.gcode"))
     rng = random.Random(26)
@@ -390,9 +390,14 @@ def test_compiled_marks_are_the_regular_expressions(data_dir):
         assert z == annotate._z_events_rx(d)
         f = list(annotate._feature_comments(d))
         assert f == list(annotate._feature_comments_rx(d))
+        assert annotate._feature_marks(d) == [(end, is_outer(role)) for end, role in f]
         seen_z += len(z)
         seen_f += len(f)
     assert seen_z > 1000 and seen_f > 1000
+    marks = [annotate._feature_marks(d) for d in datas]
+    monkeypatch.setattr(annotate, "_scanner", lambda: None)     # the regular expressions' way
+    assert [annotate._feature_marks(d) for d in datas] == marks
+    monkeypatch.undo()
     z = annotate._z_events(ODD_MARKS)
     assert (ODD_MARKS.index(b"G1 Z0.015"), 2) in z       # round(1.5) is 2, half to even
     assert (ODD_MARKS.index(b"G1 Z1.5e3"), 150) in z     # "1.5", as the regex reads it
