@@ -30,7 +30,7 @@ import re
 from dataclasses import dataclass, field
 
 from . import mapformat
-from .fallback import MODE_GEOMETRIC, Settings
+from .fallback import MODE_GEOMETRIC, MODE_MARKED, Settings
 from ..gcode import check_complete, check_not_processed, feature_of_comment, is_outer
 from ..errors import BulgekitError
 
@@ -313,7 +313,8 @@ def _reach(gcode, map_bytes: bytes, settings: Settings, source: str) -> tuple[st
         planner = RefPlanner(bm, settings)
         plan_records(planner, chunks, arcs_bypass=True, lazy=True)
         return unreached_message(planner, source), chunks.flagged
-    return movescan.run(gcode, run, source)
+    # in marked mode the scanner gives only the records the lazy planning can plan
+    return movescan.run(gcode, run, source, lean=settings.mode == MODE_MARKED)
 
 
 def annotate_file(src, dst, map_bytes: bytes, settings: Settings, arena: int = ARENA_BYTES,

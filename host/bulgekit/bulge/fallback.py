@@ -451,6 +451,7 @@ class Skipper:
         self.last_zc = None        # the last candidate's z
         self.owed = False          # a planned move still needs the next moving one planned
         self.top_z = None
+        self.own_top = True        # top_z from the chunks' records (lean chunks: their tops)
 
     def select(self, a: np.ndarray, followers: bool = True) -> np.ndarray:
         """Indices into the RECORD array a (one chunk, in file order) to plan. followers=False:
@@ -463,7 +464,7 @@ class Skipper:
             top = top_line
         else:
             seen = np.ones(len(a), bool)
-        if top is not None:
+        if top is not None and self.own_top:
             self.top_z = top if self.top_z is None else max(self.top_z, top)
         null = (c & movescan.NULL) != 0
         mode = self.p.s.mode
@@ -596,6 +597,11 @@ def plan_records(planner: RefPlanner, chunks, on_move=None, arcs_bypass: bool = 
     if lazy and (on_move is not None or on_chunk is not None):
         raise ValueError("plan_records: lazy planning hands no moves to on_move or on_chunk")
     sk = Skipper(planner, arcs_bypass)
+    lean = getattr(chunks, "tops", None) is not None
+    if lean and not (lazy and arcs_bypass and planner.s.mode == MODE_MARKED):
+        raise ValueError("plan_records: lean chunks hold what a lazy run in marked mode with "
+                         "arcs bypassed plans, no more")
+    sk.own_top = not lean
     done = 0
     for a in chunks:
         planned = {}
@@ -616,6 +622,10 @@ def plan_records(planner: RefPlanner, chunks, on_move=None, arcs_bypass: bool = 
             for m in record_moves(a, arcs[a["e"][arcs] > 0], done, chunks.roles):
                 planner.bypass(m)
         done += len(a)
+    if lean:                                   # every part's top, as select() takes a chunk's
+        for top in chunks.tops:
+            if top is not None:
+                sk.top_z = top if sk.top_z is None else max(sk.top_z, top)
     if sk.top_z is not None and (planner.top_z is None or sk.top_z > planner.top_z):
         planner.top_z = sk.top_z
 

@@ -52,6 +52,10 @@ typedef struct {
     PyObject *hypot;        /* math.hypot */
     double chord;
     int events;        /* gcode/estimate.py's mode: see event_line() */
+    int lean;          /* annotate's reach check in marked mode: see emit() */
+    int follow;        /* lean: a move since the last outer-wall one may be owed a record */
+    int have_top;      /* lean: the highest z1 of this feed's moves that extrude in XY, not on */
+    double top;        /* an arc (movescan.classes' top_not_arc, of every move, emitted or not) */
     int quiet;         /* the line is an event: its moves change the state, no records */
     long flagged;      /* lines that may be gcode.check_not_processed's or an M92 (see flag()) */
     long long n_lf, n_cr, n_crlf;   /* line-end bytes consumed: '\n', '\r', "\r\n" pairs */
@@ -251,7 +255,23 @@ static int emit(Scanner *s, const char *line, double x, double y, double z, doub
     r.role = (int16_t)s->role;
     r.flags = (uint8_t)((s->outer ? 1 : 0) | (arc ? 2 : 0) | (s->abs_xyz ? 4 : 0) | (s->abs_e ? 8 : 0));
     r.pad = 0;
-    if (!s->quiet && push(s, &r) < 0) return -1;
+    int keep = !s->quiet;
+    if (keep && s->lean) {
+        /* Only the records annotate's lazy reach check can plan (fallback._plan_lazily): every
+         * outer-wall move, every extruding arc chord (RefPlanner.bypass), and the first move
+         * after an outer-wall one that moves anything and is no arc chord (the one planned when
+         * something is owed; a move outside the wall leaves nothing owed). The top z of the
+         * moves left out is kept here. */
+        int moved = r.x0 != r.x1 || r.y0 != r.y1;
+        if (moved && r.e > 0 && !arc && (!s->have_top || r.z1 > s->top || isnan(r.z1)))
+            s->top = r.z1, s->have_top = 1;      /* numpy's max: a NaN wins */
+        int null = !moved && r.z0 == r.z1 && r.e == 0;
+        if (s->outer) s->follow = 1;
+        else if (arc) keep = r.e > 0;
+        else if (s->follow && !null) s->follow = 0;
+        else keep = 0;
+    }
+    if (keep && push(s, &r) < 0) return -1;
     s->x = x; s->y = y; s->z = z; s->e = e;
     return 0;
 }
@@ -495,6 +515,7 @@ static PyObject *Scanner_feed(Scanner *s, PyObject *args) {
     const char *p = buf.buf, *end = p + buf.len;
     s->n = 0;
     s->base = p;
+    s->have_top = 0;
     if (p < end) {                         /* (an empty feed keeps the pending '\r') */
         if (s->pending_cr && *p == '\n') { p++; s->n_lf++; s->n_crlf++; }
         s->pending_cr = 0;
@@ -539,14 +560,17 @@ static PyObject *Scanner_feed(Scanner *s, PyObject *args) {
 }
 
 static int Scanner_init(Scanner *s, PyObject *args, PyObject *kw) {
-    static char *kwlist[] = {"outer_roles", "s3d_roles", "classify", "chord", "events", NULL};
+    static char *kwlist[] = {"outer_roles", "s3d_roles", "classify", "chord", "events", "lean", NULL};
     PyObject *outer, *s3d, *classify;
     double chord = 0.5;
-    int events = 0;
-    if (!PyArg_ParseTupleAndKeywords(args, kw, "OOO|dp", kwlist, &outer, &s3d, &classify, &chord,
-                                     &events))
+    int events = 0, lean = 0;
+    if (!PyArg_ParseTupleAndKeywords(args, kw, "OOO|dpp", kwlist, &outer, &s3d, &classify, &chord,
+                                     &events, &lean))
         return -1;
     s->events = events;
+    s->lean = lean && !events;
+    s->follow = 0;
+    s->have_top = 0;
     s->quiet = 0;
     s->flagged = 0;
     s->n_lf = s->n_cr = s->n_crlf = 0;
@@ -601,6 +625,11 @@ static PyObject *Scanner_line_ends(Scanner *s, void *c) {
     return Py_BuildValue("(LLL)", s->n_lf, s->n_cr, s->n_crlf);
 }
 
+static PyObject *Scanner_top(Scanner *s, void *c) {
+    (void)c;
+    return s->have_top ? PyFloat_FromDouble(s->top) : Py_NewRef(Py_None);
+}
+
 static PyObject *Scanner_e(Scanner *s, void *c) {
     (void)c;
     return PyFloat_FromDouble(s->e);
@@ -615,6 +644,8 @@ static PyGetSetDef Scanner_getset[] = {
     {"roles", (getter)Scanner_roles, NULL, "role names by index (lower case)", NULL},
     {"lines", (getter)Scanner_lines, NULL, "lines scanned so far", NULL},
     {"e", (getter)Scanner_e, NULL, "E position after the lines scanned so far", NULL},
+    {"top", (getter)Scanner_top, NULL,
+     "lean: the last feed's highest z1 of the moves extruding in XY off arcs (None: none)", NULL},
     {"flagged", (getter)Scanner_flagged, NULL, "lines so far that may be bulgekit's or an M92", NULL},
     {"line_ends", (getter)Scanner_line_ends, NULL,
      "(\\n, \\r, \\r\\n) bytes and pairs so far: bytes.count's of the data consumed", NULL},
@@ -961,6 +992,6 @@ PyMODINIT_FUNC PyInit__scan(void) {
     PyModule_AddObject(m, "Scanner", (PyObject *)&ScannerType);
     PyModule_AddIntConstant(m, "RECORD_SIZE", (long)sizeof(Record));
     /* what gcode.SCAN_VERSION expects: a module built from an older _scan.c is not used */
-    PyModule_AddIntConstant(m, "VERSION", 4);
+    PyModule_AddIntConstant(m, "VERSION", 5);
     return m;
 }

@@ -63,8 +63,12 @@ class Chunks:
     (the compiled scanner's count, a superset; None from the Python parser or a kept Scan)."""
 
     def __init__(self, it: Iterator[np.ndarray], roles: list[str], lines: Callable[[], int],
-                 flagged: Callable[[], int] | None = None):
+                 flagged: Callable[[], int] | None = None, tops: list | None = None):
         self._it, self.roles, self._lines, self._flagged = it, roles, lines, flagged
+        # lean chunks (run(..., lean=True) with the compiled scanner): the records annotate's
+        # lazy reach check can plan only, and per part of the file read, what classes() would
+        # give as top_not_arc on all its moves (filled as iteration goes); else None
+        self.tops = tops
 
     def __iter__(self):
         return self._it
@@ -133,11 +137,12 @@ def _classify(text: str):
     return False, gcode.feature_of_comment(comment) if comment is not None else None
 
 
-def _fast(path) -> Chunks:
+def _fast(path, lean: bool = False) -> Chunks:
     assert _scan is not None and _scan.RECORD_SIZE == RECORD.itemsize
     sc = _scan.Scanner(sorted(gcode.OUTER_ROLES), sorted(gcode._S3D_ROLES), _classify,
-                       gcode.ARC_CHORD_MM)
+                       gcode.ARC_CHORD_MM, lean=lean)
     roles: list[str] = sc.roles              # the scanner's own list, filled as it reads
+    tops: list | None = [] if lean else None
 
     def gen_bytes():
         # G-code in memory: windows of it, not copies (a line longer than a window widens it)
@@ -147,6 +152,8 @@ def _fast(path) -> Chunks:
             stop = min(base + size, len(view))
             final = stop == len(view)
             recs, used = sc.feed(view[base:stop], final, base)
+            if lean:
+                tops.append(sc.top)
             if recs:
                 yield np.frombuffer(recs, dtype=RECORD)             # read-only, not copied
             progress.tick(sc.lines)
@@ -167,6 +174,8 @@ def _fast(path) -> Chunks:
                 final = not data
                 buf = buf + data if buf else data
                 recs, used = sc.feed(buf, final, base)
+                if lean:
+                    tops.append(sc.top)
                 if recs:
                     yield np.frombuffer(recs, dtype=RECORD)         # read-only, not copied
                 progress.tick(sc.lines)
@@ -174,7 +183,7 @@ def _fast(path) -> Chunks:
                 buf = buf[used:]
                 if final:
                     return
-    return Chunks(gen(), roles, lambda: sc.lines, lambda: sc.flagged)
+    return Chunks(gen(), roles, lambda: sc.lines, lambda: sc.flagged, tops)
 
 
 def from_moves(moves, roles: list[str] | None = None,
@@ -411,11 +420,13 @@ def kept(path) -> Scan | None:
 
 
 def run(path, consume: Callable[[Chunks], T], source: str | None = None,
-        fast: bool | None = None) -> T:
+        fast: bool | None = None, lean: bool = False) -> T:
     """consume(chunks) over the moves of the file at path (or of G-code bytes); see the module
     comment. fast=False forces the Python parser (tests compare the two); fast=True the compiled
     one only (Unsupported when it leaves the file to the Python parser). A file a Scan in force
-    has read is not read again (fast=False still reads it with the Python parser)."""
+    has read is not read again (fast=False still reads it with the Python parser). lean: the
+    compiled scanner gives only the records annotate's lazy reach check plans (Chunks.tops);
+    the kept Scan and the Python parser give them all."""
     sc = kept(path)
     if sc is not None and fast is not False:
         return sc.run(consume, fast)
@@ -428,7 +439,7 @@ def run(path, consume: Callable[[Chunks], T], source: str | None = None,
             raise Unsupported("bulgekit.gcode._scan is not built")
     if use:
         try:
-            return consume(_fast(path))
+            return consume(_fast(path, lean))
         except _scan.ScanUnsupported as e:
             if fast:
                 raise Unsupported(f"line {e.args[0]}") from None

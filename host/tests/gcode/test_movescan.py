@@ -127,9 +127,14 @@ def test_skipping_moves_changes_nothing_the_planner_does(path):
         for bypass in (False, True):
             ref = _full(path, bm, settings, bypass)
             assert ref.stops, "the map must make stops for this test to mean something"
-            for lazy in (False, True):        # lazy: the move after a picked one only when owed
+            # lazy: the move after a picked one only when owed; lean (annotate's reach check in
+            # marked mode): from the scanner's records of outer-wall moves, extruding arc chords
+            # and the first moving move after an outer-wall one only
+            runs = [(False, False), (True, False)] + [(True, True)] * (bypass and not geometric)
+            for lazy, lean in runs:
                 fast = RefPlanner(bm, settings)
-                movescan.run(path, lambda ch: plan_records(fast, ch, arcs_bypass=bypass, lazy=lazy))
+                movescan.run(path, lambda ch: plan_records(fast, ch, arcs_bypass=bypass, lazy=lazy),
+                             lean=lean)
                 assert fast.stops == ref.stops
                 assert fast.stats == ref.stats and fast.top_z == ref.top_z
                 assert fast.arcs == ref.arcs
@@ -273,3 +278,34 @@ def test_z_cmm_of_runs_is_z_cmm_of_each():
 
 def fallback_cmm(v):
     return RefPlanner._cmm(v)
+
+
+@pytest.mark.parametrize("path", FILES, ids=lambda p: p.name)
+def test_lean_records_are_the_full_ones_a_lazy_reach_check_can_plan(path):
+    """lean=True: the scanner's records are the full scan's records (the same bytes) of every
+    outer-wall move, every extruding arc chord, and each first move after an outer-wall one
+    that moves and is no chord, no others; Chunks.tops holds classes()' top_not_arc of all
+    moves; a lean run is refused where it would not hold what the planning needs."""
+    full, _, _ = movescan.run(path, _all, fast=True)
+    got = []
+
+    def lean_all(ch):
+        got.append(_all(ch))
+        got.append(list(ch.tops))
+    movescan.run(path, lean_all, fast=True, lean=True)
+    (lean, _, _), tops = got
+    c, _, top_line = movescan.classes(full)
+    keep = ((full["flags"] & movescan.OUTER) != 0) | (((c & movescan.ARC) != 0) & (full["e"] > 0))
+    follow = False
+    want = keep.copy()
+    for i in range(len(full)):
+        if full["flags"][i] & movescan.OUTER:
+            follow = True
+        elif follow and not c[i] & (movescan.NULL | movescan.ARC):
+            want[i], follow = True, False
+    assert lean.tobytes() == full[want].tobytes()
+    assert len(lean) < len(full) or not len(full)
+    seen = [t for t in tops if t is not None]
+    assert (max(seen) if seen else None) == top_line
+    with pytest.raises(ValueError, match="lean chunks"):
+        movescan.run(path, lambda ch: plan_records(RefPlanner(None, Settings()), ch), lean=True)
