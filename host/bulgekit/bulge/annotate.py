@@ -169,11 +169,13 @@ def annotate_bytes(data: bytes, map_bytes: bytes, settings: Settings,
 
 
 def _annotated(data: bytes, map_bytes: bytes, settings: Settings, arena: int, stream: bool,
-               source: str, result: AnnotateResult | None) -> list:
+               source: str, result: AnnotateResult | None,
+               bm: mapformat.BulgeMap | None = None) -> list:
     """annotate_bytes' output as pieces: slices of data (memoryviews, not copies) with the
-    inserted lines between them, to be joined or written one after the other."""
+    inserted lines between them, to be joined or written one after the other. bm: map_bytes
+    decoded already."""
     res = result if result is not None else AnnotateResult()
-    bm = mapformat.decode_map(map_bytes, source="map")
+    bm = bm if bm is not None else mapformat.decode_map(map_bytes, source="map")
     geometric = settings.mode == MODE_GEOMETRIC
     recs = _record_bytes(bm)
     zrec = [l.z_cmm for l in bm.layers]
@@ -302,12 +304,14 @@ def check_reach(gcode, map_bytes: bytes, settings: Settings, source: str) -> str
     return _reach(gcode, map_bytes, settings, source)[0]
 
 
-def _reach(gcode, map_bytes: bytes, settings: Settings, source: str) -> tuple[str | None, int | None]:
+def _reach(gcode, map_bytes: bytes, settings: Settings, source: str,
+           bm: mapformat.BulgeMap | None = None) -> tuple[str | None, int | None]:
     """check_reach's message, and the lines the compiled scanner flagged on the way (None when
-    it did not read the file): none means check_not_processed would find nothing."""
+    it did not read the file): none means check_not_processed would find nothing. bm:
+    map_bytes decoded already."""
     from ..gcode import movescan
     from .fallback import RefPlanner, plan_records, unreached_message
-    bm = mapformat.decode_map(map_bytes, source="map")
+    bm = bm if bm is not None else mapformat.decode_map(map_bytes, source="map")
 
     def run(chunks):
         planner = RefPlanner(bm, settings)
@@ -330,17 +334,25 @@ def annotate_file(src, dst, map_bytes: bytes, settings: Settings, arena: int = A
     if not kept:
         check_complete(data, str(src))
     msg = flagged = failed = None
+    try:                                      # (decoded once for both passes)
+        bm, bad_map = mapformat.decode_map(map_bytes, source="map"), None
+    except mapformat.MapFormatError as e:
+        bm, bad_map = None, e
     if check:
         # the reach check's scan comes first, as it also tells where check_not_processed can
         # find something; what it finds wrong is said in the order the checks always had
         try:
-            msg, flagged = _reach(src if kept else data, map_bytes, settings, str(src))
+            if bad_map is not None:
+                raise bad_map
+            msg, flagged = _reach(src if kept else data, map_bytes, settings, str(src), bm)
         except (BulgekitError, mapformat.MapFormatError) as e:
             failed = e
     if not kept and flagged != 0:
         check_not_processed(data, str(src))
     res = AnnotateResult()
-    out = _annotated(data, map_bytes, settings, arena, stream, str(src), res)
+    if bad_map is not None:
+        raise bad_map
+    out = _annotated(data, map_bytes, settings, arena, stream, str(src), res, bm)
     if failed is not None:
         raise failed
     if check:
