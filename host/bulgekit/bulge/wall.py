@@ -414,30 +414,31 @@ def walls_from_records(chunks: Iterable[np.ndarray], layer_height: float | None 
     walls: list[Wall] = []
     prev_z = None
     order = sorted(chosen)
-    # Every chosen wall's vertices in one array (its first move's start, then every move's end),
-    # and what _area_centroid and the arc lengths compute element by element, for all of them
-    # at once (thousands of layers); per wall only the sums and dot products, on slices with the
-    # strides they had as arrays of their own (np.dot of a column view and a contiguous array),
-    # so every number is the one computed per wall.
-    r0s = np.array([chosen[b].r0 for b in order], dtype=np.int64)
-    r1s = np.array([chosen[b].r1 for b in order], dtype=np.int64)
-    nv = r1s - r0s + 1
-    off = np.zeros(len(order) + 1, np.int64)
-    np.cumsum(nv, out=off[1:])
-    head = off[:-1]
-    XY = np.concatenate([p for r0, r1 in zip(r0s.tolist(), r1s.tolist())
-                         for p in (ends[r0:r0 + 1, 0:2], ends[r0:r1, 2:4])]) if len(order) else np.empty((0, 2))
-    X, Y = XY[:, 0], XY[:, 1]
-    nxt = np.arange(1, len(XY) + 1)
-    nxt[off[1:] - 1] = head                                 # _next: a wall's last vertex -> its first
-    XN, YN = X[nxt], Y[nxt]
-    CR = X * YN - XN * Y
-    AX, AY = (X + XN) * CR, (Y + YN) * CR
-    SEG = np.hypot(X[1:] - X[:-1], Y[1:] - Y[:-1])          # (across two walls: not used)
+    # 512 chosen walls' vertices in one array (each one's first move's start, then every move's
+    # end), and what _area_centroid and the arc lengths compute element by element, for all of
+    # them at once (thousands of layers); per wall only the sums and dot products, on slices with
+    # the strides they had as arrays of their own (np.dot of a column view and a contiguous
+    # array), so every number is the one computed per wall.
+
+    def block(k0: int, k1: int):
+        # walls order[k0:k1] (memory: 512 walls at a time)
+        spans = [(chosen[b].r0, chosen[b].r1) for b in order[k0:k1]]
+        XY = np.concatenate([p for r0, r1 in spans for p in (ends[r0:r0 + 1, 0:2], ends[r0:r1, 2:4])])
+        off = np.zeros(len(spans) + 1, np.int64)
+        np.cumsum([r1 - r0 + 1 for r0, r1 in spans], out=off[1:])
+        X, Y = XY[:, 0], XY[:, 1]
+        nxt = np.arange(1, len(XY) + 1)
+        nxt[off[1:] - 1] = off[:-1]                          # _next: a wall's last vertex -> its first
+        XN, YN = X[nxt], Y[nxt]
+        CR = X * YN - XN * Y
+        SEG = np.hypot(X[1:] - X[:-1], Y[1:] - Y[:-1])      # (across two walls: not used)
+        return off.tolist(), XY, XN, YN, CR, (X + XN) * CR, (Y + YN) * CR, SEG
     for k, b in enumerate(order):
+        if k % 512 == 0:
+            off, XY, XN, YN, CR, AX, AY, SEG = block(k, k + 512)
         best = chosen[b]
         r0, r1 = best.r0, best.r1
-        a, e = int(off[k]), int(off[k + 1])
+        a, e = off[k % 512], off[k % 512 + 1]
         xy = XY[a:e]
         s = np.empty(e - a)
         s[0] = 0.0
