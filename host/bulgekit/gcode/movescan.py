@@ -99,11 +99,29 @@ def _z_cmm(z: np.ndarray) -> np.ndarray:
     return np.where(v >= 0, np.floor(v + 0.5), -np.floor(0.5 - v)).astype(np.int64)
 
 
+# A kept Scan's replay: (the chunk it gave last, its chunk number, the Scan), so that classes()
+# of that chunk is computed on the first pass over the file only (build's walls, reach check and
+# fallback each ask for every chunk's)
+_REPLAYED: tuple | None = None
+
+
 def classes(a: np.ndarray) -> tuple[np.ndarray, float | None, float | None]:
     """The class bits of each move of a RECORD array (OUTER | ARC | MOVED | EXTRUDES | NULL |
     EXTRUDES_F32), and the highest z1 of the moves that extrude in XY, and of those not on an
     arc (None: none). From the compiled scanner in one pass over the records (the numpy way
-    reads the records' memory once per field); both the same (host/tests/gcode/test_movescan.py)."""
+    reads the records' memory once per field); both the same (host/tests/gcode/test_movescan.py).
+    A chunk a kept Scan replays has them from its first replay on."""
+    r = _REPLAYED                             # (read once: another thread may replay too)
+    if r is not None and r[0] is a:
+        _, k, scan = r
+        got = scan._classes.get(k)
+        if got is None:
+            got = scan._classes[k] = _classes(a)
+        return got
+    return _classes(a)
+
+
+def _classes(a: np.ndarray) -> tuple[np.ndarray, float | None, float | None]:
     if _scan is not None:
         c, top, top_line = _scan.move_classes(np.ascontiguousarray(a, dtype=RECORD))
         return np.frombuffer(c, np.uint8), top, top_line
@@ -255,6 +273,7 @@ class Scan:
         self.chunks: list[tuple[int, int]] = []     # (records, lines read so far) per chunk
         self.m92: list[tuple[int, float]] = []
         self.lines = 0
+        self._classes: dict[int, tuple] = {}       # classes() of chunk k (non-empty ones), once
         self._store = tempfile.TemporaryFile()
         try:
             self._read()
@@ -368,13 +387,16 @@ class Scan:
         done = [0]
 
         def gen():
+            global _REPLAYED
             self._store.seek(0)
-            for k, lines in self.chunks:
+            for i, (k, lines) in enumerate(self.chunks):
                 a = np.frombuffer(self._store.read(k * RECORD.itemsize), dtype=RECORD)
                 done[0] = lines
                 progress.tick(lines)
                 if k:
+                    _REPLAYED = (a, i, self)
                     yield a
+            _REPLAYED = None
             done[0] = self.lines
         return consume(Chunks(gen(), list(self.roles), lambda: done[0]))
 
@@ -384,6 +406,11 @@ class Scan:
             yield from f
 
     def close(self) -> None:
+        global _REPLAYED
+        r = _REPLAYED
+        if r is not None and r[2] is self:
+            _REPLAYED = None
+        self._classes.clear()
         self._store.close()
 
     def kept(self):
