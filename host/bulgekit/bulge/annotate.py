@@ -21,8 +21,9 @@ expressions they mirror (no per-line Python work either way), and the output is
 the file's own bytes between the added lines.  The check that every map point is
 reached (check_reach, on by default) runs the reference planner on the moves that
 can stop or change its state (fallback.Skipper), read by the compiled scanner
-(movescan); its scan also tells whether check_not_processed has anything to look
-at.  100 MB annotate in about a second of CPU (docs/host.md).
+(movescan: in marked mode only the records the lazy planning can plan); its scan also tells
+whether check_not_processed has anything to look at.  100 MB annotate in about 0.8 s of CPU
+(docs/host.md).
 """
 from __future__ import annotations
 
