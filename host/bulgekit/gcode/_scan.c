@@ -857,15 +857,16 @@ static PyObject *z_events(PyObject *self, PyObject *args) {
     PyObject *out = failed ? NULL : PyList_New(0);
     if (failed && !PyErr_Occurred()) PyErr_NoMemory();
     PyObject *last = NULL;                     /* the last layer change's z in 0.01 mm */
-    Py_ssize_t self_at = -1;                   /* the Z line whose own extrusion was looked at */
+    Py_ssize_t self_at = -1, le = -1;          /* the Z line looked at last, its end */
     int self_ext = 0;
     for (Py_ssize_t k = 0; out && k < nz; k++) {
         Py_ssize_t start = zl[k].start;
         Py_ssize_t stop = k + 1 < nz ? zl[k + 1].start : n;
-        const char *nl = memchr(d + start, '\n', (size_t)(n - start));
-        Py_ssize_t le = nl ? nl - d : n;
-        /* the Z line itself (a line the data starts with is not: the regex wants a '\n' first) */
+        /* the Z line itself (a line the data starts with is not: the regex wants a '\n' first);
+         * once per line, however many Z words it holds */
         if (self_at != start) {
+            const char *nl = memchr(d + start, '\n', (size_t)(n - start));
+            le = nl ? nl - d : n;
             self_at = start;
             self_ext = start > 0 && line_extrudes(d, start, le, n);
         }
@@ -992,6 +993,6 @@ PyMODINIT_FUNC PyInit__scan(void) {
     PyModule_AddObject(m, "Scanner", (PyObject *)&ScannerType);
     PyModule_AddIntConstant(m, "RECORD_SIZE", (long)sizeof(Record));
     /* what gcode.SCAN_VERSION expects: a module built from an older _scan.c is not used */
-    PyModule_AddIntConstant(m, "VERSION", 5);
+    PyModule_AddIntConstant(m, "VERSION", 6);
     return m;
 }
