@@ -382,7 +382,8 @@ def test_compiled_marks_are_the_regular_expressions(data_dir, monkeypatch):
     files = sorted(data_dir.glob("*.gcode")) + sorted((Path(__file__).parents[3] / "examples").glob("*.gcode"))
     rng = random.Random(26)
     datas = [p.read_bytes() for p in files] + [ODD_MARKS, ODD_MARKS[1:], b"", b"\n", ODD_HITS,
-                                                ODD_HITS[3:], b"Z1", b";TYPE:Skirt", b"G1 Z1\n"]
+                                                ODD_HITS[3:], b"Z1", b";TYPE:Skirt", b"G1 Z1\n",
+                                                b"G1 " + b"Z1" * 5000 + b" X1 E1\nG1 X2 E1\n"]
     datas += [_mark_lines(rng) for _ in range(60)] + [_mark_lines(rng, True) for _ in range(60)]
     seen_z = seen_f = 0
     for d in datas:
