@@ -7,7 +7,16 @@ dwells and extra filament (Takahashi & Miyashita, sec. 5.3).
 """
 from __future__ import annotations
 
+import os as _os
+import sys as _sys
+
 __version__ = "0.1.0"
+
+# The host's numpy work is element by element, never BLAS: without this, OpenBLAS starts a thread
+# per core when numpy is imported, about 0.06 s of CPU in every command (docs/host.md, "Speed and
+# memory on one large file"). Only when numpy is not loaded yet and the user has not chosen.
+if "numpy" not in _sys.modules:
+    _os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 # Function names differ from the module names (bulge/annotate.py, bulge/fallback.py,
 # bulge/stats.py) so that `from bulgekit.bulge import annotate` keeps meaning the module.

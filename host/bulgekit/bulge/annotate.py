@@ -21,8 +21,9 @@ expressions they mirror (no per-line Python work either way), and the output is
 the file's own bytes between the added lines.  The check that every map point is
 reached (check_reach, on by default) runs the reference planner on the moves that
 can stop or change its state (fallback.Skipper), read by the compiled scanner
-(movescan); its scan also tells whether check_not_processed has anything to look
-at.  100 MB annotate in about a second of CPU (docs/host.md).
+(movescan: in marked mode only the records the lazy planning can plan); its scan also tells
+whether check_not_processed has anything to look at.  100 MB annotate in about 0.8 s of CPU
+(docs/host.md).
 """
 from __future__ import annotations
 
@@ -30,7 +31,7 @@ import re
 from dataclasses import dataclass, field
 
 from . import mapformat
-from .fallback import MODE_GEOMETRIC, Settings
+from .fallback import MODE_GEOMETRIC, MODE_MARKED, Settings
 from ..gcode import check_complete, check_not_processed, feature_of_comment, is_outer
 from ..errors import BulgekitError
 
@@ -78,6 +79,20 @@ def _feature_comments(data: bytes):
             role = roles[comment] = feature_of_comment(comment.decode("utf-8", "replace"))
         if role is not None:
             yield end, role
+
+
+def _feature_marks(data: bytes) -> list[tuple[int, bool]]:
+    """(end of line offset, whether its role is an outer wall) of every whole-line feature
+    comment with a role (_feature_comments), each distinct comment classified once."""
+    sc = _scanner()
+    if sc is None:
+        return [(end, is_outer(role)) for end, role in _feature_comments_rx(data)]
+    lines = sc.feature_lines(data)
+    outer_of: dict[bytes, bool | None] = {}
+    for comment in {c for _, c in lines}:        # a file repeats a few comments thousands of times
+        role = feature_of_comment(comment.decode("utf-8", "replace"))
+        outer_of[comment] = None if role is None else is_outer(role)
+    return [(end, o) for end, c in lines for o in (outer_of[c],) if o is not None]
 
 
 def _feature_comments_rx(data: bytes):
@@ -155,11 +170,13 @@ def annotate_bytes(data: bytes, map_bytes: bytes, settings: Settings,
 
 
 def _annotated(data: bytes, map_bytes: bytes, settings: Settings, arena: int, stream: bool,
-               source: str, result: AnnotateResult | None) -> list:
+               source: str, result: AnnotateResult | None,
+               bm: mapformat.BulgeMap | None = None) -> list:
     """annotate_bytes' output as pieces: slices of data (memoryviews, not copies) with the
-    inserted lines between them, to be joined or written one after the other."""
+    inserted lines between them, to be joined or written one after the other. bm: map_bytes
+    decoded already."""
     res = result if result is not None else AnnotateResult()
-    bm = mapformat.decode_map(map_bytes, source="map")
+    bm = bm if bm is not None else mapformat.decode_map(map_bytes, source="map")
     geometric = settings.mode == MODE_GEOMETRIC
     recs = _record_bytes(bm)
     zrec = [l.z_cmm for l in bm.layers]
@@ -193,17 +210,19 @@ def _annotated(data: bytes, map_bytes: bytes, settings: Settings, arena: int, st
     # ---- markers
     if not geometric:
         inside = False
-        for eol_at, role in _feature_comments(data):
-            res.features_seen += 1
-            outer = is_outer(role)
+        marks = _feature_marks(data)
+        res.features_seen = len(marks)
+        on, off = b"M722 S1" + eol, b"M722 S0" + eol
+        n = len(data)
+        for eol_at, outer in marks:
             if outer != inside:
                 inside = outer
-                end = data.find(b"\n", eol_at)
-                pos = len(data) if end < 0 else end + 1
-                txt = b"M722 S1" if outer else b"M722 S0"
-                if end < 0:
-                    txt = eol + txt
-                inserts.append((pos, 1, txt + eol))
+                # (eol_at is the comment's '\n', or the end of data: the line after it, or a
+                # line end first)
+                if eol_at < n:
+                    inserts.append((eol_at + 1, 1, on if outer else off))
+                else:
+                    inserts.append((n, 1, eol + (on if outer else off)))
                 res.markers += 1
                 res.outer_sections += outer
         if res.features_seen == 0:
@@ -286,18 +305,21 @@ def check_reach(gcode, map_bytes: bytes, settings: Settings, source: str) -> str
     return _reach(gcode, map_bytes, settings, source)[0]
 
 
-def _reach(gcode, map_bytes: bytes, settings: Settings, source: str) -> tuple[str | None, int | None]:
+def _reach(gcode, map_bytes: bytes, settings: Settings, source: str,
+           bm: mapformat.BulgeMap | None = None) -> tuple[str | None, int | None]:
     """check_reach's message, and the lines the compiled scanner flagged on the way (None when
-    it did not read the file): none means check_not_processed would find nothing."""
+    it did not read the file): none means check_not_processed would find nothing. bm:
+    map_bytes decoded already."""
     from ..gcode import movescan
     from .fallback import RefPlanner, plan_records, unreached_message
-    bm = mapformat.decode_map(map_bytes, source="map")
+    bm = bm if bm is not None else mapformat.decode_map(map_bytes, source="map")
 
     def run(chunks):
         planner = RefPlanner(bm, settings)
-        plan_records(planner, chunks, arcs_bypass=True)
+        plan_records(planner, chunks, arcs_bypass=True, lazy=True)
         return unreached_message(planner, source), chunks.flagged
-    return movescan.run(gcode, run, source)
+    # in marked mode the scanner gives only the records the lazy planning can plan
+    return movescan.run(gcode, run, source, lean=settings.mode == MODE_MARKED)
 
 
 def annotate_file(src, dst, map_bytes: bytes, settings: Settings, arena: int = ARENA_BYTES,
@@ -313,17 +335,25 @@ def annotate_file(src, dst, map_bytes: bytes, settings: Settings, arena: int = A
     if not kept:
         check_complete(data, str(src))
     msg = flagged = failed = None
+    try:                                      # (decoded once for both passes)
+        bm, bad_map = mapformat.decode_map(map_bytes, source="map"), None
+    except mapformat.MapFormatError as e:
+        bm, bad_map = None, e
     if check:
         # the reach check's scan comes first, as it also tells where check_not_processed can
         # find something; what it finds wrong is said in the order the checks always had
         try:
-            msg, flagged = _reach(src if kept else data, map_bytes, settings, str(src))
+            if bad_map is not None:
+                raise bad_map
+            msg, flagged = _reach(src if kept else data, map_bytes, settings, str(src), bm)
         except (BulgekitError, mapformat.MapFormatError) as e:
             failed = e
     if not kept and flagged != 0:
         check_not_processed(data, str(src))
     res = AnnotateResult()
-    out = _annotated(data, map_bytes, settings, arena, stream, str(src), res)
+    if bad_map is not None:
+        raise bad_map
+    out = _annotated(data, map_bytes, settings, arena, stream, str(src), res, bm)
     if failed is not None:
         raise failed
     if check:

@@ -451,9 +451,12 @@ class Skipper:
         self.last_zc = None        # the last candidate's z
         self.owed = False          # a planned move still needs the next moving one planned
         self.top_z = None
+        self.own_top = True        # top_z from the chunks' records (lean chunks: their tops)
 
-    def select(self, a: np.ndarray) -> np.ndarray:
-        """Indices into the RECORD array a (one chunk, in file order) to plan."""
+    def select(self, a: np.ndarray, followers: bool = True) -> np.ndarray:
+        """Indices into the RECORD array a (one chunk, in file order) to plan. followers=False:
+        without the first moving move after each (plan_records' lazy run picks those itself
+        from self.moving, the chunk's moving moves, when the planner's state asks for one)."""
         c, top, top_line = movescan.classes(a)      # (one pass over the records)
         self.classes = c
         if self.arcs_bypass:
@@ -461,7 +464,7 @@ class Skipper:
             top = top_line
         else:
             seen = np.ones(len(a), bool)
-        if top is not None:
+        if top is not None and self.own_top:
             self.top_z = top if self.top_z is None else max(self.top_z, top)
         null = (c & movescan.NULL) != 0
         mode = self.p.s.mode
@@ -484,6 +487,9 @@ class Skipper:
             pick[ci[self._near(a, ci, zc)]] = True
         # the first moving move after each picked one (and after the last chunk's)
         moving = np.flatnonzero(~null & seen)
+        if not followers:
+            self.moving = moving
+            return np.flatnonzero(pick)
         if self.owed and len(moving):
             pick[moving[0]] = True
         picked = np.flatnonzero(pick)              # all of them move (candidates, moving[0])
@@ -545,17 +551,65 @@ def record_moves(a, rows, done: int, roles) -> list[Move]:
     return out
 
 
+def _clean(planner: RefPlanner) -> bool:
+    """Nothing owed to the next move: no deferred point, no extra filament, no stop in progress.
+    A move planned then that is not itself picked by the Skipper (not near a point, no new
+    window) changes nothing of the planner's state, its stops or its statistics."""
+    return not planner.deferred and planner.carry == 0 and planner.stop_ms == 0
+
+
+def _plan_lazily(planner: RefPlanner, sk: Skipper, a, rows, done: int, roles) -> None:
+    """Plan the picked rows of chunk a, and the first moving move after one only when the
+    planner's state is not clean after it (Skipper picks every such move; most leave nothing
+    owed). sk.owed carries a move owed into the next chunk."""
+    moving = sk.moving
+    todo = rows.tolist()
+    picked = dict(zip(todo, record_moves(a, rows, done, roles)))       # (converted together)
+    k, last, follow = 0, -1, sk.owed
+    while True:
+        if follow:
+            j = int(np.searchsorted(moving, last, side="right"))
+            if j == len(moving):
+                break                              # owed to the next chunk's first moving move
+            r = int(moving[j])
+            if k < len(todo) and todo[k] == r:
+                k += 1
+        elif k < len(todo):
+            r = todo[k]
+            k += 1
+        else:
+            break
+        m = picked.get(r)
+        planner.plan(m if m is not None else record_moves(a, np.array([r]), done, roles)[0])
+        last = r
+        follow = not _clean(planner)
+    sk.owed = follow
+
+
 def plan_records(planner: RefPlanner, chunks, on_move=None, arcs_bypass: bool = False,
-                 on_chunk=None) -> None:
+                 on_chunk=None, lazy: bool = False) -> None:
     """Run a file's moves (movescan chunks) through the planner, skipping the moves that cannot
     change what it does (Skipper). on_move(move, actions) is called for every planned move as it
     is planned; on_chunk(chunk, moves before it, {row: (move, actions)}) after each chunk.
-    arcs_bypass: arc chords go to planner.bypass, as the firmware sees them."""
+    arcs_bypass: arc chords go to planner.bypass, as the firmware sees them. lazy (no on_move,
+    no on_chunk: only the planner's stops, statistics and arcs count): the move after a picked
+    one is planned only when something is owed to it (_plan_lazily), the same stops."""
+    if lazy and (on_move is not None or on_chunk is not None):
+        raise ValueError("plan_records: lazy planning hands no moves to on_move or on_chunk")
     sk = Skipper(planner, arcs_bypass)
+    lean = getattr(chunks, "tops", None) is not None
+    if lean and not (lazy and arcs_bypass and planner.s.mode == MODE_MARKED):
+        raise ValueError("plan_records: lean chunks hold what a lazy run in marked mode with "
+                         "arcs bypassed plans, no more")
+    sk.own_top = not lean
     done = 0
     for a in chunks:
         planned = {}
-        rows = sk.select(a)
+        if lazy:
+            _plan_lazily(planner, sk, a, sk.select(a, followers=False), done, chunks.roles)
+            rows = np.empty(0, np.intp)
+        else:
+            rows = sk.select(a)
         for i, m in zip(rows.tolist(), record_moves(a, rows, done, chunks.roles)):
             acts = planner.plan(m)
             planned[i] = (m, acts)
@@ -568,6 +622,10 @@ def plan_records(planner: RefPlanner, chunks, on_move=None, arcs_bypass: bool = 
             for m in record_moves(a, arcs[a["e"][arcs] > 0], done, chunks.roles):
                 planner.bypass(m)
         done += len(a)
+    if lean:                                   # every part's top, as select() takes a chunk's
+        for top in chunks.tops:
+            if top is not None:
+                sk.top_z = top if sk.top_z is None else max(sk.top_z, top)
     if sk.top_z is not None and (planner.top_z is None or sk.top_z > planner.top_z):
         planner.top_z = sk.top_z
 

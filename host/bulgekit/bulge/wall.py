@@ -376,6 +376,13 @@ def walls_from_records(chunks: Iterable[np.ndarray], layer_height: float | None 
     starts = np.flatnonzero(start)
     stops = np.flatnonzero(real & np.concatenate([~real[1:] | start[1:], [True]])) + 1
     chains = [_Chain(int(bucket[r0]), int(r0), int(r1), ends) for r0, r1 in zip(starts, stops)]
+    gap = max(2.0, 3 * h)
+    # _closed of every chain, on Python floats (the same numbers): no numpy scalar per chain
+    shut = {}
+    if len(starts):
+        for c, x0, y0, x1, y1 in zip(chains, ends[starts, 0].tolist(), ends[starts, 1].tolist(),
+                                     ends[stops - 1, 2].tolist(), ends[stops - 1, 3].tolist()):
+            shut[c.r0] = math.hypot(x1 - x0, y1 - y0) <= gap
 
     by_bucket: dict[int, list[_Chain]] = {}
     for c in chains:
@@ -384,7 +391,6 @@ def walls_from_records(chunks: Iterable[np.ndarray], layer_height: float | None 
     if not math.isfinite(ref_angle_deg):
         raise WallError(f"{source}: reference angle {ref_angle_deg} is not a finite number")
     direction = (math.cos(math.radians(ref_angle_deg)), math.sin(math.radians(ref_angle_deg)))
-    gap = max(2.0, 3 * h)
     chosen: dict[int, _Chain] = {}
     upper: np.ndarray | None = None
     # Geometric mode goes top-down: the wall of a layer must lie near the wall
@@ -393,7 +399,7 @@ def walls_from_records(chunks: Iterable[np.ndarray], layer_height: float | None 
     order = sorted(by_bucket, reverse=geometric)
     for b in order:
         cands = by_bucket[b]
-        closed = [c for c in cands if _closed(c, gap)]
+        closed = [c for c in cands if shut[c.r0]]
         pool = closed or cands
         if geometric and upper is not None:
             near = [c for c in pool if _median_distance(np.array(c.pts), upper) <= max(1.0, 3 * h)]
@@ -407,26 +413,50 @@ def walls_from_records(chunks: Iterable[np.ndarray], layer_height: float | None 
             upper = np.array(best.pts, dtype=float)
     walls: list[Wall] = []
     prev_z = None
-    for b in sorted(chosen):
+    order = sorted(chosen)
+    # 512 chosen walls' vertices in one array (each one's first move's start, then every move's
+    # end), and what _area_centroid and the arc lengths compute element by element, for all of
+    # them at once (thousands of layers); per wall only the sums and dot products, on slices with
+    # the strides they had as arrays of their own (np.dot of a column view and a contiguous
+    # array), so every number is the one computed per wall.
+
+    def block(k0: int, k1: int):
+        # walls order[k0:k1] (memory: 512 walls at a time)
+        spans = [(chosen[b].r0, chosen[b].r1) for b in order[k0:k1]]
+        XY = np.concatenate([p for r0, r1 in spans for p in (ends[r0:r0 + 1, 0:2], ends[r0:r1, 2:4])])
+        off = np.zeros(len(spans) + 1, np.int64)
+        np.cumsum([r1 - r0 + 1 for r0, r1 in spans], out=off[1:])
+        X, Y = XY[:, 0], XY[:, 1]
+        nxt = np.arange(1, len(XY) + 1)
+        nxt[off[1:] - 1] = off[:-1]                          # _next: a wall's last vertex -> its first
+        XN, YN = X[nxt], Y[nxt]
+        CR = X * YN - XN * Y
+        SEG = np.hypot(X[1:] - X[:-1], Y[1:] - Y[:-1])      # (across two walls: not used)
+        return off.tolist(), XY, XN, YN, CR, (X + XN) * CR, (Y + YN) * CR, SEG
+    for k, b in enumerate(order):
+        if k % 512 == 0:
+            off, XY, XN, YN, CR, AX, AY, SEG = block(k, k + 512)
         best = chosen[b]
         r0, r1 = best.r0, best.r1
-        # (the arrays as before, with fewer numpy calls: thousands of layers)
-        xy = np.empty((r1 - r0 + 1, 2))
-        xy[0] = ends[r0, 0:2]
-        xy[1:] = ends[r0:r1, 2:4]
-        x = xy[:, 0]
-        y = xy[:, 1]
-        s = np.empty(len(xy))
+        a, e = off[k % 512], off[k % 512 + 1]
+        xy = XY[a:e]
+        s = np.empty(e - a)
         s[0] = 0.0
-        np.cumsum(np.hypot(x[1:] - x[:-1], y[1:] - y[:-1]), out=s[1:])
-        area, cen = _area_centroid(xy)
+        np.cumsum(SEG[a:e - 1], out=s[1:])
+        # _area_centroid(xy), the same operations
+        area = 0.5 * float(np.dot(xy[:, 0], YN[a:e]) - np.dot(xy[:, 1], XN[a:e]))
+        ar = CR[a:e].sum() / 2
+        if abs(ar) < 1e-12:
+            cen = (float(xy[:, 0].mean()), float(xy[:, 1].mean()))
+        else:
+            cen = (float(AX[a:e].sum() / (6 * ar)), float(AY[a:e].sum() / (6 * ar)))
         z = b / 100
         height = (z - prev_z) if prev_z is not None else min(z, h)
         if prev_z is not None and height > 1.5 * h:
             height = h  # a layer without wall in between
         prev_z = z
         w = Wall(z=z, xy=xy, s=s, move_index=index[r0:r1].copy(), height=height,
-                 ccw=area >= 0, centroid=cen, closed=_closed(best, gap))
+                 ccw=area >= 0, centroid=cen, closed=shut[r0])
         walls.append(w)
     for k in range(0, len(walls), 512):                 # (memory: 512 walls at a time)
         part = walls[k:k + 512]

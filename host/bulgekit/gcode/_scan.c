@@ -52,6 +52,10 @@ typedef struct {
     PyObject *hypot;        /* math.hypot */
     double chord;
     int events;        /* gcode/estimate.py's mode: see event_line() */
+    int lean;          /* annotate's reach check in marked mode: see emit() */
+    int follow;        /* lean: a move since the last outer-wall one may be owed a record */
+    int have_top;      /* lean: the highest z1 of this feed's moves that extrude in XY, not on */
+    double top;        /* an arc (movescan.classes' top_not_arc, of every move, emitted or not) */
     int quiet;         /* the line is an event: its moves change the state, no records */
     long flagged;      /* lines that may be gcode.check_not_processed's or an M92 (see flag()) */
     long long n_lf, n_cr, n_crlf;   /* line-end bytes consumed: '\n', '\r', "\r\n" pairs */
@@ -251,7 +255,23 @@ static int emit(Scanner *s, const char *line, double x, double y, double z, doub
     r.role = (int16_t)s->role;
     r.flags = (uint8_t)((s->outer ? 1 : 0) | (arc ? 2 : 0) | (s->abs_xyz ? 4 : 0) | (s->abs_e ? 8 : 0));
     r.pad = 0;
-    if (!s->quiet && push(s, &r) < 0) return -1;
+    int keep = !s->quiet;
+    if (keep && s->lean) {
+        /* Only the records annotate's lazy reach check can plan (fallback._plan_lazily): every
+         * outer-wall move, every extruding arc chord (RefPlanner.bypass), and the first move
+         * after an outer-wall one that moves anything and is no arc chord (the one planned when
+         * something is owed; a move outside the wall leaves nothing owed). The top z of the
+         * moves left out is kept here. */
+        int moved = r.x0 != r.x1 || r.y0 != r.y1;
+        if (moved && r.e > 0 && !arc && (!s->have_top || r.z1 > s->top || isnan(r.z1)))
+            s->top = r.z1, s->have_top = 1;      /* numpy's max: a NaN wins */
+        int null = !moved && r.z0 == r.z1 && r.e == 0;
+        if (s->outer) s->follow = 1;
+        else if (arc) keep = r.e > 0;
+        else if (s->follow && !null) s->follow = 0;
+        else keep = 0;
+    }
+    if (keep && push(s, &r) < 0) return -1;
     s->x = x; s->y = y; s->z = z; s->e = e;
     return 0;
 }
@@ -495,6 +515,7 @@ static PyObject *Scanner_feed(Scanner *s, PyObject *args) {
     const char *p = buf.buf, *end = p + buf.len;
     s->n = 0;
     s->base = p;
+    s->have_top = 0;
     if (p < end) {                         /* (an empty feed keeps the pending '\r') */
         if (s->pending_cr && *p == '\n') { p++; s->n_lf++; s->n_crlf++; }
         s->pending_cr = 0;
@@ -503,6 +524,17 @@ static PyObject *Scanner_feed(Scanner *s, PyObject *args) {
     while (p < end) {
         const char *q = p;
         unsigned char high = 0;                /* the line's bytes or'ed: >= 0x80 if any is */
+        /* eight bytes at a time while none is '\n', '\r' or >= 0x80 (the zero test has no
+         * false negatives), then byte by byte */
+        while (end - q >= 8) {
+            const uint64_t ones = 0x0101010101010101ULL, highs = 0x8080808080808080ULL;
+            uint64_t w, lf, cr;
+            memcpy(&w, q, 8);
+            lf = w ^ (ones * '\n');
+            cr = w ^ (ones * '\r');
+            if ((((lf - ones) & ~lf) | ((cr - ones) & ~cr) | w) & highs) break;
+            q += 8;
+        }
         while (q < end && *q != '\n' && *q != '\r') high |= (unsigned char)*q++;
         if (q == end && !final) break;
         s->line_no++;
@@ -528,14 +560,17 @@ static PyObject *Scanner_feed(Scanner *s, PyObject *args) {
 }
 
 static int Scanner_init(Scanner *s, PyObject *args, PyObject *kw) {
-    static char *kwlist[] = {"outer_roles", "s3d_roles", "classify", "chord", "events", NULL};
+    static char *kwlist[] = {"outer_roles", "s3d_roles", "classify", "chord", "events", "lean", NULL};
     PyObject *outer, *s3d, *classify;
     double chord = 0.5;
-    int events = 0;
-    if (!PyArg_ParseTupleAndKeywords(args, kw, "OOO|dp", kwlist, &outer, &s3d, &classify, &chord,
-                                     &events))
+    int events = 0, lean = 0;
+    if (!PyArg_ParseTupleAndKeywords(args, kw, "OOO|dpp", kwlist, &outer, &s3d, &classify, &chord,
+                                     &events, &lean))
         return -1;
     s->events = events;
+    s->lean = lean && !events;
+    s->follow = 0;
+    s->have_top = 0;
     s->quiet = 0;
     s->flagged = 0;
     s->n_lf = s->n_cr = s->n_crlf = 0;
@@ -590,6 +625,11 @@ static PyObject *Scanner_line_ends(Scanner *s, void *c) {
     return Py_BuildValue("(LLL)", s->n_lf, s->n_cr, s->n_crlf);
 }
 
+static PyObject *Scanner_top(Scanner *s, void *c) {
+    (void)c;
+    return s->have_top ? PyFloat_FromDouble(s->top) : Py_NewRef(Py_None);
+}
+
 static PyObject *Scanner_e(Scanner *s, void *c) {
     (void)c;
     return PyFloat_FromDouble(s->e);
@@ -604,6 +644,8 @@ static PyGetSetDef Scanner_getset[] = {
     {"roles", (getter)Scanner_roles, NULL, "role names by index (lower case)", NULL},
     {"lines", (getter)Scanner_lines, NULL, "lines scanned so far", NULL},
     {"e", (getter)Scanner_e, NULL, "E position after the lines scanned so far", NULL},
+    {"top", (getter)Scanner_top, NULL,
+     "lean: the last feed's highest z1 of the moves extruding in XY off arcs (None: none)", NULL},
     {"flagged", (getter)Scanner_flagged, NULL, "lines so far that may be bulgekit's or an M92", NULL},
     {"line_ends", (getter)Scanner_line_ends, NULL,
      "(\\n, \\r, \\r\\n) bytes and pairs so far: bytes.count's of the data consumed", NULL},
@@ -647,20 +689,23 @@ static const char *const FEATURE_WORDS[] = {
 
 /* feature_lines(data) -> [(end, comment)]: every line whose first byte other than ' ' and '\t'
  * is ';' followed by blanks and a feature word (_FEATURE_RX); end: its '\n' (or the data's end),
- * comment: the bytes after the ';' up to end, for gcode.feature_of_comment. */
+ * comment: the bytes after the ';' up to end, for gcode.feature_of_comment. Looks only at the
+ * lines holding a ';' (memchr to it, then to the line end): the moves between are not walked. */
 static PyObject *feature_lines(PyObject *self, PyObject *args) {
     (void)self;
     Py_buffer buf;
     if (!PyArg_ParseTuple(args, "y*", &buf)) return NULL;
     const char *d = buf.buf;
-    Py_ssize_t n = buf.len, ls = 0;
+    Py_ssize_t n = buf.len, pos = 0;
     PyObject *out = PyList_New(0);
-    while (out && ls <= n) {
-        const char *nl = ls < n ? memchr(d + ls, '\n', (size_t)(n - ls)) : NULL;
+    while (out && pos < n) {
+        const char *semi = memchr(d + pos, ';', (size_t)(n - pos));
+        if (!semi) break;
+        Py_ssize_t p = semi - d, b = p;
+        const char *nl = memchr(semi, '\n', (size_t)(n - p));
         Py_ssize_t le = nl ? nl - d : n;
-        Py_ssize_t p = ls;
-        while (p < le && (d[p] == ' ' || d[p] == '\t')) p++;
-        if (p < le && d[p] == ';') {
+        while (b > 0 && (d[b - 1] == ' ' || d[b - 1] == '\t')) b--;
+        if (b == 0 || d[b - 1] == '\n') {      /* the line's first ';' is its first byte but blanks */
             Py_ssize_t q = p + 1;
             while (q < le && (d[q] == ' ' || d[q] == '\t')) q++;
             for (int k = 0; FEATURE_WORDS[k]; k++) {
@@ -673,8 +718,7 @@ static PyObject *feature_lines(PyObject *self, PyObject *args) {
                 }
             }
         }
-        if (!nl) break;
-        ls = le + 1;
+        pos = le + 1;                          /* (a later ';' on the line is not its first) */
     }
     PyBuffer_Release(&buf);
     return out;
@@ -686,102 +730,154 @@ static int is_word(char c) {
 
 typedef struct { Py_ssize_t start, end; double z; } ZLine;
 
+/* The line starting at ls (ending at le) extrudes in XY as _EXTRUDE_RX sees it: a G0/G1 head,
+ * then an X or Y and an E before any ';'. */
+static int line_extrudes(const char *d, Py_ssize_t ls, Py_ssize_t le, Py_ssize_t n) {
+    Py_ssize_t h = move_head(d, ls, n);
+    if (h < 0) return 0;
+    int xy = 0, e = 0;
+    for (Py_ssize_t p = h; p < le && d[p] != ';'; p++) {
+        char c = d[p];
+        if (c == 'X' || c == 'Y') xy = 1;
+        else if (c == 'E') e = 1;
+        if (xy && e) return 1;
+    }
+    return 0;
+}
+
+/* The first "G9" at or after p (before end), or NULL: eight bytes at a time, looking closer only
+ * at a word holding a 'G' (memmem compares at every 'G', one a line). */
+static const char *find_g9(const char *p, const char *end) {
+    const uint64_t ones = 0x0101010101010101ULL, highs = 0x8080808080808080ULL;
+    while (end - p >= 9) {
+        uint64_t w;
+        memcpy(&w, p, 8);
+        uint64_t x = w ^ (ones * 'G');         /* a 'G' byte is 0 now */
+        if ((x - ones) & ~x & highs)
+            for (int k = 0; k < 8; k++)
+                if (p[k] == 'G' && p[k + 1] == '9') return p + k;
+        p += 8;
+    }
+    for (; end - p >= 2; p++)
+        if (p[0] == 'G' && p[1] == '9') return p;
+    return NULL;
+}
+
+/* Where the line holding position p starts. */
+static Py_ssize_t start_of_line(const char *d, Py_ssize_t p) {
+    while (p > 0 && d[p - 1] != '\n') p--;
+    return p;
+}
+
 /* z_events(data) -> [(offset, z in 0.01 mm)]: annotate._z_events. Each Z word (_Z_RX:
  * Z[ \t]*[-+]?[0-9]*\.?[0-9]+) before any ';' of a G0/G1 line sets z (added to it under G91;
  * G90/G91 at a line's start switch); such a line is a layer change when it, or a line after it
  * and before the next one, extrudes in XY, and its z in 0.01 mm (round(), half to even)
- * differs from the last layer change's. */
+ * differs from the last layer change's. Only the lines around a 'Z' or "G9" are looked at
+ * (memchr, find_g9), and after a Z line the lines up to its first extruding one: a file's
+ * millions of moves between are not walked. */
 static PyObject *z_events(PyObject *self, PyObject *args) {
     (void)self;
     Py_buffer buf;
     if (!PyArg_ParseTuple(args, "y*", &buf)) return NULL;
     const char *d = buf.buf;
-    Py_ssize_t n = buf.len, ls = 0, h;
+    Py_ssize_t n = buf.len;
     ZLine *zl = NULL;
     Py_ssize_t nz = 0, cz = 0;
-    Py_ssize_t *ext = NULL;             /* starts of the lines that extrude, in order */
-    Py_ssize_t ne = 0, ce = 0;
     int absolute = 1, failed = 0;
     double z = 0.0;
     char small[64];
-    while (ls <= n && !failed) {
-        const char *nl = ls < n ? memchr(d + ls, '\n', (size_t)(n - ls)) : NULL;
-        Py_ssize_t le = nl ? nl - d : n;
-        Py_ssize_t p = ls;
-        while (p < le && (d[p] == ' ' || d[p] == '\t')) p++;
-        if (p + 2 < n && d[p] == 'G' && d[p + 1] == '9' && (d[p + 2] == '0' || d[p + 2] == '1') &&
-            (p + 3 >= n || !is_word(d[p + 3]))) {
-            absolute = d[p + 2] == '0';
-        } else if ((h = move_head(d, ls, n)) >= 0) {
-            /* one walk to the ';' or line end: X/Y and E (_EXTRUDE_RX), and the Z words */
-            int xy = 0, e = 0;
-            for (Py_ssize_t zp = h; zp < le && d[zp] != ';'; zp++) {
-                char c = d[zp];
-                if (c == 'X' || c == 'Y') { xy = 1; continue; }
-                if (c == 'E') { e = 1; continue; }
-                if (c != 'Z') continue;
-                Py_ssize_t q = zp + 1;
-                while (q < n && (d[q] == ' ' || d[q] == '\t')) q++;
-                Py_ssize_t ns = q;
-                if (q < n && (d[q] == '-' || d[q] == '+')) q++;
-                Py_ssize_t d1 = q;
-                while (q < n && d[q] >= '0' && d[q] <= '9') q++;
-                if (q + 1 < n && d[q] == '.' && d[q + 1] >= '0' && d[q + 1] <= '9') {
-                    q++;
-                    while (q < n && d[q] >= '0' && d[q] <= '9') q++;
-                } else if (q == d1) {
-                    continue;                      /* no number: not a Z word */
-                }
-                char *num = small;
-                if (q - ns >= (Py_ssize_t)sizeof small) {
-                    num = PyMem_Malloc((size_t)(q - ns + 1));
-                    if (!num) { failed = 1; break; }
-                }
-                memcpy(num, d + ns, (size_t)(q - ns));
-                num[q - ns] = 0;
-                double v = PyOS_string_to_double(num, NULL, NULL);   /* float()'s own */
-                if (num != small) PyMem_Free(num);
-                if (v == -1.0 && PyErr_Occurred()) { failed = 1; break; }
-                z = absolute ? v : z + v;
-                if (nz == cz) {
-                    cz = cz ? 2 * cz : 1024;
-                    ZLine *t = PyMem_Realloc(zl, (size_t)cz * sizeof *t);
-                    if (!t) { failed = 1; break; }
-                    zl = t;
-                }
-                zl[nz].start = ls;
-                zl[nz].end = q;
-                zl[nz].z = z;
-                nz++;
-                zp = q - 1;                        /* the number holds no X, Y, E, Z or ';' */
-            }
-            if (xy && e && !failed) {
-                if (ne == ce) {
-                    ce = ce ? 2 * ce : 1024;
-                    Py_ssize_t *t = PyMem_Realloc(ext, (size_t)ce * sizeof *t);
-                    if (!t) { failed = 1; break; }
-                    ext = t;
-                }
-                ext[ne++] = ls;
+    Py_ssize_t g9 = 0;                     /* where to look for the next G90/G91 line */
+    Py_ssize_t pos = 0;
+    /* the line of the last 'Z' looked at: [cur_ls, cur_lim) may hold Z words, cur_le its end */
+    Py_ssize_t cur_ls = -1, cur_le = -1, cur_lim = -1;
+    while (pos < n && !failed) {
+        const char *zc = memchr(d + pos, 'Z', (size_t)(n - pos));
+        if (!zc) break;
+        Py_ssize_t zp = zc - d;
+        if (zp > cur_le) {                     /* a new line */
+            cur_ls = start_of_line(d, zp);
+            const char *nl = memchr(zc, '\n', (size_t)(n - zp));
+            cur_le = nl ? nl - d : n;
+            Py_ssize_t h = move_head(d, cur_ls, n);
+            cur_lim = -1;
+            if (h >= 0) {
+                const char *semi = memchr(d + h, ';', (size_t)(cur_le - h));
+                cur_lim = semi ? semi - d : cur_le;
             }
         }
-        if (!nl) break;
-        ls = le + 1;
+        if (zp >= cur_lim) { pos = cur_le + 1; continue; }    /* not a move, or after its ';' */
+        Py_ssize_t q = zp + 1;
+        while (q < n && (d[q] == ' ' || d[q] == '\t')) q++;
+        Py_ssize_t ns = q;
+        if (q < n && (d[q] == '-' || d[q] == '+')) q++;
+        Py_ssize_t d1 = q;
+        while (q < n && d[q] >= '0' && d[q] <= '9') q++;
+        if (q + 1 < n && d[q] == '.' && d[q + 1] >= '0' && d[q + 1] <= '9') {
+            q++;
+            while (q < n && d[q] >= '0' && d[q] <= '9') q++;
+        } else if (q == d1) {
+            pos = zp + 1;                      /* no number: not a Z word */
+            continue;
+        }
+        /* the G90/G91 lines before this one, in order */
+        while (g9 < cur_ls) {
+            const char *g = find_g9(d + g9, d + n);
+            if (!g || g - d >= cur_ls) { g9 = g ? g - d : n; break; }
+            Py_ssize_t p = g - d, b = p;
+            g9 = p + 1;
+            while (b > 0 && (d[b - 1] == ' ' || d[b - 1] == '\t')) b--;
+            if ((b == 0 || d[b - 1] == '\n') && p + 2 < n && (d[p + 2] == '0' || d[p + 2] == '1') &&
+                (p + 3 >= n || !is_word(d[p + 3])))
+                absolute = d[p + 2] == '0';
+        }
+        char *num = small;
+        if (q - ns >= (Py_ssize_t)sizeof small) {
+            num = PyMem_Malloc((size_t)(q - ns + 1));
+            if (!num) { failed = 1; break; }
+        }
+        memcpy(num, d + ns, (size_t)(q - ns));
+        num[q - ns] = 0;
+        double v = PyOS_string_to_double(num, NULL, NULL);   /* float()'s own */
+        if (num != small) PyMem_Free(num);
+        if (v == -1.0 && PyErr_Occurred()) { failed = 1; break; }
+        z = absolute ? v : z + v;
+        if (nz == cz) {
+            cz = cz ? 2 * cz : 1024;
+            ZLine *t = PyMem_Realloc(zl, (size_t)cz * sizeof *t);
+            if (!t) { failed = 1; break; }
+            zl = t;
+        }
+        zl[nz].start = cur_ls;
+        zl[nz].end = q;
+        zl[nz].z = z;
+        nz++;
+        pos = q;                               /* the number holds no Z */
     }
     PyObject *out = failed ? NULL : PyList_New(0);
     if (failed && !PyErr_Occurred()) PyErr_NoMemory();
-    Py_ssize_t ei = 0;
     PyObject *last = NULL;                     /* the last layer change's z in 0.01 mm */
+    Py_ssize_t self_at = -1, le = -1;          /* the Z line looked at last, its end */
+    int self_ext = 0;
     for (Py_ssize_t k = 0; out && k < nz; k++) {
-        Py_ssize_t start = zl[k].start, end = zl[k].end;
+        Py_ssize_t start = zl[k].start;
         Py_ssize_t stop = k + 1 < nz ? zl[k + 1].start : n;
-        /* the Z line itself (a line the data starts with is not: the regex wants a '\n' first) */
-        while (ei < ne && ext[ei] < start) ei++;
-        int layer = start > 0 && ei < ne && ext[ei] == start;
-        if (!layer) {                          /* or a line starting after end, before stop */
-            Py_ssize_t j = ei;
-            while (j < ne && ext[j] <= end) j++;
-            layer = j < ne && ext[j] < stop;
+        /* the Z line itself (a line the data starts with is not: the regex wants a '\n' first);
+         * once per line, however many Z words it holds */
+        if (self_at != start) {
+            const char *nl = memchr(d + start, '\n', (size_t)(n - start));
+            le = nl ? nl - d : n;
+            self_at = start;
+            self_ext = start > 0 && line_extrudes(d, start, le, n);
+        }
+        int layer = self_ext;
+        /* or a line starting after it, before stop */
+        for (Py_ssize_t ls = le + 1; !layer && ls < stop && ls <= n; ) {
+            const char *e = memchr(d + ls, '\n', (size_t)(n - ls));
+            Py_ssize_t ee = e ? e - d : n;
+            layer = line_extrudes(d, ls, ee, n);
+            if (!e) break;
+            ls = ee + 1;
         }
         if (!layer) continue;
         double x = zl[k].z * 100;
@@ -803,7 +899,6 @@ static PyObject *z_events(PyObject *self, PyObject *args) {
     }
     Py_XDECREF(last);
     PyMem_Free(zl);
-    PyMem_Free(ext);
     PyBuffer_Release(&buf);
     return out;
 }
@@ -898,6 +993,6 @@ PyMODINIT_FUNC PyInit__scan(void) {
     PyModule_AddObject(m, "Scanner", (PyObject *)&ScannerType);
     PyModule_AddIntConstant(m, "RECORD_SIZE", (long)sizeof(Record));
     /* what gcode.SCAN_VERSION expects: a module built from an older _scan.c is not used */
-    PyModule_AddIntConstant(m, "VERSION", 2);
+    PyModule_AddIntConstant(m, "VERSION", 6);
     return m;
 }

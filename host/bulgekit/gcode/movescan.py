@@ -63,8 +63,12 @@ class Chunks:
     (the compiled scanner's count, a superset; None from the Python parser or a kept Scan)."""
 
     def __init__(self, it: Iterator[np.ndarray], roles: list[str], lines: Callable[[], int],
-                 flagged: Callable[[], int] | None = None):
+                 flagged: Callable[[], int] | None = None, tops: list | None = None):
         self._it, self.roles, self._lines, self._flagged = it, roles, lines, flagged
+        # lean chunks (run(..., lean=True) with the compiled scanner): the records annotate's
+        # lazy reach check can plan only, and per part of the file read, what classes() would
+        # give as top_not_arc on all its moves (filled as iteration goes); else None
+        self.tops = tops
 
     def __iter__(self):
         return self._it
@@ -95,11 +99,29 @@ def _z_cmm(z: np.ndarray) -> np.ndarray:
     return np.where(v >= 0, np.floor(v + 0.5), -np.floor(0.5 - v)).astype(np.int64)
 
 
+# A kept Scan's replay: (the chunk it gave last, its chunk number, the Scan), so that classes()
+# of that chunk is computed on the first pass over the file only (build's walls, reach check and
+# fallback each ask for every chunk's)
+_REPLAYED: tuple | None = None
+
+
 def classes(a: np.ndarray) -> tuple[np.ndarray, float | None, float | None]:
     """The class bits of each move of a RECORD array (OUTER | ARC | MOVED | EXTRUDES | NULL |
     EXTRUDES_F32), and the highest z1 of the moves that extrude in XY, and of those not on an
     arc (None: none). From the compiled scanner in one pass over the records (the numpy way
-    reads the records' memory once per field); both the same (host/tests/gcode/test_movescan.py)."""
+    reads the records' memory once per field); both the same (host/tests/gcode/test_movescan.py).
+    A chunk a kept Scan replays has them from its first replay on."""
+    r = _REPLAYED                             # (read once: another thread may replay too)
+    if r is not None and r[0] is a:
+        _, k, scan = r
+        got = scan._classes.get(k)
+        if got is None:
+            got = scan._classes[k] = _classes(a)
+        return got
+    return _classes(a)
+
+
+def _classes(a: np.ndarray) -> tuple[np.ndarray, float | None, float | None]:
     if _scan is not None:
         c, top, top_line = _scan.move_classes(np.ascontiguousarray(a, dtype=RECORD))
         return np.frombuffer(c, np.uint8), top, top_line
@@ -133,21 +155,45 @@ def _classify(text: str):
     return False, gcode.feature_of_comment(comment) if comment is not None else None
 
 
-def _fast(path) -> Chunks:
+def _fast(path, lean: bool = False) -> Chunks:
     assert _scan is not None and _scan.RECORD_SIZE == RECORD.itemsize
     sc = _scan.Scanner(sorted(gcode.OUTER_ROLES), sorted(gcode._S3D_ROLES), _classify,
-                       gcode.ARC_CHORD_MM)
+                       gcode.ARC_CHORD_MM, lean=lean)
     roles: list[str] = sc.roles              # the scanner's own list, filled as it reads
+    tops: list | None = [] if lean else None
+
+    def gen_bytes():
+        # G-code in memory: windows of it, not copies (a line longer than a window widens it)
+        view = memoryview(path)
+        base, size = 0, CHUNK_BYTES
+        while True:
+            stop = min(base + size, len(view))
+            final = stop == len(view)
+            recs, used = sc.feed(view[base:stop], final, base)
+            if lean:
+                tops.append(sc.top)
+            if recs:
+                yield np.frombuffer(recs, dtype=RECORD)             # read-only, not copied
+            progress.tick(sc.lines)
+            base += used
+            if final:
+                return
+            size = CHUNK_BYTES if used else 2 * size
 
     def gen():
+        if isinstance(path, (bytes, bytearray)):
+            yield from gen_bytes()
+            return
         base = 0                              # file offset of buf[0]
         buf = b""
-        with (io.BytesIO(path) if isinstance(path, (bytes, bytearray)) else open(path, "rb")) as f:
+        with open(path, "rb") as f:
             while True:
                 data = f.read(CHUNK_BYTES)
                 final = not data
                 buf = buf + data if buf else data
                 recs, used = sc.feed(buf, final, base)
+                if lean:
+                    tops.append(sc.top)
                 if recs:
                     yield np.frombuffer(recs, dtype=RECORD)         # read-only, not copied
                 progress.tick(sc.lines)
@@ -155,7 +201,7 @@ def _fast(path) -> Chunks:
                 buf = buf[used:]
                 if final:
                     return
-    return Chunks(gen(), roles, lambda: sc.lines, lambda: sc.flagged)
+    return Chunks(gen(), roles, lambda: sc.lines, lambda: sc.flagged, tops)
 
 
 def from_moves(moves, roles: list[str] | None = None,
@@ -227,6 +273,7 @@ class Scan:
         self.chunks: list[tuple[int, int]] = []     # (records, lines read so far) per chunk
         self.m92: list[tuple[int, float]] = []
         self.lines = 0
+        self._classes: dict[int, tuple] = {}       # classes() of chunk k (non-empty ones), once
         self._store = tempfile.TemporaryFile()
         try:
             self._read()
@@ -340,13 +387,16 @@ class Scan:
         done = [0]
 
         def gen():
+            global _REPLAYED
             self._store.seek(0)
-            for k, lines in self.chunks:
+            for i, (k, lines) in enumerate(self.chunks):
                 a = np.frombuffer(self._store.read(k * RECORD.itemsize), dtype=RECORD)
                 done[0] = lines
                 progress.tick(lines)
                 if k:
+                    _REPLAYED = (a, i, self)
                     yield a
+            _REPLAYED = None
             done[0] = self.lines
         return consume(Chunks(gen(), list(self.roles), lambda: done[0]))
 
@@ -356,6 +406,11 @@ class Scan:
             yield from f
 
     def close(self) -> None:
+        global _REPLAYED
+        r = _REPLAYED
+        if r is not None and r[2] is self:
+            _REPLAYED = None
+        self._classes.clear()
         self._store.close()
 
     def kept(self):
@@ -392,11 +447,13 @@ def kept(path) -> Scan | None:
 
 
 def run(path, consume: Callable[[Chunks], T], source: str | None = None,
-        fast: bool | None = None) -> T:
+        fast: bool | None = None, lean: bool = False) -> T:
     """consume(chunks) over the moves of the file at path (or of G-code bytes); see the module
     comment. fast=False forces the Python parser (tests compare the two); fast=True the compiled
     one only (Unsupported when it leaves the file to the Python parser). A file a Scan in force
-    has read is not read again (fast=False still reads it with the Python parser)."""
+    has read is not read again (fast=False still reads it with the Python parser). lean: the
+    compiled scanner gives only the records annotate's lazy reach check plans (Chunks.tops);
+    the kept Scan and the Python parser give them all."""
     sc = kept(path)
     if sc is not None and fast is not False:
         return sc.run(consume, fast)
@@ -409,7 +466,7 @@ def run(path, consume: Callable[[Chunks], T], source: str | None = None,
             raise Unsupported("bulgekit.gcode._scan is not built")
     if use:
         try:
-            return consume(_fast(path))
+            return consume(_fast(path, lean))
         except _scan.ScanUnsupported as e:
             if fast:
                 raise Unsupported(f"line {e.args[0]}") from None

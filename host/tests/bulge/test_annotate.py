@@ -346,10 +346,20 @@ ODD_MARKS = (b"G1 Z5 X1 Y1 E1\n;TYPE:External perimeter\r\n  \t; TYPE:Perimeter\
              b"G1 Z" + b"1" * 80 + b"\nG1 X1 E1\rG1 Z4\rG1 X1 E1\nG1 Z6\nG1 E1 ;X\nG1 Z8\nG1 X1 E1")
 
 
-def _mark_lines(rng):
+# the compiled walkers look only at the lines around a ';', a 'Z' or a "G9": such bytes where
+# they do not count (comments, other commands, mid-line G9x, blanks before G90)
+ODD_HITS = (b"G91\nG1 Z1 X1 E1 ; G90\n;Z:0.3\nM117 Z5 G90\n \tG90\nG1 Z2\nG92 Z0 ;TYPE:Skirt\n"
+            b"G1 X1 E1 ;; TYPE:Skirt\nG1 Z3 Z4 ; Z5\n\t;\tTYPE:External perimeter;x\nG1 Y1 E1\n"
+            b"G90 G91\nG1 Z5\nG91;\nG1 Z1\nG1 X2 Y2 E2\nG9\nG1 ZZ6\nG1 X1 E1 Z7\n;")
+
+
+def _mark_lines(rng, odd: bool = False):
     words = ["G1", "G0", "G01", "G00", "G10", " G1", "\tG1", "G90", "G91", "G92 E0", ";TYPE:Outer wall",
              "; TYPE:Internal infill", ";FEATURE: Outer wall", " ; skirt", ";LAYER_CHANGE", "M83"]
     parts = ["X1.5", "Y-2", "E.3", "Z0.2", "Z.45", "Z 1", "Z-0.1", "F1200", "; Z5", ";c", "E", "Z", "X"]
+    if odd:
+        words += [" G90", "\tG91", "G90;", "M117 Z5", ";Z:0.3", "G92 Z0", "G9", " ;TYPE:Skirt", "G1 X1 ;G91"]
+        parts += ["Z1Z2", "G91", ";TYPE:Skirt", "Z", "ZZ.5"]
     out = []
     for _ in range(400):
         w = rng.choice(words)
@@ -359,7 +369,7 @@ def _mark_lines(rng):
     return "".join(out).encode()
 
 
-def test_compiled_marks_are_the_regular_expressions(data_dir):
+def test_compiled_marks_are_the_regular_expressions(data_dir, monkeypatch):
     """annotate's feature comments and layer changes from the compiled scanner (_scan.feature_lines,
     _scan.z_events) are the regular expressions' (the fallback without it), on every test file,
     on odd lines (blanks, G00/G10, G90/G91 and their word ends, Z without a number, Z after a
@@ -367,21 +377,28 @@ def test_compiled_marks_are_the_regular_expressions(data_dir):
     import random
     from pathlib import Path
     from bulgekit.bulge import annotate
-    from bulgekit.gcode import movescan
+    from bulgekit.gcode import is_outer, movescan
     assert movescan._scan is not None
     files = sorted(data_dir.glob("*.gcode")) + sorted((Path(__file__).parents[3] / "examples").glob("*.gcode"))
     rng = random.Random(26)
-    datas = [p.read_bytes() for p in files] + [ODD_MARKS, ODD_MARKS[1:], b"", b"\n"]
-    datas += [_mark_lines(rng) for _ in range(60)]
+    datas = [p.read_bytes() for p in files] + [ODD_MARKS, ODD_MARKS[1:], b"", b"\n", ODD_HITS,
+                                                ODD_HITS[3:], b"Z1", b";TYPE:Skirt", b"G1 Z1\n",
+                                                b"G1 " + b"Z1" * 5000 + b" X1 E1\nG1 X2 E1\n"]
+    datas += [_mark_lines(rng) for _ in range(60)] + [_mark_lines(rng, True) for _ in range(60)]
     seen_z = seen_f = 0
     for d in datas:
         z = annotate._z_events(d)
         assert z == annotate._z_events_rx(d)
         f = list(annotate._feature_comments(d))
         assert f == list(annotate._feature_comments_rx(d))
+        assert annotate._feature_marks(d) == [(end, is_outer(role)) for end, role in f]
         seen_z += len(z)
         seen_f += len(f)
     assert seen_z > 1000 and seen_f > 1000
+    marks = [annotate._feature_marks(d) for d in datas]
+    monkeypatch.setattr(annotate, "_scanner", lambda: None)     # the regular expressions' way
+    assert [annotate._feature_marks(d) for d in datas] == marks
+    monkeypatch.undo()
     z = annotate._z_events(ODD_MARKS)
     assert (ODD_MARKS.index(b"G1 Z0.015"), 2) in z       # round(1.5) is 2, half to even
     assert (ODD_MARKS.index(b"G1 Z1.5e3"), 150) in z     # "1.5", as the regex reads it

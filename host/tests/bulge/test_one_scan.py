@@ -151,3 +151,27 @@ def test_without_the_compiled_scanner_build_writes_the_same_bytes(tmp_path, monk
     monkeypatch.setattr(movescan, "_scan", None)
     got = _build_hashes(DATA / "prusa_cyl.gcode", tmp_path / "out")
     assert got == {k.split(".", 1)[1]: v for k, v in ref.items()}
+
+
+def test_a_replayed_chunks_classes_are_computed_once():
+    """movescan.classes of a chunk a kept Scan replays: the first replay computes them, later
+    replays (build's walls, reach check, fallback) get the same ones; another array (a copy of
+    the chunk) is computed afresh, and a closed Scan leaves nothing behind."""
+    scan = movescan.Scan(DATA / "prusa_cyl.gcode")
+    with scan.kept():
+        def first(chunks):
+            return [(a.tobytes(), movescan.classes(a)) for a in chunks]
+        got = movescan.run(DATA / "prusa_cyl.gcode", first)
+        assert got
+        for b, (c, top, top_line) in got:
+            want = movescan._classes(np.frombuffer(b, movescan.RECORD))
+            assert (c.tobytes(), top, top_line) == (want[0].tobytes(), want[1], want[2])
+
+        def again(chunks):
+            return [movescan.classes(a) for a in chunks]
+        assert all(x is y[1] for x, y in zip(movescan.run(DATA / "prusa_cyl.gcode", again), got))
+
+        def copies(chunks):
+            return [movescan.classes(a.copy()) for a in chunks]
+        assert not any(x is y[1] for x, y in zip(movescan.run(DATA / "prusa_cyl.gcode", copies), got))
+    assert movescan._REPLAYED is None and not scan._classes

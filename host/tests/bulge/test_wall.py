@@ -118,3 +118,22 @@ def test_ray_hits_of_many_walls_are_each_walls_own():
         want = [_ray_hit(x, s, c, d) for x, s, c in zip(xys, ss, cens)]
         got = _ray_hits(xys, ss, cens, d)
         assert np.array(got).tobytes() == np.array(want).tobytes()
+
+
+@pytest.mark.parametrize("name,geometric", [("prusa_cyl.gcode", False), ("prusa_vase.gcode", False),
+                                            ("cura_cyl.gcode", False), ("slic3r_cyl.gcode", True)])
+def test_walls_computed_together_are_each_walls_own(data_dir, name, geometric):
+    """The arc lengths, areas (ccw) and centroids that walls_from_records computes for all walls
+    at once are, to the bit, what one wall's own arrays give (_area_centroid, cumsum of hypot),
+    and closed is _closed's answer."""
+    from bulgekit.bulge.wall import _area_centroid
+    m = walls_from_gcode(data_dir / name, geometric=geometric)
+    assert len(m.walls) > 10
+    for w in m.walls:
+        xy = np.array(w.xy)                              # an array of its own
+        area, cen = _area_centroid(xy)
+        assert (area >= 0, cen) == (w.ccw, w.centroid)
+        s = np.concatenate([[0.0], np.cumsum(np.hypot(xy[1:, 0] - xy[:-1, 0], xy[1:, 1] - xy[:-1, 1]))])
+        assert s.tobytes() == np.asarray(w.s).tobytes()
+        gap = max(2.0, 3 * m.layer_height)
+        assert w.closed == (math.hypot(*(xy[-1] - xy[0])) <= gap)

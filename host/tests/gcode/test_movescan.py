@@ -65,6 +65,10 @@ def test_scanner_on_odd_lines_and_every_chunk_boundary(tmp_path, monkeypatch, ch
     fast = movescan.run(g, _all, fast=True)
     _same(fast, movescan.run(g, _all, fast=False))
     a, roles, lines = fast
+    # the same G-code given as bytes is scanned in windows of it: the same records and offsets
+    mem = movescan.run(TRICKY, _all, fast=True)
+    _same(mem, fast)
+    assert np.array_equal(mem[0]["offset"], a["offset"])
     assert lines == 31 and len(a) > 40
     assert roles[0] == "external perimeter" and "wall-outer" in roles and "outer wall — x" in roles
     assert a["offset"][0] == TRICKY.index(b"G1 X10")
@@ -122,12 +126,18 @@ def test_skipping_moves_changes_nothing_the_planner_does(path):
         bm = _random_map(path, rng, geometric)
         for bypass in (False, True):
             ref = _full(path, bm, settings, bypass)
-            fast = RefPlanner(bm, settings)
-            movescan.run(path, lambda ch: plan_records(fast, ch, arcs_bypass=bypass))
             assert ref.stops, "the map must make stops for this test to mean something"
-            assert fast.stops == ref.stops
-            assert fast.stats == ref.stats and fast.top_z == ref.top_z
-            assert fast.arcs == ref.arcs
+            # lazy: the move after a picked one only when owed; lean (annotate's reach check in
+            # marked mode): from the scanner's records of outer-wall moves, extruding arc chords
+            # and the first moving move after an outer-wall one only
+            runs = [(False, False), (True, False)] + [(True, True)] * (bypass and not geometric)
+            for lazy, lean in runs:
+                fast = RefPlanner(bm, settings)
+                movescan.run(path, lambda ch: plan_records(fast, ch, arcs_bypass=bypass, lazy=lazy),
+                             lean=lean)
+                assert fast.stops == ref.stops
+                assert fast.stats == ref.stats and fast.top_z == ref.top_z
+                assert fast.arcs == ref.arcs
 
 
 @pytest.mark.parametrize("path", FILES, ids=lambda p: p.name)
@@ -148,6 +158,9 @@ def test_skipping_the_layers_no_map_layer_is_near_changes_nothing(path):
     settings = Settings(mode=2 if geometric else 1, extra_e=0.9)
     for bypass in (False, True):
         ref = _full(path, bm, settings, bypass)
+        lazy = RefPlanner(bm, settings)
+        movescan.run(path, lambda ch: plan_records(lazy, ch, arcs_bypass=bypass, lazy=True))
+        assert lazy.stops == ref.stops and lazy.stats == ref.stats and lazy.arcs == ref.arcs
         fast = RefPlanner(bm, settings)
         picked = []
         movescan.run(path, lambda ch: plan_records(fast, ch, lambda m, a: picked.append(m),
@@ -265,3 +278,34 @@ def test_z_cmm_of_runs_is_z_cmm_of_each():
 
 def fallback_cmm(v):
     return RefPlanner._cmm(v)
+
+
+@pytest.mark.parametrize("path", FILES, ids=lambda p: p.name)
+def test_lean_records_are_the_full_ones_a_lazy_reach_check_can_plan(path):
+    """lean=True: the scanner's records are the full scan's records (the same bytes) of every
+    outer-wall move, every extruding arc chord, and each first move after an outer-wall one
+    that moves and is no chord, no others; Chunks.tops holds classes()' top_not_arc of all
+    moves; a lean run is refused where it would not hold what the planning needs."""
+    full, _, _ = movescan.run(path, _all, fast=True)
+    got = []
+
+    def lean_all(ch):
+        got.append(_all(ch))
+        got.append(list(ch.tops))
+    movescan.run(path, lean_all, fast=True, lean=True)
+    (lean, _, _), tops = got
+    c, _, top_line = movescan.classes(full)
+    keep = ((full["flags"] & movescan.OUTER) != 0) | (((c & movescan.ARC) != 0) & (full["e"] > 0))
+    follow = False
+    want = keep.copy()
+    for i in range(len(full)):
+        if full["flags"][i] & movescan.OUTER:
+            follow = True
+        elif follow and not c[i] & (movescan.NULL | movescan.ARC):
+            want[i], follow = True, False
+    assert lean.tobytes() == full[want].tobytes()
+    assert len(lean) < len(full) or not len(full)
+    seen = [t for t in tops if t is not None]
+    assert (max(seen) if seen else None) == top_line
+    with pytest.raises(ValueError, match="lean chunks"):
+        movescan.run(path, lambda ch: plan_records(RefPlanner(None, Settings()), ch), lean=True)
