@@ -1686,6 +1686,9 @@ def plan_stats(plan: Plan, stl_volume: float) -> dict:
             "layers_with_two_or_more": int((fld.lines > 1).sum()),
             "max_lines_per_layer": int(fld.lines.max()),
         },
+        "walls": {name: {"min": round(float(w_.min()), 3), "median": round(float(np.median(w_)), 3),
+                         "max": round(float(w_.max()), 3)}
+                  for name, w_ in (("back_mm", fld.ww[fld.n_foot:]), ("front_mm", fld.wf[fld.n_foot:]))},
         "gaps": {
             "shared_by_walls": fld.shared,
             "shared_share": round(fld.shared / samples, 4),

@@ -836,6 +836,15 @@ def test_back_wall_one_width_and_mid_line_held(tmp_path):
     same = lambda g: float((np.abs(np.diff(g, axis=1)) < 1e-9 * g[:, 1:]).mean())
     assert same(gm) > 0.1 and same(gm) > 3 * same(f0.t - f0.ww - f0.wf)
     assert f.ww + f.wf + gm == pytest.approx(f.t, abs=1e-12)
+    # the JSON and the summary say the walls' widths
+    for acc, back in ((1000.0, b), (0.0, None)):
+        res = lt.make(p, tmp_path / f"o{acc:g}", options=opts(width=48.0, height=2.4, rate_accel=acc))
+        wl = res.stats["walls"]
+        fld = res.plan.field
+        assert wl["back_mm"]["median"] == pytest.approx(back if back else float(np.median(fld.ww[fld.n_foot:])), abs=1e-3)
+        assert wl["front_mm"]["max"] == pytest.approx(float(fld.wf[fld.n_foot:].max()), abs=1e-3)
+        assert f"walls (mm, median and range): back {wl['back_mm']['median']:.3f}" in summary(res.stats)
+    assert wl["back_mm"]["median"] != pytest.approx(b, abs=1e-3)        # without planning: not held
 
 
 def test_held_gap_moves_only_where_it_must():
