@@ -191,7 +191,7 @@ def summary(s: dict) -> str:
         corner = (f"junction deviation {m['junction_deviation_mm']:g} mm" if m["classic_jerk"] is None
                   else "classic jerk " + "/".join(f"{j:g}" for j in m["classic_jerk"]) + " mm/s")
         tt += f" (acceleration {m['accel_mm_s2']:g} mm/s², {corner}, look-ahead {look})"
-    ml, gp, lk, wl = s["mid_line"], s["gaps"], s["look"], s["walls"]
+    ml, gp, lk, wl = s["mid_line"], s["gaps"], s["look"], s.get("walls")
     return "\n".join([
         f"{s['name']}: {s['shape']}, {s['layers']} layers, picture {s['size_mm']['picture_width']:g} x "
         f"{s['size_mm']['picture_height']:g} mm" + _foot(s.get("options", {})),
@@ -201,9 +201,9 @@ def summary(s: dict) -> str:
         f"  mid-line at {s['rates']['mid_line_mm3_s']:g} mm^3/s: capped at --max-speed "
         f"{100 * ml['capped_time_share']:.1f} % of its time; layers with 2+ mid-lines: "
         f"{ml['layers_with_two_or_more']}",
-        f"  walls (mm, median and range): back {wl['back_mm']['median']:.3f} ({wl['back_mm']['min']:.2f}-"
-        f"{wl['back_mm']['max']:.2f}), front {wl['front_mm']['median']:.3f} ({wl['front_mm']['min']:.2f}-"
-        f"{wl['front_mm']['max']:.2f})",
+        *([f"  walls (mm, median and range): back {wl['back_mm']['median']:.3f} ({wl['back_mm']['min']:.2f}-"
+           f"{wl['back_mm']['max']:.2f}), front {wl['front_mm']['median']:.3f} ({wl['front_mm']['min']:.2f}-"
+           f"{wl['front_mm']['max']:.2f})"] if wl else []),   # a JSON from before this field has none
         f"  gaps narrower than a mid-line: walls narrowed for a thin mid-line at "
         f"{100 * gp['narrowed_share']:.2f} % of samples, shared by the walls at {100 * gp['shared_share']:.2f} %",
         f"  predicted look vs picture (L*, the plate shows {lk['plate_L_range'][0]:.0f}-100): "
