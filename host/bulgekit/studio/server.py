@@ -515,6 +515,11 @@ def litho_figures(st: dict) -> list:
                                    "of the samples"])
     if gaps.get("shared_share"):
         out.append(["Light tones", f"the walls share the gap, {100 * gaps['shared_share']:.1f} % of the samples"])
+    walls = st.get("walls") or {}
+    if "back_mm" in walls and "front_mm" in walls:
+        b, f = walls["back_mm"], walls["front_mm"]
+        out.append(["Walls", f"back mostly {b['median']:.2f} mm wide ({b['min']:.2f}–{b['max']:.2f}), "
+                             f"front {f['min']:.2f}–{f['max']:.2f} mm"])
     if "extruding_moves" in st:
         out.append(["Moves", f"{st['extruding_moves']:,}"])
     out += _look_figures(st.get("look") or {})

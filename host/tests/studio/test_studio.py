@@ -359,6 +359,8 @@ def test_litho_figures_word_what_the_toolkit_writes():
     assert f["Times assume"] == "acceleration 3000 mm/s², junction deviation 0.013 mm, look-ahead of 16 moves"
     assert f["Mean lightness difference"] == "0.0 ΔL*"
     assert f["Light tones"] == "a thin mid-line between narrower walls, 18.7 % of the samples"
+    w = {"back_mm": {"min": 0.2, "median": 0.257, "max": 0.4}, "front_mm": {"min": 0.2, "median": 0.338, "max": 0.8}}
+    assert dict(litho_figures({"walls": w}))["Walls"] == "back mostly 0.26 mm wide (0.20–0.40), front 0.20–0.80 mm"
     m = lt.machine_words(estimate.Machine(accel=1000, travel_accel=3000, jerk={"X": 10, "Y": 10, "Z": 0.3, "E": 5},
                                           lookahead=None))
     assert dict(litho_figures({"machine": m}))["Times assume"] == \
