@@ -162,6 +162,13 @@ def _fast(path, lean: bool = False) -> Chunks:
     roles: list[str] = sc.roles              # the scanner's own list, filled as it reads
     tops: list | None = [] if lean else None
 
+    def part(data, final: bool, base: int):
+        """One feed of the scanner: its records (None: none) and the bytes it used."""
+        recs, used = sc.feed(data, final, base)
+        if lean:
+            tops.append(sc.top)
+        return (np.frombuffer(recs, dtype=RECORD) if recs else None), used   # read-only, not copied
+
     def gen_bytes():
         # G-code in memory: windows of it, not copies (a line longer than a window widens it)
         view = memoryview(path)
@@ -169,11 +176,9 @@ def _fast(path, lean: bool = False) -> Chunks:
         while True:
             stop = min(base + size, len(view))
             final = stop == len(view)
-            recs, used = sc.feed(view[base:stop], final, base)
-            if lean:
-                tops.append(sc.top)
-            if recs:
-                yield np.frombuffer(recs, dtype=RECORD)             # read-only, not copied
+            a, used = part(view[base:stop], final, base)
+            if a is not None:
+                yield a
             progress.tick(sc.lines)
             base += used
             if final:
@@ -191,11 +196,9 @@ def _fast(path, lean: bool = False) -> Chunks:
                 data = f.read(CHUNK_BYTES)
                 final = not data
                 buf = buf + data if buf else data
-                recs, used = sc.feed(buf, final, base)
-                if lean:
-                    tops.append(sc.top)
-                if recs:
-                    yield np.frombuffer(recs, dtype=RECORD)         # read-only, not copied
+                a, used = part(buf, final, base)
+                if a is not None:
+                    yield a
                 progress.tick(sc.lines)
                 base += used
                 buf = buf[used:]
