@@ -88,14 +88,21 @@ def register(main):
                        "--light-gaps mid-line): where the picture changes faster than the head can "
                        "follow at a steady extruder rate, the walls (half to one and a half line "
                        "widths) take the difference. The thickness is the same; 0: off.")
+    @click.option("--accel", type=POSITIVE, default=3000.0, show_default=True,
+                  help="The printer's print acceleration, mm/s² (M204 P; Marlin's default 3000). "
+                       "Printed times assume it; below 3000 the mid-line's default flow is lower "
+                       "(see --infill-flow) and --rate-accel is held to it. The file does not set it.")
     @click.option("--block-rate", type=NONNEG, default=120.0, show_default=True,
                   help="Moves per second the printer's board plans: no piece is shorter than its "
                        "speed / this (samples merge). 120 suits an 8-bit ATmega2560 streaming from "
                        "the host; a 32-bit board: 2000; 0: off (pieces still at least 0.075 mm).")
     @click.option("--filament", type=POSITIVE, default=1.75, show_default=True, help="Filament diameter, mm.")
     @click.option("--wall-speed", type=POSITIVE, default=40.0, show_default=True, help="Walls, mm/s.")
-    @click.option("--infill-flow", type=POSITIVE, default=8.0, show_default=True,
-                  help="The mid-line's constant volumetric rate, mm^3/s (head speed = flow / (W * H)).")
+    @click.option("--infill-flow", type=POSITIVE, default=None,
+                  help="The mid-line's constant volumetric rate, mm^3/s (head speed = flow / (W * H)). "
+                       "Default: 8, or 8 x sqrt(accel / 3000) on a printer given an --accel below "
+                       "3000 (4.62 at 1000), so that the ramps where the mid-line starts and stops "
+                       "stay as short a share of its time.")
     @click.option("--paper-rate", is_flag=True,
                   help="Mid-line at the walls' own rate (line width x layer height x wall speed), "
                        "the paper's literal setting; slower.")

@@ -581,7 +581,7 @@ def _look_figures(lk: dict) -> list:
 _LITHO_FIELDS = {"--max": "Thickest (black)", "--min": "Thinnest (white)", "--foot": "Foot depth",
                  "--line-width": "Line width", "--max-speed": "Fastest head speed", "--width": "Width",
                  "--diameter": "Diameter", "--height": "Height", "--frame": "Frame",
-                 "--layer-height": "Layer height", "--infill-flow": "Mid-line flow", "--gamma": "Gamma",
+                 "--layer-height": "Layer height", "--infill-flow": "Mid-line flow", "--accel": "Printer acceleration", "--gamma": "Gamma",
                  "--attenuation": "Attenuation", "--temp": "Nozzle", "--bed-temp": "Bed",
                  "--curve": "Curve", "--shape": "Shape", "--invert": "Invert"}
 
