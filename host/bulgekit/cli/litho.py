@@ -205,7 +205,7 @@ def summary(s: dict) -> str:
         f"  estimated time {tt}",
         f"  filament {s['filament_mm'] / 1000:.2f} m, fill ratio {s['fill_ratio']:.3f}, "
         f"{s['extruding_moves']} extruding moves",
-        f"  mid-line at {s['rates']['mid_line_mm3_s']:g} mm^3/s: capped at --max-speed "
+        f"  mid-line at {s['rates']['mid_line_mm3_s']:g} mm^3/s{_lowered(s['rates'])}: capped at --max-speed "
         f"{100 * ml['capped_time_share']:.1f} % of its time; layers with 2+ mid-lines: "
         f"{ml['layers_with_two_or_more']}",
         *([f"  walls (mm, median and range): back {wl['back_mm']['median']:.3f} ({wl['back_mm']['min']:.2f}-"
@@ -227,6 +227,12 @@ def calibration_table(s: dict) -> str:
         rows.append(f"  {st['step']:>4}  {st['planned_mm']:>12.2f}  {st['relative_luminance']:>24.3f}  "
                     f"{st['predicted_L']:>6.1f}")
     return "\n".join(rows)
+
+
+def _lowered(rates: dict) -> str:
+    a = rates.get("mid_line_lowered_for_accel_mm_s2")
+    return (f" (lowered for --accel {a:g}: a steadier extruder rate, a longer print; --infill-flow "
+            f"sets it)") if a else ""
 
 
 def _foot(o: dict) -> str:

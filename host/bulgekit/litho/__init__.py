@@ -1709,7 +1709,10 @@ def plan_stats(plan: Plan, stl_volume: float) -> dict:
         "time_no_accel_s": round(sum(d["time_s"] for d in by_kind.values()), 1),
         "by_kind": {k: {kk: round(vv, 3) for kk, vv in d.items()} for k, d in by_kind.items()},
         "rates": {"wall_mm3_s": round(o.wall_flow, 4), "mid_line_mm3_s": round(o.mid_flow, 4),
-                  "mid_line_e_mm_s": round(o.mid_flow / area, 5), "paper_rate": o.paper_rate},
+                  "mid_line_e_mm_s": round(o.mid_flow / area, 5), "paper_rate": o.paper_rate,
+                  # the default rate lowered for a printer that accelerates less (default_flow)
+                  "mid_line_lowered_for_accel_mm_s2": o.accel if (o.infill_flow is None and not o.paper_rate
+                                                                  and o.flow < INFILL_FLOW) else None},
         "mid_line": {
             "capped_time_share": round(capped_t / total_mid_t, 4) if total_mid_t else 0.0,
             "capped_length_share": round(capped_len / mid_len, 4) if mid_len else 0.0,

@@ -963,7 +963,9 @@ def test_cli_light_gaps_and_rate_accel(tmp_path):
     assert not any((tmp_path / d).exists() for d in "xyz")
     r = run("-o", tmp_path / "a1000", "--accel", "1000")
     assert r.exit_code == 0, r.output
-    assert "acceleration 1000 mm/s²" in r.output and "mid-line at 4.62 mm^3/s" in r.output
+    assert "acceleration 1000 mm/s²" in r.output and "mid-line at 4.62 mm^3/s (lowered for --accel 1000" in r.output
+    r = run("-o", tmp_path / "a1000f", "--accel", "1000", "--infill-flow", "8")
+    assert r.exit_code == 0 and "mid-line at 8 mm^3/s:" in r.output
 
 
 def test_summary_names_a_classic_jerk_machine():
