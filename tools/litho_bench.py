@@ -26,6 +26,8 @@ Terms (issue 18), the same for every method:
                0.013 mm, max feedrate X/Y 300, Z 5, E 25 mm/s; the files' own M201-M205 ignored;
                planned with Marlin's 16-block buffer (the figure with unlimited look-ahead is in
                the JSON)
+  ours         `bulgekit litho` at its defaults, made once per acceleration with --accel A (the
+               mid-line's default flow follows it: 8 mm^3/s at 3000, 4.62 at 1000)
   metrics      time; fill ratio = filament laid by extruding moves x filament area / STL volume;
                extruding moves; filament; E-rate spread = share of extruding time within +-5 % of
                the median extruder rate. Best baseline = fastest baseline with fill ratio >= 0.95.
@@ -231,8 +233,11 @@ def _mid_rate(gcode: Path) -> float:
     return q / FIL_AREA
 
 
-def body_job(image: Path, shape: str, d: Path, kind: str = "drawn sample", photo: bool = False) -> dict:
-    """Our two files and the STL for one body."""
+def body_job(image: Path, shape: str, d: Path, kind: str = "drawn sample", photo: bool = False,
+             accels=(3000.0,)) -> dict:
+    """Our files and the STL for one body: ours made for each acceleration (`bulgekit litho
+    --accel A`, as a user of that printer would), the paper's rate and the STL once (the body
+    does not depend on it)."""
     d.mkdir(parents=True, exist_ok=True)
     (d / "start.g").write_text(START)
     (d / "end.g").write_text(END)
@@ -241,16 +246,28 @@ def body_job(image: Path, shape: str, d: Path, kind: str = "drawn sample", photo
     if shape == "cylinder":
         kw["height"] = 60.5
     res = litho.make(image, d, name=name, **kw)
+    ours = {}
+    for a in accels:
+        if a == res.plan.options.accel:
+            ours[str(int(a))] = str(res.paths["gcode"])
+        else:
+            ra = litho.make(image, d / f"accel{int(a)}", name=name, accel=a, **kw)
+            ours[str(int(a))] = str(ra.paths["gcode"])
     litho.make(image, d / "paper", name=name, paper_rate=True, **kw)
     return {"name": name, "stl": str(res.paths["stl"]), "stl_volume": res.stats["stl_volume_mm3"],
-            "ours": str(res.paths["gcode"]), "paper": str(d / "paper" / f"{name}.litho.gcode"),
+            "ours": ours, "paper": str(d / "paper" / f"{name}.litho.gcode"),
             "layers": res.stats["layers"], "stats": res.stats, "kind": kind, "photo": photo}
 
 
 def method_job(method: str, body: dict, d: Path, defs: Path, accels) -> tuple[str, str, dict]:
     t0 = time.time()
-    if method == OURS:
-        g = Path(body["ours"])
+    if method == OURS:                               # each acceleration on the file made for it
+        m = {}
+        for a in accels:
+            m.update(measure(Path(body["ours"][str(int(a))]), body["stl_volume"], [a]))
+        m["gcode"] = body["ours"]
+        m["seconds_to_run"] = round(time.time() - t0, 1)
+        return body["name"], method, m
     elif method == PAPER:
         g = Path(body["paper"])
     else:
@@ -394,7 +411,7 @@ def main(argv=None) -> int:
     t0 = time.time()
     methods = [OURS, PAPER] + list(CURA) + list(PRUSA)
     with cf.ProcessPoolExecutor(a.jobs) as ex:
-        jobs = {ex.submit(body_job, img, sh, a.out / f"{img.stem}_{sh}", kind, photo): (img, sh)
+        jobs = {ex.submit(body_job, img, sh, a.out / f"{img.stem}_{sh}", kind, photo, a.accel): (img, sh)
                 for img, kind, photo in pictures for sh in a.shapes}
         bodies = []
         for f in cf.as_completed(jobs):

@@ -88,14 +88,21 @@ def register(main):
                        "--light-gaps mid-line): where the picture changes faster than the head can "
                        "follow at a steady extruder rate, the walls (half to one and a half line "
                        "widths) take the difference. The thickness is the same; 0: off.")
+    @click.option("--accel", type=POSITIVE, default=3000.0, show_default=True,
+                  help="The printer's print acceleration, mm/s² (M204 P; Marlin's default 3000). "
+                       "Printed times assume it; below 3000 the mid-line's default flow is lower "
+                       "(see --infill-flow) and --rate-accel is held to it. The file does not set it.")
     @click.option("--block-rate", type=NONNEG, default=120.0, show_default=True,
                   help="Moves per second the printer's board plans: no piece is shorter than its "
                        "speed / this (samples merge). 120 suits an 8-bit ATmega2560 streaming from "
                        "the host; a 32-bit board: 2000; 0: off (pieces still at least 0.075 mm).")
     @click.option("--filament", type=POSITIVE, default=1.75, show_default=True, help="Filament diameter, mm.")
     @click.option("--wall-speed", type=POSITIVE, default=40.0, show_default=True, help="Walls, mm/s.")
-    @click.option("--infill-flow", type=POSITIVE, default=8.0, show_default=True,
-                  help="The mid-line's constant volumetric rate, mm^3/s (head speed = flow / (W * H)).")
+    @click.option("--infill-flow", type=POSITIVE, default=None,
+                  help="The mid-line's constant volumetric rate, mm^3/s (head speed = flow / (W * H)). "
+                       "Default: 8, or 8 x sqrt(accel / 3000) on a printer given an --accel below "
+                       "3000 (4.62 at 1000), so that the ramps where the mid-line starts and stops "
+                       "stay as short a share of its time.")
     @click.option("--paper-rate", is_flag=True,
                   help="Mid-line at the walls' own rate (line width x layer height x wall speed), "
                        "the paper's literal setting; slower.")
@@ -198,7 +205,7 @@ def summary(s: dict) -> str:
         f"  estimated time {tt}",
         f"  filament {s['filament_mm'] / 1000:.2f} m, fill ratio {s['fill_ratio']:.3f}, "
         f"{s['extruding_moves']} extruding moves",
-        f"  mid-line at {s['rates']['mid_line_mm3_s']:g} mm^3/s: capped at --max-speed "
+        f"  mid-line at {s['rates']['mid_line_mm3_s']:g} mm^3/s{_lowered(s['rates'])}: capped at --max-speed "
         f"{100 * ml['capped_time_share']:.1f} % of its time; layers with 2+ mid-lines: "
         f"{ml['layers_with_two_or_more']}",
         *([f"  walls (mm, median and range): back {wl['back_mm']['median']:.3f} ({wl['back_mm']['min']:.2f}-"
@@ -220,6 +227,12 @@ def calibration_table(s: dict) -> str:
         rows.append(f"  {st['step']:>4}  {st['planned_mm']:>12.2f}  {st['relative_luminance']:>24.3f}  "
                     f"{st['predicted_L']:>6.1f}")
     return "\n".join(rows)
+
+
+def _lowered(rates: dict) -> str:
+    a = rates.get("mid_line_lowered_for_accel_mm_s2")
+    return (f" (lowered for --accel {a:g}: a steadier extruder rate, a longer print; --infill-flow "
+            f"sets it)") if a else ""
 
 
 def _foot(o: dict) -> str:

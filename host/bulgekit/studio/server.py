@@ -501,7 +501,9 @@ def litho_figures(st: dict) -> list:
         out.append(["Filled", f"{100 * st['fill_ratio']:.1f} % of the part's volume"])
     rates = st.get("rates") or {}
     if "mid_line_mm3_s" in rates:
-        out.append(["Mid-line flow", f"{rates['mid_line_mm3_s']:g} mm³/s"])
+        low = rates.get("mid_line_lowered_for_accel_mm_s2")
+        out.append(["Mid-line flow", f"{rates['mid_line_mm3_s']:g} mm³/s"
+                    + (f" (lowered for a printer at {low:g} mm/s²: steadier, slower)" if low else "")])
     ml, opts = st.get("mid_line") or {}, st.get("options") or {}
     if "max_speed" in opts:
         held = (f", held for {100 * ml['capped_time_share']:.1f} % of the mid-line's time"
@@ -581,7 +583,7 @@ def _look_figures(lk: dict) -> list:
 _LITHO_FIELDS = {"--max": "Thickest (black)", "--min": "Thinnest (white)", "--foot": "Foot depth",
                  "--line-width": "Line width", "--max-speed": "Fastest head speed", "--width": "Width",
                  "--diameter": "Diameter", "--height": "Height", "--frame": "Frame",
-                 "--layer-height": "Layer height", "--infill-flow": "Mid-line flow", "--gamma": "Gamma",
+                 "--layer-height": "Layer height", "--infill-flow": "Mid-line flow", "--accel": "Printer acceleration", "--gamma": "Gamma",
                  "--attenuation": "Attenuation", "--temp": "Nozzle", "--bed-temp": "Bed",
                  "--curve": "Curve", "--shape": "Shape", "--invert": "Invert"}
 

@@ -347,7 +347,7 @@ def test_speed_from_flow_and_cap(step_plan):
     o = step_plan.options
     m = [s for s in step_plan.layers[5].sections if s.kind == "mid-line"][0]
     laid = m.e > 0
-    v = np.minimum(o.infill_flow / (m.width[laid] * H), o.max_speed)
+    v = np.minimum(o.flow / (m.width[laid] * H), o.max_speed)
     assert m.v[laid] == pytest.approx(v, rel=1e-9)
 
 
@@ -420,7 +420,7 @@ def made(tmp_path_factory):
 def test_stock_file_keeps_one_extruder_rate_on_the_mid_line(made):
     """Eq. 2: E * v / L is the mid-line rate on every uncapped piece after the first layer."""
     o = made.plan.options
-    r = o.infill_flow / o.filament_area
+    r = o.flow / o.filament_area
     prev = None
     rates, capped = [], 0
     for x, y, e, f, _, kind in moves(made.paths["stock"]):
@@ -720,7 +720,7 @@ def test_extruder_rate_through_the_core(bkcore, made, which):
     extruder within 5 % of the set rate; only pieces capped at --max-speed may fall outside, and
     at the defaults (the narrowest line is what the rate lays at --max-speed) there are none."""
     o = made.plan.options
-    r = o.infill_flow / o.filament_area
+    r = o.flow / o.filament_area
     actions, summary, errors = run_core(bkcore, made.paths[which].read_text())
     assert not errors
     lines = [a for a in actions if a[0] == "line"]
@@ -888,6 +888,52 @@ def test_steady_mid_line_keeps_the_extruder_rate(tmp_path):
     assert time_["mid-line"] < time_["walls"]
 
 
+def test_default_flow_follows_the_printers_acceleration():
+    """--accel: 8 mm^3/s at 3000 mm/s^2 and above, 8 x sqrt(a / 3000) below; a given
+    --infill-flow and --paper-rate win; --rate-accel is held to --accel."""
+    assert lt.LithoOptions().flow == 8.0 and lt.LithoOptions(accel=6000).flow == 8.0
+    assert lt.LithoOptions(accel=1000).flow == pytest.approx(8 / math.sqrt(3), abs=0.005)
+    assert lt.LithoOptions(accel=750).flow == pytest.approx(4.0)
+    assert lt.LithoOptions(accel=1000, infill_flow=6.0).flow == 6.0
+    o = lt.LithoOptions(accel=1000, paper_rate=True)
+    assert o.mid_flow == pytest.approx(o.wall_flow)
+    assert lt.LithoOptions(accel=500).plan_accel == 500 and lt.LithoOptions(accel=5000).plan_accel == 1000
+    assert lt.LithoOptions(accel=500, rate_accel=0).plan_accel == 0
+    for bad in (0.0, -1.0, float("nan")):
+        with pytest.raises(lt.LithoError, match="--accel"):
+            lt.check_options(lt.LithoOptions(accel=bad))
+
+
+def test_accel_lowers_the_flow_and_holds_the_rate(tmp_path):
+    """Through the estimator at 1000 mm/s^2: a band made for --accel 1000 keeps more of its
+    mid-line's time within +-5 % of its set rate than the same band made for the default
+    3000 (its ramps at the stretch ends are shorter), and the file, the JSON and the estimate
+    say so: the rate in M723 Q and the header, the machine's acceleration."""
+    import json
+    from bulgekit.gcode import estimate as E
+
+    p = noisy(tmp_path, w=150, h=8, sigma=25)
+    share, made = {}, {}
+    for a in (3000.0, 1000.0):
+        res = lt.make(p, tmp_path / str(int(a)), name="band", width=60.0, height=1.6, foot=0.0,
+                      purge=False, accel=a)
+        made[a] = res
+        q = res.plan.options.mid_flow
+        r = E.estimate_file(str(res.paths["gcode"]), E.Machine(accel=1000.0, travel_accel=1000.0))
+        b = r.blocks
+        mid = E.extruding(r) & (b["layer"] >= 1) & (b["feature"] == r.features.index("mid-line"))
+        share[a] = E.e_rate_share(r, mask=mid, ref=q / (math.pi * 1.75 ** 2 / 4))
+    assert share[1000.0] > share[3000.0] + 0.02
+    g = made[1000.0].paths["gcode"].read_text()
+    assert "; accel = 1000.0" in g and "; infill_flow = 4.62" in g and "\nM723 Q4.62" in g
+    st = json.loads(made[1000.0].paths["json"].read_text())
+    assert st["estimate"]["machine"]["accel_mm_s2"] == 1000.0 and st["options"]["infill_flow"] == 4.62
+    assert st["rates"]["mid_line_mm3_s"] == pytest.approx(4.62)
+    assert made[3000.0].stats["estimate"]["machine"]["accel_mm_s2"] == 3000.0
+    # slower: a lower rate, timed at a lower acceleration
+    assert st["estimate"]["estimated_time_s_gcode"] > made[3000.0].stats["estimate"]["estimated_time_s_gcode"]
+
+
 def test_cli_light_gaps_and_rate_accel(tmp_path):
     """`bulgekit litho --light-gaps walls|mid-line --rate-accel A`: the JSON says the mode and
     counts the light gaps, the summary names both; bad values are refused naming the option."""
@@ -912,7 +958,14 @@ def test_cli_light_gaps_and_rate_accel(tmp_path):
     assert r.exit_code == 2 and "--light-gaps" in r.output
     r = run("-o", tmp_path / "y", "--rate-accel", "-5")
     assert r.exit_code == 2 and "--rate-accel" in r.output
-    assert not (tmp_path / "x").exists() and not (tmp_path / "y").exists()
+    r = run("-o", tmp_path / "z", "--accel", "0")
+    assert r.exit_code == 2 and "--accel" in r.output
+    assert not any((tmp_path / d).exists() for d in "xyz")
+    r = run("-o", tmp_path / "a1000", "--accel", "1000")
+    assert r.exit_code == 0, r.output
+    assert "acceleration 1000 mm/s²" in r.output and "mid-line at 4.62 mm^3/s (lowered for --accel 1000" in r.output
+    r = run("-o", tmp_path / "a1000f", "--accel", "1000", "--infill-flow", "8")
+    assert r.exit_code == 0 and "mid-line at 8 mm^3/s:" in r.output
 
 
 def test_summary_names_a_classic_jerk_machine():

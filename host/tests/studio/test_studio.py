@@ -328,6 +328,11 @@ def test_litho_job_makes_the_cli_files(studio, tmp_path):
     assert "--" not in text and "mm^3" not in text and str(studio.studio.workdir) not in text
     status, body = call(studio, res["look"], raw=True)
     assert status == 200 and body[:4] == b"\x89PNG"
+    # the printer's acceleration: the times assume it and the automatic mid-line flow follows it
+    slow = wait_job(studio, call(studio, "/api/litho", {"asset": info["name"], "options": {"width": 20, "accel": 1000}})[1])
+    assert slow["state"] == "done", slow["error"]
+    fig = dict(slow["result"]["figures"])
+    assert fig["Mid-line flow"].startswith("4.62 mm³/s (lowered for a printer at 1000") and "1000" in fig["Times assume"]
     bad = wait_job(studio, call(studio, "/api/litho", {"asset": info["name"],
                                                        "options": {"min_thickness": 3, "max_thickness": 1}})[1])
     assert bad["state"] == "error" and "'Thickest (black)'" in bad["error"] and "--" not in bad["error"]
