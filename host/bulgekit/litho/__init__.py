@@ -56,6 +56,7 @@ from ..errors import BulgekitError
 SHAPES = ("planar", "cylinder")
 CURVES = tone.CURVES
 WORDS = ("e", "w")
+LIGHT_GAPS = ("mid-line", "walls")
 
 # The mid-line's default rate. Where a layer's mid-line starts and stops, the head ramps its speed
 # and the extruder's rate with it; those ramps take a share of the mid-line's time that grows as
@@ -72,7 +73,6 @@ def default_flow(accel: float) -> float:
     if not (isinstance(accel, (int, float)) and math.isfinite(accel) and accel > 0):
         return INFILL_FLOW                  # check_options names --accel
     return round(INFILL_FLOW * min(1.0, math.sqrt(accel / FLOW_ACCEL)), 2)
-LIGHT_GAPS = ("mid-line", "walls")
 
 
 class LithoError(BulgekitError):
@@ -1755,7 +1755,7 @@ def make(image, outdir, name: str | None = None, progress=None, machine=None, **
     image None: the calibration plate (calibration_field), NAME "calibration" by default.
     `progress(done, total)` hears the planning; the later phases (writing each file, the
     estimate) are reported through bulgekit.progress. `machine`: the estimate's
-    estimate.Machine (default: Marlin's RAMPS defaults)."""
+    estimate.Machine (default: machine_for(options), Marlin's RAMPS defaults at `accel`)."""
     from ..gcode import estimate
     from .. import progress as pg
 
