@@ -259,7 +259,10 @@ def _slow(path, source: str) -> Chunks:
 
 
 ENDS = 1 << 21                 # bytes of each end kept as text (gcode.open_checked's default)
-LEAN_MEMORY = 192 << 20        # a lean Scan's records held in memory up to this (build's peak)
+# a lean Scan's records held in memory up to this; more go to the temporary file: 100 MB of
+# G-code (140 MB of lean records) in memory took build's peak from 355 to 480 MB for no time
+# saved (the file's pages stay in the page cache: docs/host.md)
+LEAN_MEMORY = 64 << 20
 
 
 class Scan:
@@ -271,8 +274,8 @@ class Scan:
     compiled scanner): only the lean records (run(..., lean=True)'s) and every arc chord, each
     with its move number, and the tops of the moves left out (Chunks.tops, Chunks.numbers):
     what marked-mode walls, the planner runs (plan_records, in marked mode) and the stock
-    fallback need; held in memory up to LEAN_MEMORY bytes (100 MB of G-code: about 140 MB),
-    past that in the temporary file. Also kept: the text of the file's two ends
+    fallback need; held in memory up to LEAN_MEMORY bytes, past that (100 MB of G-code gives
+    about 140 MB) in the temporary file. Also kept: the text of the file's two ends
     (gcode.open_checked's), whether its lines suit fallback's byte path (gcode._plain_lines)
     and its M92 E words (gcode.scan_m92).
 
