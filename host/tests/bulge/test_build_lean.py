@@ -109,7 +109,10 @@ def _random_map(path, settings) -> mapformat.BulgeMap:
     return mapformat.decode_map(mapformat.encode_map(sorted(by_z.items())))
 
 
-def test_planner_runs_on_a_lean_scan_are_those_on_every_record(gcode_file):
+@pytest.mark.parametrize("chunk", [997, 1 << 21])
+def test_planner_runs_on_a_lean_scan_are_those_on_every_record(gcode_file, monkeypatch, chunk):
+    # (small chunks: a move owed to the next chunk, chunks with no lean record)
+    monkeypatch.setattr(movescan, "CHUNK_BYTES", chunk)
     settings = Settings(mode=1, extra_e=0.5, dwell_ms=100)
     bm = _random_map(gcode_file, settings)
     for bypass in (False, True):
@@ -127,7 +130,9 @@ def test_planner_runs_on_a_lean_scan_are_those_on_every_record(gcode_file):
             assert lean.top_z == full.top_z and lean.arcs == full.arcs
 
 
-def test_walls_from_a_lean_scan_are_those_from_every_record(gcode_file):
+@pytest.mark.parametrize("chunk", [997, 1 << 21])
+def test_walls_from_a_lean_scan_are_those_from_every_record(gcode_file, monkeypatch, chunk):
+    monkeypatch.setattr(movescan, "CHUNK_BYTES", chunk)
     got = []
     for lean in (False, True):
         with movescan.Scan(gcode_file, lean=lean).kept():
@@ -142,9 +147,9 @@ def test_walls_from_a_lean_scan_are_those_from_every_record(gcode_file):
             walls_from_gcode(gcode_file, geometric=True)
 
 
-@pytest.mark.parametrize("memory", [0, 1 << 30], ids=["file", "memory"])
+@pytest.mark.parametrize("memory, chunk", [(0, 997), (1 << 30, 1 << 21)], ids=["file", "memory"])
 def test_build_on_lean_records_writes_the_bytes_of_build_on_every_record(gcode_file, tmp_path,
-                                                                          monkeypatch, memory):
+                                                                          monkeypatch, memory, chunk):
     strokes = text_strokes("HI", 4.0, u0=5, v0=3)
     api.build(gcode_file, strokes, tmp_path / "lean", write_fallback=True)
     real = movescan.Scan
@@ -152,6 +157,7 @@ def test_build_on_lean_records_writes_the_bytes_of_build_on_every_record(gcode_f
     api.build(gcode_file, strokes, tmp_path / "full", write_fallback=True)
     monkeypatch.setattr(movescan, "Scan", real)
     monkeypatch.setattr(movescan, "LEAN_MEMORY", memory)
+    monkeypatch.setattr(movescan, "CHUNK_BYTES", chunk)
     out = api.build(gcode_file, strokes, tmp_path / "lean2", write_fallback=True)
     assert out.stats.stops
     names = sorted(p.name for p in (tmp_path / "full").iterdir())
