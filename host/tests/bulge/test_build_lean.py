@@ -40,6 +40,7 @@ def arcs_gcode(path: Path) -> Path:
         out.append(f"G2 X30 Y20 I10 J0 E{e:.5f}")
         out.append(";TYPE:WALL-INNER")
         out.append("G1 F1200")                              # moves nothing, outside the wall
+        out.append("G3 X29.5 Y20 R0.3")                     # a travel arc right after the wall
         for a in range(0, 360, 30):
             e += 0.2
             out.append(f"G1 X{20 + 9.5 * math.cos(math.radians(a)):.3f} "
@@ -98,11 +99,14 @@ def test_a_lean_scan_keeps_the_outer_wall_their_followers_and_every_arc_chord(gc
 
 
 def _random_map(path, settings) -> mapformat.BulgeMap:
-    """A map point on the outer wall of every third layer, near a move's end."""
+    """Map points on the outer wall of every third layer, near moves' ends, among them where
+    the wall is left (what the move after it must stop)."""
     full = _full_records(path)
-    outer = full[(full["flags"] & movescan.OUTER) != 0]
+    is_outer = (full["flags"] & movescan.OUTER) != 0
+    leave = np.flatnonzero(is_outer[:-1] & ~is_outer[1:])
+    outer = np.concatenate([full[leave], full[is_outer][::7]])
     by_z: dict = {}
-    for r in outer[::7]:
+    for r in outer:
         z = round(float(r["z1"]), 2)
         if round(z * 100) % 60 == 0 and len(by_z.get(z, ())) < 3:
             by_z.setdefault(z, []).append((float(r["x1"]) + 0.03, float(r["y1"])))
