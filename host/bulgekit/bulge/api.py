@@ -114,8 +114,11 @@ def build(gcode, strokes: Sequence[Stroke], outdir, *, name: str | None = None,
     (and <name>.stock.gcode with write_fallback) in outdir."""
     gcode = Path(gcode)
     from ..gcode import movescan
-    # checked once and scanned once: every pass below works from this scan's move records
-    with movescan.Scan(gcode, str(gcode)).kept():
+    # checked once and scanned once: every pass below works from this scan's move records, in
+    # marked mode the lean ones (walls, the planner runs and the stock fallback need no more)
+    marked = (settings.mode if settings is not None else
+              MODE_GEOMETRIC if geometric else MODE_MARKED) == MODE_MARKED
+    with movescan.Scan(gcode, str(gcode), lean=marked).kept():
         return _build(gcode, strokes, outdir, name, geometric, spacing, line_width, layer_height,
                       ref_angle_deg, settings, stream, arena, write_fallback, quantum_um, stops)
 

@@ -598,10 +598,13 @@ def plan_records(planner: RefPlanner, chunks, on_move=None, arcs_bypass: bool = 
         raise ValueError("plan_records: lazy planning hands no moves to on_move or on_chunk")
     sk = Skipper(planner, arcs_bypass)
     lean = getattr(chunks, "tops", None) is not None
-    if lean and not (lazy and arcs_bypass and planner.s.mode == MODE_MARKED):
+    # a kept lean Scan's chunks (numbered) hold every arc chord too: what any run in marked
+    # mode plans (every candidate is an outer-wall move, every follower of one is kept)
+    kept = getattr(chunks, "numbers", None) is not None
+    if lean and not (planner.s.mode == MODE_MARKED and (kept or (lazy and arcs_bypass))):
         raise ValueError("plan_records: lean chunks hold what a lazy run in marked mode with "
                          "arcs bypassed plans, no more")
-    sk.own_top = not lean
+    sk.own_top = not lean or kept             # (kept: every extruding arc chord, for a top with arcs)
     done = 0
     for a in chunks:
         planned = {}

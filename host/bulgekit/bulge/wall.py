@@ -289,7 +289,9 @@ def walls_from_records(chunks: Iterable[np.ndarray], layer_height: float | None 
                        source: str = "<gcode>", header_height: float | None = None
                        ) -> WallModel:
     """extract_walls on the moves as movescan.RECORD arrays, chunk by chunk, without a Python
-    step per move: a 100 MB file has some three million."""
+    step per move: a 100 MB file has some three million. chunks may be a kept lean Scan's
+    (movescan.Chunks.numbers) in marked mode: it holds every outer-wall move, and a move left
+    out between two records is outside the wall, a break."""
     # Per chunk: the eligible moves' ends (x0 y0 x1 y1 z0 z1) and their move numbers; other
     # moves that travel (or leave the outer wall) break a chain: a NaN row with number -1, one
     # for a run of them.
@@ -299,6 +301,10 @@ def walls_from_records(chunks: Iterable[np.ndarray], layer_height: float | None 
     any_outer = False
     last_was_break = False
     done = 0                                   # moves before this chunk
+    numbers = getattr(chunks, "numbers", None)
+    if numbers is not None and geometric:
+        raise ValueError("walls_from_records: lean chunks hold the outer-wall moves only")
+    after = -1                                 # lean: the number of the last record's move
     for a in chunks:
         c, _, _ = movescan.classes(a)          # (one pass over the records)
         outer = (c & movescan.OUTER) != 0
@@ -308,6 +314,13 @@ def walls_from_records(chunks: Iterable[np.ndarray], layer_height: float | None 
         if not geometric:
             ok &= outer
         other = ~ok & (moved | (~outer if not geometric else False))
+        if numbers is not None:
+            # two slots a record: a break for the moves left out before it, then the record
+            num = numbers[-1]
+            gap = np.diff(num, prepend=after) > 1
+            after = int(num[-1])
+            ok = np.stack([np.zeros(len(a), bool), ok], 1).ravel()
+            other = np.stack([gap, other], 1).ravel()
         ev = np.flatnonzero(ok | other)
         is_brk = other[ev]
         prev = np.concatenate([[last_was_break], is_brk[:-1]])
@@ -315,11 +328,12 @@ def walls_from_records(chunks: Iterable[np.ndarray], layer_height: float | None 
         if len(ev):
             last_was_break = bool(other[ev[-1]])
         # the rows' x0 y0 x1 y1 z0 z1, gathered in one go from the records' first six numbers
-        rows = _coords(a)[ev[:, None], _ENDS_COLS]
+        rec = ev if numbers is None else ev // 2
+        rows = _coords(a)[rec[:, None], _ENDS_COLS]
         brk = other[ev]
         rows[brk] = np.nan
         parts.append(rows)
-        nums.append(np.where(brk, -1, ev + done))
+        nums.append(np.where(brk, -1, rec + done if numbers is None else num[rec]))
         ok_rows = rows[~brk]
         flat = np.abs(ok_rows[:, 5] - ok_rows[:, 4]) < 1e-6
         planar_z.append(movescan.z_cmm(ok_rows[flat, 5]))

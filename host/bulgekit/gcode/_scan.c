@@ -52,7 +52,8 @@ typedef struct {
     PyObject *hypot;        /* math.hypot */
     double chord;
     int events;        /* gcode/estimate.py's mode: see event_line() */
-    int lean;          /* annotate's reach check in marked mode: see emit() */
+    int lean;          /* annotate's reach check in marked mode (1), build's passes (2): see emit() */
+    long long moves;   /* records made so far, kept or not (lean 2: each kept one's number) */
     int follow;        /* lean: a move since the last outer-wall one may be owed a record */
     int have_top;      /* lean: the highest z1 of this feed's moves that extrude in XY, not on */
     double top;        /* an arc (movescan.classes' top_not_arc, of every move, emitted or not) */
@@ -61,7 +62,8 @@ typedef struct {
     long long n_lf, n_cr, n_crlf;   /* line-end bytes consumed: '\n', '\r', "\r\n" pairs */
     /* output */
     Record *out;
-    Py_ssize_t n, cap;
+    int64_t *nums;     /* lean 2: the move number of each record of out */
+    Py_ssize_t n, cap, ncap;
     const char *base;
     long long base_offset;
 } Scanner;
@@ -80,6 +82,15 @@ static int push(Scanner *s, Record *r) {
         if (!p) { PyErr_NoMemory(); return -1; }
         s->out = p;
         s->cap = cap;
+    }
+    if (s->lean == 2) {
+        if (s->ncap < s->cap) {
+            int64_t *p = PyMem_Realloc(s->nums, (size_t)s->cap * sizeof(int64_t));
+            if (!p) { PyErr_NoMemory(); return -1; }
+            s->nums = p;
+            s->ncap = s->cap;
+        }
+        s->nums[s->n] = s->moves;
     }
     s->out[s->n++] = *r;
     return 0;
@@ -261,17 +272,19 @@ static int emit(Scanner *s, const char *line, double x, double y, double z, doub
          * outer-wall move, every extruding arc chord (RefPlanner.bypass), and the first move
          * after an outer-wall one that moves anything and is no arc chord (the one planned when
          * something is owed; a move outside the wall leaves nothing owed). The top z of the
-         * moves left out is kept here. */
+         * moves left out is kept here. lean 2 (build's passes, movescan.Scan): every arc chord
+         * too (a planner that plans chords may owe one to a travel arc), each numbered. */
         int moved = r.x0 != r.x1 || r.y0 != r.y1;
         if (moved && r.e > 0 && !arc && (!s->have_top || r.z1 > s->top || isnan(r.z1)))
             s->top = r.z1, s->have_top = 1;      /* numpy's max: a NaN wins */
         int null = !moved && r.z0 == r.z1 && r.e == 0;
         if (s->outer) s->follow = 1;
-        else if (arc) keep = r.e > 0;
+        else if (arc) keep = r.e > 0 || s->lean == 2;
         else if (s->follow && !null) s->follow = 0;
         else keep = 0;
     }
     if (keep && push(s, &r) < 0) return -1;
+    if (!s->quiet) s->moves++;
     s->x = x; s->y = y; s->z = z; s->e = e;
     return 0;
 }
@@ -564,11 +577,13 @@ static int Scanner_init(Scanner *s, PyObject *args, PyObject *kw) {
     PyObject *outer, *s3d, *classify;
     double chord = 0.5;
     int events = 0, lean = 0;
-    if (!PyArg_ParseTupleAndKeywords(args, kw, "OOO|dpp", kwlist, &outer, &s3d, &classify, &chord,
+    if (!PyArg_ParseTupleAndKeywords(args, kw, "OOO|dpi", kwlist, &outer, &s3d, &classify, &chord,
                                      &events, &lean))
         return -1;
     s->events = events;
-    s->lean = lean && !events;
+    if (lean < 0 || lean > 2) { PyErr_SetString(PyExc_ValueError, "lean: 0, 1 or 2"); return -1; }
+    s->lean = events ? 0 : lean;
+    s->moves = 0;
     s->follow = 0;
     s->have_top = 0;
     s->quiet = 0;
@@ -602,6 +617,7 @@ static void Scanner_dealloc(Scanner *s) {
     Py_XDECREF(s->classify);
     Py_XDECREF(s->hypot);
     PyMem_Free(s->out);
+    PyMem_Free(s->nums);
     Py_TYPE(s)->tp_free((PyObject *)s);
 }
 
@@ -630,6 +646,12 @@ static PyObject *Scanner_top(Scanner *s, void *c) {
     return s->have_top ? PyFloat_FromDouble(s->top) : Py_NewRef(Py_None);
 }
 
+static PyObject *Scanner_numbers(Scanner *s, void *c) {
+    (void)c;
+    if (s->lean != 2) Py_RETURN_NONE;
+    return PyBytes_FromStringAndSize((const char *)s->nums, s->n * (Py_ssize_t)sizeof(int64_t));
+}
+
 static PyObject *Scanner_e(Scanner *s, void *c) {
     (void)c;
     return PyFloat_FromDouble(s->e);
@@ -646,6 +668,9 @@ static PyGetSetDef Scanner_getset[] = {
     {"e", (getter)Scanner_e, NULL, "E position after the lines scanned so far", NULL},
     {"top", (getter)Scanner_top, NULL,
      "lean: the last feed's highest z1 of the moves extruding in XY off arcs (None: none)", NULL},
+    {"numbers", (getter)Scanner_numbers, NULL,
+     "lean 2: the move numbers (int64) of the last feed's records, counting every move (else None)",
+     NULL},
     {"flagged", (getter)Scanner_flagged, NULL, "lines so far that may be bulgekit's or an M92", NULL},
     {"line_ends", (getter)Scanner_line_ends, NULL,
      "(\\n, \\r, \\r\\n) bytes and pairs so far: bytes.count's of the data consumed", NULL},
@@ -993,6 +1018,6 @@ PyMODINIT_FUNC PyInit__scan(void) {
     PyModule_AddObject(m, "Scanner", (PyObject *)&ScannerType);
     PyModule_AddIntConstant(m, "RECORD_SIZE", (long)sizeof(Record));
     /* what gcode.SCAN_VERSION expects: a module built from an older _scan.c is not used */
-    PyModule_AddIntConstant(m, "VERSION", 6);
+    PyModule_AddIntConstant(m, "VERSION", 7);
     return m;
 }

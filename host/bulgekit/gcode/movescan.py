@@ -6,6 +6,7 @@ estimator reads the scanner's records in its events mode (estimate.estimate_file
 
     run(path, consume)      # consume(chunks) gets an iterator of RECORD arrays and the role names
     with Scan(path).kept(): # build: the file checked and scanned once, every run() above replays it
+                            # (lean=True, build in marked mode: only the records its passes need)
     classes(a)              # what the passes ask of every move of a chunk, one byte each
 
 consume must start from nothing each time it is called: when the compiled scanner meets a line it
@@ -63,12 +64,17 @@ class Chunks:
     (the compiled scanner's count, a superset; None from the Python parser or a kept Scan)."""
 
     def __init__(self, it: Iterator[np.ndarray], roles: list[str], lines: Callable[[], int],
-                 flagged: Callable[[], int] | None = None, tops: list | None = None):
+                 flagged: Callable[[], int] | None = None, tops: list | None = None,
+                 numbers: list | None = None):
         self._it, self.roles, self._lines, self._flagged = it, roles, lines, flagged
         # lean chunks (run(..., lean=True) with the compiled scanner): the records annotate's
         # lazy reach check can plan only, and per part of the file read, what classes() would
         # give as top_not_arc on all its moves (filled as iteration goes); else None
         self.tops = tops
+        # a kept lean Scan's chunks (Scan(..., lean=True)): lean records and every arc chord,
+        # and per chunk given, the move number of each record (counting every move; appended
+        # as iteration goes, numbers[-1] is the chunk in hand); else None
+        self.numbers = numbers
 
     def __iter__(self):
         return self._it
@@ -253,42 +259,72 @@ def _slow(path, source: str) -> Chunks:
 
 
 ENDS = 1 << 21                 # bytes of each end kept as text (gcode.open_checked's default)
+# a lean Scan's records held in memory up to this; more go to the temporary file: 100 MB of
+# G-code (140 MB of lean records) in memory took build's peak from 355 to 480 MB for no time
+# saved (the file's pages stay in the page cache: docs/host.md)
+LEAN_MEMORY = 64 << 20
 
 
 class Scan:
     """One reading of a G-code file that every pass of `build` works from: the checks
     (gcode.check_complete: text, not cut off; gcode.check_not_processed) and the move records,
-    made in one pass over the file, 2 MB at a time. The records go to an unnamed temporary file
-    chunk by chunk (88 bytes a move: 100 MB of G-code gives about 300 MB of them, kept out of
-    memory) and are read back, in the same chunks, by each run(). Also kept: the text of the
-    file's two ends (gcode.open_checked's), whether its lines suit fallback's byte path
-    (gcode._plain_lines) and its M92 E words (gcode.scan_m92).
+    made in one pass over the file, 2 MB at a time, and read back in the same chunks by each
+    run(). All the records (88 bytes a move: 100 MB of G-code gives about 300 MB of them) go to
+    an unnamed temporary file, kept out of memory. lean=True (build in marked mode, with the
+    compiled scanner): only the lean records (run(..., lean=True)'s) and every arc chord, each
+    with its move number, and the tops of the moves left out (Chunks.tops, Chunks.numbers):
+    what marked-mode walls, the planner runs (plan_records, in marked mode) and the stock
+    fallback need; held in memory up to LEAN_MEMORY bytes, past that (100 MB of G-code gives
+    about 140 MB) in the temporary file. Also kept: the text of the file's two ends
+    (gcode.open_checked's), whether its lines suit fallback's byte path (gcode._plain_lines)
+    and its M92 E words (gcode.scan_m92).
 
         with movescan.Scan(path).kept():      # movescan.run, gcode.open_checked and
             ...                               # check_input_file on path use it
     """
 
-    def __init__(self, path, source: str | None = None):
+    def __init__(self, path, source: str | None = None, lean: bool = False):
         self.path = os.fspath(path)
         self.source = source or self.path
         self.fast = _scan is not None          # records from the compiled scanner (with offsets)
+        self.lean = lean and self.fast         # (the Python parser gives every record)
         self.roles: list[str] = []
         self.chunks: list[tuple[int, int]] = []     # (records, lines read so far) per chunk
+        self.tops: list = []                   # lean: Chunks.tops, per chunk
         self.m92: list[tuple[int, float]] = []
         self.lines = 0
         self._classes: dict[int, tuple] = {}       # classes() of chunk k (non-empty ones), once
-        self._store = tempfile.TemporaryFile()
+        self._held: list[bytes] | None = [] if self.lean else None   # lean, in memory: per
+        self._held_bytes = 0                   # chunk its records' bytes, then its numbers'
+        self._store = None if self.lean else tempfile.TemporaryFile()
         try:
             self._read()
         except BaseException:
-            self._store.close()
+            self.close()
             raise
+
+    def _keep(self, recs: bytes, nums: bytes | None = None) -> None:
+        """One chunk's records (and lean: their numbers), in memory or in the temporary file."""
+        if self._held is not None:
+            self._held.append(recs)
+            self._held.append(nums)
+            self._held_bytes += len(recs) + len(nums)
+            if self._held_bytes <= LEAN_MEMORY:
+                return
+            self._store = tempfile.TemporaryFile()       # too many for memory: all to the file
+            self._store.writelines(self._held)
+            self._held = None
+            return
+        if recs:
+            self._store.write(recs)
+        if nums:
+            self._store.write(nums)
 
     def _read(self) -> None:
         sc = None
         if self.fast:
             sc = _scan.Scanner(sorted(gcode.OUTER_ROLES), sorted(gcode._S3D_ROLES), _classify,
-                               gcode.ARC_CHORD_MM)
+                               gcode.ARC_CHORD_MM, lean=2 if self.lean else 0)
             self.roles = sc.roles
         n_cr = n_crlf = nl = 0
         plain = True
@@ -320,7 +356,10 @@ class Scan:
                         sc, self.fast = None, False        # the Python parser does it below
                     else:
                         ends = [b - a for a, b in zip(ends0, sc.line_ends)]
-                        if recs:
+                        if self.lean:
+                            self._keep(recs, sc.numbers)
+                            self.tops.append(sc.top)
+                        elif recs:
                             self._store.write(recs)
                         self.chunks.append((len(recs) // RECORD.itemsize, sc.lines))
                         progress.tick(sc.lines)
@@ -367,9 +406,11 @@ class Scan:
         if sc is not None:
             self.lines = sc.lines
         else:                                  # the Python parser's records (no offsets)
+            if self._store is None:
+                self._store = tempfile.TemporaryFile()
             self._store.seek(0)
             self._store.truncate()
-            self.chunks = []
+            self.chunks, self.tops, self._held, self.lean = [], [], None, False
             ch = _slow(self.path, self.source)
             for a in ch:
                 self._store.write(a.tobytes())
@@ -388,20 +429,31 @@ class Scan:
         if fast and not self.fast:
             raise Unsupported("the compiled scanner left the file to the Python parser")
         done = [0]
+        numbers: list | None = [] if self.lean else None
 
         def gen():
             global _REPLAYED
-            self._store.seek(0)
+            held, store = self._held, self._store
+            if held is None:
+                store.seek(0)
             for i, (k, lines) in enumerate(self.chunks):
-                a = np.frombuffer(self._store.read(k * RECORD.itemsize), dtype=RECORD)
+                if held is not None:
+                    recs, nums = held[2 * i], held[2 * i + 1]
+                else:
+                    recs = store.read(k * RECORD.itemsize)
+                    nums = store.read(8 * k) if numbers is not None else None
+                a = np.frombuffer(recs, dtype=RECORD)
                 done[0] = lines
                 progress.tick(lines)
                 if k:
+                    if numbers is not None:
+                        numbers.append(np.frombuffer(nums, dtype="<i8"))
                     _REPLAYED = (a, i, self)
                     yield a
             _REPLAYED = None
             done[0] = self.lines
-        return consume(Chunks(gen(), list(self.roles), lambda: done[0]))
+        return consume(Chunks(gen(), list(self.roles), lambda: done[0],
+                              tops=list(self.tops) if self.lean else None, numbers=numbers))
 
     def text_lines(self) -> Iterator[str]:
         """The file's lines as text (what gcode.open_checked's iterator gives), opened lazily."""
@@ -414,7 +466,9 @@ class Scan:
         if r is not None and r[2] is self:
             _REPLAYED = None
         self._classes.clear()
-        self._store.close()
+        self._held = None
+        if self._store is not None:
+            self._store.close()
 
     def kept(self):
         """Context: while in it, passes over this file use this scan (see the class comment)."""

@@ -38,8 +38,8 @@ def test_build_opens_the_file_three_times_and_scans_it_once(tmp_path, monkeypatc
         real = movescan._scan
 
         class Counting:
-            def __init__(self, *a):
-                self._s = real.Scanner(*a)
+            def __init__(self, *a, **kw):
+                self._s = real.Scanner(*a, **kw)
                 scanned.append(0)
 
             def feed(self, buf, final=False, base=0):
@@ -51,6 +51,8 @@ def test_build_opens_the_file_three_times_and_scans_it_once(tmp_path, monkeypatc
             lines = property(lambda self: self._s.lines)
             flagged = property(lambda self: self._s.flagged)
             line_ends = property(lambda self: self._s.line_ends)
+            top = property(lambda self: self._s.top)
+            numbers = property(lambda self: self._s.numbers)
 
         class Proxy:
             Scanner = Counting
