@@ -20,7 +20,9 @@ from __future__ import annotations
 import contextlib
 import io
 import os
+import queue
 import tempfile
+import threading
 from typing import Callable, Iterator, TypeVar
 
 import numpy as np
@@ -49,6 +51,66 @@ EXTRUDES_F32 = 32            # extrudes in XY in float32, as the firmware sees i
 
 CHUNK_BYTES = 2 << 20        # 2 MB of G-code: about 7 MB of records at a time
 T = TypeVar("T")
+
+
+def _cores() -> int:
+    try:
+        return len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        return os.cpu_count() or 1
+
+
+# Read and scan the next part of a file on a second thread while the passes work on this one
+# (_ahead): with 2+ cores and files of more than AHEAD_BYTES. BULGEKIT_SCAN_THREAD=0 turns it off.
+READ_AHEAD = os.environ.get("BULGEKIT_SCAN_THREAD", "1") != "0" and _cores() > 1
+AHEAD_BYTES = 2 * CHUNK_BYTES
+
+
+def _use_ahead(size: int) -> bool:
+    return READ_AHEAD and size > AHEAD_BYTES
+
+
+def _ahead(parts: Iterator[T]) -> Iterator[T]:
+    """The items of the generator parts, made on a worker thread one item ahead of the caller
+    (memory: the item taken, one queued and one being made). An exception in parts is raised
+    here when its turn comes; the worker stops when the caller stops (or drops) this iterator."""
+    q: queue.Queue = queue.Queue(maxsize=1)
+    stop = threading.Event()
+
+    def put(item) -> bool:
+        while not stop.is_set():
+            try:
+                q.put(item, timeout=0.05)
+                return True
+            except queue.Full:
+                pass
+        return False
+
+    def work():
+        try:
+            for item in parts:
+                if not put((True, item)):
+                    return
+            put((False, None))
+        except BaseException as e:         # the caller's to raise, in its thread
+            put((False, e))
+        finally:
+            parts.close()
+
+    t = threading.Thread(target=work, name="bulgekit-scan-ahead", daemon=True)
+    t.start()
+    try:
+        while True:
+            ok, item = q.get()
+            if ok:
+                yield item
+            elif item is None:
+                return
+            else:
+                raise item
+    finally:
+        stop.set()
+        t.join()
 
 
 class Unsupported(Exception):
@@ -159,52 +221,66 @@ def _fast(path, lean: bool = False) -> Chunks:
     assert _scan is not None and _scan.RECORD_SIZE == RECORD.itemsize
     sc = _scan.Scanner(sorted(gcode.OUTER_ROLES), sorted(gcode._S3D_ROLES), _classify,
                        gcode.ARC_CHORD_MM, lean=lean)
-    roles: list[str] = sc.roles              # the scanner's own list, filled as it reads
+    # the role names, lines and flagged lines as of the part the caller has: the scanner (on the
+    # read-ahead thread, _ahead) may be a part further on
+    roles: list[str] = []
     tops: list | None = [] if lean else None
+    seen = [0, 0]                             # lines, flagged
 
     def part(data, final: bool, base: int):
-        """One feed of the scanner: its records (None: none) and the bytes it used."""
+        """One feed of the scanner: its records (None: none), the bytes it used and the
+        scanner's counts after it."""
         recs, used = sc.feed(data, final, base)
-        if lean:
-            tops.append(sc.top)
-        return (np.frombuffer(recs, dtype=RECORD) if recs else None), used   # read-only, not copied
+        a = np.frombuffer(recs, dtype=RECORD) if recs else None   # read-only, not copied
+        return a, used, (sc.lines, sc.flagged, len(sc.roles), sc.top if lean else None)
 
-    def gen_bytes():
+    def parts_bytes():
         # G-code in memory: windows of it, not copies (a line longer than a window widens it)
         view = memoryview(path)
         base, size = 0, CHUNK_BYTES
         while True:
             stop = min(base + size, len(view))
             final = stop == len(view)
-            a, used = part(view[base:stop], final, base)
-            if a is not None:
-                yield a
-            progress.tick(sc.lines)
+            a, used, counts = part(view[base:stop], final, base)
+            yield a, counts
             base += used
             if final:
                 return
             size = CHUNK_BYTES if used else 2 * size
 
-    def gen():
-        if isinstance(path, (bytes, bytearray)):
-            yield from gen_bytes()
-            return
+    def parts_file(f):
         base = 0                              # file offset of buf[0]
         buf = b""
-        with open(path, "rb") as f:
-            while True:
-                data = f.read(CHUNK_BYTES)
-                final = not data
-                buf = buf + data if buf else data
-                a, used = part(buf, final, base)
+        while True:
+            data = f.read(CHUNK_BYTES)
+            final = not data
+            buf = buf + data if buf else data
+            a, used, counts = part(buf, final, base)
+            yield a, counts
+            base += used
+            buf = buf[used:]
+            if final:
+                return
+
+    def gen():
+        with contextlib.ExitStack() as stack:
+            if isinstance(path, (bytes, bytearray)):
+                size, parts = len(path), parts_bytes()
+            else:
+                f = stack.enter_context(open(path, "rb"))
+                size, parts = os.fstat(f.fileno()).st_size, parts_file(f)
+            if _use_ahead(size):
+                parts = _ahead(parts)
+                stack.callback(parts.close)   # (the worker stopped before the file is closed)
+            for a, (lines, flagged, n_roles, top) in parts:
+                seen[:] = lines, flagged
+                roles.extend(sc.roles[len(roles):n_roles])
+                if lean:
+                    tops.append(top)
                 if a is not None:
                     yield a
-                progress.tick(sc.lines)
-                base += used
-                buf = buf[used:]
-                if final:
-                    return
-    return Chunks(gen(), roles, lambda: sc.lines, lambda: sc.flagged, tops)
+                progress.tick(lines)
+    return Chunks(gen(), roles, lambda: seen[0], lambda: seen[1], tops)
 
 
 def from_moves(moves, roles: list[str] | None = None,
