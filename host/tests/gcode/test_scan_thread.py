@@ -1,0 +1,153 @@
+"""movescan's read-ahead thread (_ahead): the records, roles, lines, lean tops and progress ticks
+are the same with it and without it, errors part-way through a file come out the same, and a
+consumer that stops early leaves no thread running."""
+from __future__ import annotations
+
+import threading
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from bulgekit.gcode import GcodeError, movescan
+
+DATA = Path(__file__).parents[1] / "data"
+FILES = sorted(DATA.glob("*.gcode"))
+
+
+def _ahead_threads() -> list[threading.Thread]:
+    return [t for t in threading.enumerate() if t.name == "bulgekit-scan-ahead"]
+
+
+@pytest.fixture
+def small_parts(monkeypatch):
+    """Parts of 8 kB, so that a test file is many parts, each read ahead when on."""
+    monkeypatch.setattr(movescan, "CHUNK_BYTES", 8192)
+    monkeypatch.setattr(movescan, "AHEAD_BYTES", 0)
+
+    def read(path, ahead: bool, lean: bool = False, fast=None):
+        monkeypatch.setattr(movescan, "READ_AHEAD", ahead)
+        ticks: list[int] = []
+        monkeypatch.setattr(movescan.progress, "tick", ticks.append)
+        seen = []
+
+        def consume(chunks):
+            parts = []
+            for a in chunks:
+                # what a pass sees as it goes: the counts as of the part it has
+                seen.append((len(chunks.roles), chunks.lines, chunks.flagged))
+                parts.append(np.array(a))
+            return parts, list(chunks.roles), chunks.lines, chunks.flagged, chunks.tops
+        before = threading.active_count()
+        out = movescan.run(path, consume, fast=fast, lean=lean)
+        assert threading.active_count() == before and not _ahead_threads()
+        return out, seen, ticks
+    return read
+
+
+@pytest.mark.parametrize("lean", [False, True])
+@pytest.mark.parametrize("path", FILES, ids=lambda p: p.name)
+def test_threaded_reader_gives_the_same_records_counts_and_ticks(small_parts, path, lean):
+    if not movescan.available():
+        pytest.fail("bulgekit.gcode._scan is not built")
+    for src in (path, path.read_bytes()):
+        (parts, roles, lines, flagged, tops), seen, ticks = small_parts(src, True, lean)
+        (parts0, roles0, lines0, flagged0, tops0), seen0, ticks0 = small_parts(src, False, lean)
+        assert len(parts) == len(parts0) and len(ticks) > 3        # (a tick a part)
+        for a, b in zip(parts, parts0):
+            assert a.tobytes() == b.tobytes()
+        assert (roles, lines, flagged, seen, ticks) == (roles0, lines0, flagged0, seen0, ticks0)
+        assert tops == tops0 and (tops is not None) == lean
+        assert ticks[-1] == lines
+
+
+def test_a_line_left_to_python_part_way_falls_back_the_same(small_parts, tmp_path):
+    # the compiled scanner refuses the last line, parts after the consumer started: the Python
+    # parser's error, with file and line, or Unsupported when only the compiled one is asked for
+    text = FILES[0].read_bytes()
+    bad = tmp_path / "bad.gcode"
+    bad.write_bytes(text + b"G1 X1O Y2\n")
+    n = text.count(b"\n") + 1
+    for ahead in (True, False):
+        with pytest.raises(GcodeError, match=rf"bad.gcode:{n}: unparsable value 'X1O'"):
+            small_parts(bad, ahead)
+        with pytest.raises(movescan.Unsupported, match=rf"line {n}"):
+            small_parts(bad, ahead, fast=True)
+        assert not _ahead_threads()
+    # a command with a non-ASCII byte late in the file: the Python parser reads it, same records
+    odd = tmp_path / "odd.gcode"
+    odd.write_bytes(text + "G1 X2\u00a0Y3 E1\n".encode())
+    (parts, *rest), _, ticks = small_parts(odd, True)
+    (parts0, *rest0), _, ticks0 = small_parts(odd, False)
+    assert b"".join(a.tobytes() for a in parts) == b"".join(a.tobytes() for a in parts0)
+    assert rest == rest0 and ticks == ticks0
+    assert parts[-1]["y1"][-1] == 3.0
+
+
+def test_a_consumer_that_stops_early_stops_the_worker(monkeypatch):
+    monkeypatch.setattr(movescan, "CHUNK_BYTES", 4096)
+    monkeypatch.setattr(movescan, "AHEAD_BYTES", 0)
+    monkeypatch.setattr(movescan, "READ_AHEAD", True)
+    before = threading.active_count()
+
+    def first(chunks):
+        for a in chunks:
+            assert _ahead_threads()               # (the worker runs while the caller has a part)
+            return len(a)
+    assert movescan.run(FILES[0], first) > 0
+    assert threading.active_count() == before and not _ahead_threads()
+
+    class Stop(Exception):
+        pass
+
+    def fail(chunks):
+        next(iter(chunks))
+        raise Stop
+    with pytest.raises(Stop):
+        movescan.run(FILES[0].read_bytes(), fail)
+    assert threading.active_count() == before and not _ahead_threads()
+
+
+def test_an_interrupt_on_the_main_thread_stops_the_worker(monkeypatch):
+    monkeypatch.setattr(movescan, "CHUNK_BYTES", 4096)
+    monkeypatch.setattr(movescan, "AHEAD_BYTES", 0)
+    monkeypatch.setattr(movescan, "READ_AHEAD", True)
+
+    def interrupted(chunks):
+        for i, _ in enumerate(chunks):
+            if i == 2:
+                raise KeyboardInterrupt
+    with pytest.raises(KeyboardInterrupt):
+        movescan.run(FILES[0], interrupted)
+    assert not _ahead_threads()
+
+
+def test_a_scanner_feeds_one_thread_at_a_time():
+    # feed() lets the GIL go while it parses: a second feed meanwhile would share its state
+    if not movescan.available():
+        pytest.fail("bulgekit.gcode._scan is not built")
+    sc = movescan._scan.Scanner([], [], movescan._classify, 0.5)
+    data = FILES[0].read_bytes() * 20
+    errors: list[BaseException] = []
+    started = threading.Event()
+
+    def feed():
+        started.set()
+        while True:
+            try:
+                sc.feed(data, True, 0)
+                return
+            except RuntimeError:              # (the main thread's feed came first)
+                pass
+    t = threading.Thread(target=feed)
+    t.start()
+    started.wait()
+    while t.is_alive():                       # (the second feed either finds it busy or not)
+        try:
+            sc.feed(b"G1 X1\n", False, 0)
+        except RuntimeError as e:
+            errors.append(e)
+            break
+    t.join()
+    assert errors, "a feed while another thread's ran was not refused"
+    assert "in use by another thread" in str(errors[0])
