@@ -369,12 +369,47 @@ class Scan:
         n_cr = n_crlf = nl = 0
         plain = True
         last = b""
-        with open(self.path, "rb") as f:
-            size = os.fstat(f.fileno()).st_size
-            base, buf, first = 0, b"", True
+
+        def parts(f):
+            """Each part read: its new bytes, whether it is the last, the part with the bytes
+            left from the one before, the bytes used and the scanner's take on it: None (no
+            scanner), False (it left the file to the Python parser), else (records, whether a
+            line may be flagged, the line ends consumed, lines so far). Read and scanned ahead
+            on a thread (_ahead) for large files."""
+            live = sc
+            base, buf = 0, b""
             while True:
                 data = f.read(CHUNK_BYTES)
                 final = not data
+                buf = buf + data if buf else data
+                used = len(buf)
+                fed = None
+                if live is not None:
+                    flagged, ends0 = live.flagged, live.line_ends
+                    try:
+                        recs, used = live.feed(buf, final, base)
+                    except _scan.ScanUnsupported:
+                        live, fed = None, False
+                    else:
+                        # (a line with a byte >= 0x80 is flagged too: an unflagged part is ASCII)
+                        fed = (recs, live.flagged != flagged,
+                               [b - a for a, b in zip(ends0, live.line_ends)], live.lines)
+                if live is None and not final:         # checks only: whole lines still
+                    used = buf.rfind(b"\n") + 1
+                yield data, final, buf, used, fed
+                base += used
+                buf = buf[used:]
+                if final:
+                    return
+
+        with open(self.path, "rb") as f, contextlib.ExitStack() as stack:
+            size = os.fstat(f.fileno()).st_size
+            first = True
+            read = parts(f)
+            if _use_ahead(size):
+                read = _ahead(read)
+                stack.callback(read.close)     # (the worker stopped before the file is closed)
+            for data, final, buf, used, fed in read:
                 if first:
                     gcode.check_text(data[:65537] if size > 65536 else data, self.source)
                     head = b""
@@ -382,26 +417,16 @@ class Scan:
                     first = False
                 if len(head) < ENDS:
                     head += data[:ENDS - len(head)]
-                buf = buf + data if buf else data
-                used = len(buf)
                 look = True                            # whether the part may hold what the regexes find
                 ends = None                            # the part's line ends, counted by the scanner
-                if sc is not None:
-                    flagged, ends0 = sc.flagged, sc.line_ends
-                    try:
-                        recs, used = sc.feed(buf, final, base)
-                        # (a line with a byte >= 0x80 is flagged too: an unflagged part is ASCII)
-                        look = sc.flagged != flagged
-                    except _scan.ScanUnsupported:
-                        sc, self.fast = None, False        # the Python parser does it below
-                    else:
-                        ends = [b - a for a, b in zip(ends0, sc.line_ends)]
-                        if recs:
-                            self._store.write(recs)
-                        self.chunks.append((len(recs) // RECORD.itemsize, sc.lines))
-                        progress.tick(sc.lines)
-                if sc is None and not final:           # checks only: whole lines still
-                    used = buf.rfind(b"\n") + 1
+                if fed is False:
+                    sc, self.fast = None, False        # the Python parser does it below
+                elif fed is not None:
+                    recs, look, ends, lines = fed
+                    if recs:
+                        self._store.write(recs)
+                    self.chunks.append((len(recs) // RECORD.itemsize, lines))
+                    progress.tick(lines)
                 part = buf[:used] if look or ends is None else None
                 # the checks, on whole lines (a \r\n cut between two parts counted once)
                 # (a part after a lone \r does not start a line for the regexes' ^, as in one piece)
@@ -428,10 +453,7 @@ class Scan:
                 nl += d_nl
                 if used:
                     last = buf[used - 1:used]
-                base += used
-                buf = buf[used:]
-                if final:
-                    break
+            read.close()                               # (done reading: the tail is read below)
             tail = whole[-ENDS:] if whole is not None else b""
             if whole is None:
                 f.seek(max(0, size - ENDS))

@@ -151,3 +151,50 @@ def test_a_scanner_feeds_one_thread_at_a_time():
     t.join()
     assert errors, "a feed while another thread's ran was not refused"
     assert "in use by another thread" in str(errors[0])
+
+
+def _kept_scan(path, ahead: bool, monkeypatch):
+    """A build's Scan of path: what it kept, or the error it raised (type and message)."""
+    monkeypatch.setattr(movescan, "READ_AHEAD", ahead)
+    ticks: list[int] = []
+    monkeypatch.setattr(movescan.progress, "tick", ticks.append)
+    try:
+        sc = movescan.Scan(path)
+    except Exception as e:                    # noqa: BLE001 (compared between both ways)
+        assert not _ahead_threads()
+        return type(e), str(e)
+    with sc.kept():
+        records = movescan.run(path, lambda ch: b"".join(a.tobytes() for a in ch))
+        got = (sc.fast, sc.chunks, sc.roles, sc.lines, sc.m92, sc.nl, sc.plain_lines, sc.ends,
+               records, ticks)
+    assert not _ahead_threads()
+    return got
+
+
+@pytest.mark.parametrize("tail", [b"", b"M720 S1\n", b"G1 X1 Y", b"G1 X2\xc2\xa0Y3 E1\n",
+                                  b"; bulgekit: bulge map\n", b"M92 E415\nG1 X1 Y1\r\n"],
+                         ids=["plain", "processed", "cut-off", "non-ASCII command", "our comment",
+                              "M92 and CRLF"])
+def test_a_builds_scan_is_the_same_threaded(monkeypatch, tmp_path, tail):
+    # the checks' errors part-way (a processed or cut-off file), the Python parser taking over,
+    # what the checks keep: the same with the part after read and scanned ahead
+    monkeypatch.setattr(movescan, "CHUNK_BYTES", 8192)
+    monkeypatch.setattr(movescan, "AHEAD_BYTES", 0)
+    g = tmp_path / "t.gcode"
+    g.write_bytes(FILES[0].read_bytes() + tail)
+    on, off = _kept_scan(g, True, monkeypatch), _kept_scan(g, False, monkeypatch)
+    assert on == off
+    if tail in (b"M720 S1\n", b"G1 X1 Y", b"; bulgekit: bulge map\n"):
+        assert on[0].__name__.endswith("Error") and "t.gcode" in on[1]
+    else:
+        assert on[0] == (tail != b"G1 X2\xc2\xa0Y3 E1\n")      # (the Python parser's: no offsets)
+        assert on[3] > 1000 and (len(on[1]) > 3 or not on[0])
+
+
+def test_a_non_text_file_is_refused_the_same_threaded(monkeypatch, tmp_path):
+    monkeypatch.setattr(movescan, "CHUNK_BYTES", 8192)
+    monkeypatch.setattr(movescan, "AHEAD_BYTES", 0)
+    g = tmp_path / "t.gcode"
+    g.write_bytes(b"\x00\x01\x02\xff" * 10000)
+    on, off = _kept_scan(g, True, monkeypatch), _kept_scan(g, False, monkeypatch)
+    assert on == off and "t.gcode" in on[1]
