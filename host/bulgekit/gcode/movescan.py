@@ -135,6 +135,12 @@ class Chunks:
     def __iter__(self):
         return self._it
 
+    def close(self) -> None:
+        """Stops the reading (and its read-ahead thread) if consume did not read to the end."""
+        close = getattr(self._it, "close", None)
+        if close is not None:
+            close()
+
     @property
     def lines(self) -> int:
         return self._lines()
@@ -142,6 +148,14 @@ class Chunks:
     @property
     def flagged(self) -> int | None:
         return None if self._flagged is None else self._flagged()
+
+
+def _consume(consume: Callable[[Chunks], T], chunks: Chunks) -> T:
+    # closed here, not when the chunks are collected: an exception the caller keeps holds them
+    try:
+        return consume(chunks)
+    finally:
+        chunks.close()
 
 
 def z_cmm(z: np.ndarray) -> np.ndarray:
@@ -567,8 +581,8 @@ def run(path, consume: Callable[[Chunks], T], source: str | None = None,
             raise Unsupported("bulgekit.gcode._scan is not built")
     if use:
         try:
-            return consume(_fast(path, lean))
+            return _consume(consume, _fast(path, lean))
         except _scan.ScanUnsupported as e:
             if fast:
                 raise Unsupported(f"line {e.args[0]}") from None
-    return consume(_slow(path, source))
+    return _consume(consume, _slow(path, source))

@@ -103,9 +103,13 @@ def test_a_consumer_that_stops_early_stops_the_worker(monkeypatch):
     def fail(chunks):
         next(iter(chunks))
         raise Stop
-    with pytest.raises(Stop):
-        movescan.run(FILES[0].read_bytes(), fail)
-    assert threading.active_count() == before and not _ahead_threads()
+    for src in (FILES[0], FILES[0].read_bytes()):
+        try:
+            movescan.run(src, fail)
+        except Stop as e:
+            kept = e                          # (its traceback holds the consumer's chunks)
+            assert threading.active_count() == before and not _ahead_threads()
+        assert kept.__traceback__ is not None
 
 
 def test_an_interrupt_on_the_main_thread_stops_the_worker(monkeypatch):
