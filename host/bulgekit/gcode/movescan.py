@@ -13,6 +13,9 @@ leaves to the Python parser (a command with non-ASCII bytes, a value or arc gcod
 consume is called again with the Python parser's chunks, which give the moves or the error
 message naming the file and line.
 
+On 2+ cores, files over AHEAD_BYTES are read and scanned one part ahead on a worker thread
+(_ahead) while consume works on the part before; BULGEKIT_SCAN_THREAD=0 turns that off.
+
 `bulgekit --version` says which scanner is in use.
 """
 from __future__ import annotations
