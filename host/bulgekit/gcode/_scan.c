@@ -14,6 +14,12 @@
  * or the error message with file and line. Comment lines with bytes >= 0x80 are classified by
  * the Python function given to the Scanner (gcode.split_code + feature_of_comment), so their
  * roles are exact too.
+ *
+ * feed() parses without the GIL, so that another thread runs Python meanwhile (movescan reads and
+ * scans the next part of a file while the passes work on this one); hold() takes the GIL back for
+ * the few lines that need Python (a new role name, a non-ASCII line, an arc's math.hypot, an
+ * error). One Scanner is for one thread at a time: a feed() while another thread's runs raises
+ * RuntimeError, and its attributes are only meaningful between feeds.
  */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
@@ -50,6 +56,17 @@ typedef struct {
     PyObject *s3d_roles;    /* frozenset of str */
     PyObject *classify;     /* callable(str) -> (has_code: bool, role: str | None) */
     PyObject *hypot;        /* math.hypot */
+    /* the roles' and Simplify3D tags' names as UTF-8, so that looking one up needs no GIL */
+    char *role_name[MAX_ROLES];
+    Py_ssize_t role_len[MAX_ROLES];
+    unsigned char role_outer[MAX_ROLES];
+    int n_roles;
+    char **s3d_name;
+    Py_ssize_t *s3d_len;
+    Py_ssize_t n_s3d;
+    PyThreadState *ts; /* feed() runs without the GIL: its thread state, for hold() */
+    int needed;        /* hold() was called (feed() keeps the GIL a while after) */
+    int busy;          /* in feed() */
     double chord;
     int events;        /* gcode/estimate.py's mode: see event_line() */
     int lean;          /* annotate's reach check in marked mode (1), build's passes (2): see emit() */
@@ -75,18 +92,28 @@ static int is_ws(unsigned char c) {
     return c == ' ' || (c >= '\t' && c <= '\r') || (c >= 0x1c && c <= 0x1f);
 }
 
+/* Takes the GIL back (if feed() let it go) before any call into Python. */
+static void hold(Scanner *s) {
+    s->needed = 1;
+    if (s->ts) {
+        PyThreadState *ts = s->ts;
+        s->ts = NULL;
+        PyEval_RestoreThread(ts);
+    }
+}
+
 static int push(Scanner *s, Record *r) {
     if (s->n == s->cap) {
         Py_ssize_t cap = s->cap ? s->cap * 2 : 4096;
-        Record *p = PyMem_Realloc(s->out, (size_t)cap * sizeof(Record));
-        if (!p) { PyErr_NoMemory(); return -1; }
+        Record *p = PyMem_RawRealloc(s->out, (size_t)cap * sizeof(Record));   /* (no GIL needed) */
+        if (!p) { hold(s); PyErr_NoMemory(); return -1; }
         s->out = p;
         s->cap = cap;
     }
     if (s->lean == 2) {
         if (s->ncap < s->cap) {
-            int64_t *p = PyMem_Realloc(s->nums, (size_t)s->cap * sizeof(int64_t));
-            if (!p) { PyErr_NoMemory(); return -1; }
+            int64_t *p = PyMem_RawRealloc(s->nums, (size_t)s->cap * sizeof(int64_t));  /* (no GIL) */
+            if (!p) { hold(s); PyErr_NoMemory(); return -1; }
             s->nums = p;
             s->ncap = s->cap;
         }
@@ -97,6 +124,7 @@ static int push(Scanner *s, Record *r) {
 }
 
 static int unsupported(Scanner *s) {
+    hold(s);
     PyObject *v = PyLong_FromLong(s->line_no);
     if (v) { PyErr_SetObject(ScanUnsupported, v); Py_DECREF(v); }
     return -1;
@@ -104,26 +132,44 @@ static int unsupported(Scanner *s) {
 
 /* Index of a role name (UTF-8), added to the list when new; sets s->outer. */
 static int set_role(Scanner *s, const char *name, Py_ssize_t len) {
-    Py_ssize_t n = PyList_GET_SIZE(s->roles);
-    for (Py_ssize_t i = 0; i < n; i++) {
-        Py_ssize_t l;
-        const char *t = PyUnicode_AsUTF8AndSize(PyList_GET_ITEM(s->roles, i), &l);
-        if (t && l == len && memcmp(t, name, (size_t)len) == 0) {
-            s->role = (int)i;
-            s->outer = PySet_Contains(s->outer_roles, PyList_GET_ITEM(s->roles, i)) == 1;
+    /* name is valid UTF-8 (ASCII, or from a str): the list's names are its own bytes */
+    int n = s->n_roles;
+    for (int i = 0; i < n; i++) {
+        if (s->role_len[i] == len && memcmp(s->role_name[i], name, (size_t)len) == 0) {
+            s->role = i;
+            s->outer = s->role_outer[i];
             return 0;
         }
     }
     if (n >= MAX_ROLES) return unsupported(s);
+    hold(s);
+    char *copy = PyMem_RawMalloc((size_t)len + 1);
+    if (!copy) { PyErr_NoMemory(); return -1; }
+    memcpy(copy, name, (size_t)len);
     PyObject *str = PyUnicode_DecodeUTF8(name, len, "replace");
-    if (!str) return -1;
+    if (!str) { PyMem_RawFree(copy); return -1; }
     int r = PyList_Append(s->roles, str);
     int o = PySet_Contains(s->outer_roles, str);
     Py_DECREF(str);
-    if (r < 0 || o < 0) return -1;
-    s->role = (int)n;
+    if (r < 0 || o < 0) { PyMem_RawFree(copy); return -1; }
+    s->role_name[n] = copy;
+    s->role_len[n] = len;
+    s->role_outer[n] = (unsigned char)(o == 1);
+    s->n_roles = n + 1;
+    s->role = n;
     s->outer = o;
     return 0;
+}
+
+static void free_roles(Scanner *s) {
+    for (int i = 0; i < s->n_roles; i++) PyMem_RawFree(s->role_name[i]);
+    s->n_roles = 0;
+    for (Py_ssize_t i = 0; i < s->n_s3d; i++) PyMem_RawFree(s->s3d_name[i]);
+    PyMem_RawFree(s->s3d_name);
+    PyMem_RawFree(s->s3d_len);
+    s->s3d_name = NULL;
+    s->s3d_len = NULL;
+    s->n_s3d = 0;
 }
 
 /* A whole-line comment, ASCII (gcode.feature_of_comment). */
@@ -137,12 +183,10 @@ static int comment_role(Scanner *s, const char *c, const char *end) {
         /* Simplify3D's bare tags are lower-case words: other slicers' comments (";LAYER_CHANGE",
          * ";Z:0.3", ";WIDTH:0.45" ...) need no lookup */
         if (len == 0 || len > 64 || c[0] < 'a' || c[0] > 'z') return 0;
-        PyObject *str = PyUnicode_DecodeASCII(c, len, "strict");
-        if (!str) return -1;
-        int k = PySet_Contains(s->s3d_roles, str);
-        Py_DECREF(str);
-        if (k < 0) return -1;
-        return k ? set_role(s, c, len) : 0;
+        for (Py_ssize_t i = 0; i < s->n_s3d; i++)     /* (the line is ASCII: bytes compare as str) */
+            if (s->s3d_len[i] == len && memcmp(s->s3d_name[i], c, (size_t)len) == 0)
+                return set_role(s, c, len);
+        return 0;
     }
     while (v < end && is_ws((unsigned char)*v)) v++;
     char buf[256];
@@ -157,6 +201,7 @@ static int comment_role(Scanner *s, const char *c, const char *end) {
 
 /* A line with bytes >= 0x80: a comment is classified by the Python side, a command refused. */
 static int foreign_line(Scanner *s, const char *p, const char *end) {
+    hold(s);
     PyObject *text = PyUnicode_DecodeUTF8(p, end - p, "replace");
     if (!text) return -1;
     PyObject *r = PyObject_CallOneArg(s->classify, text);
@@ -342,6 +387,7 @@ static int is_event(Scanner *s, const char *p, const char *end) {
 }
 
 static int py_hypot(Scanner *s, double a, double b, double *out) {
+    hold(s);
     PyObject *r = PyObject_CallFunction(s->hypot, "dd", a, b);
     if (!r) return -1;
     *out = PyFloat_AsDouble(r);
@@ -524,6 +570,12 @@ static PyObject *Scanner_feed(Scanner *s, PyObject *args) {
     int final = 0;
     long long base = 0;
     if (!PyArg_ParseTuple(args, "y*|pL", &buf, &final, &base)) return NULL;
+    if (s->busy) {
+        PyBuffer_Release(&buf);
+        PyErr_SetString(PyExc_RuntimeError, "Scanner.feed: the scanner is in use by another thread");
+        return NULL;
+    }
+    s->busy = 1;
     s->base_offset = base;
     const char *p = buf.buf, *end = p + buf.len;
     s->n = 0;
@@ -534,7 +586,18 @@ static PyObject *Scanner_feed(Scanner *s, PyObject *args) {
         s->pending_cr = 0;
     }
     const char *used = p;
+    /* the lines without the GIL; after a line that took it back (hold()), the next lines keep
+     * it a while: taking it again may wait for the thread running Python */
+    int since = 0;
+    s->needed = 0;
+    s->ts = PyEval_SaveThread();
     while (p < end) {
+        if (s->needed) {
+            s->needed = 0;
+            since = 0;
+        } else if (!s->ts && ++since >= 1024) {
+            s->ts = PyEval_SaveThread();
+        }
         const char *q = p;
         unsigned char high = 0;                /* the line's bytes or'ed: >= 0x80 if any is */
         /* eight bytes at a time while none is '\n', '\r' or >= 0x80 (the zero test has no
@@ -551,7 +614,12 @@ static PyObject *Scanner_feed(Scanner *s, PyObject *args) {
         while (q < end && *q != '\n' && *q != '\r') high |= (unsigned char)*q++;
         if (q == end && !final) break;
         s->line_no++;
-        if (do_line(s, p, q, high < 0x80) < 0) { PyBuffer_Release(&buf); return NULL; }
+        if (do_line(s, p, q, high < 0x80) < 0) {
+            hold(s);                           /* (held already: the error was set with it) */
+            s->busy = 0;
+            PyBuffer_Release(&buf);
+            return NULL;
+        }
         if (q < end) {
             if (*q == '\r') {
                 s->n_cr++;
@@ -564,6 +632,8 @@ static PyObject *Scanner_feed(Scanner *s, PyObject *args) {
         }
         p = used = q;
     }
+    hold(s);
+    s->busy = 0;
     if (final) used = end;
     PyObject *out = PyBytes_FromStringAndSize((const char *)s->out, s->n * (Py_ssize_t)sizeof(Record));
     Py_ssize_t n_used = used - (const char *)buf.buf;
@@ -580,6 +650,12 @@ static int Scanner_init(Scanner *s, PyObject *args, PyObject *kw) {
     if (!PyArg_ParseTupleAndKeywords(args, kw, "OOO|dpi", kwlist, &outer, &s3d, &classify, &chord,
                                      &events, &lean))
         return -1;
+    if (s->busy) {
+        PyErr_SetString(PyExc_RuntimeError, "Scanner: in use by another thread");
+        return -1;
+    }
+    free_roles(s);
+    s->ts = NULL;
     s->events = events;
     if (lean < 0 || lean > 2) { PyErr_SetString(PyExc_ValueError, "lean: 0, 1 or 2"); return -1; }
     s->lean = events ? 0 : lean;
@@ -607,7 +683,29 @@ static int Scanner_init(Scanner *s, PyObject *args, PyObject *kw) {
     Py_XSETREF(s->hypot, PyObject_GetAttrString(math, "hypot"));
     Py_DECREF(math);
     if (!s->roles || !s->outer_roles || !s->s3d_roles || !s->hypot) return -1;
-    return 0;
+    /* the Simplify3D tags as UTF-8 (comment_role compares bytes, without the GIL) */
+    Py_ssize_t n3 = PySet_GET_SIZE(s->s3d_roles), i = 0;
+    PyObject *key, *it = PyObject_GetIter(s->s3d_roles);
+    if (!it) return -1;
+    s->s3d_name = PyMem_RawCalloc((size_t)(n3 ? n3 : 1), sizeof(char *));
+    s->s3d_len = PyMem_RawCalloc((size_t)(n3 ? n3 : 1), sizeof(Py_ssize_t));
+    if (!s->s3d_name || !s->s3d_len) { Py_DECREF(it); PyErr_NoMemory(); return -1; }
+    while (i < n3 && (key = PyIter_Next(it)) != NULL) {
+        Py_ssize_t l;
+        /* (a name that is no str never equals a line's) */
+        const char *t = PyUnicode_Check(key) ? PyUnicode_AsUTF8AndSize(key, &l) : NULL;
+        char *copy = t ? PyMem_RawMalloc((size_t)l + 1) : NULL;
+        Py_DECREF(key);
+        if (t && !copy) PyErr_NoMemory();
+        if (PyErr_Occurred()) { Py_DECREF(it); return -1; }
+        if (!copy) continue;
+        memcpy(copy, t, (size_t)l);
+        s->s3d_name[i] = copy;
+        s->s3d_len[i++] = l;
+        s->n_s3d = i;
+    }
+    Py_DECREF(it);
+    return PyErr_Occurred() ? -1 : 0;
 }
 
 static void Scanner_dealloc(Scanner *s) {
@@ -616,8 +714,9 @@ static void Scanner_dealloc(Scanner *s) {
     Py_XDECREF(s->s3d_roles);
     Py_XDECREF(s->classify);
     Py_XDECREF(s->hypot);
-    PyMem_Free(s->out);
-    PyMem_Free(s->nums);
+    free_roles(s);
+    PyMem_RawFree(s->out);
+    PyMem_RawFree(s->nums);
     Py_TYPE(s)->tp_free((PyObject *)s);
 }
 
@@ -943,6 +1042,7 @@ static PyObject *move_classes(PyObject *self, PyObject *args) {
     const Record *r = buf.buf;              /* (numpy's records: aligned as this struct) */
     double top = 0, top_line = 0;
     int have = 0, have_line = 0;
+    Py_BEGIN_ALLOW_THREADS                  /* (the records are not Python's to change meanwhile) */
     for (Py_ssize_t i = 0; i < n; i++, r++) {
         Record m;
         memcpy(&m, r, sizeof m);
@@ -961,6 +1061,7 @@ static PyObject *move_classes(PyObject *self, PyObject *args) {
         if ((float)m.e > 0 && ((float)m.x0 != (float)m.x1 || (float)m.y0 != (float)m.y1)) k |= 32;
         c[i] = k;
     }
+    Py_END_ALLOW_THREADS
     PyBuffer_Release(&buf);
     PyObject *t = have ? PyFloat_FromDouble(top) : Py_NewRef(Py_None);
     PyObject *tl = have_line ? PyFloat_FromDouble(top_line) : Py_NewRef(Py_None);
@@ -978,6 +1079,7 @@ static PyObject *flag_lines(PyObject *self, PyObject *args) {
     if (!PyArg_ParseTuple(args, "y*", &buf)) return NULL;
     const char *p = buf.buf, *end = p + buf.len;
     long ours = 0, m92 = 0;
+    Py_BEGIN_ALLOW_THREADS
     while (p < end) {
         const char *q = p;
         while (q < end && *q != '\n' && *q != '\r') q++;
@@ -990,6 +1092,7 @@ static PyObject *flag_lines(PyObject *self, PyObject *args) {
         }
         p = q < end ? q + 1 : q;
     }
+    Py_END_ALLOW_THREADS
     PyBuffer_Release(&buf);
     return Py_BuildValue("(ll)", ours, m92);
 }
@@ -1018,6 +1121,6 @@ PyMODINIT_FUNC PyInit__scan(void) {
     PyModule_AddObject(m, "Scanner", (PyObject *)&ScannerType);
     PyModule_AddIntConstant(m, "RECORD_SIZE", (long)sizeof(Record));
     /* what gcode.SCAN_VERSION expects: a module built from an older _scan.c is not used */
-    PyModule_AddIntConstant(m, "VERSION", 7);
+    PyModule_AddIntConstant(m, "VERSION", 8);
     return m;
 }

@@ -70,6 +70,7 @@ count (G2/G3 are cut into pieces of at most 1 mm, as MAX_ARC_SEGMENT_MM).
 from __future__ import annotations
 
 import bisect
+import contextlib
 import functools
 import math
 import operator
@@ -1048,28 +1049,39 @@ def _estimate_scanned(path: str, m: Machine, source: str, blocks: bool = True) -
         r = buf.find(b"\r", i, j)
         return buf[i:j if r < 0 else r].decode("utf-8", "replace")
 
+    def parts(f):
+        """Each feed: the part fed (with its file offset), its records, the bytes used, and
+        the scanner's E and lines after it (read and scanned ahead on a thread: movescan._ahead)."""
+        base, buf = 0, b""
+        while True:
+            data = f.read(movescan.CHUNK_BYTES)
+            final = not data
+            buf = buf + data if buf else data
+            recs, used = sc.feed(buf, final, base)
+            yield buf, base, np.frombuffer(recs, dtype=movescan.RECORD), sc.e, sc.lines
+            base += used
+            buf = buf[used:]
+            if final:
+                return
+
+    lines = 0
     try:
-        with open(path, "rb") as f:
-            while True:
-                data = f.read(movescan.CHUNK_BYTES)
-                final = not data
-                buf = buf + data if buf else data
-                recs, used = sc.feed(buf, final, base)
-                a = np.frombuffer(recs, dtype=movescan.RECORD)
+        with open(path, "rb") as f, contextlib.ExitStack() as stack:
+            fed = parts(f)
+            if movescan._use_ahead(os.fstat(f.fileno()).st_size):
+                fed = movescan._ahead(fed)
+                stack.callback(fed.close)     # (the worker stopped before the file is closed)
+            for buf, base, a, e, lines in fed:
                 # the E the chunk ends at: the next record's start (every line that sets E, an
                 # event or a move, has a record, so none comes between)
-                _take(p, a, text_at, sc.e)
+                _take(p, a, text_at, e)
                 plan.feed(p)
-                _progress_tick(sc.lines)
-                base += used
-                buf = buf[used:]
-                if final:
-                    break
+                _progress_tick(lines)
     except movescan._scan.ScanUnsupported:
         raise movescan.Unsupported("the scanner refused a line") from None
     p.flush()
     plan.feed(p)
-    return _result(p, plan, sc.lines)
+    return _result(p, plan, lines)
 
 
 _EVENT = 16                                             # the scanner's flag for an event record

@@ -14,6 +14,9 @@ leaves to the Python parser (a command with non-ASCII bytes, a value or arc gcod
 consume is called again with the Python parser's chunks, which give the moves or the error
 message naming the file and line.
 
+On 2+ cores, files over AHEAD_BYTES are read and scanned one part ahead on a worker thread
+(_ahead) while consume works on the part before; BULGEKIT_SCAN_THREAD=0 turns that off.
+
 `bulgekit --version` says which scanner is in use.
 """
 from __future__ import annotations
@@ -21,7 +24,9 @@ from __future__ import annotations
 import contextlib
 import io
 import os
+import queue
 import tempfile
+import threading
 from typing import Callable, Iterator, TypeVar
 
 import numpy as np
@@ -52,6 +57,66 @@ CHUNK_BYTES = 2 << 20        # 2 MB of G-code: about 7 MB of records at a time
 T = TypeVar("T")
 
 
+def _cores() -> int:
+    try:
+        return len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        return os.cpu_count() or 1
+
+
+# Read and scan the next part of a file on a second thread while the passes work on this one
+# (_ahead): with 2+ cores and files of more than AHEAD_BYTES. BULGEKIT_SCAN_THREAD=0 turns it off.
+READ_AHEAD = os.environ.get("BULGEKIT_SCAN_THREAD", "1") != "0" and _cores() > 1
+AHEAD_BYTES = 2 * CHUNK_BYTES
+
+
+def _use_ahead(size: int) -> bool:
+    return READ_AHEAD and size > AHEAD_BYTES
+
+
+def _ahead(parts: Iterator[T]) -> Iterator[T]:
+    """The items of the generator parts, made on a worker thread one item ahead of the caller
+    (memory: the item taken, one queued and one being made). An exception in parts is raised
+    here when its turn comes; the worker stops when the caller stops (or drops) this iterator."""
+    q: queue.Queue = queue.Queue(maxsize=1)
+    stop = threading.Event()
+
+    def put(item) -> bool:
+        while not stop.is_set():
+            try:
+                q.put(item, timeout=0.05)
+                return True
+            except queue.Full:
+                pass
+        return False
+
+    def work():
+        try:
+            for item in parts:
+                if not put((True, item)):
+                    return
+            put((False, None))
+        except BaseException as e:         # the caller's to raise, in its thread
+            put((False, e))
+        finally:
+            parts.close()
+
+    t = threading.Thread(target=work, name="bulgekit-scan-ahead", daemon=True)
+    t.start()
+    try:
+        while True:
+            ok, item = q.get()
+            if ok:
+                yield item
+            elif item is None:
+                return
+            else:
+                raise item
+    finally:
+        stop.set()
+        t.join()
+
+
 class Unsupported(Exception):
     """The compiled scanner left the file to the Python parser, and the caller asked for the
     compiled one only (it needs the byte offsets)."""
@@ -79,6 +144,12 @@ class Chunks:
     def __iter__(self):
         return self._it
 
+    def close(self) -> None:
+        """Stops the reading (and its read-ahead thread) if consume did not read to the end."""
+        close = getattr(self._it, "close", None)
+        if close is not None:
+            close()
+
     @property
     def lines(self) -> int:
         return self._lines()
@@ -86,6 +157,14 @@ class Chunks:
     @property
     def flagged(self) -> int | None:
         return None if self._flagged is None else self._flagged()
+
+
+def _consume(consume: Callable[[Chunks], T], chunks: Chunks) -> T:
+    # closed here, not when the chunks are collected: an exception the caller keeps holds them
+    try:
+        return consume(chunks)
+    finally:
+        chunks.close()
 
 
 def z_cmm(z: np.ndarray) -> np.ndarray:
@@ -165,52 +244,66 @@ def _fast(path, lean: bool = False) -> Chunks:
     assert _scan is not None and _scan.RECORD_SIZE == RECORD.itemsize
     sc = _scan.Scanner(sorted(gcode.OUTER_ROLES), sorted(gcode._S3D_ROLES), _classify,
                        gcode.ARC_CHORD_MM, lean=lean)
-    roles: list[str] = sc.roles              # the scanner's own list, filled as it reads
+    # the role names, lines and flagged lines as of the part the caller has: the scanner (on the
+    # read-ahead thread, _ahead) may be a part further on
+    roles: list[str] = []
     tops: list | None = [] if lean else None
+    seen = [0, 0]                             # lines, flagged
 
     def part(data, final: bool, base: int):
-        """One feed of the scanner: its records (None: none) and the bytes it used."""
+        """One feed of the scanner: its records (None: none), the bytes it used and the
+        scanner's counts after it."""
         recs, used = sc.feed(data, final, base)
-        if lean:
-            tops.append(sc.top)
-        return (np.frombuffer(recs, dtype=RECORD) if recs else None), used   # read-only, not copied
+        a = np.frombuffer(recs, dtype=RECORD) if recs else None   # read-only, not copied
+        return a, used, (sc.lines, sc.flagged, len(sc.roles), sc.top if lean else None)
 
-    def gen_bytes():
+    def parts_bytes():
         # G-code in memory: windows of it, not copies (a line longer than a window widens it)
         view = memoryview(path)
         base, size = 0, CHUNK_BYTES
         while True:
             stop = min(base + size, len(view))
             final = stop == len(view)
-            a, used = part(view[base:stop], final, base)
-            if a is not None:
-                yield a
-            progress.tick(sc.lines)
+            a, used, counts = part(view[base:stop], final, base)
+            yield a, counts
             base += used
             if final:
                 return
             size = CHUNK_BYTES if used else 2 * size
 
-    def gen():
-        if isinstance(path, (bytes, bytearray)):
-            yield from gen_bytes()
-            return
+    def parts_file(f):
         base = 0                              # file offset of buf[0]
         buf = b""
-        with open(path, "rb") as f:
-            while True:
-                data = f.read(CHUNK_BYTES)
-                final = not data
-                buf = buf + data if buf else data
-                a, used = part(buf, final, base)
+        while True:
+            data = f.read(CHUNK_BYTES)
+            final = not data
+            buf = buf + data if buf else data
+            a, used, counts = part(buf, final, base)
+            yield a, counts
+            base += used
+            buf = buf[used:]
+            if final:
+                return
+
+    def gen():
+        with contextlib.ExitStack() as stack:
+            if isinstance(path, (bytes, bytearray)):
+                size, parts = len(path), parts_bytes()
+            else:
+                f = stack.enter_context(open(path, "rb"))
+                size, parts = os.fstat(f.fileno()).st_size, parts_file(f)
+            if _use_ahead(size):
+                parts = _ahead(parts)
+                stack.callback(parts.close)   # (the worker stopped before the file is closed)
+            for a, (lines, flagged, n_roles, top) in parts:
+                seen[:] = lines, flagged
+                roles.extend(sc.roles[len(roles):n_roles])
+                if lean:
+                    tops.append(top)
                 if a is not None:
                     yield a
-                progress.tick(sc.lines)
-                base += used
-                buf = buf[used:]
-                if final:
-                    return
-    return Chunks(gen(), roles, lambda: sc.lines, lambda: sc.flagged, tops)
+                progress.tick(lines)
+    return Chunks(gen(), roles, lambda: seen[0], lambda: seen[1], tops)
 
 
 def from_moves(moves, roles: list[str] | None = None,
@@ -329,12 +422,49 @@ class Scan:
         n_cr = n_crlf = nl = 0
         plain = True
         last = b""
-        with open(self.path, "rb") as f:
-            size = os.fstat(f.fileno()).st_size
-            base, buf, first = 0, b"", True
+
+        def parts(f):
+            """Each part read: its new bytes, whether it is the last, the part with the bytes
+            left from the one before, the bytes used and the scanner's take on it: None (no
+            scanner), False (it left the file to the Python parser), else (records, whether a
+            line may be flagged, the line ends consumed, lines so far, and lean: the records'
+            move numbers and the part's top). Read and scanned ahead on a thread (_ahead) for
+            large files."""
+            live = sc
+            base, buf = 0, b""
             while True:
                 data = f.read(CHUNK_BYTES)
                 final = not data
+                buf = buf + data if buf else data
+                used = len(buf)
+                fed = None
+                if live is not None:
+                    flagged, ends0 = live.flagged, live.line_ends
+                    try:
+                        recs, used = live.feed(buf, final, base)
+                    except _scan.ScanUnsupported:
+                        live, fed = None, False
+                    else:
+                        # (a line with a byte >= 0x80 is flagged too: an unflagged part is ASCII)
+                        fed = (recs, live.flagged != flagged,
+                               [b - a for a, b in zip(ends0, live.line_ends)], live.lines,
+                               live.numbers, live.top)
+                if live is None and not final:         # checks only: whole lines still
+                    used = buf.rfind(b"\n") + 1
+                yield data, final, buf, used, fed
+                base += used
+                buf = buf[used:]
+                if final:
+                    return
+
+        with open(self.path, "rb") as f, contextlib.ExitStack() as stack:
+            size = os.fstat(f.fileno()).st_size
+            first = True
+            read = parts(f)
+            if _use_ahead(size):
+                read = _ahead(read)
+                stack.callback(read.close)     # (the worker stopped before the file is closed)
+            for data, final, buf, used, fed in read:
                 if first:
                     gcode.check_text(data[:65537] if size > 65536 else data, self.source)
                     head = b""
@@ -342,29 +472,19 @@ class Scan:
                     first = False
                 if len(head) < ENDS:
                     head += data[:ENDS - len(head)]
-                buf = buf + data if buf else data
-                used = len(buf)
                 look = True                            # whether the part may hold what the regexes find
                 ends = None                            # the part's line ends, counted by the scanner
-                if sc is not None:
-                    flagged, ends0 = sc.flagged, sc.line_ends
-                    try:
-                        recs, used = sc.feed(buf, final, base)
-                        # (a line with a byte >= 0x80 is flagged too: an unflagged part is ASCII)
-                        look = sc.flagged != flagged
-                    except _scan.ScanUnsupported:
-                        sc, self.fast = None, False        # the Python parser does it below
-                    else:
-                        ends = [b - a for a, b in zip(ends0, sc.line_ends)]
-                        if self.lean:
-                            self._keep(recs, sc.numbers)
-                            self.tops.append(sc.top)
-                        elif recs:
-                            self._store.write(recs)
-                        self.chunks.append((len(recs) // RECORD.itemsize, sc.lines))
-                        progress.tick(sc.lines)
-                if sc is None and not final:           # checks only: whole lines still
-                    used = buf.rfind(b"\n") + 1
+                if fed is False:
+                    sc, self.fast = None, False        # the Python parser does it below
+                elif fed is not None:
+                    recs, look, ends, lines, nums, top = fed
+                    if self.lean:
+                        self._keep(recs, nums)
+                        self.tops.append(top)
+                    elif recs:
+                        self._store.write(recs)
+                    self.chunks.append((len(recs) // RECORD.itemsize, lines))
+                    progress.tick(lines)
                 part = buf[:used] if look or ends is None else None
                 # the checks, on whole lines (a \r\n cut between two parts counted once)
                 # (a part after a lone \r does not start a line for the regexes' ^, as in one piece)
@@ -391,10 +511,7 @@ class Scan:
                 nl += d_nl
                 if used:
                     last = buf[used - 1:used]
-                base += used
-                buf = buf[used:]
-                if final:
-                    break
+            read.close()                               # (done reading: the tail is read below)
             tail = whole[-ENDS:] if whole is not None else b""
             if whole is None:
                 f.seek(max(0, size - ENDS))
@@ -523,8 +640,8 @@ def run(path, consume: Callable[[Chunks], T], source: str | None = None,
             raise Unsupported("bulgekit.gcode._scan is not built")
     if use:
         try:
-            return consume(_fast(path, lean))
+            return _consume(consume, _fast(path, lean))
         except _scan.ScanUnsupported as e:
             if fast:
                 raise Unsupported(f"line {e.args[0]}") from None
-    return consume(_slow(path, source))
+    return _consume(consume, _slow(path, source))
