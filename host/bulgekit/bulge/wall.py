@@ -254,13 +254,6 @@ class _Chain:
         return np.concatenate([e[self.r0:self.r0 + 1, 0:2], e[self.r0:self.r1, 2:4]])
 
 
-def _closed(c: _Chain, gap: float) -> bool:
-    e = c._pts
-    x0, y0 = e[c.r0, 0], e[c.r0, 1]
-    x1, y1 = e[c.r1 - 1, 2], e[c.r1 - 1, 3]
-    return math.hypot(x1 - x0, y1 - y0) <= gap
-
-
 def extract_walls(moves: Iterable[Move], layer_height: float | None = None,
                   geometric: bool = False, ref_angle_deg: float = -90.0,
                   source: str = "<gcode>", header_height: float | None = None

@@ -125,7 +125,7 @@ def test_ray_hits_of_many_walls_are_each_walls_own():
 def test_walls_computed_together_are_each_walls_own(data_dir, name, geometric):
     """The arc lengths, areas (ccw) and centroids that walls_from_records computes for all walls
     at once are, to the bit, what one wall's own arrays give (_area_centroid, cumsum of hypot),
-    and closed is _closed's answer."""
+    and closed is whether its last vertex lies within max(2 mm, 3 layers) of its first."""
     from bulgekit.bulge.wall import _area_centroid
     m = walls_from_gcode(data_dir / name, geometric=geometric)
     assert len(m.walls) > 10
