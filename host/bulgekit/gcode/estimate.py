@@ -1049,25 +1049,17 @@ def _estimate_scanned(path: str, m: Machine, source: str, blocks: bool = True) -
         r = buf.find(b"\r", i, j)
         return buf[i:j if r < 0 else r].decode("utf-8", "replace")
 
-    def parts(f):
-        """Each feed: the part fed (with its file offset), its records, the bytes used, and
-        the scanner's E and lines after it (read and scanned ahead on a thread: movescan._ahead)."""
-        base, buf = 0, b""
-        while True:
-            data = f.read(movescan.CHUNK_BYTES)
-            final = not data
-            buf = buf + data if buf else data
-            recs, used = sc.feed(buf, final, base)
-            yield buf, base, np.frombuffer(recs, dtype=movescan.RECORD), sc.e, sc.lines
-            base += used
-            buf = buf[used:]
-            if final:
-                return
+    def feed(data, part, final, at):
+        """One feed (movescan._file_parts): the part fed (with its file offset), its records,
+        and the scanner's E and lines after it (read and scanned ahead on a thread:
+        movescan._ahead); and the bytes used."""
+        recs, used = sc.feed(part, final, at)
+        return (part, at, np.frombuffer(recs, dtype=movescan.RECORD), sc.e, sc.lines), used
 
     lines = 0
     try:
         with open(path, "rb") as f, contextlib.ExitStack() as stack:
-            fed = parts(f)
+            fed = movescan._file_parts(f, feed)
             if movescan._use_ahead(os.fstat(f.fileno()).st_size):
                 fed = movescan._ahead(fed)
                 stack.callback(fed.close)     # (the worker stopped before the file is closed)

@@ -117,6 +117,24 @@ def _ahead(parts: Iterator[T]) -> Iterator[T]:
         t.join()
 
 
+def _file_parts(f, feed: Callable) -> Iterator:
+    """The open binary file f read CHUNK_BYTES at a time, each read after the bytes the feed
+    before left unused (a line cut by the read): feed(data, part, final, base) gets the bytes
+    read, the part (unused bytes, then data), whether it is the last and the part's file offset,
+    and returns (item, bytes of the part used). Yields the items."""
+    base, buf = 0, b""
+    while True:
+        data = f.read(CHUNK_BYTES)
+        final = not data
+        buf = buf + data if buf else data
+        item, used = feed(data, buf, final, base)
+        yield item
+        base += used
+        buf = buf[used:]
+        if final:
+            return
+
+
 class Unsupported(Exception):
     """The compiled scanner left the file to the Python parser, and the caller asked for the
     compiled one only (it needs the byte offsets)."""
@@ -251,11 +269,11 @@ def _fast(path, lean: bool = False) -> Chunks:
     seen = [0, 0]                             # lines, flagged
 
     def part(data, final: bool, base: int):
-        """One feed of the scanner: its records (None: none), the bytes it used and the
-        scanner's counts after it."""
+        """One feed of the scanner: (its records (None: none), the scanner's counts after it),
+        and the bytes it used."""
         recs, used = sc.feed(data, final, base)
         a = np.frombuffer(recs, dtype=RECORD) if recs else None   # read-only, not copied
-        return a, used, (sc.lines, sc.flagged, len(sc.roles), sc.top if lean else None)
+        return (a, (sc.lines, sc.flagged, len(sc.roles), sc.top if lean else None)), used
 
     def parts_bytes():
         # G-code in memory: windows of it, not copies (a line longer than a window widens it)
@@ -264,26 +282,12 @@ def _fast(path, lean: bool = False) -> Chunks:
         while True:
             stop = min(base + size, len(view))
             final = stop == len(view)
-            a, used, counts = part(view[base:stop], final, base)
-            yield a, counts
+            item, used = part(view[base:stop], final, base)
+            yield item
             base += used
             if final:
                 return
             size = CHUNK_BYTES if used else 2 * size
-
-    def parts_file(f):
-        base = 0                              # file offset of buf[0]
-        buf = b""
-        while True:
-            data = f.read(CHUNK_BYTES)
-            final = not data
-            buf = buf + data if buf else data
-            a, used, counts = part(buf, final, base)
-            yield a, counts
-            base += used
-            buf = buf[used:]
-            if final:
-                return
 
     def gen():
         with contextlib.ExitStack() as stack:
@@ -291,7 +295,8 @@ def _fast(path, lean: bool = False) -> Chunks:
                 size, parts = len(path), parts_bytes()
             else:
                 f = stack.enter_context(open(path, "rb"))
-                size, parts = os.fstat(f.fileno()).st_size, parts_file(f)
+                size = os.fstat(f.fileno()).st_size
+                parts = _file_parts(f, lambda data, buf, final, base: part(buf, final, base))
             if _use_ahead(size):
                 parts = _ahead(parts)
                 stack.callback(parts.close)   # (the worker stopped before the file is closed)
@@ -423,44 +428,37 @@ class Scan:
         plain = True
         last = b""
 
-        def parts(f):
-            """Each part read: its new bytes, whether it is the last, the part with the bytes
-            left from the one before, the bytes used and the scanner's take on it: None (no
-            scanner), False (it left the file to the Python parser), else (records, whether a
-            line may be flagged, the line ends consumed, lines so far, and lean: the records'
-            move numbers and the part's top). Read and scanned ahead on a thread (_ahead) for
-            large files."""
-            live = sc
-            base, buf = 0, b""
-            while True:
-                data = f.read(CHUNK_BYTES)
-                final = not data
-                buf = buf + data if buf else data
-                used = len(buf)
-                fed = None
-                if live is not None:
-                    flagged, ends0 = live.flagged, live.line_ends
-                    try:
-                        recs, used = live.feed(buf, final, base)
-                    except _scan.ScanUnsupported:
-                        live, fed = None, False
-                    else:
-                        # (a line with a byte >= 0x80 is flagged too: an unflagged part is ASCII)
-                        fed = (recs, live.flagged != flagged,
-                               [b - a for a, b in zip(ends0, live.line_ends)], live.lines,
-                               live.numbers, live.top)
-                if live is None and not final:         # checks only: whole lines still
-                    used = buf.rfind(b"\n") + 1
-                yield data, final, buf, used, fed
-                base += used
-                buf = buf[used:]
-                if final:
-                    return
+        live = sc                              # the scanner as the reading goes (_ahead's thread)
+
+        def feed(data, buf, final, base):
+            """One part read (_file_parts): its new bytes, whether it is the last, the part with
+            the bytes left from the one before, the bytes used and the scanner's take on it:
+            None (no scanner), False (it left the file to the Python parser), else (records,
+            whether a line may be flagged, the line ends consumed, lines so far, and lean: the
+            records' move numbers and the part's top). Read and scanned ahead on a thread
+            (_ahead) for large files."""
+            nonlocal live
+            used = len(buf)
+            fed = None
+            if live is not None:
+                flagged, ends0 = live.flagged, live.line_ends
+                try:
+                    recs, used = live.feed(buf, final, base)
+                except _scan.ScanUnsupported:
+                    live, fed = None, False
+                else:
+                    # (a line with a byte >= 0x80 is flagged too: an unflagged part is ASCII)
+                    fed = (recs, live.flagged != flagged,
+                           [b - a for a, b in zip(ends0, live.line_ends)], live.lines,
+                           live.numbers, live.top)
+            if live is None and not final:             # checks only: whole lines still
+                used = buf.rfind(b"\n") + 1
+            return (data, final, buf, used, fed), used
 
         with open(self.path, "rb") as f, contextlib.ExitStack() as stack:
             size = os.fstat(f.fileno()).st_size
             first = True
-            read = parts(f)
+            read = _file_parts(f, feed)
             if _use_ahead(size):
                 read = _ahead(read)
                 stack.callback(read.close)     # (the worker stopped before the file is closed)
