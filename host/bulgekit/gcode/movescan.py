@@ -625,7 +625,7 @@ def run(path, consume: Callable[[Chunks], T], source: str | None = None,
     one only (Unsupported when it leaves the file to the Python parser). A file a Scan in force
     has read is not read again (fast=False still reads it with the Python parser). lean: the
     compiled scanner gives only the records annotate's lazy reach check plans (Chunks.tops);
-    the kept Scan and the Python parser give them all."""
+    the Python parser gives them all, a kept Scan those it holds (Scan's lean)."""
     sc = kept(path)
     if sc is not None and fast is not False:
         return sc.run(consume, fast)
