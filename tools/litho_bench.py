@@ -225,12 +225,9 @@ def _ideal_by_feature(r) -> dict:
 
 
 def _mid_rate(gcode: Path) -> float:
-    import re
-    head = gcode.read_text()[:6000]
-    opts = dict(re.findall(r"^; (\w+) = (.+)$", head, re.M))
-    q = float(opts["wall_speed"]) * float(opts["line_width"]) * float(opts["layer_height"]) \
-        if opts["paper_rate"] == "true" else float(opts["infill_flow"])
-    return q / FIL_AREA
+    """Our file's mid-line rate, mm/s of filament, from its options block (the first lines)."""
+    from litho_rate import mid_rate
+    return mid_rate(gcode.read_text()[:6000])
 
 
 def body_job(image: Path, shape: str, d: Path, kind: str = "drawn sample", photo: bool = False,

@@ -6,12 +6,12 @@ the trapezoids (docs/lithophane.md, "Extruder rate on the mid-line, verified").
     python3 tools/litho_rate_ends.py out/band.litho.gcode [--end-mm 3] [--rate 3.326]
 
 The machine is the file's own (M204 etc., `--honour-file-limits`), 16-block look-ahead; the set
-rate defaults to the M723 Q of the defaults (8 mm^3/s) over a 1.75 mm filament.
+rate defaults to the file's own mid-line rate (its options block, as tools/litho_rate.py reads it:
+8 mm^3/s at the defaults, less with --accel below 3000).
 """
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 from pathlib import Path
 
@@ -20,6 +20,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "host"))
 
 from bulgekit.gcode import estimate as es  # noqa: E402
+from litho_rate import mid_rate  # noqa: E402
 
 
 def split(path: str, end_mm: float, rate: float) -> tuple[list, int]:
@@ -53,10 +54,12 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("gcode", nargs="+")
     ap.add_argument("--end-mm", type=float, default=3.0, help="how far from a stretch's end counts as its end")
-    ap.add_argument("--rate", type=float, default=8.0 / (math.pi * 1.75 ** 2 / 4), help="set rate, mm/s of filament")
+    ap.add_argument("--rate", type=float, default=None,
+                    help="set rate, mm/s of filament (default: the file's own mid-line rate)")
     a = ap.parse_args(argv)
     for path in a.gcode:
-        parts, n = split(path, a.end_mm, a.rate)
+        rate = a.rate if a.rate is not None else mid_rate(Path(path).read_text(errors="replace"))
+        parts, n = split(path, a.end_mm, rate)
         print(f"{path}: {n} mid-line stretches after the first layer")
         for part, sec, share, inside in parts:
             print(f"  {part}: {sec:.2f} s ({100 * share:.1f} % of the mid-line), {100 * inside:.1f} % within +-5 %")
