@@ -384,7 +384,8 @@ def walls_from_records(chunks: Iterable[np.ndarray], layer_height: float | None 
     stops = np.flatnonzero(real & np.concatenate([~real[1:] | start[1:], [True]])) + 1
     chains = [_Chain(int(bucket[r0]), int(r0), int(r1), ends) for r0, r1 in zip(starts, stops)]
     gap = max(2.0, 3 * h)
-    # _closed of every chain, on Python floats (the same numbers): no numpy scalar per chain
+    # whether each chain is closed (its end within gap of its start), on Python floats: no numpy
+    # scalar per chain
     shut = {}
     if len(starts):
         for c, x0, y0, x1, y1 in zip(chains, ends[starts, 0].tolist(), ends[starts, 1].tolist(),
