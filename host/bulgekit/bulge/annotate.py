@@ -83,16 +83,15 @@ def _feature_comments(data: bytes):
 
 def _feature_marks(data: bytes) -> list[tuple[int, bool]]:
     """(end of line offset, whether its role is an outer wall) of every whole-line feature
-    comment with a role (_feature_comments), each distinct comment classified once."""
-    sc = _scanner()
-    if sc is None:
-        return [(end, is_outer(role)) for end, role in _feature_comments_rx(data)]
-    lines = sc.feature_lines(data)
-    outer_of: dict[bytes, bool | None] = {}
-    for comment in {c for _, c in lines}:        # a file repeats a few comments thousands of times
-        role = feature_of_comment(comment.decode("utf-8", "replace"))
-        outer_of[comment] = None if role is None else is_outer(role)
-    return [(end, o) for end, c in lines for o in (outer_of[c],) if o is not None]
+    comment with a role (_feature_comments), each role asked once."""
+    outer_of: dict[str, bool] = {}
+    marks = []
+    for end, role in _feature_comments(data):
+        o = outer_of.get(role)
+        if o is None:
+            o = outer_of[role] = is_outer(role)
+        marks.append((end, o))
+    return marks
 
 
 def _feature_comments_rx(data: bytes):
