@@ -109,9 +109,10 @@ def build(gcode, strokes: Sequence[Stroke], outdir, *, name: str | None = None,
           ref_angle_deg: float = -90.0, settings: Settings | None = None,
           stream: bool = True, arena: int = _annotate.ARENA_BYTES,
           write_fallback: bool = False, quantum_um: int = mapbuild.MAP_QUANTUM_UM,
-          stops: _fallback.StockStops = _fallback.StockStops()) -> BuildOutput:
+          stops: _fallback.StockStops = _fallback.StockStops(), _on_map=None) -> BuildOutput:
     """Strokes + sliced G-code -> <name>.bkm, <name>.bulge.gcode, <name>.stats.txt
-    (and <name>.stock.gcode with write_fallback) in outdir."""
+    (and <name>.stock.gcode with write_fallback) in outdir. _on_map(result): called with the
+    map as soon as it is placed (the CLI starts the preview's drawing there)."""
     gcode = Path(gcode)
     from ..gcode import movescan
     # checked once and scanned once: every pass below works from this scan's move records, in
@@ -120,11 +121,13 @@ def build(gcode, strokes: Sequence[Stroke], outdir, *, name: str | None = None,
               MODE_GEOMETRIC if geometric else MODE_MARKED) == MODE_MARKED
     with movescan.Scan(gcode, str(gcode), lean=marked).kept():
         return _build(gcode, strokes, outdir, name, geometric, spacing, line_width, layer_height,
-                      ref_angle_deg, settings, stream, arena, write_fallback, quantum_um, stops)
+                      ref_angle_deg, settings, stream, arena, write_fallback, quantum_um, stops,
+                      _on_map)
 
 
 def _build(gcode: Path, strokes, outdir, name, geometric, spacing, line_width, layer_height,
-           ref_angle_deg, settings, stream, arena, write_fallback, quantum_um, stops) -> BuildOutput:
+           ref_angle_deg, settings, stream, arena, write_fallback, quantum_um, stops,
+           on_map) -> BuildOutput:
     outdir = Path(outdir)
     name = name or gcode.stem
     if settings is None:
@@ -140,6 +143,8 @@ def _build(gcode: Path, strokes, outdir, name, geometric, spacing, line_width, l
         raise mapbuild.BuildError(
             f"the map ({len(res.map_bytes)} bytes) exceeds the printer's {arena}-byte arena; "
             f"layers {over} mm do not fit. Allow streaming (drop --no-stream) or use fewer points.")
+    if on_map is not None:
+        on_map(res)
     map_path = outdir / f"{name}.bkm"
     gpath = outdir / f"{name}.bulge.gcode"
     fpath = outdir / f"{name}.stock.gcode" if write_fallback else None

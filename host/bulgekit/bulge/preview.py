@@ -7,6 +7,7 @@ excess) does.
 """
 from __future__ import annotations
 
+import io
 import math
 import os
 from typing import Sequence
@@ -27,6 +28,14 @@ def _figure(**kw):
     fig = Figure(**kw)
     FigureCanvasAgg(fig)
     return fig
+
+
+def warm() -> None:
+    """Import what drawing the unrolled preview takes (matplotlib: about 0.4 s here), ahead of
+    the drawing, as `bulgekit build`'s forked preview child does while the build reads the file."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg  # noqa: F401
+    from matplotlib.figure import Figure  # noqa: F401
+    from matplotlib.patches import Rectangle  # noqa: F401
 
 
 def _points_array(points, cols: int, what: str) -> np.ndarray:
@@ -191,16 +200,38 @@ def preview_3d(wall_paths: Sequence, bumps, path, *, title: str | None = None, e
             "layers_with_bumps": with_bumps}
 
 
-def build_unrolled(out, path):
-    """The unrolled-wall preview of an api.build() result (what `bulgekit build` writes)."""
-    pts = out.result.points
-    model = out.result.model
+def unrolled_job(result, gcode_name: str) -> tuple[tuple, dict]:
+    """preview_unrolled's arguments but the path for a mapbuild.BuildResult placed on the
+    G-code gcode_name (the annotated file's name, for the title)."""
+    model = result.model
     length = max(w.length for w in model.walls)
     lo, hi = model.v_range
-    rows = [(p.u, p.z - model.walls[p.layer].height / 2, p.weight) for p in pts]
-    preview_unrolled(rows, length, hi, path,
-                     title=f"{out.gcode_path.name}: bulges on the unrolled outer wall",
-                     layer_height=model.layer_height)
+    rows = [(p.u, p.z - model.walls[p.layer].height / 2, p.weight) for p in result.points]
+    return (rows, length, hi), dict(title=f"{gcode_name}: bulges on the unrolled outer wall",
+                                    layer_height=model.layer_height)
+
+
+def unrolled_png(rows, wall_length: float, height: float, **kw) -> bytes:
+    """preview_unrolled's PNG as bytes (the bytes it writes to a file)."""
+    buf = io.BytesIO()
+    preview_unrolled(rows, wall_length, height, buf, **kw)
+    return buf.getvalue()
+
+
+def build_unrolled(out, path, drawn=None):
+    """The unrolled-wall preview of an api.build() result (what `bulgekit build` writes).
+    drawn: a parallel.Forked given unrolled_png's job on unrolled_job(out.result, ...)'s
+    arguments while the build ran; its PNG is written (the same bytes as drawn here)."""
+    if drawn is None:
+        args, kw = unrolled_job(out.result, out.gcode_path.name)
+        preview_unrolled(*args, path, **kw)
+        return path
+    png = drawn.result()
+    try:
+        with open(path, "wb") as f:
+            f.write(png)
+    except OSError as e:
+        raise InputError(f"{os.fspath(path)}: cannot write preview: {e.strerror or e}") from None
     return path
 
 
@@ -213,6 +244,9 @@ def build_3d(out, path):
 
 
 def _save(fig, path):
+    if isinstance(path, io.BytesIO):
+        fig.savefig(path, format="png")
+        return
     path = os.fspath(path)
     try:
         fig.savefig(path)
