@@ -12,7 +12,8 @@ A fork is safe only while this process runs one thread (a lock another thread ho
 locked in the child), so it is made only then, on Linux (macOS's system libraries are not
 fork-safe), with two cores or more and without BULGEKIT_FORK=0. Otherwise, and when a child
 ends without a result (killed), the job runs in this process when result() is called: the same
-result, later. The child hears no Ctrl-C: this process's close() (in a finally) ends it.
+result, later. The child hears no Ctrl-C: this process's close() (in a finally) ends it. A job
+here should not report progress (bulgekit.progress): the child's lines would cross this one's.
 """
 from __future__ import annotations
 
@@ -38,7 +39,8 @@ class Forked:
     def __init__(self, fn: Callable[[], Any] | None, warm: Callable[[], None] | None = None):
         self._fn = fn                          # the job (None: given later, by give())
         self._given: Any = _NO_JOB             # (fn, args, kwargs) given to a waiting child
-        self._pid = 0
+        self._pid = 0                          # the child's, until it is reaped
+        self.forked = False                    # whether the job went to a child
         self._done = False
         self._value: Any = None
         self._error: BaseException | None = None
@@ -54,6 +56,7 @@ class Forked:
         if pid == 0:                           # the child: never returns
             self._serve(fn, warm, to_child, from_child)
         self._pid = pid
+        self.forked = True
         os.close(from_child[1])
         self._from = from_child[0]
         if to_child is not None:
@@ -69,10 +72,6 @@ class Forked:
     def running(cls, fn: Callable[[], Any]) -> Forked:
         """A child forked now that runs fn() (the closure is the child's copy: not pickled)."""
         return cls(fn)
-
-    @property
-    def forked(self) -> bool:
-        return self._pid != 0
 
     def give(self, fn: Callable, *args, **kwargs) -> None:
         """The job of a waiting child: fn(*args, **kwargs), all picklable (fn at module level)."""
@@ -167,9 +166,6 @@ class Forked:
         code = 0
         try:
             signal.signal(signal.SIGINT, signal.SIG_IGN)   # Ctrl-C is the parent's to handle
-            from . import progress
-            progress.disable()
-            progress.listen(None)
             os.close(from_child[0])
             if to_child is not None:
                 os.close(to_child[1])
