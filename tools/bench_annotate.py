@@ -71,12 +71,14 @@ def make_map(z_top: float) -> bytes:
     return mapformat.encode_map([(z, [(x, y)]) for z in zs], layer_height_mm=0.3)
 
 
-def bench_setup(doc: str):
-    """The benchmarks' command line (--mb, --keep) and their working folder: --keep's, or a
-    temporary one that goes when the run ends."""
+def bench_setup(doc: str, more=None):
+    """The benchmarks' command line (--mb, --keep; more(parser) adds a benchmark's own) and
+    their working folder: --keep's, or a temporary one that goes when the run ends."""
     ap = argparse.ArgumentParser(description=doc.splitlines()[0])
     ap.add_argument("--mb", type=float, default=100.0, help="input size in MB (default 100)")
     ap.add_argument("--keep", type=Path, help="write the input and outputs here instead of a temp dir")
+    if more is not None:
+        more(ap)
     a = ap.parse_args()
 
     @contextlib.contextmanager
