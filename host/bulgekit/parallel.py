@@ -1,4 +1,5 @@
-"""One job run beside the main work on a second core: `build`'s preview and stock fallback.
+"""One job run beside the main work on a second core: `build`'s preview, and its stock
+fallback and statistics.
 
 The job runs in a child process forked from this one, so it sees all this process holds (the
 kept scan, the map) without a copy, and sends back only its result, pickled. Two ways in:
@@ -12,8 +13,8 @@ A fork is safe only while this process runs one thread (a lock another thread ho
 locked in the child), so it is made only then, on Linux (macOS's system libraries are not
 fork-safe), with two cores or more and without BULGEKIT_FORK=0. Otherwise, and when a child
 ends without a result (killed), the job runs in this process when result() is called: the same
-result, later. The child hears no Ctrl-C: this process's close() (in a finally) ends it. A job
-here should not report progress (bulgekit.progress): the child's lines would cross this one's.
+result, later. The child hears no Ctrl-C: this process's close() (in a finally) ends it, and
+shows no progress (bulgekit.progress): its lines would cross this process's.
 """
 from __future__ import annotations
 
@@ -166,6 +167,10 @@ class Forked:
         code = 0
         try:
             signal.signal(signal.SIGINT, signal.SIG_IGN)   # Ctrl-C is the parent's to handle
+            # no progress lines from here: they would cross the parent's on its terminal
+            from . import progress
+            progress.disable()
+            progress.listen(None)
             os.close(from_child[0])
             if to_child is not None:
                 os.close(to_child[1])

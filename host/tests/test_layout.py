@@ -17,6 +17,7 @@ SIDEWAYS = {
     ("litho", "bulge"): "the calibration plate's labels are drawn with the stroke fonts "
                         "(bulge.strokes.text_strokes)",
     ("cli", "studio"): "`bulgekit studio` starts the studio's server",
+    ("parallel", "progress"): "a forked child shows no progress: its lines would cross its parent's",
     ("studio", "cli"): "printing from the studio checks the printer's arena as `bulgekit send` does "
                        "(cli.io.annotated_arena, check_printer_arena)",
 }

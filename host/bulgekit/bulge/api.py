@@ -19,7 +19,7 @@ from typing import Sequence
 from . import annotate as _annotate
 from . import fallback as _fallback
 from . import mapbuild, mapformat, stats as _stats, wall
-from .. import progress
+from .. import parallel, progress
 from .fallback import MODE_GEOMETRIC, MODE_MARKED, Settings
 from ..errors import BulgekitError, InputError
 from .strokes import Stroke
@@ -158,18 +158,30 @@ def _build(gcode: Path, strokes, outdir, name, geometric, spacing, line_width, l
         map_path.write_bytes(res.map_bytes)
         # the map was placed on this file's walls; points it still misses are
         # listed by the stats below (one planner run instead of three)
-        ann = annotate_gcode(gcode, res.map_bytes, gpath, settings, stream=stream, arena=arena,
-                             check=False)
-        stock = None
-        timers: list[_stats.StopTimer] = []
-        if fpath is not None:
-            # the statistics count on the stock file's planner run: the planner runs once
-            def on_plan(planner):
-                timers.append(_stats.StopTimer(planner))
-                return timers[-1]
-            stock = fallback_gcode(gcode, res.map_bytes, fpath, settings, allow_unreached=True,
-                                   stops=stops, _on_plan=on_plan).stock
-        st = bulge_stats(res.map_bytes, settings, gcode, arena, timers[-1] if timers else None)
+        def stock_and_stats():
+            stock = None
+            timers: list[_stats.StopTimer] = []
+            if fpath is not None:
+                # the statistics count on the stock file's planner run: the planner runs once
+                def on_plan(planner):
+                    timers.append(_stats.StopTimer(planner))
+                    return timers[-1]
+                stock = fallback_gcode(gcode, res.map_bytes, fpath, settings, allow_unreached=True,
+                                       stops=stops, _on_plan=on_plan).stock
+            return stock, bulge_stats(res.map_bytes, settings, gcode, arena,
+                                      timers[-1] if timers else None)
+        # the stock file and the statistics are made on a second core while the map is annotated
+        # into the G-code: a child forked from this process and its scan (bulgekit.parallel;
+        # where none can be forked, after the annotating, as before). The same files; of two
+        # errors, annotate's is said, as before.
+        beside = parallel.Forked.running(stock_and_stats) if fpath is not None else None
+        try:
+            ann = annotate_gcode(gcode, res.map_bytes, gpath, settings, stream=stream, arena=arena,
+                                 check=False)
+            stock, st = beside.result() if beside is not None else stock_and_stats()
+        finally:
+            if beside is not None:
+                beside.close()                 # (before a failed build takes its files back)
         st.stock = stock
         spath.write_text(st.text() + "\n", encoding="utf-8")
     except BaseException:

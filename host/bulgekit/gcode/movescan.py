@@ -549,14 +549,21 @@ class Scan:
         def gen():
             global _REPLAYED
             held, store = self._held, self._store
+            # read by position, not from the file's offset: a child forked to work beside this
+            # process (bulgekit.parallel: build's stock fallback) shares the offset with it
             if held is None:
-                store.seek(0)
+                store.flush()
+                fd, at = store.fileno(), 0
             for i, (k, lines) in enumerate(self.chunks):
                 if held is not None:
                     recs, nums = held[2 * i], held[2 * i + 1]
                 else:
-                    recs = store.read(k * RECORD.itemsize)
-                    nums = store.read(8 * k) if numbers is not None else None
+                    recs = _pread(fd, k * RECORD.itemsize, at)
+                    at += len(recs)
+                    nums = None
+                    if numbers is not None:
+                        nums = _pread(fd, 8 * k, at)
+                        at += len(nums)
                 a = np.frombuffer(recs, dtype=RECORD)
                 done[0] = lines
                 progress.tick(lines)
@@ -605,6 +612,18 @@ class Scan:
 
 
 _KEPT: dict[str, Scan] = {}
+
+
+def _pread(fd: int, n: int, at: int) -> bytes:
+    """n bytes of the file fd from offset at (fewer at its end; os.pread may give fewer)."""
+    parts, got = [], 0
+    while got < n:
+        b = os.pread(fd, n - got, at + got)
+        if not b:
+            break
+        parts.append(b)
+        got += len(b)
+    return parts[0] if len(parts) == 1 else b"".join(parts)
 
 
 def _key(path) -> str:
