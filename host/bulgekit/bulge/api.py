@@ -178,7 +178,13 @@ def _build(gcode: Path, strokes, outdir, name, geometric, spacing, line_width, l
         try:
             ann = annotate_gcode(gcode, res.map_bytes, gpath, settings, stream=stream, arena=arena,
                                  check=False)
-            stock, st = beside.result() if beside is not None else stock_and_stats()
+            if beside is None:
+                stock, st = stock_and_stats()
+            elif beside.forked:                # (a child shows no progress: one line for both)
+                with progress.phase("stock fallback and statistics"):
+                    stock, st = beside.result()
+            else:                              # (made here now, with their own lines)
+                stock, st = beside.result()
         finally:
             if beside is not None:
                 beside.close()                 # (before a failed build takes its files back)

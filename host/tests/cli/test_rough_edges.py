@@ -136,8 +136,12 @@ def test_progress_is_shown_only_when_switched_on(tmp_path, data_dir):
     finally:
         progress.disable()
     shown = buf.getvalue()
-    for label in ("reading the walls", "annotating", "stock fallback", "statistics"):
+    for label in ("reading the walls", "annotating"):
         assert f"{label}: done in" in shown
+    # the stock file and the statistics are made in a forked child where one can be forked
+    # (bulgekit.parallel), which shows no lines of its own: then the parent shows one for both
+    assert ("stock fallback and statistics: done in" in shown
+            or "stock fallback: done in" in shown and "statistics: done in" in shown), shown
     r = CliRunner().invoke(main, ["build", str(data_dir / "prusa_cyl.gcode"), "--text", "HI", "--at", "10,3",
                                   "--size", "3", "-o", str(tmp_path / "p"), "--no-preview"])
     assert r.exit_code == 0 and "done in" in r.stdout and r.stderr == ""
