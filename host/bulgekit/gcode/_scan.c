@@ -27,6 +27,9 @@
 #include <stdint.h>
 #include <stdlib.h>
 #include <string.h>
+#if defined(__SSE2__)
+#include <emmintrin.h>
+#endif
 
 /* One move. Python reads these as a numpy structured array (gcode_fast.RECORD). */
 typedef struct {
@@ -446,6 +449,90 @@ static int arc(Scanner *s, const char *line, Words *w, int cw) {
     return 0;
 }
 
+/* ---- the fast path: most lines of a sliced file are "G1 X.. Y.. E.." ----
+ * fast_move() reads the plainest shape of a G0/G1 line in one pass, without branching on every
+ * byte: "G0" or "G1", then words " <X|Y|Z|E|F><number>" (blanks ' ' only, the number
+ * [-+]?digits[.digits] with up to 8 digits on each side of the dot and 15 in all, so that the
+ * digits as an integer are exact in a double) up to the line end. Any other line, or any doubt,
+ * goes to do_line (the general code), so the records are the same either way: for these lines
+ * do_line_state cuts nothing, flags nothing (the line starts with 'G'), parse_words finds the
+ * same words and takes the same short-number path, and in events mode is_event says "no event"
+ * (an F of 0 is left to do_line). */
+#if defined(__SSE2__) && (defined(__GNUC__) || defined(__clang__))
+#define FAST_MOVES 1
+
+/* The value of the n (1..8) ASCII digits at w's first bytes (as loaded from memory on a
+ * little-endian CPU): the digits moved to the top bytes (zeros before them), then pairs, quads
+ * and the eight added up in three multiplications (no byte carries into the next). */
+static inline uint64_t eight_digits(uint64_t w, int n) {
+    w = (w << (8 * (8 - n))) & 0x0F0F0F0F0F0F0F0FULL;
+    w = (w * 10 + (w >> 8)) & 0x00FF00FF00FF00FFULL;
+    w = (w * 100 + (w >> 16)) & 0x0000FFFF0000FFFFULL;
+    return (w * 10000 + (w >> 32)) & 0xFFFFFFFFULL;
+}
+
+/* X Y Z E F: the letter's index in Words, others -1 */
+static signed char fast_letter[256];
+
+static void fast_init(void) {
+    memset(fast_letter, -1, sizeof fast_letter);
+    fast_letter['X'] = 'X' - 'A';
+    fast_letter['Y'] = 'Y' - 'A';
+    fast_letter['Z'] = 'Z' - 'A';
+    fast_letter['E'] = 'E' - 'A';
+    fast_letter['F'] = 'F' - 'A';
+}
+
+/* The line [p, le), le its line end ('\n' or '\r'), lim the data's end: 1 if it was read here
+ * (and emitted), 0 if it is do_line's, -1 on an error. */
+static int fast_move(Scanner *s, const char *p, const char *le, const char *lim) {
+    static const uint64_t p10u[9] = {1, 10, 100, 1000, 10000, 100000, 1000000, 10000000, 100000000};
+    static const double p10[16] = {1e0, 1e1, 1e2, 1e3, 1e4, 1e5, 1e6, 1e7, 1e8,
+                                   1e9, 1e10, 1e11, 1e12, 1e13, 1e14, 1e15};
+    /* the loads below read up to 32 bytes past a number's start, which is before le: all
+     * inside the data when 32 bytes follow le (so only a part's last line or so is not here) */
+    if (lim - le < 32 || le - p < 3 || p[0] != 'G' || (p[1] != '0' && p[1] != '1') || p[2] != ' ')
+        return 0;
+    const __m128i zero = _mm_set1_epi8('0'), nine = _mm_set1_epi8('9');
+    Words w;
+    w.have = 0;
+    const char *q = p + 3;
+    for (;;) {
+        while (*q == ' ') q++;             /* (*le is a line end: stops there) */
+        if (q == le) break;
+        int k = fast_letter[(unsigned char)*q];
+        if (k < 0) return 0;
+        q++;
+        int neg = *q == '-';
+        q += neg | (*q == '+');
+        /* the digits: where the first non-digit is (a byte >= 0x80 is below '0' signed) */
+        __m128i v = _mm_loadu_si128((const __m128i *)q);
+        unsigned nd = (unsigned)_mm_movemask_epi8(_mm_or_si128(_mm_cmplt_epi8(v, zero),
+                                                               _mm_cmpgt_epi8(v, nine))) | 0x10000u;
+        int lead = __builtin_ctz(nd);
+        int dot = q[lead] == '.';
+        int frac = dot ? __builtin_ctz(nd >> (lead + 1)) : 0;
+        int after = lead + dot + frac;
+        if (lead > 8 || frac > 8 || lead + frac == 0 || lead + frac > 15) return 0;
+        if (q[after] != ' ' && q + after != le) return 0;     /* a word runs to a blank */
+        uint64_t a, b, m = 0;
+        memcpy(&a, q, 8);
+        memcpy(&b, q + lead + 1, 8);
+        if (lead) m = eight_digits(a, lead) * p10u[frac];
+        if (frac) m += eight_digits(b, frac);
+        if (s->events && k == 'F' - 'A' && m == 0) return 0;  /* F0: an event */
+        double val = (double)(int64_t)m / p10[frac];         /* as parse_words: one division */
+        w.v[k] = neg ? -val : val;
+        w.have |= 1u << k;
+        q += after;
+    }
+    double x, y, z, e;
+    target(s, &w, &x, &y, &z, &e);
+    if (HAS(&w, 'F')) s->f = GET(&w, 'F');
+    return emit(s, p, x, y, z, e, 0) < 0 ? -1 : 1;
+}
+#endif
+
 /* One line without its line end (gcode.split_code + parse_lines). */
 static int do_line_state(Scanner *s, const char *p, const char *end, int ascii);
 
@@ -562,6 +649,44 @@ static int do_line_state(Scanner *s, const char *p, const char *end, int ascii) 
     return 0;
 }
 
+/* The first '\n' or '\r' at or after q (end: none); or's into *high the bytes before it. */
+static inline const char *line_end(const char *q, const char *end, unsigned char *high) {
+#if defined(__SSE2__) && (defined(__GNUC__) || defined(__clang__))
+    /* sixteen bytes at a time (every x86-64 has SSE2): a mask of the line ends, and the bytes'
+     * top bits, which are set for bytes >= 0x80 */
+    const __m128i lf = _mm_set1_epi8('\n'), cr = _mm_set1_epi8('\r');
+    while (end - q >= 16) {
+        __m128i v = _mm_loadu_si128((const __m128i *)q);
+        unsigned stop = (unsigned)_mm_movemask_epi8(_mm_or_si128(_mm_cmpeq_epi8(v, lf),
+                                                                 _mm_cmpeq_epi8(v, cr)));
+        unsigned top = (unsigned)_mm_movemask_epi8(v);
+        if (stop) {
+            unsigned at = (unsigned)__builtin_ctz(stop);
+            if (top & ((1u << at) - 1)) *high = 0x80;
+            return q + at;
+        }
+        if (top) *high = 0x80;
+        q += 16;
+    }
+#else
+    /* eight bytes at a time while none is '\n', '\r' or >= 0x80 (the zero test has no false
+     * negatives), then byte by byte */
+    const uint64_t ones = 0x0101010101010101ULL, highs = 0x8080808080808080ULL;
+    while (end - q >= 8) {
+        uint64_t w, lf, cr;
+        memcpy(&w, q, 8);
+        lf = w ^ (ones * '\n');
+        cr = w ^ (ones * '\r');
+        if ((((lf - ones) & ~lf) | ((cr - ones) & ~cr) | w) & highs) break;
+        q += 8;
+    }
+#endif
+    unsigned char h = 0;
+    while (q < end && *q != '\n' && *q != '\r') h |= (unsigned char)*q++;
+    *high |= h;
+    return q;
+}
+
 /* feed(data, final, base) -> (records: bytes, used: int). Lines that end in data are scanned;
  * without final, the bytes after the last line end are left for the next call (used says where).
  * base: the file offset of data[0], for the records' offsets. */
@@ -598,23 +723,15 @@ static PyObject *Scanner_feed(Scanner *s, PyObject *args) {
         } else if (!s->ts && ++since >= 1024) {
             s->ts = PyEval_SaveThread();
         }
-        const char *q = p;
         unsigned char high = 0;                /* the line's bytes or'ed: >= 0x80 if any is */
-        /* eight bytes at a time while none is '\n', '\r' or >= 0x80 (the zero test has no
-         * false negatives), then byte by byte */
-        while (end - q >= 8) {
-            const uint64_t ones = 0x0101010101010101ULL, highs = 0x8080808080808080ULL;
-            uint64_t w, lf, cr;
-            memcpy(&w, q, 8);
-            lf = w ^ (ones * '\n');
-            cr = w ^ (ones * '\r');
-            if ((((lf - ones) & ~lf) | ((cr - ones) & ~cr) | w) & highs) break;
-            q += 8;
-        }
-        while (q < end && *q != '\n' && *q != '\r') high |= (unsigned char)*q++;
+        const char *q = line_end(p, end, &high);
         if (q == end && !final) break;
         s->line_no++;
-        if (do_line(s, p, q, high < 0x80) < 0) {
+        int rc = 0;
+#ifdef FAST_MOVES
+        if (high < 0x80) rc = fast_move(s, p, q, end);
+#endif
+        if (rc < 0 || (rc == 0 && do_line(s, p, q, high < 0x80) < 0)) {
             hold(s);                           /* (held already: the error was set with it) */
             s->busy = 0;
             PyBuffer_Release(&buf);
@@ -1112,6 +1229,9 @@ static struct PyModuleDef scan_module = {
     PyModuleDef_HEAD_INIT, "_scan", "G-code move scanner (C)", -1, module_methods, NULL, NULL, NULL, NULL};
 
 PyMODINIT_FUNC PyInit__scan(void) {
+#ifdef FAST_MOVES
+    fast_init();
+#endif
     if (PyType_Ready(&ScannerType) < 0) return NULL;
     PyObject *m = PyModule_Create(&scan_module);
     if (!m) return NULL;
