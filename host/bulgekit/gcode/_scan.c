@@ -105,24 +105,39 @@ static void hold(Scanner *s) {
     }
 }
 
-static int push(Scanner *s, Record *r) {
-    if (s->n == s->cap) {
-        Py_ssize_t cap = s->cap ? s->cap * 2 : 4096;
-        Record *p = PyMem_RawRealloc(s->out, (size_t)cap * sizeof(Record));   /* (no GIL needed) */
-        if (!p) { hold(s); PyErr_NoMemory(); return -1; }
-        s->out = p;
-        s->cap = cap;
-    }
+/* Room for one more record (and its number, lean 2); the rare part of push(), out of its way. */
+#if defined(__GNUC__) || defined(__clang__)
+#define COLD __attribute__((noinline, cold))
+#else
+#define COLD
+#endif
+
+static COLD int grow(Scanner *s) {
+    Py_ssize_t cap = s->cap ? s->cap * 2 : 4096;
+    Record *p = PyMem_RawRealloc(s->out, (size_t)cap * sizeof(Record));   /* (no GIL needed) */
+    if (!p) { hold(s); PyErr_NoMemory(); return -1; }
+    s->out = p;
+    s->cap = cap;
     if (s->lean == 2) {
-        if (s->ncap < s->cap) {
-            int64_t *p = PyMem_RawRealloc(s->nums, (size_t)s->cap * sizeof(int64_t));  /* (no GIL) */
-            if (!p) { hold(s); PyErr_NoMemory(); return -1; }
-            s->nums = p;
-            s->ncap = s->cap;
-        }
-        s->nums[s->n] = s->moves;
+        int64_t *q = PyMem_RawRealloc(s->nums, (size_t)cap * sizeof(int64_t));  /* (no GIL) */
+        if (!q) { hold(s); PyErr_NoMemory(); return -1; }
+        s->nums = q;
+        s->ncap = cap;
     }
-    s->out[s->n++] = *r;
+    return 0;
+}
+
+/* The next record's place in the output (NULL: no memory, the error set). */
+static inline Record *slot(Scanner *s) {
+    if (s->n == s->cap && grow(s) < 0) return NULL;
+    if (s->lean == 2) s->nums[s->n] = s->moves;
+    return &s->out[s->n++];
+}
+
+static int push(Scanner *s, Record *r) {
+    Record *o = slot(s);
+    if (!o) return -1;
+    *o = *r;
     return 0;
 }
 
@@ -471,16 +486,50 @@ static inline uint64_t eight_digits(uint64_t w, int n) {
     return (w * 10000 + (w >> 32)) & 0xFFFFFFFFULL;
 }
 
-/* X Y Z E F: the letter's index in Words, others -1 */
+/* X Y Z E F: 0 to 4, others -1 */
 static signed char fast_letter[256];
 
 static void fast_init(void) {
     memset(fast_letter, -1, sizeof fast_letter);
-    fast_letter['X'] = 'X' - 'A';
-    fast_letter['Y'] = 'Y' - 'A';
-    fast_letter['Z'] = 'Z' - 'A';
-    fast_letter['E'] = 'E' - 'A';
-    fast_letter['F'] = 'F' - 'A';
+    fast_letter['X'] = 0;
+    fast_letter['Y'] = 1;
+    fast_letter['Z'] = 2;
+    fast_letter['E'] = 3;
+    fast_letter['F'] = 4;
+}
+
+/* emit() of a G0/G1 move (no arc, not quiet), its conditions as bit operations rather than
+ * branches: whether a move travels or extrudes, whether a lean run keeps it, follow no
+ * pattern a branch predictor could learn, and each branch taken wrongly costs more than the
+ * few operations. The same records and state as emit(). */
+static inline int emit_move(Scanner *s, const char *line, double x, double y, double z, double e) {
+    double de = e - s->e;
+    int keep = 1;
+    if (s->lean) {
+        int moved = (s->x != x) | (s->y != y);
+        if ((moved & (de > 0)) && (!s->have_top || z > s->top || isnan(z)))
+            s->top = z, s->have_top = 1;      /* numpy's max: a NaN wins */
+        int null = !moved & (s->z == z) & (de == 0);
+        keep = s->outer | (s->follow & !null);
+        s->follow = s->outer | (s->follow & null);
+    }
+    if (keep) {
+        Record *r = slot(s);
+        if (!r) return -1;
+        r->x0 = s->x; r->y0 = s->y; r->z0 = s->z;
+        r->x1 = x; r->y1 = y; r->z1 = z;
+        r->e = de;
+        r->e_start = s->e;
+        r->f = s->f;
+        r->offset = (int64_t)(s->base_offset + (line - s->base));
+        r->line_no = (int32_t)s->line_no;
+        r->role = (int16_t)s->role;
+        r->flags = (uint8_t)((s->outer ? 1 : 0) | (s->abs_xyz ? 4 : 0) | (s->abs_e ? 8 : 0));
+        r->pad = 0;
+    }
+    s->moves++;
+    s->x = x; s->y = y; s->z = z; s->e = e;
+    return 0;
 }
 
 /* The line [p, le), le its line end ('\n' or '\r'), lim the data's end: 1 if it was read here
@@ -494,8 +543,14 @@ static int fast_move(Scanner *s, const char *p, const char *le, const char *lim)
     if (lim - le < 32 || le - p < 3 || p[0] != 'G' || (p[1] != '0' && p[1] != '1') || p[2] != ' ')
         return 0;
     const __m128i zero = _mm_set1_epi8('0'), nine = _mm_set1_epi8('9');
-    Words w;
-    w.have = 0;
+    /* X Y Z E F as target() takes them: a word's value, else the position (absolute) or 0.0
+     * (relative, added to it as target() does), and the feed rate for F */
+    double v[5];
+    v[0] = s->abs_xyz ? s->x : 0.0;
+    v[1] = s->abs_xyz ? s->y : 0.0;
+    v[2] = s->abs_xyz ? s->z : 0.0;
+    v[3] = s->abs_e ? s->e : 0.0;
+    v[4] = s->f;
     const char *q = p + 3;
     for (;;) {
         while (*q == ' ') q++;             /* (*le is a line end: stops there) */
@@ -506,9 +561,9 @@ static int fast_move(Scanner *s, const char *p, const char *le, const char *lim)
         int neg = *q == '-';
         q += neg | (*q == '+');
         /* the digits: where the first non-digit is (a byte >= 0x80 is below '0' signed) */
-        __m128i v = _mm_loadu_si128((const __m128i *)q);
-        unsigned nd = (unsigned)_mm_movemask_epi8(_mm_or_si128(_mm_cmplt_epi8(v, zero),
-                                                               _mm_cmpgt_epi8(v, nine))) | 0x10000u;
+        __m128i b16 = _mm_loadu_si128((const __m128i *)q);
+        unsigned nd = (unsigned)_mm_movemask_epi8(_mm_or_si128(_mm_cmplt_epi8(b16, zero),
+                                                               _mm_cmpgt_epi8(b16, nine))) | 0x10000u;
         int lead = __builtin_ctz(nd);
         int dot = q[lead] == '.';
         int frac = dot ? __builtin_ctz(nd >> (lead + 1)) : 0;
@@ -520,16 +575,20 @@ static int fast_move(Scanner *s, const char *p, const char *le, const char *lim)
         memcpy(&b, q + lead + 1, 8);
         if (lead) m = eight_digits(a, lead) * p10u[frac];
         if (frac) m += eight_digits(b, frac);
-        if (s->events && k == 'F' - 'A' && m == 0) return 0;  /* F0: an event */
+        if (s->events && k == 4 && m == 0) return 0;         /* F0: an event */
         double val = (double)(int64_t)m / p10[frac];         /* as parse_words: one division */
-        w.v[k] = neg ? -val : val;
-        w.have |= 1u << k;
+        v[k] = neg ? -val : val;
         q += after;
     }
     double x, y, z, e;
-    target(s, &w, &x, &y, &z, &e);
-    if (HAS(&w, 'F')) s->f = GET(&w, 'F');
-    return emit(s, p, x, y, z, e, 0) < 0 ? -1 : 1;
+    if (s->abs_xyz) {
+        x = v[0]; y = v[1]; z = v[2];
+    } else {
+        x = s->x + v[0]; y = s->y + v[1]; z = s->z + v[2];
+    }
+    e = s->abs_e ? v[3] : s->e + v[3];
+    s->f = v[4];
+    return emit_move(s, p, x, y, z, e) < 0 ? -1 : 1;
 }
 #endif
 
@@ -776,6 +835,12 @@ static int Scanner_init(Scanner *s, PyObject *args, PyObject *kw) {
     s->events = events;
     if (lean < 0 || lean > 2) { PyErr_SetString(PyExc_ValueError, "lean: 0, 1 or 2"); return -1; }
     s->lean = events ? 0 : lean;
+    if (s->lean == 2 && s->ncap < s->cap) {    /* (grow() keeps the two as long from now on) */
+        int64_t *q = PyMem_RawRealloc(s->nums, (size_t)s->cap * sizeof(int64_t));
+        if (!q) { PyErr_NoMemory(); return -1; }
+        s->nums = q;
+        s->ncap = s->cap;
+    }
     s->moves = 0;
     s->follow = 0;
     s->have_top = 0;
