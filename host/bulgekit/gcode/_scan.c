@@ -465,7 +465,7 @@ static int arc(Scanner *s, const char *line, Words *w, int cw) {
 }
 
 /* ---- the fast path: most lines of a sliced file are "G1 X.. Y.. E.." ----
- * fast_move() reads the plainest shape of a G0/G1 line in one pass, without branching on every
+ * fast_line() reads the plainest shape of a G0/G1 line in one pass, without branching on every
  * byte: "G0" or "G1", then words " <X|Y|Z|E|F><number>" (blanks ' ' only, the number
  * [-+]?digits[.digits] with up to 8 digits on each side of the dot and 15 in all, so that the
  * digits as an integer are exact in a double) up to the line end. Any other line, or any doubt,
@@ -476,26 +476,35 @@ static int arc(Scanner *s, const char *line, Words *w, int cw) {
 #if defined(__SSE2__) && (defined(__GNUC__) || defined(__clang__))
 #define FAST_MOVES 1
 
-/* The value of the n (1..8) ASCII digits at w's first bytes (as loaded from memory on a
- * little-endian CPU): the digits moved to the top bytes (zeros before them), then pairs, quads
- * and the eight added up in three multiplications (no byte carries into the next). */
-static inline uint64_t eight_digits(uint64_t w, int n) {
-    w = (w << (8 * (8 - n))) & 0x0F0F0F0F0F0F0F0FULL;
+/* The value of the ASCII digits in w's top bytes (as loaded from memory on a little-endian CPU,
+ * the last digit the last byte), its other bytes 0: pairs, quads and the eight added up in three
+ * multiplications (no byte carries into the next). */
+static inline uint64_t top_digits(uint64_t w) {
+    w &= 0x0F0F0F0F0F0F0F0FULL;
     w = (w * 10 + (w >> 8)) & 0x00FF00FF00FF00FFULL;
     w = (w * 100 + (w >> 16)) & 0x0000FFFF0000FFFFULL;
     return (w * 10000 + (w >> 32)) & 0xFFFFFFFFULL;
 }
 
-/* X Y Z E F: 0 to 4, others -1 */
-static signed char fast_letter[256];
+/* The value of the n (1..8) ASCII digits at w's first bytes. */
+static inline uint64_t eight_digits(uint64_t w, int n) {
+    return top_digits(w << (8 * (8 - n)));
+}
+
+/* A byte's class for fast_line: X Y Z E F 0 to 4, a blank (' ') FAST_BLANK, a line end ('\n',
+ * '\r') FAST_END, any other -1 */
+enum { FAST_BLANK = 5, FAST_END = 6 };
+static signed char fast_class[256];
 
 static void fast_init(void) {
-    memset(fast_letter, -1, sizeof fast_letter);
-    fast_letter['X'] = 0;
-    fast_letter['Y'] = 1;
-    fast_letter['Z'] = 2;
-    fast_letter['E'] = 3;
-    fast_letter['F'] = 4;
+    memset(fast_class, -1, sizeof fast_class);
+    fast_class['X'] = 0;
+    fast_class['Y'] = 1;
+    fast_class['Z'] = 2;
+    fast_class['E'] = 3;
+    fast_class['F'] = 4;
+    fast_class[' '] = FAST_BLANK;
+    fast_class['\n'] = fast_class['\r'] = FAST_END;
 }
 
 /* emit() of a G0/G1 move (no arc, not quiet), its conditions as bit operations rather than
@@ -532,17 +541,26 @@ static inline int emit_move(Scanner *s, const char *line, double x, double y, do
     return 0;
 }
 
-/* The line [p, le), le its line end ('\n' or '\r'), lim the data's end: 1 if it was read here
- * (and emitted), 0 if it is do_line's, -1 on an error. */
-static int fast_move(Scanner *s, const char *p, const char *le, const char *lim) {
+/* The line at p, lim the data's end, start its start: 1 if it was read here (and emitted; *le:
+ * its line end, '\n' or '\r'), 0 if it is the general code's, -1 on an error. The line end is
+ * found as the words are read (the line is not searched for it first). */
+static int fast_line(Scanner *s, const char *start, const char *p, const char *lim,
+                     const char **le) {
     static const uint64_t p10u[9] = {1, 10, 100, 1000, 10000, 100000, 1000000, 10000000, 100000000};
     static const double p10[16] = {1e0, 1e1, 1e2, 1e3, 1e4, 1e5, 1e6, 1e7, 1e8,
                                    1e9, 1e10, 1e11, 1e12, 1e13, 1e14, 1e15};
-    /* the loads below read up to 32 bytes past a number's start, which is before le: all
-     * inside the data when 32 bytes follow le (so only a part's last line or so is not here) */
-    if (lim - le < 32 || le - p < 3 || p[0] != 'G' || (p[1] != '0' && p[1] != '1') || p[2] != ' ')
+    static const double sign[2] = {1.0, -1.0};     /* (times -1.0: the same as negating) */
+    /* the top n bytes of 8 */
+    static const uint64_t top[9] = {0, 0xFFULL << 56, 0xFFFFULL << 48, 0xFFFFFFULL << 40,
+                                    0xFFFFFFFFULL << 32, 0xFFFFFFFFFFULL << 24,
+                                    0xFFFFFFFFFFFFULL << 16, 0xFFFFFFFFFFFFFFULL << 8, ~0ULL};
+    /* a line of up to 64 bytes (a word may run to the 81st): the reads below stay within 96
+     * bytes from p, and 8 before it */
+    if (lim - p < 96 || p - start < 8 || p[0] != 'G' || (p[1] != '0' && p[1] != '1') ||
+        p[2] != ' ')
         return 0;
-    const __m128i zero = _mm_set1_epi8('0'), nine = _mm_set1_epi8('9');
+    const __m128i below = _mm_set1_epi8('0' - 1), above = _mm_set1_epi8('9' + 1),
+                  dotc = _mm_set1_epi8('.');
     /* X Y Z E F as target() takes them: a word's value, else the position (absolute) or 0.0
      * (relative, added to it as target() does), and the feed rate for F */
     double v[5];
@@ -552,33 +570,44 @@ static int fast_move(Scanner *s, const char *p, const char *le, const char *lim)
     v[3] = s->abs_e ? s->e : 0.0;
     v[4] = s->f;
     const char *q = p + 3;
+    int k;
     for (;;) {
-        while (*q == ' ') q++;             /* (*le is a line end: stops there) */
-        if (q == le) break;
-        int k = fast_letter[(unsigned char)*q];
-        if (k < 0) return 0;
-        q++;
-        int neg = *q == '-';
-        q += neg | (*q == '+');
-        /* the digits: where the first non-digit is (a byte >= 0x80 is below '0' signed) */
-        __m128i b16 = _mm_loadu_si128((const __m128i *)q);
-        unsigned nd = (unsigned)_mm_movemask_epi8(_mm_or_si128(_mm_cmplt_epi8(b16, zero),
-                                                               _mm_cmpgt_epi8(b16, nine))) | 0x10000u;
-        int lead = __builtin_ctz(nd);
-        int dot = q[lead] == '.';
-        int frac = dot ? __builtin_ctz(nd >> (lead + 1)) : 0;
-        int after = lead + dot + frac;
-        if (lead > 8 || frac > 8 || lead + frac == 0 || lead + frac > 15) return 0;
-        if (q[after] != ' ' && q + after != le) return 0;     /* a word runs to a blank */
-        uint64_t a, b, m = 0;
-        memcpy(&a, q, 8);
-        memcpy(&b, q + lead + 1, 8);
-        if (lead) m = eight_digits(a, lead) * p10u[frac];
-        if (frac) m += eight_digits(b, frac);
+        while ((k = fast_class[(unsigned char)*q]) == FAST_BLANK)
+            if (++q - p > 64) return 0;
+        if (k == FAST_END) break;
+        if (k < 0 || q - p > 64) return 0;
+        int neg = q[1] == '-';
+        const char *d = q + 1 + (neg | (q[1] == '+'));   /* the digits */
+        /* [0-9]*(\.[0-9]*)?: the digits up to the first non-digit (signed compares: a byte
+         * >= 0x80 is none), a dot there, the digits after it; then a blank or the line end */
+        __m128i b16 = _mm_loadu_si128((const __m128i *)d);
+        unsigned nd = ~(unsigned)_mm_movemask_epi8(_mm_and_si128(_mm_cmpgt_epi8(b16, below),
+                                                                 _mm_cmplt_epi8(b16, above)));
+        unsigned dots = (unsigned)_mm_movemask_epi8(_mm_cmpeq_epi8(b16, dotc));
+        int lead = __builtin_ctz(nd);          /* (bits 16 and up of nd are set) */
+        int dot = (int)((dots >> lead) & 1);
+        int frac = __builtin_ctz(nd >> (lead + dot)), n = lead + frac;   /* (no dot: frac 0) */
+        const char *z = d + n + dot;           /* the number's end */
+        if (fast_class[(unsigned char)*z] < FAST_BLANK || n == 0) return 0;
+        uint64_t m;
+        if (n + dot <= 8) {
+            /* the eight bytes up to the number's end: its digits at the top but for the dot,
+             * which the digits before it are moved over */
+            uint64_t w, shifted;
+            memcpy(&w, z - 8, 8);
+            shifted = dot ? w << 8 : w;
+            m = top_digits((w & top[frac]) | (shifted & (top[n] ^ top[frac])));
+        } else {                               /* up to 8 digits on each side, 15 in all */
+            if (lead > 8 || frac > 8 || n > 15) return 0;
+            uint64_t a, b;
+            memcpy(&a, d, 8);
+            memcpy(&b, d + lead + 1, 8);
+            m = (lead ? eight_digits(a, lead) * p10u[frac] : 0) + (frac ? eight_digits(b, frac) : 0);
+        }
         if (s->events && k == 4 && m == 0) return 0;         /* F0: an event */
-        double val = (double)(int64_t)m / p10[frac];         /* as parse_words: one division */
-        v[k] = neg ? -val : val;
-        q += after;
+        /* as parse_words: the digits as an integer (exact) over a power of ten */
+        v[k] = (double)(int64_t)m / p10[frac] * sign[neg];
+        q = z;
     }
     double x, y, z, e;
     if (s->abs_xyz) {
@@ -588,6 +617,8 @@ static int fast_move(Scanner *s, const char *p, const char *le, const char *lim)
     }
     e = s->abs_e ? v[3] : s->e + v[3];
     s->f = v[4];
+    s->line_no++;
+    *le = q;
     return emit_move(s, p, x, y, z, e) < 0 ? -1 : 1;
 }
 #endif
@@ -782,15 +813,19 @@ static PyObject *Scanner_feed(Scanner *s, PyObject *args) {
         } else if (!s->ts && ++since >= 1024) {
             s->ts = PyEval_SaveThread();
         }
-        unsigned char high = 0;                /* the line's bytes or'ed: >= 0x80 if any is */
-        const char *q = line_end(p, end, &high);
-        if (q == end && !final) break;
-        s->line_no++;
+        const char *q;
         int rc = 0;
 #ifdef FAST_MOVES
-        if (high < 0x80) rc = fast_move(s, p, q, end);
+        rc = fast_line(s, buf.buf, p, end, &q);
 #endif
-        if (rc < 0 || (rc == 0 && do_line(s, p, q, high < 0x80) < 0)) {
+        if (rc == 0) {
+            unsigned char high = 0;            /* the line's bytes or'ed: >= 0x80 if any is */
+            q = line_end(p, end, &high);
+            if (q == end && !final) break;
+            s->line_no++;
+            rc = do_line(s, p, q, high < 0x80);
+        }
+        if (rc < 0) {
             hold(s);                           /* (held already: the error was set with it) */
             s->busy = 0;
             PyBuffer_Release(&buf);
