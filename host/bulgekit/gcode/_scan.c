@@ -560,7 +560,7 @@ static int fast_line(Scanner *s, const char *start, const char *p, const char *l
         p[2] != ' ')
         return 0;
     const __m128i below = _mm_set1_epi8('0' - 1), above = _mm_set1_epi8('9' + 1),
-                  dotc = _mm_set1_epi8('.');
+                  dotc = _mm_set1_epi8('.'), minus = _mm_set1_epi8('-'), plus = _mm_set1_epi8('+');
     /* X Y Z E F as target() takes them: a word's value, else the position (absolute) or 0.0
      * (relative, added to it as target() does), and the feed rate for F */
     double v[5];
@@ -576,19 +576,27 @@ static int fast_line(Scanner *s, const char *start, const char *p, const char *l
             if (++q - p > 64) return 0;
         if (k == FAST_END) break;
         if (k < 0 || q - p > 64) return 0;
-        int neg = q[1] == '-';
-        const char *d = q + 1 + (neg | (q[1] == '+'));   /* the digits */
-        /* [0-9]*(\.[0-9]*)?: the digits up to the first non-digit (signed compares: a byte
-         * >= 0x80 is none), a dot there, the digits after it; then a blank or the line end */
-        __m128i b16 = _mm_loadu_si128((const __m128i *)d);
-        unsigned nd = ~(unsigned)_mm_movemask_epi8(_mm_and_si128(_mm_cmpgt_epi8(b16, below),
-                                                                 _mm_cmplt_epi8(b16, above)));
-        unsigned dots = (unsigned)_mm_movemask_epi8(_mm_cmpeq_epi8(b16, dotc));
-        int lead = __builtin_ctz(nd);          /* (bits 16 and up of nd are set) */
-        int dot = (int)((dots >> lead) & 1);
-        int frac = __builtin_ctz(nd >> (lead + dot)), n = lead + frac;   /* (no dot: frac 0) */
-        const char *z = d + n + dot;           /* the number's end */
-        if (fast_class[(unsigned char)*z] < FAST_BLANK || n == 0) return 0;
+        /* [-+]?[0-9]*(\.[0-9]*)?, then a blank or the line end. The word's end is where the
+         * next one is looked for: found from one mask of the sixteen bytes after the letter
+         * (digits, dots, signs; signed compares: a byte >= 0x80 is no digit), so that the
+         * steps from word to word are few; the number's shape and value are worked out beside */
+        __m128i b16 = _mm_loadu_si128((const __m128i *)(q + 1));
+        __m128i dg = _mm_and_si128(_mm_cmpgt_epi8(b16, below), _mm_cmplt_epi8(b16, above));
+        __m128i dt = _mm_cmpeq_epi8(b16, dotc);
+        __m128i sg = _mm_or_si128(_mm_cmpeq_epi8(b16, minus), _mm_cmpeq_epi8(b16, plus));
+        unsigned body = (unsigned)_mm_movemask_epi8(_mm_or_si128(_mm_or_si128(dg, dt), sg));
+        int len = __builtin_ctz(~body);        /* (<= 16: bit 16 of ~body is set) */
+        const char *z = q + 1 + len;           /* the number's end */
+        int s0 = q[1] == '-' || q[1] == '+';
+        /* the bytes of the number that are no digit, but for a sign first: a dot or none */
+        unsigned odd = ~(unsigned)_mm_movemask_epi8(dg) & ((1u << len) - 1) & ~(unsigned)s0;
+        unsigned dots = (unsigned)_mm_movemask_epi8(dt);
+        int dot = odd != 0;
+        int at = dot ? __builtin_ctz(odd) : len;       /* the dot, or the end */
+        int lead = at - s0, frac = len - at - dot, n = lead + frac;
+        if (fast_class[(unsigned char)*z] < FAST_BLANK || n == 0 || (odd & (odd - 1)) ||
+            (odd & ~dots))
+            return 0;
         uint64_t m;
         if (n + dot <= 8) {
             /* the eight bytes up to the number's end: its digits at the top but for the dot,
@@ -599,6 +607,7 @@ static int fast_line(Scanner *s, const char *start, const char *p, const char *l
             m = top_digits((w & top[frac]) | (shifted & (top[n] ^ top[frac])));
         } else {                               /* up to 8 digits on each side, 15 in all */
             if (lead > 8 || frac > 8 || n > 15) return 0;
+            const char *d = q + 1 + s0;
             uint64_t a, b;
             memcpy(&a, d, 8);
             memcpy(&b, d + lead + 1, 8);
@@ -606,7 +615,7 @@ static int fast_line(Scanner *s, const char *start, const char *p, const char *l
         }
         if (s->events && k == 4 && m == 0) return 0;         /* F0: an event */
         /* as parse_words: the digits as an integer (exact) over a power of ten */
-        v[k] = (double)(int64_t)m / p10[frac] * sign[neg];
+        v[k] = (double)(int64_t)m / p10[frac] * sign[q[1] == '-'];
         q = z;
     }
     double x, y, z, e;
