@@ -560,7 +560,8 @@ static int fast_line(Scanner *s, const char *start, const char *p, const char *l
         p[2] != ' ')
         return 0;
     const __m128i below = _mm_set1_epi8('0' - 1), above = _mm_set1_epi8('9' + 1),
-                  dotc = _mm_set1_epi8('.'), minus = _mm_set1_epi8('-'), plus = _mm_set1_epi8('+');
+                  dotc = _mm_set1_epi8('.'), minus = _mm_set1_epi8('-'), plus = _mm_set1_epi8('+'),
+                  past = _mm_set1_epi8(' ' + 1);
     /* X Y Z E F as target() takes them: a word's value, else the position (absolute) or 0.0
      * (relative, added to it as target() does), and the feed rate for F */
     double v[5];
@@ -577,16 +578,17 @@ static int fast_line(Scanner *s, const char *start, const char *p, const char *l
         if (k == FAST_END) break;
         if (k < 0 || q - p > 64) return 0;
         /* [-+]?[0-9]*(\.[0-9]*)?, then a blank or the line end. The word's end is where the
-         * next one is looked for: found from one mask of the sixteen bytes after the letter
-         * (digits, dots, signs; signed compares: a byte >= 0x80 is no digit), so that the
-         * steps from word to word are few; the number's shape and value are worked out beside */
+         * next one is looked for: the first of the sixteen bytes after the letter that is
+         * <= ' ' or >= 0x80 (one signed compare), so that the steps from word to word are few;
+         * that the bytes before it are digits, dots and signs, the number's shape and value are
+         * worked out beside */
         __m128i b16 = _mm_loadu_si128((const __m128i *)(q + 1));
+        int len = __builtin_ctz((unsigned)_mm_movemask_epi8(_mm_cmplt_epi8(b16, past)) | 0x10000u);
+        const char *z = q + 1 + len;           /* the number's end */
         __m128i dg = _mm_and_si128(_mm_cmpgt_epi8(b16, below), _mm_cmplt_epi8(b16, above));
         __m128i dt = _mm_cmpeq_epi8(b16, dotc);
         __m128i sg = _mm_or_si128(_mm_cmpeq_epi8(b16, minus), _mm_cmpeq_epi8(b16, plus));
         unsigned body = (unsigned)_mm_movemask_epi8(_mm_or_si128(_mm_or_si128(dg, dt), sg));
-        int len = __builtin_ctz(~body);        /* (<= 16: bit 16 of ~body is set) */
-        const char *z = q + 1 + len;           /* the number's end */
         int s0 = q[1] == '-' || q[1] == '+';
         /* the bytes of the number that are no digit, but for a sign first: a dot or none */
         unsigned odd = ~(unsigned)_mm_movemask_epi8(dg) & ((1u << len) - 1) & ~(unsigned)s0;
@@ -595,7 +597,7 @@ static int fast_line(Scanner *s, const char *start, const char *p, const char *l
         int at = dot ? __builtin_ctz(odd) : len;       /* the dot, or the end */
         int lead = at - s0, frac = len - at - dot, n = lead + frac;
         if (fast_class[(unsigned char)*z] < FAST_BLANK || n == 0 || (odd & (odd - 1)) ||
-            (odd & ~dots))
+            (odd & ~dots) || (~body & ((1u << len) - 1)))
             return 0;
         uint64_t m;
         if (n + dot <= 8) {
