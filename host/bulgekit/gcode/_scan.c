@@ -594,7 +594,7 @@ static int fast_line(Scanner *s, const char *start, const char *p, const char *l
         unsigned odd = ~(unsigned)_mm_movemask_epi8(dg) & ((1u << len) - 1) & ~(unsigned)s0;
         unsigned dots = (unsigned)_mm_movemask_epi8(dt);
         int dot = odd != 0;
-        int at = dot ? __builtin_ctz(odd) : len;       /* the dot, or the end */
+        int at = __builtin_ctz(odd | (1u << len));     /* the dot, or the end */
         int lead = at - s0, frac = len - at - dot, n = lead + frac;
         if (fast_class[(unsigned char)*z] < FAST_BLANK || n == 0 || (odd & (odd - 1)) ||
             (odd & ~dots) || (~body & ((1u << len) - 1)))
