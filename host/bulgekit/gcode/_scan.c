@@ -492,8 +492,8 @@ static inline uint64_t eight_digits(uint64_t w, int n) {
 }
 
 /* A byte's class for fast_line: X Y Z E F 0 to 4, a blank (' ') FAST_BLANK, a line end ('\n',
- * '\r') FAST_END, any other -1 */
-enum { FAST_BLANK = 5, FAST_END = 6 };
+ * '\r') FAST_END, a comment's start (';') FAST_COMMENT, any other -1 */
+enum { FAST_BLANK = 5, FAST_END = 6, FAST_COMMENT = 7 };
 static signed char fast_class[256];
 
 static void fast_init(void) {
@@ -505,6 +505,7 @@ static void fast_init(void) {
     fast_class['F'] = 4;
     fast_class[' '] = FAST_BLANK;
     fast_class['\n'] = fast_class['\r'] = FAST_END;
+    fast_class[';'] = FAST_COMMENT;
 }
 
 /* emit() of a G0/G1 move (no arc, not quiet), its conditions as bit operations rather than
@@ -541,6 +542,8 @@ static inline int emit_move(Scanner *s, const char *line, double x, double y, do
     return 0;
 }
 
+static inline const char *line_end(const char *q, const char *end, unsigned char *high);
+
 /* The line at p, lim the data's end, start its start: 1 if it was read here (and emitted; *le:
  * its line end, '\n' or '\r'), 0 if it is the general code's, -1 on an error. The line end is
  * found as the words are read (the line is not searched for it first). */
@@ -575,7 +578,23 @@ static int fast_line(Scanner *s, const char *start, const char *p, const char *l
     for (;;) {
         while ((k = fast_class[(unsigned char)*q]) == FAST_BLANK)
             if (++q - p > 64) return 0;
-        if (k == FAST_END) break;
+        if (k >= FAST_END) {
+            /* a comment after the words (Slic3r's "G1 X.. E.. ; perimeter"): no part of the
+             * move (do_line_state cuts it off), but the line must be ASCII as feed() requires
+             * of a command line; the estimator reads some comments itself (is_event's) */
+            if (k == FAST_COMMENT) {
+                unsigned char high = 0;
+                const char *c = q + 1;
+                q = line_end(q, lim, &high);
+                if (high >= 0x80 || q == lim) return 0;
+                if (s->events) {
+                    while (c < q && is_ws((unsigned char)*c)) c++;
+                    if (q - c >= 5 && (memcmp(c, "TYPE:", 5) == 0 || memcmp(c, "LAYER", 5) == 0))
+                        return 0;
+                }
+            }
+            break;
+        }
         if (k < 0 || q - p > 64) return 0;
         /* [-+]?[0-9]*(\.[0-9]*)?, then a blank or the line end. The word's end is where the
          * next one is looked for: the first of the sixteen bytes after the letter that is
