@@ -1371,6 +1371,6 @@ PyMODINIT_FUNC PyInit__scan(void) {
     PyModule_AddObject(m, "Scanner", (PyObject *)&ScannerType);
     PyModule_AddIntConstant(m, "RECORD_SIZE", (long)sizeof(Record));
     /* what gcode.SCAN_VERSION expects: a module built from an older _scan.c is not used */
-    PyModule_AddIntConstant(m, "VERSION", 8);
+    PyModule_AddIntConstant(m, "VERSION", 9);
     return m;
 }
