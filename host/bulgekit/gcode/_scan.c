@@ -467,12 +467,14 @@ static int arc(Scanner *s, const char *line, Words *w, int cw) {
 /* ---- the fast path: most lines of a sliced file are "G1 X.. Y.. E.." ----
  * fast_line() reads the plainest shape of a G0/G1 line in one pass, without branching on every
  * byte: "G0" or "G1", then words " <X|Y|Z|E|F><number>" (blanks ' ' only, the number
- * [-+]?digits[.digits] with up to 8 digits on each side of the dot and 15 in all, so that the
- * digits as an integer are exact in a double) up to the line end. Any other line, or any doubt,
- * goes to do_line (the general code), so the records are the same either way: for these lines
- * do_line_state cuts nothing, flags nothing (the line starts with 'G'), parse_words finds the
- * same words and takes the same short-number path, and in events mode is_event says "no event"
- * (an F of 0 is left to do_line). */
+ * [-+]?[0-9]*(\.[0-9]*)? with a digit, up to 8 on each side of the dot and 15 in all, so that the
+ * digits as an integer are exact in a double) up to the line end or a ';' comment (ASCII). Any
+ * other line, or any doubt, goes to do_line (the general code), so the records are the same
+ * either way: for these lines do_line_state cuts off just the comment, flags nothing (the line
+ * starts with 'G'), parse_words finds the same words and takes the same short-number path, and
+ * in events mode is_event says "no event" (an F of 0 and a TYPE:/LAYER comment are left to
+ * do_line). host/tests/gcode/test_scan_fast.py compares the two on odd lines in every mode;
+ * tools/bench_scan.py times feed(). */
 #if defined(__SSE2__) && (defined(__GNUC__) || defined(__clang__))
 #define FAST_MOVES 1
 
