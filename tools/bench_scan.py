@@ -3,6 +3,8 @@
 
     python3 tools/bench_scan.py FILE [--reps 5] [--so PATH] [--modes full,lean1,lean2,events]
 
+FILE: e.g. the bench file, DIR/big.gcode after `python3 tools/bench_host.py --mb 100 --keep DIR`.
+
 The file's bytes are read into memory first, then fed to a fresh Scanner in 2 MB parts as
 movescan feeds them (a part's unused tail goes to the next one), on this thread only; the time is
 the minimum over --reps runs, printed with MB/s, and the same for the thread's CPU time (which
