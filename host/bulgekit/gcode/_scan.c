@@ -27,6 +27,9 @@
 #include <stdint.h>
 #include <stdlib.h>
 #include <string.h>
+#if defined(__SSE2__)
+#include <emmintrin.h>
+#endif
 
 /* One move. Python reads these as a numpy structured array (gcode_fast.RECORD). */
 typedef struct {
@@ -102,24 +105,39 @@ static void hold(Scanner *s) {
     }
 }
 
-static int push(Scanner *s, Record *r) {
-    if (s->n == s->cap) {
-        Py_ssize_t cap = s->cap ? s->cap * 2 : 4096;
-        Record *p = PyMem_RawRealloc(s->out, (size_t)cap * sizeof(Record));   /* (no GIL needed) */
-        if (!p) { hold(s); PyErr_NoMemory(); return -1; }
-        s->out = p;
-        s->cap = cap;
-    }
+/* Room for one more record (and its number, lean 2); the rare part of push(), out of its way. */
+#if defined(__GNUC__) || defined(__clang__)
+#define COLD __attribute__((noinline, cold))
+#else
+#define COLD
+#endif
+
+static COLD int grow(Scanner *s) {
+    Py_ssize_t cap = s->cap ? s->cap * 2 : 4096;
+    Record *p = PyMem_RawRealloc(s->out, (size_t)cap * sizeof(Record));   /* (no GIL needed) */
+    if (!p) { hold(s); PyErr_NoMemory(); return -1; }
+    s->out = p;
+    s->cap = cap;
     if (s->lean == 2) {
-        if (s->ncap < s->cap) {
-            int64_t *p = PyMem_RawRealloc(s->nums, (size_t)s->cap * sizeof(int64_t));  /* (no GIL) */
-            if (!p) { hold(s); PyErr_NoMemory(); return -1; }
-            s->nums = p;
-            s->ncap = s->cap;
-        }
-        s->nums[s->n] = s->moves;
+        int64_t *q = PyMem_RawRealloc(s->nums, (size_t)cap * sizeof(int64_t));  /* (no GIL) */
+        if (!q) { hold(s); PyErr_NoMemory(); return -1; }
+        s->nums = q;
+        s->ncap = cap;
     }
-    s->out[s->n++] = *r;
+    return 0;
+}
+
+/* The next record's place in the output (NULL: no memory, the error set). */
+static inline Record *slot(Scanner *s) {
+    if (s->n == s->cap && grow(s) < 0) return NULL;
+    if (s->lean == 2) s->nums[s->n] = s->moves;
+    return &s->out[s->n++];
+}
+
+static int push(Scanner *s, Record *r) {
+    Record *o = slot(s);
+    if (!o) return -1;
+    *o = *r;
     return 0;
 }
 
@@ -446,6 +464,201 @@ static int arc(Scanner *s, const char *line, Words *w, int cw) {
     return 0;
 }
 
+/* ---- the fast path: most lines of a sliced file are "G1 X.. Y.. E.." ----
+ * fast_line() reads the plainest shape of a G0/G1 line in one pass, without branching on every
+ * byte: "G0" or "G1", then words " <X|Y|Z|E|F><number>" (blanks ' ' only, the number
+ * [-+]?[0-9]*(\.[0-9]*)? with a digit, up to 8 on each side of the dot and 15 in all, so that the
+ * digits as an integer are exact in a double) up to the line end or a ';' comment (ASCII). Any
+ * other line, or any doubt, goes to do_line (the general code), so the records are the same
+ * either way: for these lines do_line_state cuts off just the comment, flags nothing (the line
+ * starts with 'G'), parse_words finds the same words and takes the same short-number path, and
+ * in events mode is_event says "no event" (an F of 0 and a TYPE:/LAYER comment are left to
+ * do_line). host/tests/gcode/test_scan_fast.py compares the two on odd lines in every mode;
+ * tools/bench_scan.py times feed(). */
+#if defined(__SSE2__) && (defined(__GNUC__) || defined(__clang__))
+#define FAST_MOVES 1
+
+/* The value of the ASCII digits in w's top bytes (as loaded from memory on a little-endian CPU,
+ * the last digit the last byte), its other bytes 0: pairs, quads and the eight added up in three
+ * multiplications (no byte carries into the next). */
+static inline uint64_t top_digits(uint64_t w) {
+    w &= 0x0F0F0F0F0F0F0F0FULL;
+    w = (w * 10 + (w >> 8)) & 0x00FF00FF00FF00FFULL;
+    w = (w * 100 + (w >> 16)) & 0x0000FFFF0000FFFFULL;
+    return (w * 10000 + (w >> 32)) & 0xFFFFFFFFULL;
+}
+
+/* The value of the n (1..8) ASCII digits at w's first bytes. */
+static inline uint64_t eight_digits(uint64_t w, int n) {
+    return top_digits(w << (8 * (8 - n)));
+}
+
+/* A byte's class for fast_line: X Y Z E F 0 to 4, a blank (' ') FAST_BLANK, a line end ('\n',
+ * '\r') FAST_END, a comment's start (';') FAST_COMMENT, any other -1 */
+enum { FAST_BLANK = 5, FAST_END = 6, FAST_COMMENT = 7 };
+static signed char fast_class[256];
+
+static void fast_init(void) {
+    memset(fast_class, -1, sizeof fast_class);
+    fast_class['X'] = 0;
+    fast_class['Y'] = 1;
+    fast_class['Z'] = 2;
+    fast_class['E'] = 3;
+    fast_class['F'] = 4;
+    fast_class[' '] = FAST_BLANK;
+    fast_class['\n'] = fast_class['\r'] = FAST_END;
+    fast_class[';'] = FAST_COMMENT;
+}
+
+/* emit() of a G0/G1 move (no arc, not quiet), its conditions as bit operations rather than
+ * branches: whether a move travels or extrudes, whether a lean run keeps it, follow no
+ * pattern a branch predictor could learn, and each branch taken wrongly costs more than the
+ * few operations. The same records and state as emit(). */
+static inline int emit_move(Scanner *s, const char *line, double x, double y, double z, double e) {
+    double de = e - s->e;
+    int keep = 1;
+    if (s->lean) {
+        int moved = (s->x != x) | (s->y != y);
+        if ((moved & (de > 0)) && (!s->have_top || z > s->top || isnan(z)))
+            s->top = z, s->have_top = 1;      /* numpy's max: a NaN wins */
+        int null = !moved & (s->z == z) & (de == 0);
+        keep = s->outer | (s->follow & !null);
+        s->follow = s->outer | (s->follow & null);
+    }
+    if (keep) {
+        Record *r = slot(s);
+        if (!r) return -1;
+        r->x0 = s->x; r->y0 = s->y; r->z0 = s->z;
+        r->x1 = x; r->y1 = y; r->z1 = z;
+        r->e = de;
+        r->e_start = s->e;
+        r->f = s->f;
+        r->offset = (int64_t)(s->base_offset + (line - s->base));
+        r->line_no = (int32_t)s->line_no;
+        r->role = (int16_t)s->role;
+        r->flags = (uint8_t)((s->outer ? 1 : 0) | (s->abs_xyz ? 4 : 0) | (s->abs_e ? 8 : 0));
+        r->pad = 0;
+    }
+    s->moves++;
+    /* x and y in one store: the compiler reads them as a pair (the next line's v[], a record's
+     * x0 y0), and a read of two earlier stores waits for them to reach the cache, which costs
+     * more than a whole move (a store-forwarding stall); one store of both is forwarded */
+    _mm_storeu_pd(&s->x, _mm_set_pd(y, x));
+    s->z = z; s->e = e;
+    return 0;
+}
+
+static inline const char *line_end(const char *q, const char *end, unsigned char *high);
+
+/* The line at p, lim the data's end, start its start: 1 if it was read here (and emitted; *le:
+ * its line end, '\n' or '\r'), 0 if it is the general code's, -1 on an error. The line end is
+ * found as the words are read (the line is not searched for it first). */
+static int fast_line(Scanner *s, const char *start, const char *p, const char *lim,
+                     const char **le) {
+    static const uint64_t p10u[9] = {1, 10, 100, 1000, 10000, 100000, 1000000, 10000000, 100000000};
+    static const double p10[16] = {1e0, 1e1, 1e2, 1e3, 1e4, 1e5, 1e6, 1e7, 1e8,
+                                   1e9, 1e10, 1e11, 1e12, 1e13, 1e14, 1e15};
+    static const double sign[2] = {1.0, -1.0};     /* (times -1.0: the same as negating) */
+    /* the top n bytes of 8 */
+    static const uint64_t top[9] = {0, 0xFFULL << 56, 0xFFFFULL << 48, 0xFFFFFFULL << 40,
+                                    0xFFFFFFFFULL << 32, 0xFFFFFFFFFFULL << 24,
+                                    0xFFFFFFFFFFFFULL << 16, 0xFFFFFFFFFFFFFFULL << 8, ~0ULL};
+    /* a line of up to 64 bytes (a word may run to the 81st): the reads below stay within 96
+     * bytes from p, and 8 before it */
+    if (lim - p < 96 || p - start < 8 || p[0] != 'G' || (p[1] != '0' && p[1] != '1') ||
+        p[2] != ' ')
+        return 0;
+    const __m128i below = _mm_set1_epi8('0' - 1), above = _mm_set1_epi8('9' + 1),
+                  dotc = _mm_set1_epi8('.'), minus = _mm_set1_epi8('-'), plus = _mm_set1_epi8('+'),
+                  past = _mm_set1_epi8(' ' + 1);
+    /* X Y Z E F as target() takes them: a word's value, else the position (absolute) or 0.0
+     * (relative, added to it as target() does), and the feed rate for F */
+    double v[5];
+    v[0] = s->abs_xyz ? s->x : 0.0;
+    v[1] = s->abs_xyz ? s->y : 0.0;
+    v[2] = s->abs_xyz ? s->z : 0.0;
+    v[3] = s->abs_e ? s->e : 0.0;
+    v[4] = s->f;
+    const char *q = p + 3;
+    int k;
+    for (;;) {
+        while ((k = fast_class[(unsigned char)*q]) == FAST_BLANK)
+            if (++q - p > 64) return 0;
+        if (k >= FAST_END) {
+            /* a comment after the words (Slic3r's "G1 X.. E.. ; perimeter"): no part of the
+             * move (do_line_state cuts it off), but the line must be ASCII as feed() requires
+             * of a command line; the estimator reads some comments itself (is_event's) */
+            if (k == FAST_COMMENT) {
+                unsigned char high = 0;
+                const char *c = q + 1;
+                q = line_end(q, lim, &high);
+                if (high >= 0x80 || q == lim) return 0;
+                if (s->events) {
+                    while (c < q && is_ws((unsigned char)*c)) c++;
+                    if (q - c >= 5 && (memcmp(c, "TYPE:", 5) == 0 || memcmp(c, "LAYER", 5) == 0))
+                        return 0;
+                }
+            }
+            break;
+        }
+        if (k < 0 || q - p > 64) return 0;
+        /* [-+]?[0-9]*(\.[0-9]*)?, then a blank or the line end. The word's end is where the
+         * next one is looked for: the first of the sixteen bytes after the letter that is
+         * <= ' ' or >= 0x80 (one signed compare), so that the steps from word to word are few;
+         * that the bytes before it are digits, dots and signs, the number's shape and value are
+         * worked out beside */
+        __m128i b16 = _mm_loadu_si128((const __m128i *)(q + 1));
+        int len = __builtin_ctz((unsigned)_mm_movemask_epi8(_mm_cmplt_epi8(b16, past)) | 0x10000u);
+        const char *z = q + 1 + len;           /* the number's end */
+        __m128i dg = _mm_and_si128(_mm_cmpgt_epi8(b16, below), _mm_cmplt_epi8(b16, above));
+        __m128i dt = _mm_cmpeq_epi8(b16, dotc);
+        __m128i sg = _mm_or_si128(_mm_cmpeq_epi8(b16, minus), _mm_cmpeq_epi8(b16, plus));
+        unsigned body = (unsigned)_mm_movemask_epi8(_mm_or_si128(_mm_or_si128(dg, dt), sg));
+        int s0 = q[1] == '-' || q[1] == '+';
+        /* the bytes of the number that are no digit, but for a sign first: a dot or none */
+        unsigned odd = ~(unsigned)_mm_movemask_epi8(dg) & ((1u << len) - 1) & ~(unsigned)s0;
+        unsigned dots = (unsigned)_mm_movemask_epi8(dt);
+        int dot = odd != 0;
+        int at = __builtin_ctz(odd | (1u << len));     /* the dot, or the end */
+        int lead = at - s0, frac = len - at - dot, n = lead + frac;
+        if (fast_class[(unsigned char)*z] < FAST_BLANK || n == 0 || (odd & (odd - 1)) ||
+            (odd & ~dots) || (~body & ((1u << len) - 1)))
+            return 0;
+        uint64_t m;
+        if (n + dot <= 8) {
+            /* the eight bytes up to the number's end: its digits at the top but for the dot,
+             * which the digits before it are moved over */
+            uint64_t w, shifted;
+            memcpy(&w, z - 8, 8);
+            shifted = dot ? w << 8 : w;
+            m = top_digits((w & top[frac]) | (shifted & (top[n] ^ top[frac])));
+        } else {                               /* up to 8 digits on each side, 15 in all */
+            if (lead > 8 || frac > 8 || n > 15) return 0;
+            const char *d = q + 1 + s0;
+            uint64_t a, b;
+            memcpy(&a, d, 8);
+            memcpy(&b, d + lead + 1, 8);
+            m = (lead ? eight_digits(a, lead) * p10u[frac] : 0) + (frac ? eight_digits(b, frac) : 0);
+        }
+        if (s->events && k == 4 && m == 0) return 0;         /* F0: an event */
+        /* as parse_words: the digits as an integer (exact) over a power of ten */
+        v[k] = (double)(int64_t)m / p10[frac] * sign[q[1] == '-'];
+        q = z;
+    }
+    double x, y, z, e;
+    if (s->abs_xyz) {
+        x = v[0]; y = v[1]; z = v[2];
+    } else {
+        x = s->x + v[0]; y = s->y + v[1]; z = s->z + v[2];
+    }
+    e = s->abs_e ? v[3] : s->e + v[3];
+    s->f = v[4];
+    s->line_no++;
+    *le = q;
+    return emit_move(s, p, x, y, z, e) < 0 ? -1 : 1;
+}
+#endif
+
 /* One line without its line end (gcode.split_code + parse_lines). */
 static int do_line_state(Scanner *s, const char *p, const char *end, int ascii);
 
@@ -562,6 +775,44 @@ static int do_line_state(Scanner *s, const char *p, const char *end, int ascii) 
     return 0;
 }
 
+/* The first '\n' or '\r' at or after q (end: none); or's into *high the bytes before it. */
+static inline const char *line_end(const char *q, const char *end, unsigned char *high) {
+#if defined(__SSE2__) && (defined(__GNUC__) || defined(__clang__))
+    /* sixteen bytes at a time (every x86-64 has SSE2): a mask of the line ends, and the bytes'
+     * top bits, which are set for bytes >= 0x80 */
+    const __m128i lf = _mm_set1_epi8('\n'), cr = _mm_set1_epi8('\r');
+    while (end - q >= 16) {
+        __m128i v = _mm_loadu_si128((const __m128i *)q);
+        unsigned stop = (unsigned)_mm_movemask_epi8(_mm_or_si128(_mm_cmpeq_epi8(v, lf),
+                                                                 _mm_cmpeq_epi8(v, cr)));
+        unsigned top = (unsigned)_mm_movemask_epi8(v);
+        if (stop) {
+            unsigned at = (unsigned)__builtin_ctz(stop);
+            if (top & ((1u << at) - 1)) *high = 0x80;
+            return q + at;
+        }
+        if (top) *high = 0x80;
+        q += 16;
+    }
+#else
+    /* eight bytes at a time while none is '\n', '\r' or >= 0x80 (the zero test has no false
+     * negatives), then byte by byte */
+    const uint64_t ones = 0x0101010101010101ULL, highs = 0x8080808080808080ULL;
+    while (end - q >= 8) {
+        uint64_t w, lf, cr;
+        memcpy(&w, q, 8);
+        lf = w ^ (ones * '\n');
+        cr = w ^ (ones * '\r');
+        if ((((lf - ones) & ~lf) | ((cr - ones) & ~cr) | w) & highs) break;
+        q += 8;
+    }
+#endif
+    unsigned char h = 0;
+    while (q < end && *q != '\n' && *q != '\r') h |= (unsigned char)*q++;
+    *high |= h;
+    return q;
+}
+
 /* feed(data, final, base) -> (records: bytes, used: int). Lines that end in data are scanned;
  * without final, the bytes after the last line end are left for the next call (used says where).
  * base: the file offset of data[0], for the records' offsets. */
@@ -598,23 +849,19 @@ static PyObject *Scanner_feed(Scanner *s, PyObject *args) {
         } else if (!s->ts && ++since >= 1024) {
             s->ts = PyEval_SaveThread();
         }
-        const char *q = p;
-        unsigned char high = 0;                /* the line's bytes or'ed: >= 0x80 if any is */
-        /* eight bytes at a time while none is '\n', '\r' or >= 0x80 (the zero test has no
-         * false negatives), then byte by byte */
-        while (end - q >= 8) {
-            const uint64_t ones = 0x0101010101010101ULL, highs = 0x8080808080808080ULL;
-            uint64_t w, lf, cr;
-            memcpy(&w, q, 8);
-            lf = w ^ (ones * '\n');
-            cr = w ^ (ones * '\r');
-            if ((((lf - ones) & ~lf) | ((cr - ones) & ~cr) | w) & highs) break;
-            q += 8;
+        const char *q;
+        int rc = 0;
+#ifdef FAST_MOVES
+        rc = fast_line(s, buf.buf, p, end, &q);
+#endif
+        if (rc == 0) {
+            unsigned char high = 0;            /* the line's bytes or'ed: >= 0x80 if any is */
+            q = line_end(p, end, &high);
+            if (q == end && !final) break;
+            s->line_no++;
+            rc = do_line(s, p, q, high < 0x80);
         }
-        while (q < end && *q != '\n' && *q != '\r') high |= (unsigned char)*q++;
-        if (q == end && !final) break;
-        s->line_no++;
-        if (do_line(s, p, q, high < 0x80) < 0) {
+        if (rc < 0) {
             hold(s);                           /* (held already: the error was set with it) */
             s->busy = 0;
             PyBuffer_Release(&buf);
@@ -659,6 +906,12 @@ static int Scanner_init(Scanner *s, PyObject *args, PyObject *kw) {
     s->events = events;
     if (lean < 0 || lean > 2) { PyErr_SetString(PyExc_ValueError, "lean: 0, 1 or 2"); return -1; }
     s->lean = events ? 0 : lean;
+    if (s->lean == 2 && s->ncap < s->cap) {    /* (grow() keeps the two as long from now on) */
+        int64_t *q = PyMem_RawRealloc(s->nums, (size_t)s->cap * sizeof(int64_t));
+        if (!q) { PyErr_NoMemory(); return -1; }
+        s->nums = q;
+        s->ncap = s->cap;
+    }
     s->moves = 0;
     s->follow = 0;
     s->have_top = 0;
@@ -1112,6 +1365,9 @@ static struct PyModuleDef scan_module = {
     PyModuleDef_HEAD_INIT, "_scan", "G-code move scanner (C)", -1, module_methods, NULL, NULL, NULL, NULL};
 
 PyMODINIT_FUNC PyInit__scan(void) {
+#ifdef FAST_MOVES
+    fast_init();
+#endif
     if (PyType_Ready(&ScannerType) < 0) return NULL;
     PyObject *m = PyModule_Create(&scan_module);
     if (!m) return NULL;
@@ -1121,6 +1377,6 @@ PyMODINIT_FUNC PyInit__scan(void) {
     PyModule_AddObject(m, "Scanner", (PyObject *)&ScannerType);
     PyModule_AddIntConstant(m, "RECORD_SIZE", (long)sizeof(Record));
     /* what gcode.SCAN_VERSION expects: a module built from an older _scan.c is not used */
-    PyModule_AddIntConstant(m, "VERSION", 8);
+    PyModule_AddIntConstant(m, "VERSION", 9);
     return m;
 }
