@@ -182,34 +182,103 @@ def _crossings(a, b, cx, cy, dx, dy):
     return t, w, ok
 
 
-def _ray_hits(xys: list, ss: list, cens: list, direction) -> list[float]:
-    """_ray_hit of many walls: the arithmetic per segment as there, for all of them at once
-    (a file has thousands of layers); per wall the crossing of greatest t (the first of equal
-    ones, as argmax), or _ray_hit's fallback."""
+def _walls_geometry(ends: np.ndarray, index: np.ndarray, r0: np.ndarray, r1: np.ndarray,
+                    direction) -> tuple[list, list, list, list, list, list]:
+    """Walls whose moves are the rows r0[i]..r1[i]-1 of ends (x0 y0 x1 y1 ...; index: their move
+    numbers): per wall its vertices (the first move's start, then every move's end), arc lengths,
+    move numbers, whether it runs counter-clockwise, its centroid and the arc length where the
+    reference ray crosses it. Every number is, to the bit, what the wall's own arrays give
+    (_area_centroid, np.cumsum of np.hypot, _ray_hit): computed for many walls at once (a file
+    has thousands of layers), element by element the same operations, and
+    - each wall's sums as np.add.reduceat over its values behind a 0.0: reduceat copies a
+      segment's first element and adds the pairwise sum of the rest, which is then 0.0 + the
+      pairwise sum of the wall's values, what .sum() gives (its identity 0.0 plus that sum);
+    - arc lengths as np.cumsum along the rows of a padded 2-D array (each one add after another,
+      as a wall's own np.cumsum);
+    - the orientation from the sum of the cross products when it lies beyond the rounding error
+      of any order of summation, else from np.dot as _signed_area (BLAS may sum in another order:
+      only a wall of near zero area can tell)."""
+    m = len(r0)
+    n = r1 - r0 + 1                                   # vertices (3 or more)
+    xys, ss, mis = [None] * m, [None] * m, [None] * m
+    ccw, cens, srefs = [True] * m, [None] * m, [0.0] * m
+    by_len = np.argsort(n, kind="stable")
+    n_sorted = n[by_len]
     dx, dy = direction
-    nseg = np.array([len(xy) - 1 for xy in xys])
-    a = np.concatenate([xy[:-1] for xy in xys])
-    b = np.concatenate([xy[1:] for xy in xys])
-    cx = np.repeat([c[0] for c in cens], nseg)
-    cy = np.repeat([c[1] for c in cens], nseg)
-    t, w, ok = _crossings(a, b, cx, cy, dx, dy)
-    wall = np.repeat(np.arange(len(xys)), nseg)
-    idx = np.flatnonzero(ok)
-    order = np.lexsort((idx, -t[idx], wall[idx]))       # per wall: greatest t, first index
-    first = idx[order]
-    hit_wall, at = np.unique(wall[first], return_index=True)
-    k = first[at]
-    start = np.concatenate([[0], np.cumsum(nseg)[:-1]])
-    j = k - start[hit_wall]                              # segment within its wall
-    s_all = np.concatenate(ss)
-    s_at = np.concatenate([[0], np.cumsum(nseg + 1)[:-1]])[hit_wall] + j
-    out = [None] * len(xys)
-    for i, v in zip(hit_wall.tolist(), (s_all[s_at] + w[k] * (s_all[s_at + 1] - s_all[s_at])).tolist()):
-        out[i] = v
-    for i in range(len(xys)):
-        if out[i] is None:
-            out[i] = _ray_hit(xys[i], ss[i], cens[i], direction)
-    return out
+    eps = np.finfo(float).eps
+    k = 0
+    while k < m:
+        # a block: walls of about one length (padding them to the longest wastes <= 1/4), about
+        # 2**17 vertices (memory)
+        n0 = int(n_sorted[k])
+        j = min(int(np.searchsorted(n_sorted, n0 + n0 // 4, side="right")),
+                k + max(1, (1 << 17) // n0))
+        ids = by_len[k:j]
+        k = j
+        nb = n[ids]
+        P = int(nb.max())
+        W = len(ids)
+        rows = np.arange(W)
+        # column 0: a 0.0 ahead of each wall (the reduceat above); columns 1..n its vertices; the
+        # rest repeats its last vertex, and one column more keeps every segment's end inside
+        R = np.minimum(r0[ids, None] + np.arange(P - 1), r1[ids, None] - 1)
+        XY = np.zeros((W, P + 2, 2))
+        XY[:, 1] = ends[r0[ids], 0:2]
+        XY[:, 2:P + 1] = ends[:, 2:4][R]
+        X, Y = XY[:, :, 0], XY[:, :, 1]
+        XN = np.empty((W, P + 2))
+        YN = np.empty((W, P + 2))
+        XN[:, :-1], YN[:, :-1] = X[:, 1:], Y[:, 1:]
+        XN[rows, nb], YN[rows, nb] = X[:, 1], Y[:, 1]       # a wall's last vertex -> its first
+        XN[:, -1] = YN[:, -1] = 0.0
+        P1, P2 = X * YN, XN * Y
+        CR = P1 - P2
+        AX = (X + XN) * CR
+        AY = (Y + YN) * CR
+        ABS = np.abs(P1) + np.abs(P2)
+        for a in (CR, AX, AY, ABS):
+            a[:, 0] = 0.0
+        seg = np.empty(2 * W, np.int64)                   # [0.0 + wall i) and the rest, per row
+        seg[0::2] = rows * (P + 2)
+        seg[1::2] = seg[0::2] + nb + 1
+        cr, ax, ay, ab = (np.add.reduceat(a.ravel(), seg)[0::2] for a in (CR, AX, AY, ABS))
+        ar = cr / 2
+        S = np.empty((W, P))
+        S[:, 0] = 0.0
+        S[:, 1:] = np.hypot(X[:, 2:P + 1] - X[:, 1:P], Y[:, 2:P + 1] - Y[:, 1:P])
+        S = np.cumsum(S, axis=1)
+        MI = index[R]
+        sure = np.abs(cr) > 8 * (nb + 4) * eps * ab       # (False for NaN: then np.dot)
+        small = np.abs(ar) < 1e-12
+        with np.errstate(divide="ignore", invalid="ignore"):   # (tiny areas: the means below)
+            cx_l, cy_l = (ax / (6 * ar)).tolist(), (ay / (6 * ar)).tolist()
+        for i, (w, ni, ok_sign, c_pos, is_small) in enumerate(zip(ids.tolist(), nb.tolist(), sure.tolist(),
+                                                                 (cr >= 0).tolist(), small.tolist())):
+            xy = XY[i, 1:ni + 1]
+            xys[w] = xy
+            ss[w] = S[i, :ni]
+            mis[w] = MI[i, :ni - 1]
+            if ok_sign:
+                ccw[w] = c_pos
+            else:
+                area = 0.5 * float(np.dot(xy[:, 0], YN[i, 1:ni + 1]) - np.dot(xy[:, 1], XN[i, 1:ni + 1]))
+                ccw[w] = area >= 0
+            if is_small:
+                cx_l[i], cy_l[i] = float(xy[:, 0].mean()), float(xy[:, 1].mean())
+            cens[w] = (cx_l[i], cy_l[i])
+        # the reference ray's crossings, as _ray_hit: per wall the one of greatest t (the first of
+        # equal ones, as argmax), or _ray_hit's fallback when there is none
+        t, wt, ok = _crossings(XY[:, 1:P].reshape(-1, 2), XY[:, 2:P + 1].reshape(-1, 2),
+                               np.repeat(cx_l, P - 1), np.repeat(cy_l, P - 1), dx, dy)
+        ok = ok.reshape(W, P - 1) & (np.arange(P - 1) < (nb - 1)[:, None])
+        t = np.where(ok, t.reshape(W, P - 1), -np.inf)
+        at = t.argmax(axis=1)
+        hit = ok[rows, at]
+        s0, s1 = S[rows, at], S[rows, at + 1]
+        ref = (s0 + wt.reshape(W, P - 1)[rows, at] * (s1 - s0)).tolist()
+        for i, (w, h) in enumerate(zip(ids.tolist(), hit.tolist())):
+            srefs[w] = ref[i] if h else _ray_hit(xys[w], ss[w], cens[w], direction)
+    return xys, ss, mis, ccw, cens, srefs
 
 
 def _ray_hit(xy: np.ndarray, s: np.ndarray, c, direction) -> float:
@@ -422,55 +491,16 @@ def walls_from_records(chunks: Iterable[np.ndarray], layer_height: float | None 
     walls: list[Wall] = []
     prev_z = None
     order = sorted(chosen)
-    # 512 chosen walls' vertices in one array (each one's first move's start, then every move's
-    # end), and what _area_centroid and the arc lengths compute element by element, for all of
-    # them at once (thousands of layers); per wall only the sums and dot products, on slices with
-    # the strides they had as arrays of their own (np.dot of a column view and a contiguous
-    # array), so every number is the one computed per wall.
-
-    def block(k0: int, k1: int):
-        # walls order[k0:k1] (memory: 512 walls at a time)
-        spans = [(chosen[b].r0, chosen[b].r1) for b in order[k0:k1]]
-        XY = np.concatenate([p for r0, r1 in spans for p in (ends[r0:r0 + 1, 0:2], ends[r0:r1, 2:4])])
-        off = np.zeros(len(spans) + 1, np.int64)
-        np.cumsum([r1 - r0 + 1 for r0, r1 in spans], out=off[1:])
-        X, Y = XY[:, 0], XY[:, 1]
-        nxt = np.arange(1, len(XY) + 1)
-        nxt[off[1:] - 1] = off[:-1]                          # _next: a wall's last vertex -> its first
-        XN, YN = X[nxt], Y[nxt]
-        CR = X * YN - XN * Y
-        SEG = np.hypot(X[1:] - X[:-1], Y[1:] - Y[:-1])      # (across two walls: not used)
-        return off.tolist(), XY, XN, YN, CR, (X + XN) * CR, (Y + YN) * CR, SEG
-    for k, b in enumerate(order):
-        if k % 512 == 0:
-            off, XY, XN, YN, CR, AX, AY, SEG = block(k, k + 512)
-        best = chosen[b]
-        r0, r1 = best.r0, best.r1
-        a, e = off[k % 512], off[k % 512 + 1]
-        xy = XY[a:e]
-        s = np.empty(e - a)
-        s[0] = 0.0
-        np.cumsum(SEG[a:e - 1], out=s[1:])
-        # _area_centroid(xy), the same operations
-        area = 0.5 * float(np.dot(xy[:, 0], YN[a:e]) - np.dot(xy[:, 1], XN[a:e]))
-        ar = CR[a:e].sum() / 2
-        if abs(ar) < 1e-12:
-            cen = (float(xy[:, 0].mean()), float(xy[:, 1].mean()))
-        else:
-            cen = (float(AX[a:e].sum() / (6 * ar)), float(AY[a:e].sum() / (6 * ar)))
+    r0 = np.array([chosen[b].r0 for b in order], np.int64)
+    r1 = np.array([chosen[b].r1 for b in order], np.int64)
+    geom = _walls_geometry(ends, index, r0, r1, direction) if order else ([],) * 6
+    for b, xy, s, mi, ccw, cen, s_ref in zip(order, *geom):
         z = b / 100
         height = (z - prev_z) if prev_z is not None else min(z, h)
         if prev_z is not None and height > 1.5 * h:
             height = h  # a layer without wall in between
         prev_z = z
-        w = Wall(z=z, xy=xy, s=s, move_index=index[r0:r1].copy(), height=height,
-                 ccw=area >= 0, centroid=cen, closed=shut[r0])
-        walls.append(w)
-    for k in range(0, len(walls), 512):                 # (memory: 512 walls at a time)
-        part = walls[k:k + 512]
-        for w, ref in zip(part, _ray_hits([w.xy for w in part], [w.s for w in part],
-                                          [w.centroid for w in part], direction)):
-            w.s_ref = ref
+        walls.append(Wall(z, xy, s, mi, height, ccw, s_ref, cen, shut[chosen[b].r0]))
     loops = [w for w in walls if w.closed]
     for w in walls:
         if not w.closed and loops:
