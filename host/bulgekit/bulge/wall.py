@@ -182,11 +182,11 @@ def _crossings(a, b, cx, cy, dx, dy):
     return t, w, ok
 
 
-def _walls_geometry(ends: np.ndarray, index: np.ndarray, r0: np.ndarray, r1: np.ndarray,
-                    direction) -> tuple[list, list, list, list, list, list]:
-    """Walls whose moves are the rows r0[i]..r1[i]-1 of ends (x0 y0 x1 y1 ...; index: their move
-    numbers): per wall its vertices (the first move's start, then every move's end), arc lengths,
-    move numbers, whether it runs counter-clockwise, its centroid and the arc length where the
+def _walls_geometry(first: np.ndarray, ends: np.ndarray, index: np.ndarray, r0: np.ndarray,
+                    r1: np.ndarray, direction) -> tuple[list, list, list, list, list, list]:
+    """Walls whose vertices are first[i] (x, y) and the move ends (x1, y1) at the rows
+    r0[i]..r1[i]-1 of ends (index: the moves' numbers): per wall its vertices, arc lengths, move
+    numbers, whether it runs counter-clockwise, its centroid and the arc length where the
     reference ray crosses it. Every number is, to the bit, what the wall's own arrays give
     (_area_centroid, np.cumsum of np.hypot, _ray_hit): computed for many walls at once (a file
     has thousands of layers), element by element the same operations, and
@@ -202,6 +202,7 @@ def _walls_geometry(ends: np.ndarray, index: np.ndarray, r0: np.ndarray, r1: np.
     n = r1 - r0 + 1                                   # vertices (3 or more)
     xys, ss, mis = [None] * m, [None] * m, [None] * m
     ccw, cens, srefs = [True] * m, [None] * m, [0.0] * m
+    pairs = np.ascontiguousarray(ends, dtype=np.float64).view(np.complex128).ravel()   # (x1 y1)
     by_len = np.argsort(n, kind="stable")
     n_sorted = n[by_len]
     dx, dy = direction
@@ -223,8 +224,9 @@ def _walls_geometry(ends: np.ndarray, index: np.ndarray, r0: np.ndarray, r1: np.
         # rest repeats its last vertex, and one column more keeps every segment's end inside
         R = np.minimum(r0[ids, None] + np.arange(P - 1), r1[ids, None] - 1)
         XY = np.zeros((W, P + 2, 2))
-        XY[:, 1] = ends[r0[ids], 0:2]
-        XY[:, 2:P + 1] = ends[:, 2:4][R]
+        XY[:, 1] = first[ids]
+        # (np.take of 16-byte items is some 8 times faster than indexing rows of 2 floats)
+        XY[:, 2:P + 1] = np.take(pairs, R).view(np.float64).reshape(W, P - 1, 2)
         X, Y = XY[:, :, 0], XY[:, :, 1]
         XN = np.empty((W, P + 2))
         YN = np.empty((W, P + 2))
@@ -310,17 +312,17 @@ def _median_distance(pts: np.ndarray, poly: np.ndarray) -> float:
 
 class _Chain:
     """A run of eligible moves that join end to start at one layer bucket: its points are the
-    first move's start and every move's end (rows r0..r1-1 of the collected moves)."""
-    __slots__ = ("bucket", "r0", "r1", "_pts")
+    first move's start and every move's end (rows r0..r1-1 of the collected moves' ends)."""
+    __slots__ = ("bucket", "r0", "r1", "first", "_ends")
 
-    def __init__(self, bucket, r0, r1, ends):
+    def __init__(self, bucket, r0, r1, first, ends):
         self.bucket, self.r0, self.r1 = bucket, r0, r1
-        self._pts = ends
+        self.first = first                     # (x0, y0) of its first move
+        self._ends = ends
 
     @property
     def pts(self) -> np.ndarray:
-        e = self._pts
-        return np.concatenate([e[self.r0:self.r0 + 1, 0:2], e[self.r0:self.r1, 2:4]])
+        return np.concatenate([np.array([self.first]), self._ends[self.r0:self.r1]])
 
 
 def extract_walls(moves: Iterable[Move], layer_height: float | None = None,
@@ -337,13 +339,16 @@ def extract_walls(moves: Iterable[Move], layer_height: float | None = None,
                               ref_angle_deg, source, header_height)
 
 
-_ENDS_COLS = np.array([0, 1, 3, 4, 2, 5])        # RECORD's x0 y0 z0 x1 y1 z1 -> x0 y0 x1 y1 z0 z1
-
-
 def _coords(a: np.ndarray) -> np.ndarray:
     """The RECORD array a's x0 y0 z0 x1 y1 z1 as an (n, 6) float64 view (no copy)."""
     a = np.ascontiguousarray(a)
     return np.ndarray((len(a), 6), np.dtype("<f8"), a, 0, (a.itemsize, 8))
+
+
+def _runs(v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Where the runs of equal values of v start, and their values."""
+    st = np.flatnonzero(np.concatenate(([True], v[1:] != v[:-1]))) if len(v) else np.empty(0, np.int64)
+    return st, v[st]
 
 
 def walls_from_records(chunks: Iterable[np.ndarray], layer_height: float | None = None,
@@ -354,15 +359,23 @@ def walls_from_records(chunks: Iterable[np.ndarray], layer_height: float | None 
     step per move: a 100 MB file has some three million. chunks may be a kept lean Scan's
     (movescan.Chunks.numbers) in marked mode: it holds every outer-wall move, and a move left
     out between two records is outside the wall, a break."""
-    # Per chunk: the eligible moves' ends (x0 y0 x1 y1 z0 z1) and their move numbers; other
-    # moves that travel (or leave the outer wall) break a chain: a NaN row with number -1, one
-    # for a run of them.
-    parts: list[np.ndarray] = []
+    # Per chunk, of the eligible moves (the rows): their ends (x1 y1), move numbers, z (0.01 mm)
+    # and whether each joins the row before (its start at that one's end, no break between: a
+    # move that travels or leaves the outer wall breaks a chain); the start (x0 y0) only of rows
+    # that may begin a chain (not joined, or another z); the z of the planar ones in runs.
+    e1s: list[np.ndarray] = []
     nums: list[np.ndarray] = []
-    planar_z: list[np.ndarray] = []
+    zcs: list[np.ndarray] = []
+    links: list[np.ndarray] = []
+    firsts: list[np.ndarray] = []
+    first_rows: list[np.ndarray] = []
+    pz_vals: list[np.ndarray] = []
+    pz_lens: list[np.ndarray] = []
     any_outer = False
-    last_was_break = False
     done = 0                                   # moves before this chunk
+    rows_done = 0                              # rows before this chunk
+    breaks = 0                                 # breaks since the last row
+    last = None                                # the last row's x1, y1, z (cmm)
     numbers = getattr(chunks, "numbers", None)
     if numbers is not None and geometric:
         raise ValueError("walls_from_records: lean chunks hold the outer-wall moves only")
@@ -375,44 +388,67 @@ def walls_from_records(chunks: Iterable[np.ndarray], layer_height: float | None 
         ok = (c & movescan.EXTRUDES) != 0       # e > 0, moving in XY
         if not geometric:
             ok &= outer
-        other = ~ok & (moved | (~outer if not geometric else False))
+        brk = ~ok & (moved | (~outer if not geometric else False))
         if numbers is not None:
-            # two slots a record: a break for the moves left out before it, then the record
+            # a break also for the moves left out before a record
             num = numbers[-1]
-            gap = np.diff(num, prepend=after) > 1
+            brk |= np.diff(num, prepend=after) > 1
             after = int(num[-1])
-            ok = np.stack([np.zeros(len(a), bool), ok], 1).ravel()
-            other = np.stack([gap, other], 1).ravel()
-        ev = np.flatnonzero(ok | other)
-        is_brk = other[ev]
-        prev = np.concatenate([[last_was_break], is_brk[:-1]])
-        ev = ev[~is_brk | ~prev]                 # a run of breaks makes one row
-        if len(ev):
-            last_was_break = bool(other[ev[-1]])
-        # the rows' x0 y0 x1 y1 z0 z1, gathered in one go from the records' first six numbers
-        rec = ev if numbers is None else ev // 2
-        rows = _coords(a)[rec[:, None], _ENDS_COLS]
-        brk = other[ev]
-        rows[brk] = np.nan
-        parts.append(rows)
-        nums.append(np.where(brk, -1, rec + done if numbers is None else num[rec]))
-        ok_rows = rows[~brk]
-        flat = np.abs(ok_rows[:, 5] - ok_rows[:, 4]) < 1e-6
-        planar_z.append(movescan.z_cmm(ok_rows[flat, 5]))
+        rec = np.flatnonzero(ok)
+        # breaks up to each record (with those of earlier chunks since the last row); a row has
+        # one behind it when the count grew since the row before (a break record is no row, a
+        # gap counts before the record it precedes)
+        nb = np.cumsum(brk)
+        if not len(rec):
+            breaks += int(nb[-1]) if len(nb) else 0
+            done += len(a)
+            continue
+        at = nb[rec]
+        broken = np.diff(at, prepend=-breaks) > 0
+        breaks = int(nb[-1] - at[-1])
+        rows = _coords(a)[rec]                  # x0 y0 z0 x1 y1 z1
+        zc = movescan.z_cmm(rows[:, 5])
+        flat = np.abs(rows[:, 5] - rows[:, 2]) < 1e-6
+        st, v = _runs(zc[flat])
+        pz_vals.append(v)
+        pz_lens.append(np.diff(np.append(st, np.count_nonzero(flat))))
+        px1 = np.concatenate(([last[0] if last else np.nan], rows[:-1, 3]))
+        py1 = np.concatenate(([last[1] if last else np.nan], rows[:-1, 4]))
+        link = ~broken & (np.abs(px1 - rows[:, 0]) <= 1e-4) & (np.abs(py1 - rows[:, 1]) <= 1e-4)
+        if last is None:
+            link[0] = False
+        # (a chain begins where a row does not join, or lies in another bucket: at another z)
+        may_begin = ~link
+        may_begin[1:] |= zc[1:] != zc[:-1]
+        may_begin[0] |= last is None or zc[0] != last[2]
+        fr = np.flatnonzero(may_begin)
+        first_rows.append(fr + rows_done)
+        firsts.append(rows[fr, 0:2])
+        e1s.append(rows[:, 3:5])
+        zcs.append(zc)
+        links.append(link)
+        nums.append(rec + done if numbers is None else num[rec])
+        last = (float(rows[-1, 3]), float(rows[-1, 4]), int(zc[-1]))
         done += len(a)
+        rows_done += len(rec)
     if not geometric and not any_outer:
         raise WallError(
             f"{source}: no outer-wall feature comments found (;TYPE:External perimeter, "
             ";TYPE:Outer wall, ;TYPE:WALL-OUTER, ; outer perimeter). Slice with feature "
             "comments enabled, or use geometric mode (M720 S2): pass --geometric to take "
             "the outermost closed loop of each layer as the wall.")
-    ends = np.concatenate(parts) if parts else np.empty((0, 6))
+    ends = np.concatenate(e1s) if e1s else np.empty((0, 2))
     index = np.concatenate(nums) if nums else np.empty(0, np.int64)
-    del parts, nums
+    zc = np.concatenate(zcs) if zcs else np.empty(0, np.int64)
+    link = np.concatenate(links) if links else np.empty(0, bool)
+    first_row = np.concatenate(first_rows) if first_rows else np.empty(0, np.int64)
+    first_xy = np.concatenate(firsts) if firsts else np.empty((0, 2))
+    del e1s, nums, zcs, links, first_rows, firsts
     # A layer has many moves at its z; a spiral wall only now and then two
-    # consecutive moves at the same rounded z.
-    zp, counts = np.unique(np.concatenate(planar_z) if planar_z else np.empty(0, np.int64),
-                           return_counts=True)
+    # consecutive moves at the same rounded z. (np.unique over the runs of one z, weighed)
+    zp, inv = np.unique(np.concatenate(pz_vals) if pz_vals else np.empty(0, np.int64),
+                        return_inverse=True)
+    counts = np.bincount(inv.ravel(), np.concatenate(pz_lens) if pz_lens else None, len(zp))
     zs_planar = [int(z) for z in zp[counts >= 4]]
     if layer_height is not None and not (math.isfinite(layer_height) and 0 < layer_height <= 2.0):
         raise WallError(f"{source}: layer height {layer_height} mm must be > 0 and <= 2 mm")
@@ -430,41 +466,37 @@ def walls_from_records(chunks: Iterable[np.ndarray], layer_height: float | None 
     # The bucket of each move: the firmware's reading of its z, its end z in 0.01 mm rounded in
     # float32 (bulge_planner.cpp eligible()); a move off the planar layers (a spiral) snaps to
     # the layer grid above the highest planar layer below, nearest grid z, the lower one on a
-    # tie (as MapStore::find_layer).
-    real = index >= 0
-    zc = np.zeros(len(index), np.int64)
-    zc[real] = movescan.z_cmm(ends[real, 5])
+    # tie (as MapStore::find_layer). A planar move's z is a planar layer's, which that snapping
+    # leaves as it is: the bucket is a function of the z, computed once per run of one z.
+    zst, zr = _runs(zc)
     zsp = np.array(zs_planar, dtype=np.int64)
-    planar = real & (np.abs(ends[:, 5] - ends[:, 4]) < 1e-6) & np.isin(zc, zsp)
-    i = np.searchsorted(zsp, zc, side="right") - 1
+    i = np.searchsorted(zsp, zr, side="right") - 1
     base = np.where(i >= 0, zsp[np.maximum(i, 0)] if len(zsp) else 0, 0)
-    d = zc - base
-    bucket = np.where(planar, zc, base - ((h_cmm - 2 * d) // (2 * h_cmm)) * h_cmm)
-    # A chain starts after a break, or where a move does not start at the last one's end or
-    # lies in another bucket.
-    n = len(index)
-    start = real.copy()
-    if n > 1:
-        cont = (real[1:] & real[:-1] & (bucket[1:] == bucket[:-1])
-                & (np.abs(ends[:-1, 2] - ends[1:, 0]) <= 1e-4)
-                & (np.abs(ends[:-1, 3] - ends[1:, 1]) <= 1e-4))
-        start[1:] &= ~cont
+    d = zr - base
+    bucket_run = base - ((h_cmm - 2 * d) // (2 * h_cmm)) * h_cmm
+    # A chain starts where a row does not join the one before or lies in another bucket.
+    start = ~link
+    start[zst[1:][bucket_run[1:] != bucket_run[:-1]]] = True
     starts = np.flatnonzero(start)
-    stops = np.flatnonzero(real & np.concatenate([~real[1:] | start[1:], [True]])) + 1
-    chains = [_Chain(int(bucket[r0]), int(r0), int(r1), ends) for r0, r1 in zip(starts, stops)]
+    stops = np.append(starts[1:], len(zc))
+    buckets = bucket_run[np.searchsorted(zst, starts, side="right") - 1]
+    long = stops - starts >= 2                  # three points or more
+    starts, stops, buckets = starts[long], stops[long], buckets[long]
+    fxy = first_xy[np.searchsorted(first_row, starts)]
     gap = max(2.0, 3 * h)
     # whether each chain is closed (its end within gap of its start), on Python floats: no numpy
     # scalar per chain
+    chains = []
     shut = {}
-    if len(starts):
-        for c, x0, y0, x1, y1 in zip(chains, ends[starts, 0].tolist(), ends[starts, 1].tolist(),
-                                     ends[stops - 1, 2].tolist(), ends[stops - 1, 3].tolist()):
-            shut[c.r0] = math.hypot(x1 - x0, y1 - y0) <= gap
+    for b, r0, r1, x0, y0, (x1, y1) in zip(buckets.tolist(), starts.tolist(), stops.tolist(),
+                                           fxy[:, 0].tolist(), fxy[:, 1].tolist(),
+                                           ends[stops - 1].tolist()):
+        chains.append(_Chain(b, r0, r1, (x0, y0), ends))
+        shut[r0] = math.hypot(x1 - x0, y1 - y0) <= gap
 
     by_bucket: dict[int, list[_Chain]] = {}
     for c in chains:
-        if c.r1 - c.r0 >= 2:                    # three points or more
-            by_bucket.setdefault(c.bucket, []).append(c)
+        by_bucket.setdefault(c.bucket, []).append(c)
     if not math.isfinite(ref_angle_deg):
         raise WallError(f"{source}: reference angle {ref_angle_deg} is not a finite number")
     direction = (math.cos(math.radians(ref_angle_deg)), math.sin(math.radians(ref_angle_deg)))
@@ -493,7 +525,8 @@ def walls_from_records(chunks: Iterable[np.ndarray], layer_height: float | None 
     order = sorted(chosen)
     r0 = np.array([chosen[b].r0 for b in order], np.int64)
     r1 = np.array([chosen[b].r1 for b in order], np.int64)
-    geom = _walls_geometry(ends, index, r0, r1, direction) if order else ([],) * 6
+    first = np.array([chosen[b].first for b in order], dtype=float).reshape(-1, 2)
+    geom = _walls_geometry(first, ends, index, r0, r1, direction) if order else ([],) * 6
     for b, xy, s, mi, ccw, cen, s_ref in zip(order, *geom):
         z = b / 100
         height = (z - prev_z) if prev_z is not None else min(z, h)

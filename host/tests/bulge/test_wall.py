@@ -115,17 +115,18 @@ def test_walls_computed_together_are_each_walls_own_on_random_walls():
         if i % 13 == 0:
             xy = np.array([[0.0, 0.0], [3.0, 1.0], [6.0, 2.0], [3.0, 1.0]]) + 0.1 * i   # no area
         xys.append(xy)
-    # the walls' moves as rows x0 y0 x1 y1, in another order than the walls, with moves between
+    # the walls' moves' ends x1 y1, in another order than the walls, with moves between
     rows, r0 = [], np.empty(len(xys), np.int64)
     for i in rng.permutation(len(xys)):
-        rows.append(rng.uniform(-9, 9, (int(rng.integers(0, 3)), 4)))
+        rows.append(rng.uniform(-9, 9, (int(rng.integers(0, 3)), 2)))
         r0[i] = sum(map(len, rows))
-        rows.append(np.concatenate([xys[i][:-1], xys[i][1:]], axis=1))
+        rows.append(xys[i][1:])
     ends = np.concatenate(rows)
     index = np.arange(len(ends)) * 3 + 7
     r1 = r0 + np.array([len(xy) - 1 for xy in xys])
+    first = np.array([xy[0] for xy in xys])
     for d in ((0.0, -1.0), (1.0, 0.0), (0.6, 0.8)):
-        got = _walls_geometry(ends, index, r0, r1, d)
+        got = _walls_geometry(first, ends, index, r0, r1, d)
         for i, (xy, s, mi, ccw, cen, s_ref) in enumerate(zip(*got)):
             assert xy.tobytes() == xys[i].tobytes()
             want_s = np.empty(len(xy))
