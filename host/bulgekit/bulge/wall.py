@@ -484,56 +484,56 @@ def walls_from_records(chunks: Iterable[np.ndarray], layer_height: float | None 
     starts, stops, buckets = starts[long], stops[long], buckets[long]
     fxy = first_xy[np.searchsorted(first_row, starts)]
     gap = max(2.0, 3 * h)
-    # whether each chain is closed (its end within gap of its start), on Python floats: no numpy
-    # scalar per chain
-    chains = []
-    shut = {}
-    for b, r0, r1, x0, y0, (x1, y1) in zip(buckets.tolist(), starts.tolist(), stops.tolist(),
-                                           fxy[:, 0].tolist(), fxy[:, 1].tolist(),
-                                           ends[stops - 1].tolist()):
-        chains.append(_Chain(b, r0, r1, (x0, y0), ends))
-        shut[r0] = math.hypot(x1 - x0, y1 - y0) <= gap
-
-    by_bucket: dict[int, list[_Chain]] = {}
-    for c in chains:
-        by_bucket.setdefault(c.bucket, []).append(c)
+    # whether each chain is closed (its end within gap of its start), with math.hypot on Python
+    # floats as ever (np.hypot may round otherwise)
+    dx_end = (ends[stops - 1, 0] - fxy[:, 0]).tolist() if len(starts) else []
+    dy_end = (ends[stops - 1, 1] - fxy[:, 1]).tolist() if len(starts) else []
+    hyp = math.hypot
+    shut = np.array([hyp(a, b) <= gap for a, b in zip(dx_end, dy_end)], bool)
     if not math.isfinite(ref_angle_deg):
         raise WallError(f"{source}: reference angle {ref_angle_deg} is not a finite number")
     direction = (math.cos(math.radians(ref_angle_deg)), math.sin(math.radians(ref_angle_deg)))
-    chosen: dict[int, _Chain] = {}
+    # The chains of each bucket (in file order), buckets ascending; most buckets have one chain,
+    # which is their wall: _Chain objects only for the others, and all of geometric mode's.
+    by = np.argsort(buckets, kind="stable")
+    bst, bvals = _runs(buckets[by])
+    bcount = np.diff(np.append(bst, len(by)))
+    pick = np.where(bcount == 1, by[bst] if len(by) else 0, -1)   # per bucket: the chain chosen
+    unclosed = (bcount == 1) & ~shut[pick] if len(by) else np.zeros(0, bool)
     upper: np.ndarray | None = None
     # Geometric mode goes top-down: the wall of a layer must lie near the wall
     # of the layer above, which rejects a skirt (it stands off the part) even
     # though it is the largest loop of the first layer.
-    order = sorted(by_bucket, reverse=geometric)
-    for b in order:
-        cands = by_bucket[b]
-        closed = [c for c in cands if shut[c.r0]]
+    general = range(len(bvals) - 1, -1, -1) if geometric else np.flatnonzero(bcount != 1).tolist()
+    for k in general:
+        b = int(bvals[k])
+        cands = [_Chain(b, int(starts[j]), int(stops[j]), (float(fxy[j, 0]), float(fxy[j, 1])), ends)
+                 for j in by[bst[k]:bst[k] + bcount[k]].tolist()]
+        closed = [c for c, j in zip(cands, by[bst[k]:bst[k] + bcount[k]].tolist()) if shut[j]]
         pool = closed or cands
         if geometric and upper is not None:
             near = [c for c in pool if _median_distance(np.array(c.pts), upper) <= max(1.0, 3 * h)]
             pool = near or pool
         # (most layers have one wall: no areas to compare)
         best = pool[0] if len(pool) == 1 else max(pool, key=lambda c: abs(_signed_area(np.array(c.pts))))
-        if not closed:
-            notes.append(f"layer z {b / 100:.2f}: no closed outer loop, using the largest open one")
-        chosen[b] = best
+        unclosed[k] = not closed
+        pick[k] = by[bst[k] + cands.index(best)]
         if geometric:
             upper = np.array(best.pts, dtype=float)
+    for k in (range(len(bvals) - 1, -1, -1) if geometric else range(len(bvals))):
+        if unclosed[k]:
+            notes.append(f"layer z {int(bvals[k]) / 100:.2f}: no closed outer loop, using the largest open one")
     walls: list[Wall] = []
     prev_z = None
-    order = sorted(chosen)
-    r0 = np.array([chosen[b].r0 for b in order], np.int64)
-    r1 = np.array([chosen[b].r1 for b in order], np.int64)
-    first = np.array([chosen[b].first for b in order], dtype=float).reshape(-1, 2)
-    geom = _walls_geometry(first, ends, index, r0, r1, direction) if order else ([],) * 6
-    for b, xy, s, mi, ccw, cen, s_ref in zip(order, *geom):
+    geom = (_walls_geometry(fxy[pick], ends, index, starts[pick], stops[pick], direction)
+            if len(pick) else ([],) * 6)
+    for b, xy, s, mi, ccw, cen, s_ref, closed in zip(bvals.tolist(), *geom, shut[pick].tolist()):
         z = b / 100
         height = (z - prev_z) if prev_z is not None else min(z, h)
         if prev_z is not None and height > 1.5 * h:
             height = h  # a layer without wall in between
         prev_z = z
-        walls.append(Wall(z, xy, s, mi, height, ccw, s_ref, cen, shut[chosen[b].r0]))
+        walls.append(Wall(z, xy, s, mi, height, ccw, s_ref, cen, closed))
     loops = [w for w in walls if w.closed]
     for w in walls:
         if not w.closed and loops:
