@@ -210,10 +210,10 @@ def _walls_geometry(first: np.ndarray, ends: np.ndarray, index: np.ndarray, r0: 
     k = 0
     while k < m:
         # a block: walls of about one length (padding them to the longest wastes <= 1/4), about
-        # 2**17 vertices (memory)
+        # 2**16 vertices (memory)
         n0 = int(n_sorted[k])
         j = min(int(np.searchsorted(n_sorted, n0 + n0 // 4, side="right")),
-                k + max(1, (1 << 17) // n0))
+                k + max(1, (1 << 16) // n0))
         ids = by_len[k:j]
         k = j
         nb = n[ids]
@@ -269,17 +269,31 @@ def _walls_geometry(first: np.ndarray, ends: np.ndarray, index: np.ndarray, r0: 
                 cx_l[i], cy_l[i] = float(xy[:, 0].mean()), float(xy[:, 1].mean())
             cens[w] = (cx_l[i], cy_l[i])
         # the reference ray's crossings, as _ray_hit: per wall the one of greatest t (the first of
-        # equal ones, as argmax), or _ray_hit's fallback when there is none
-        t, wt, ok = _crossings(XY[:, 1:P].reshape(-1, 2), XY[:, 2:P + 1].reshape(-1, 2),
-                               np.repeat(cx_l, P - 1), np.repeat(cy_l, P - 1), dx, dy)
-        ok = ok.reshape(W, P - 1) & (np.arange(P - 1) < (nb - 1)[:, None])
-        t = np.where(ok, t.reshape(W, P - 1), -np.inf)
-        at = t.argmax(axis=1)
-        hit = ok[rows, at]
-        s0, s1 = S[rows, at], S[rows, at + 1]
-        ref = (s0 + wt.reshape(W, P - 1)[rows, at] * (s1 - s0)).tolist()
-        for i, (w, h) in enumerate(zip(ids.tolist(), hit.tolist())):
-            srefs[w] = ref[i] if h else _ray_hit(xys[w], ss[w], cens[w], direction)
+        # equal ones, as argmax), or _ray_hit's fallback when there is none. _crossings only on the
+        # segments whose ends do not both lie well on one side of the ray's line: it finds the
+        # others not crossing it either (w outside 0..1), as lim lies far above the rounding
+        # errors of its arithmetic (some 50 eps times the largest coordinate)
+        V = XY[:, 1:P + 1]
+        cxa, cya = np.array(cx_l), np.array(cy_l)
+        side = (V[:, :, 0] - cxa[:, None]) * dy - (V[:, :, 1] - cya[:, None]) * dx
+        cand = np.arange(P - 1) < (nb - 1)[:, None]
+        lim = 1e-12 * (1.0 + max(float(np.abs(V).max()), float(np.abs(cxa).max()),
+                                 float(np.abs(cya).max())))
+        if math.isfinite(lim):
+            cand &= (np.minimum(side[:, :-1], side[:, 1:]) <= lim)
+            cand &= (np.maximum(side[:, :-1], side[:, 1:]) >= -lim)
+        wi, ki = np.nonzero(cand)
+        t, wt, ok = _crossings(V[wi, ki], V[wi, ki + 1], cxa[wi], cya[wi], dx, dy)
+        wi, ki, t, wt = wi[ok], ki[ok], t[ok], wt[ok]
+        o = np.lexsort((ki, -t, wi))                       # per wall: greatest t, first segment
+        o = o[np.unique(wi[o], return_index=True)[1]]
+        hw, hk = wi[o], ki[o]
+        s0, s1 = S[hw, hk], S[hw, hk + 1]
+        hit = [None] * W
+        for i, v in zip(hw.tolist(), (s0 + wt[o] * (s1 - s0)).tolist()):
+            hit[i] = v
+        for i, (w, v) in enumerate(zip(ids.tolist(), hit)):
+            srefs[w] = v if v is not None else _ray_hit(xys[w], ss[w], cens[w], direction)
     return xys, ss, mis, ccw, cens, srefs
 
 
@@ -339,10 +353,11 @@ def extract_walls(moves: Iterable[Move], layer_height: float | None = None,
                               ref_angle_deg, source, header_height)
 
 
-def _coords(a: np.ndarray) -> np.ndarray:
-    """The RECORD array a's x0 y0 z0 x1 y1 z1 as an (n, 6) float64 view (no copy)."""
+def _coords(a: np.ndarray, rec: np.ndarray) -> np.ndarray:
+    """x0 y0 z0 x1 y1 z1 of the records rec of the RECORD array a, as an (n, 6) float64 array
+    (gathered as one 48-byte item a record: twice as fast as rows of 6 floats)."""
     a = np.ascontiguousarray(a)
-    return np.ndarray((len(a), 6), np.dtype("<f8"), a, 0, (a.itemsize, 8))
+    return np.ndarray((len(a),), np.dtype("V48"), a, 0, (a.itemsize,))[rec].view("<f8").reshape(-1, 6)
 
 
 def _runs(v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -406,7 +421,7 @@ def walls_from_records(chunks: Iterable[np.ndarray], layer_height: float | None 
         at = nb[rec]
         broken = np.diff(at, prepend=-breaks) > 0
         breaks = int(nb[-1] - at[-1])
-        rows = _coords(a)[rec]                  # x0 y0 z0 x1 y1 z1
+        rows = _coords(a, rec)                  # x0 y0 z0 x1 y1 z1
         zc = movescan.z_cmm(rows[:, 5])
         flat = np.abs(rows[:, 5] - rows[:, 2]) < 1e-6
         st, v = _runs(zc[flat])
@@ -424,7 +439,8 @@ def walls_from_records(chunks: Iterable[np.ndarray], layer_height: float | None 
         fr = np.flatnonzero(may_begin)
         first_rows.append(fr + rows_done)
         firsts.append(rows[fr, 0:2])
-        e1s.append(rows[:, 3:5])
+        # (x1 y1 as one complex: concatenated some 3 times faster than rows of 2 floats)
+        e1s.append(np.ndarray((len(rows),), np.complex128, rows, 24, (48,)))
         zcs.append(zc)
         links.append(link)
         nums.append(rec + done if numbers is None else num[rec])
@@ -437,7 +453,7 @@ def walls_from_records(chunks: Iterable[np.ndarray], layer_height: float | None 
             ";TYPE:Outer wall, ;TYPE:WALL-OUTER, ; outer perimeter). Slice with feature "
             "comments enabled, or use geometric mode (M720 S2): pass --geometric to take "
             "the outermost closed loop of each layer as the wall.")
-    ends = np.concatenate(e1s) if e1s else np.empty((0, 2))
+    ends = (np.concatenate(e1s) if e1s else np.empty(0, np.complex128)).view(np.float64).reshape(-1, 2)
     index = np.concatenate(nums) if nums else np.empty(0, np.int64)
     zc = np.concatenate(zcs) if zcs else np.empty(0, np.int64)
     link = np.concatenate(links) if links else np.empty(0, bool)
