@@ -380,7 +380,8 @@ def walls_from_records(chunks: Iterable[np.ndarray], layer_height: float | None 
     # that may begin a chain (not joined, or another z); the z of the planar ones in runs.
     e1s: list[np.ndarray] = []
     nums: list[np.ndarray] = []
-    zcs: list[np.ndarray] = []
+    zst_parts: list[np.ndarray] = []           # rows where a run of one z begins
+    zr_parts: list[np.ndarray] = []            # and its z (0.01 mm)
     links: list[np.ndarray] = []
     firsts: list[np.ndarray] = []
     first_rows: list[np.ndarray] = []
@@ -390,7 +391,7 @@ def walls_from_records(chunks: Iterable[np.ndarray], layer_height: float | None 
     done = 0                                   # moves before this chunk
     rows_done = 0                              # rows before this chunk
     breaks = 0                                 # breaks since the last row
-    last = None                                # the last row's x1, y1, z (cmm)
+    last = None                                # the last row's x1, y1
     numbers = getattr(chunks, "numbers", None)
     if numbers is not None and geometric:
         raise ValueError("walls_from_records: lean chunks hold the outer-wall moves only")
@@ -422,29 +423,33 @@ def walls_from_records(chunks: Iterable[np.ndarray], layer_height: float | None 
         broken = np.diff(at, prepend=-breaks) > 0
         breaks = int(nb[-1] - at[-1])
         rows = _coords(a, rec)                  # x0 y0 z0 x1 y1 z1
-        zc = movescan.z_cmm(rows[:, 5])
-        flat = np.abs(rows[:, 5] - rows[:, 2]) < 1e-6
-        st, v = _runs(zc[flat])
-        pz_vals.append(v)
-        pz_lens.append(np.diff(np.append(st, np.count_nonzero(flat))))
-        px1 = np.concatenate(([last[0] if last else np.nan], rows[:-1, 3]))
-        py1 = np.concatenate(([last[1] if last else np.nan], rows[:-1, 4]))
-        link = ~broken & (np.abs(px1 - rows[:, 0]) <= 1e-4) & (np.abs(py1 - rows[:, 1]) <= 1e-4)
-        if last is None:
-            link[0] = False
-        # (a chain begins where a row does not join, or lies in another bucket: at another z)
+        # the rows come in runs of one z (layers): z in 0.01 mm once per run, and how many of
+        # each run's rows are flat (planar)
+        z1 = rows[:, 5]
+        st = np.flatnonzero(np.concatenate(([True], z1[1:] != z1[:-1])))
+        zrun = movescan.z_cmm(z1[st])
+        flat = np.abs(z1 - rows[:, 2]) < 1e-6
+        pz_vals.append(zrun)
+        pz_lens.append(np.add.reduceat(flat, st, dtype=np.int64))
+        zst_parts.append(st + rows_done)
+        zr_parts.append(zrun)
+        gap = np.abs(rows[1:, 0:2] - rows[:-1, 3:5])   # start - the end of the row before
+        link = np.empty(len(rows), bool)
+        link[1:] = np.maximum(gap[:, 0], gap[:, 1]) <= 1e-4      # (NaN: no)
+        link[0] = last is not None and abs(last[0] - rows[0, 0]) <= 1e-4 and abs(last[1] - rows[0, 1]) <= 1e-4
+        link &= ~broken
+        # (a chain begins where a row does not join the one before, or lies in another bucket:
+        # at another z)
         may_begin = ~link
-        may_begin[1:] |= zc[1:] != zc[:-1]
-        may_begin[0] |= last is None or zc[0] != last[2]
+        may_begin[st] = True
         fr = np.flatnonzero(may_begin)
         first_rows.append(fr + rows_done)
         firsts.append(rows[fr, 0:2])
         # (x1 y1 as one complex: concatenated some 3 times faster than rows of 2 floats)
         e1s.append(np.ndarray((len(rows),), np.complex128, rows, 24, (48,)))
-        zcs.append(zc)
         links.append(link)
         nums.append(rec + done if numbers is None else num[rec])
-        last = (float(rows[-1, 3]), float(rows[-1, 4]), int(zc[-1]))
+        last = (float(rows[-1, 3]), float(rows[-1, 4]))
         done += len(a)
         rows_done += len(rec)
     if not geometric and not any_outer:
@@ -455,11 +460,10 @@ def walls_from_records(chunks: Iterable[np.ndarray], layer_height: float | None 
             "the outermost closed loop of each layer as the wall.")
     ends = (np.concatenate(e1s) if e1s else np.empty(0, np.complex128)).view(np.float64).reshape(-1, 2)
     index = np.concatenate(nums) if nums else np.empty(0, np.int64)
-    zc = np.concatenate(zcs) if zcs else np.empty(0, np.int64)
     link = np.concatenate(links) if links else np.empty(0, bool)
     first_row = np.concatenate(first_rows) if first_rows else np.empty(0, np.int64)
     first_xy = np.concatenate(firsts) if firsts else np.empty((0, 2))
-    del e1s, nums, zcs, links, first_rows, firsts
+    del e1s, nums, links, first_rows, firsts
     # A layer has many moves at its z; a spiral wall only now and then two
     # consecutive moves at the same rounded z. (np.unique over the runs of one z, weighed)
     zp, inv = np.unique(np.concatenate(pz_vals) if pz_vals else np.empty(0, np.int64),
@@ -484,7 +488,8 @@ def walls_from_records(chunks: Iterable[np.ndarray], layer_height: float | None 
     # the layer grid above the highest planar layer below, nearest grid z, the lower one on a
     # tie (as MapStore::find_layer). A planar move's z is a planar layer's, which that snapping
     # leaves as it is: the bucket is a function of the z, computed once per run of one z.
-    zst, zr = _runs(zc)
+    zst = np.concatenate(zst_parts) if zst_parts else np.empty(0, np.int64)
+    zr = np.concatenate(zr_parts) if zr_parts else np.empty(0, np.int64)
     zsp = np.array(zs_planar, dtype=np.int64)
     i = np.searchsorted(zsp, zr, side="right") - 1
     base = np.where(i >= 0, zsp[np.maximum(i, 0)] if len(zsp) else 0, 0)
@@ -494,7 +499,7 @@ def walls_from_records(chunks: Iterable[np.ndarray], layer_height: float | None 
     start = ~link
     start[zst[1:][bucket_run[1:] != bucket_run[:-1]]] = True
     starts = np.flatnonzero(start)
-    stops = np.append(starts[1:], len(zc))
+    stops = np.append(starts[1:], len(link))
     buckets = bucket_run[np.searchsorted(zst, starts, side="right") - 1]
     long = stops - starts >= 2                  # three points or more
     starts, stops, buckets = starts[long], stops[long], buckets[long]
