@@ -201,7 +201,9 @@ def _walls_geometry(first: np.ndarray, ends: np.ndarray, index: np.ndarray, r0: 
     m = len(r0)
     n = r1 - r0 + 1                                   # vertices (3 or more)
     xys, ss, mis = [None] * m, [None] * m, [None] * m
-    ccw, cens, srefs = [True] * m, [None] * m, [0.0] * m
+    ccw = np.ones(m, bool)
+    cx_all, cy_all, s_ref = np.empty(m), np.empty(m), np.empty(m)
+    hit = np.zeros(m, bool)                           # s_ref from a crossing
     pairs = np.ascontiguousarray(ends, dtype=np.float64).view(np.complex128).ravel()   # (x1 y1)
     by_len = np.argsort(n, kind="stable")
     n_sorted = n[by_len]
@@ -223,7 +225,8 @@ def _walls_geometry(first: np.ndarray, ends: np.ndarray, index: np.ndarray, r0: 
         # column 0: a 0.0 ahead of each wall (the reduceat above); columns 1..n its vertices; the
         # rest repeats its last vertex, and one column more keeps every segment's end inside
         R = np.minimum(r0[ids, None] + np.arange(P - 1), r1[ids, None] - 1)
-        XY = np.zeros((W, P + 2, 2))
+        XY = np.empty((W, P + 2, 2))
+        XY[:, 0] = XY[:, P + 1] = 0.0
         XY[:, 1] = first[ids]
         # (np.take of 16-byte items is some 8 times faster than indexing rows of 2 floats)
         XY[:, 2:P + 1] = np.take(pairs, R).view(np.float64).reshape(W, P - 1, 2)
@@ -233,68 +236,76 @@ def _walls_geometry(first: np.ndarray, ends: np.ndarray, index: np.ndarray, r0: 
         XN[:, :-1], YN[:, :-1] = X[:, 1:], Y[:, 1:]
         XN[rows, nb], YN[rows, nb] = X[:, 1], Y[:, 1]       # a wall's last vertex -> its first
         XN[:, -1] = YN[:, -1] = 0.0
-        P1, P2 = X * YN, XN * Y
-        CR = P1 - P2
+        CR = X * YN - XN * Y
         AX = (X + XN) * CR
         AY = (Y + YN) * CR
-        ABS = np.abs(P1) + np.abs(P2)
-        for a in (CR, AX, AY, ABS):
+        for a in (CR, AX, AY):
             a[:, 0] = 0.0
         seg = np.empty(2 * W, np.int64)                   # [0.0 + wall i) and the rest, per row
         seg[0::2] = rows * (P + 2)
         seg[1::2] = seg[0::2] + nb + 1
-        cr, ax, ay, ab = (np.add.reduceat(a.ravel(), seg)[0::2] for a in (CR, AX, AY, ABS))
+        cr, ax, ay = (np.add.reduceat(a.ravel(), seg)[0::2] for a in (CR, AX, AY))
         ar = cr / 2
         S = np.empty((W, P))
         S[:, 0] = 0.0
         S[:, 1:] = np.hypot(X[:, 2:P + 1] - X[:, 1:P], Y[:, 2:P + 1] - Y[:, 1:P])
         S = np.cumsum(S, axis=1)
         MI = index[R]
-        sure = np.abs(cr) > 8 * (nb + 4) * eps * ab       # (False for NaN: then np.dot)
-        small = np.abs(ar) < 1e-12
+        # the orientation: sure when the sum of the cross products is beyond any summation's
+        # rounding error, (n + 4) eps times the sum of the products' magnitudes (here bounded by
+        # 2 n M^2, M the block's largest coordinate); NaN and inf go to np.dot
+        M = max(float(XY.max()), -float(XY.min()))
+        sure = np.abs(cr) > 16 * (nb + 4) * eps * nb * M * M
+        ccw[ids] = cr >= 0
         with np.errstate(divide="ignore", invalid="ignore"):   # (tiny areas: the means below)
-            cx_l, cy_l = (ax / (6 * ar)).tolist(), (ay / (6 * ar)).tolist()
-        for i, (w, ni, ok_sign, c_pos, is_small) in enumerate(zip(ids.tolist(), nb.tolist(), sure.tolist(),
-                                                                 (cr >= 0).tolist(), small.tolist())):
-            xy = XY[i, 1:ni + 1]
-            xys[w] = xy
-            ss[w] = S[i, :ni]
-            mis[w] = MI[i, :ni - 1]
-            if ok_sign:
-                ccw[w] = c_pos
-            else:
-                area = 0.5 * float(np.dot(xy[:, 0], YN[i, 1:ni + 1]) - np.dot(xy[:, 1], XN[i, 1:ni + 1]))
-                ccw[w] = area >= 0
-            if is_small:
-                cx_l[i], cy_l[i] = float(xy[:, 0].mean()), float(xy[:, 1].mean())
-            cens[w] = (cx_l[i], cy_l[i])
+            cx, cy = ax / (6 * ar), ay / (6 * ar)
+        if W == ids[-1] - ids[0] + 1 and (nb == P).all() and (np.diff(ids) == 1).all():
+            # one length, walls in order (a file of one shape): the row views in one go
+            w0 = int(ids[0])
+            xys[w0:w0 + W] = list(XY[:, 1:P + 1])
+            ss[w0:w0 + W] = list(S)
+            mis[w0:w0 + W] = list(MI)
+        else:
+            for i, (w, ni) in enumerate(zip(ids.tolist(), nb.tolist())):
+                xys[w] = XY[i, 1:ni + 1]
+                ss[w] = S[i, :ni]
+                mis[w] = MI[i, :ni - 1]
+        for i in np.flatnonzero(~sure).tolist():
+            ni, xy = int(nb[i]), xys[ids[i]]
+            area = 0.5 * float(np.dot(xy[:, 0], YN[i, 1:ni + 1]) - np.dot(xy[:, 1], XN[i, 1:ni + 1]))
+            ccw[ids[i]] = area >= 0
+        for i in np.flatnonzero(np.abs(ar) < 1e-12).tolist():
+            xy = xys[ids[i]]
+            cx[i], cy[i] = float(xy[:, 0].mean()), float(xy[:, 1].mean())
+        cx_all[ids], cy_all[ids] = cx, cy
         # the reference ray's crossings, as _ray_hit: per wall the one of greatest t (the first of
         # equal ones, as argmax), or _ray_hit's fallback when there is none. _crossings only on the
         # segments whose ends do not both lie well on one side of the ray's line: it finds the
         # others not crossing it either (w outside 0..1), as lim lies far above the rounding
-        # errors of its arithmetic (some 50 eps times the largest coordinate)
+        # errors of its arithmetic and of side's (some 50 eps times the largest coordinate)
         V = XY[:, 1:P + 1]
-        cxa, cya = np.array(cx_l), np.array(cy_l)
-        side = (V[:, :, 0] - cxa[:, None]) * dy - (V[:, :, 1] - cya[:, None]) * dx
+        side = V[:, :, 0] * dy - V[:, :, 1] * dx                  # - (cx dy - cy dx)
+        c_side = cx * dy - cy * dx
         cand = np.arange(P - 1) < (nb - 1)[:, None]
-        lim = 1e-12 * (1.0 + max(float(np.abs(V).max()), float(np.abs(cxa).max()),
-                                 float(np.abs(cya).max())))
+        lim = 1e-12 * (1.0 + max(M, float(np.abs(cx).max()), float(np.abs(cy).max())))
         if math.isfinite(lim):
-            cand &= (np.minimum(side[:, :-1], side[:, 1:]) <= lim)
-            cand &= (np.maximum(side[:, :-1], side[:, 1:]) >= -lim)
+            above = side > (c_side + lim)[:, None]
+            below = side < (c_side - lim)[:, None]
+            cand &= ~((above[:, :-1] & above[:, 1:]) | (below[:, :-1] & below[:, 1:]))
         wi, ki = np.nonzero(cand)
-        t, wt, ok = _crossings(V[wi, ki], V[wi, ki + 1], cxa[wi], cya[wi], dx, dy)
+        t, wt, ok = _crossings(V[wi, ki], V[wi, ki + 1], cx[wi], cy[wi], dx, dy)
         wi, ki, t, wt = wi[ok], ki[ok], t[ok], wt[ok]
         o = np.lexsort((ki, -t, wi))                       # per wall: greatest t, first segment
         o = o[np.unique(wi[o], return_index=True)[1]]
         hw, hk = wi[o], ki[o]
         s0, s1 = S[hw, hk], S[hw, hk + 1]
-        hit = [None] * W
-        for i, v in zip(hw.tolist(), (s0 + wt[o] * (s1 - s0)).tolist()):
-            hit[i] = v
-        for i, (w, v) in enumerate(zip(ids.tolist(), hit)):
-            srefs[w] = v if v is not None else _ray_hit(xys[w], ss[w], cens[w], direction)
-    return xys, ss, mis, ccw, cens, srefs
+        s_ref[ids[hw]] = s0 + wt[o] * (s1 - s0)
+        hit[ids[hw]] = True
+    cens = list(zip(cx_all.tolist(), cy_all.tolist()))
+    srefs = s_ref.tolist()
+    for w in np.flatnonzero(~hit).tolist():
+        srefs[w] = _ray_hit(xys[w], ss[w], cens[w], direction)
+    return xys, ss, mis, ccw.tolist(), cens, srefs
 
 
 def _ray_hit(xy: np.ndarray, s: np.ndarray, c, direction) -> float:

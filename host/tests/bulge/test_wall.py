@@ -93,21 +93,26 @@ def test_layer_of_v_uses_the_bead_each_layer_covers():
 
 def test_walls_computed_together_are_each_walls_own_on_random_walls():
     """_walls_geometry computes thousands of walls at once: every number is, to the bit, what one
-    wall's own arrays give (_area_centroid, cumsum of hypot, _ray_hit): walls of 3 to 600
-    vertices (sums of one block of 8 and of several halvings), loops and open chains the ray
-    misses (its fallback), a crossing at a vertex shared by two segments (equal t: the first),
-    walls of zero area (back and forth: np.dot decides the orientation, the centroid is the
-    mean), directions along the axes."""
+    wall's own arrays give (_area_centroid, cumsum of hypot, _ray_hit): walls of 3 to 700
+    vertices (sums of one block of 8 and of several halvings), many of one length in a row,
+    loops and open chains the ray misses (its fallback), a crossing at a vertex shared by two
+    segments (equal t: the first), walls of zero area (back and forth: np.dot decides the
+    orientation, the centroid is the mean), directions along the axes."""
     from bulgekit.bulge.wall import _area_centroid, _ray_hit, _walls_geometry
     rng = np.random.default_rng(26)
     xys = []
-    for i in range(400):
+    for i in range(460):
         n = int(rng.integers(3, 40)) if i % 5 else int(rng.integers(40, 600))
+        if i >= 400:
+            n = 700                                      # walls of one length in a row
         a = np.sort(rng.uniform(0, 2 * np.pi, n))
         r = rng.uniform(5, 20) * (1 + 0.2 * rng.random(n))
         xy = np.stack([r * np.cos(a), r * np.sin(a)], axis=1) + rng.uniform(-50, 50, 2)
-        if i % 3 == 0:
+        if i % 3 == 0 or i >= 400:
             xy = np.concatenate([xy, xy[:1]])            # closed
+        if i >= 400:
+            xys.append(xy)
+            continue
         if i % 7 == 0:
             xy = xy[: max(3, n // 4)]                    # a short open arc: the ray may miss
         if i % 11 == 0:
