@@ -407,15 +407,18 @@ def walls_from_records(chunks: Iterable[np.ndarray], layer_height: float | None 
     if numbers is not None and geometric:
         raise ValueError("walls_from_records: lean chunks hold the outer-wall moves only")
     after = -1                                 # lean: the number of the last record's move
+    # per class byte (movescan.classes): whether the move is a row (extrudes moving in XY; on the
+    # outer wall unless geometric), or breaks a chain (travels, or leaves the outer wall): one
+    # look-up a move
+    cls = np.arange(256)
+    outer = (cls & movescan.OUTER) != 0
+    row_of = ((cls & movescan.EXTRUDES) != 0) & (outer | geometric)
+    break_of = ~row_of & (((cls & movescan.MOVED) != 0) | (~outer & (not geometric)))
     for a in chunks:
         c, _, _ = movescan.classes(a)          # (one pass over the records)
-        outer = (c & movescan.OUTER) != 0
-        any_outer = any_outer or bool(outer.any())
-        moved = (c & movescan.MOVED) != 0
-        ok = (c & movescan.EXTRUDES) != 0       # e > 0, moving in XY
-        if not geometric:
-            ok &= outer
-        brk = ~ok & (moved | (~outer if not geometric else False))
+        any_outer = any_outer or bool((c & movescan.OUTER).any())
+        ok = row_of[c]
+        brk = break_of[c]
         if numbers is not None:
             # a break also for the moves left out before a record
             num = numbers[-1]
@@ -444,10 +447,12 @@ def walls_from_records(chunks: Iterable[np.ndarray], layer_height: float | None 
         pz_lens.append(np.add.reduceat(flat, st, dtype=np.int64))
         zst_parts.append(st + rows_done)
         zr_parts.append(zrun)
-        gap = np.abs(rows[1:, 0:2] - rows[:-1, 3:5])   # start - the end of the row before
+        # its start at the end of the row before (columns one by one: numpy is slow on rows of 2)
         link = np.empty(len(rows), bool)
-        link[1:] = np.maximum(gap[:, 0], gap[:, 1]) <= 1e-4      # (NaN: no)
-        link[0] = last is not None and abs(last[0] - rows[0, 0]) <= 1e-4 and abs(last[1] - rows[0, 1]) <= 1e-4
+        link[1:] = np.maximum(np.abs(rows[1:, 0] - rows[:-1, 3]),
+                              np.abs(rows[1:, 1] - rows[:-1, 4])) <= 1e-4   # (NaN: no)
+        link[0] = (last is not None and abs(last[0] - rows[0, 0]) <= 1e-4
+                   and abs(last[1] - rows[0, 1]) <= 1e-4)
         link &= ~broken
         # (a chain begins where a row does not join the one before, or lies in another bucket:
         # at another z)
