@@ -224,12 +224,14 @@ def _walls_geometry(first: np.ndarray, ends: np.ndarray, index: np.ndarray, r0: 
         rows = np.arange(W)
         # column 0: a 0.0 ahead of each wall (the reduceat above); columns 1..n its vertices; the
         # rest repeats its last vertex, and one column more keeps every segment's end inside
-        R = np.minimum(r0[ids, None] + np.arange(P - 1), r1[ids, None] - 1)
+        # (np.take of 16-byte items is some 8 times faster than indexing rows of 2 floats, and
+        # writes into XY: gathered for every column, the first and the padding set after)
+        R = np.minimum(r0[ids, None] + np.arange(-2, P), r1[ids, None] - 1)
         XY = np.empty((W, P + 2, 2))
+        np.take(pairs, R, out=XY.view(np.complex128)[:, :, 0], mode="clip")
         XY[:, 0] = XY[:, P + 1] = 0.0
         XY[:, 1] = first[ids]
-        # (np.take of 16-byte items is some 8 times faster than indexing rows of 2 floats)
-        XY[:, 2:P + 1] = np.take(pairs, R).view(np.float64).reshape(W, P - 1, 2)
+        R = R[:, 2:P + 1]
         X, Y = XY[:, :, 0], XY[:, :, 1]
         XN = np.empty((W, P + 2))
         YN = np.empty((W, P + 2))
