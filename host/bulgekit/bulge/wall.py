@@ -253,15 +253,16 @@ def _walls_geometry(first: np.ndarray, ends: np.ndarray, index: np.ndarray, r0: 
         S[:, 1:] = np.hypot(X[:, 2:P + 1] - X[:, 1:P], Y[:, 2:P + 1] - Y[:, 1:P])
         S = np.cumsum(S, axis=1)
         MI = index[R]
-        # the orientation: sure when the sum of the cross products is beyond any summation's
-        # rounding error, (n + 4) eps times the sum of the products' magnitudes (here bounded by
-        # 2 n M^2, M the block's largest coordinate); NaN and inf go to np.dot
+        # the orientation: sure when the sum of the cross products is beyond the rounding error
+        # of any order of summation, here and in BLAS (some n eps times the sum of the products'
+        # magnitudes: 8 (n + 4) eps times their bound 2 n M^2, M the block's largest coordinate);
+        # NaN and inf go to np.dot
         M = max(float(XY.max()), -float(XY.min()))
         sure = np.abs(cr) > 16 * (nb + 4) * eps * nb * M * M
         ccw[ids] = cr >= 0
         with np.errstate(divide="ignore", invalid="ignore"):   # (tiny areas: the means below)
             cx, cy = ax / (6 * ar), ay / (6 * ar)
-        if W == ids[-1] - ids[0] + 1 and (nb == P).all() and (np.diff(ids) == 1).all():
+        if (nb == P).all() and (np.diff(ids) == 1).all():
             # one length, walls in order (a file of one shape): the row views in one go
             w0 = int(ids[0])
             xys[w0:w0 + W] = list(XY[:, 1:P + 1])
@@ -398,8 +399,7 @@ def walls_from_records(chunks: Iterable[np.ndarray], layer_height: float | None 
     links: list[np.ndarray] = []
     firsts: list[np.ndarray] = []
     first_rows: list[np.ndarray] = []
-    pz_vals: list[np.ndarray] = []
-    pz_lens: list[np.ndarray] = []
+    pz_lens: list[np.ndarray] = []             # and how many of its rows are flat
     any_outer = False
     done = 0                                   # moves before this chunk
     rows_done = 0                              # rows before this chunk
@@ -411,7 +411,7 @@ def walls_from_records(chunks: Iterable[np.ndarray], layer_height: float | None 
     after = -1                                 # lean: the number of the last record's move
     # per class byte (movescan.classes): whether the move is a row (extrudes moving in XY; on the
     # outer wall unless geometric), or breaks a chain (travels, or leaves the outer wall): one
-    # look-up a move
+    # look-up per move
     cls = np.arange(256)
     outer = (cls & movescan.OUTER) != 0
     row_of = ((cls & movescan.EXTRUDES) != 0) & (outer | geometric)
@@ -445,7 +445,6 @@ def walls_from_records(chunks: Iterable[np.ndarray], layer_height: float | None 
         st = np.flatnonzero(np.concatenate(([True], z1[1:] != z1[:-1])))
         zrun = movescan.z_cmm(z1[st])
         flat = np.abs(z1 - rows[:, 2]) < 1e-6
-        pz_vals.append(zrun)
         pz_lens.append(np.add.reduceat(flat, st, dtype=np.int64))
         zst_parts.append(st + rows_done)
         zr_parts.append(zrun)
@@ -484,7 +483,7 @@ def walls_from_records(chunks: Iterable[np.ndarray], layer_height: float | None 
     del e1s, nums, links, first_rows, firsts
     # A layer has many moves at its z; a spiral wall only now and then two
     # consecutive moves at the same rounded z. (np.unique over the runs of one z, weighed)
-    zp, inv = np.unique(np.concatenate(pz_vals) if pz_vals else np.empty(0, np.int64),
+    zp, inv = np.unique(np.concatenate(zr_parts) if zr_parts else np.empty(0, np.int64),
                         return_inverse=True)
     counts = np.bincount(inv.ravel(), np.concatenate(pz_lens) if pz_lens else None, len(zp))
     zs_planar = [int(z) for z in zp[counts >= 4]]
