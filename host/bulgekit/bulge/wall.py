@@ -409,18 +409,16 @@ def walls_from_records(chunks: Iterable[np.ndarray], layer_height: float | None 
     if numbers is not None and geometric:
         raise ValueError("walls_from_records: lean chunks hold the outer-wall moves only")
     after = -1                                 # lean: the number of the last record's move
-    # per class byte (movescan.classes): whether the move is a row (extrudes moving in XY; on the
-    # outer wall unless geometric), or breaks a chain (travels, or leaves the outer wall): one
-    # look-up per move
-    cls = np.arange(256)
-    outer = (cls & movescan.OUTER) != 0
-    row_of = ((cls & movescan.EXTRUDES) != 0) & (outer | geometric)
-    break_of = ~row_of & (((cls & movescan.MOVED) != 0) | (~outer & (not geometric)))
+    # from a move's class bits (movescan.classes): a row extrudes moving in XY, on the outer wall
+    # unless geometric; a move that is no row breaks a chain when it moves in XY or (marked
+    # mode) lies outside the outer wall: not (still and inside)
+    row = movescan.EXTRUDES | (0 if geometric else movescan.OUTER)
+    inside = 0 if geometric else movescan.OUTER
     for a in chunks:
         c, _, _ = movescan.classes(a)          # (one pass over the records)
         any_outer = any_outer or bool((c & movescan.OUTER).any())
-        ok = row_of[c]
-        brk = break_of[c]
+        ok = (c & row) == row
+        brk = ~ok & ((c & (movescan.MOVED | inside)) != inside)
         if numbers is not None:
             # a break also for the moves left out before a record
             num = numbers[-1]
