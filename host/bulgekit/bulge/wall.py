@@ -275,7 +275,8 @@ def _walls_geometry(first: np.ndarray, ends: np.ndarray, index: np.ndarray, r0: 
                 mis[w] = MI[i, :ni - 1]
         for i in np.flatnonzero(~sure).tolist():
             ni, xy = int(nb[i]), xys[ids[i]]
-            area = 0.5 * float(np.dot(xy[:, 0], YN[i, 1:ni + 1]) - np.dot(xy[:, 1], XN[i, 1:ni + 1]))
+            area = 0.5 * float(np.dot(xy[:, 0], YN[i, 1:ni + 1])
+                               - np.dot(xy[:, 1], XN[i, 1:ni + 1]))
             ccw[ids[i]] = area >= 0
         for i in np.flatnonzero(np.abs(ar) < 1e-12).tolist():
             xy = xys[ids[i]]
@@ -371,12 +372,15 @@ def _coords(a: np.ndarray, rec: np.ndarray) -> np.ndarray:
     """x0 y0 z0 x1 y1 z1 of the records rec of the RECORD array a, as an (n, 6) float64 array
     (gathered as one 48-byte item a record: twice as fast as rows of 6 floats)."""
     a = np.ascontiguousarray(a)
-    return np.ndarray((len(a),), np.dtype("V48"), a, 0, (a.itemsize,))[rec].view("<f8").reshape(-1, 6)
+    items = np.ndarray((len(a),), np.dtype("V48"), a, 0, (a.itemsize,))
+    return items[rec].view("<f8").reshape(-1, 6)
 
 
 def _runs(v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Where the runs of equal values of v start, and their values."""
-    st = np.flatnonzero(np.concatenate(([True], v[1:] != v[:-1]))) if len(v) else np.empty(0, np.int64)
+    if not len(v):
+        return np.empty(0, np.int64), v
+    st = np.flatnonzero(np.concatenate(([True], v[1:] != v[:-1])))
     return st, v[st]
 
 
@@ -473,7 +477,8 @@ def walls_from_records(chunks: Iterable[np.ndarray], layer_height: float | None 
             ";TYPE:Outer wall, ;TYPE:WALL-OUTER, ; outer perimeter). Slice with feature "
             "comments enabled, or use geometric mode (M720 S2): pass --geometric to take "
             "the outermost closed loop of each layer as the wall.")
-    ends = (np.concatenate(e1s) if e1s else np.empty(0, np.complex128)).view(np.float64).reshape(-1, 2)
+    ends = np.concatenate(e1s) if e1s else np.empty(0, np.complex128)
+    ends = ends.view(np.float64).reshape(-1, 2)                # x1 y1 of every row
     index = np.concatenate(nums) if nums else np.empty(0, np.int64)
     link = np.concatenate(links) if links else np.empty(0, bool)
     first_row = np.concatenate(first_rows) if first_rows else np.empty(0, np.int64)
@@ -543,9 +548,10 @@ def walls_from_records(chunks: Iterable[np.ndarray], layer_height: float | None 
     general = range(len(bvals) - 1, -1, -1) if geometric else np.flatnonzero(bcount != 1).tolist()
     for k in general:
         b = int(bvals[k])
+        js = by[bst[k]:bst[k] + bcount[k]].tolist()
         cands = [_Chain(b, int(starts[j]), int(stops[j]), (float(fxy[j, 0]), float(fxy[j, 1])), ends)
-                 for j in by[bst[k]:bst[k] + bcount[k]].tolist()]
-        closed = [c for c, j in zip(cands, by[bst[k]:bst[k] + bcount[k]].tolist()) if shut[j]]
+                 for j in js]
+        closed = [c for c, j in zip(cands, js) if shut[j]]
         pool = closed or cands
         if geometric and upper is not None:
             near = [c for c in pool if _median_distance(np.array(c.pts), upper) <= max(1.0, 3 * h)]
@@ -558,7 +564,8 @@ def walls_from_records(chunks: Iterable[np.ndarray], layer_height: float | None 
             upper = np.array(best.pts, dtype=float)
     for k in (range(len(bvals) - 1, -1, -1) if geometric else range(len(bvals))):
         if unclosed[k]:
-            notes.append(f"layer z {int(bvals[k]) / 100:.2f}: no closed outer loop, using the largest open one")
+            notes.append(f"layer z {int(bvals[k]) / 100:.2f}: no closed outer loop, "
+                         "using the largest open one")
     walls: list[Wall] = []
     prev_z = None
     geom = (_walls_geometry(fxy[pick], ends, index, starts[pick], stops[pick], direction)
