@@ -119,6 +119,11 @@ def test_walls_computed_together_are_each_walls_own_on_random_walls():
             xy = np.array([[0.0, 1.0], [0.0, -1.0], [2.0, -1.0], [2.0, 1.0], [0.0, 1.0]]) + i
         if i % 13 == 0:
             xy = np.array([[0.0, 0.0], [3.0, 1.0], [6.0, 2.0], [3.0, 1.0]]) + 0.1 * i   # no area
+        if i % 17 in (0, 1):
+            # a diamond round (i, i), its centroid to the bit: the ray towards -Y meets its lowest
+            # vertex, the end of one segment and the start of the next (at the loop's seam or not)
+            xy = np.array([[0.0, -1.0], [1.0, 0.0], [0.0, 1.0], [-1.0, 0.0], [0.0, -1.0]])
+            xy = (xy if i % 17 == 0 else np.concatenate([xy[1:], xy[1:2]])) + i
         xys.append(xy)
     # the walls' moves' ends x1 y1, in another order than the walls, with moves between
     rows, r0 = [], np.empty(len(xys), np.int64)
