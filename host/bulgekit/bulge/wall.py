@@ -182,34 +182,134 @@ def _crossings(a, b, cx, cy, dx, dy):
     return t, w, ok
 
 
-def _ray_hits(xys: list, ss: list, cens: list, direction) -> list[float]:
-    """_ray_hit of many walls: the arithmetic per segment as there, for all of them at once
-    (a file has thousands of layers); per wall the crossing of greatest t (the first of equal
-    ones, as argmax), or _ray_hit's fallback."""
+def _walls_geometry(first: np.ndarray, ends: np.ndarray, index: np.ndarray, r0: np.ndarray,
+                    r1: np.ndarray, direction) -> tuple[list, list, list, list, list, list]:
+    """Walls whose vertices are first[i] (x, y) and the move ends (x1, y1) at the rows
+    r0[i]..r1[i]-1 of ends (index: the moves' numbers): per wall its vertices, arc lengths, move
+    numbers, whether it runs counter-clockwise, its centroid and the arc length where the
+    reference ray crosses it. Every number is, to the bit, what the wall's own arrays give
+    (_area_centroid, np.cumsum of np.hypot, _ray_hit): computed for many walls at once (a file
+    has thousands of layers), element by element the same operations, and
+    - each wall's sums as np.add.reduceat over its values behind a 0.0: reduceat copies a
+      segment's first element and adds the pairwise sum of the rest, which is then 0.0 + the
+      pairwise sum of the wall's values, what .sum() gives (its identity 0.0 plus that sum);
+    - arc lengths as np.cumsum along the rows of a padded 2-D array (each one add after another,
+      as a wall's own np.cumsum);
+    - the orientation from the sum of the cross products when it lies beyond the rounding error
+      of any order of summation, else from np.dot as _signed_area (BLAS may sum in another order:
+      only a wall of near zero area can tell)."""
+    m = len(r0)
+    n = r1 - r0 + 1                                   # vertices (3 or more)
+    xys, ss, mis = [None] * m, [None] * m, [None] * m
+    ccw = np.ones(m, bool)
+    cx_all, cy_all, s_ref = np.empty(m), np.empty(m), np.empty(m)
+    hit = np.zeros(m, bool)                           # s_ref from a crossing
+    pairs = np.ascontiguousarray(ends, dtype=np.float64).view(np.complex128).ravel()   # (x1 y1)
+    by_len = np.argsort(n, kind="stable")
+    n_sorted = n[by_len]
     dx, dy = direction
-    nseg = np.array([len(xy) - 1 for xy in xys])
-    a = np.concatenate([xy[:-1] for xy in xys])
-    b = np.concatenate([xy[1:] for xy in xys])
-    cx = np.repeat([c[0] for c in cens], nseg)
-    cy = np.repeat([c[1] for c in cens], nseg)
-    t, w, ok = _crossings(a, b, cx, cy, dx, dy)
-    wall = np.repeat(np.arange(len(xys)), nseg)
-    idx = np.flatnonzero(ok)
-    order = np.lexsort((idx, -t[idx], wall[idx]))       # per wall: greatest t, first index
-    first = idx[order]
-    hit_wall, at = np.unique(wall[first], return_index=True)
-    k = first[at]
-    start = np.concatenate([[0], np.cumsum(nseg)[:-1]])
-    j = k - start[hit_wall]                              # segment within its wall
-    s_all = np.concatenate(ss)
-    s_at = np.concatenate([[0], np.cumsum(nseg + 1)[:-1]])[hit_wall] + j
-    out = [None] * len(xys)
-    for i, v in zip(hit_wall.tolist(), (s_all[s_at] + w[k] * (s_all[s_at + 1] - s_all[s_at])).tolist()):
-        out[i] = v
-    for i in range(len(xys)):
-        if out[i] is None:
-            out[i] = _ray_hit(xys[i], ss[i], cens[i], direction)
-    return out
+    eps = np.finfo(float).eps
+    k = 0
+    while k < m:
+        # a block: walls of about one length (padding them to the longest wastes <= 1/4), about
+        # 2**16 vertices (memory)
+        n0 = int(n_sorted[k])
+        j = min(int(np.searchsorted(n_sorted, n0 + n0 // 4, side="right")),
+                k + max(1, (1 << 16) // n0))
+        ids = by_len[k:j]
+        k = j
+        nb = n[ids]
+        P = int(nb.max())
+        W = len(ids)
+        rows = np.arange(W)
+        # column 0: a 0.0 ahead of each wall (the reduceat above); columns 1..n its vertices; the
+        # rest repeats its last vertex, and one column more keeps every segment's end inside
+        # (np.take of 16-byte items is some 8 times faster than indexing rows of 2 floats, and
+        # writes into XY: gathered for every column, the first and the padding set after)
+        R = np.minimum(r0[ids, None] + np.arange(-2, P), r1[ids, None] - 1)
+        XY = np.empty((W, P + 2, 2))
+        np.take(pairs, R, out=XY.view(np.complex128)[:, :, 0], mode="clip")
+        XY[:, 0] = XY[:, P + 1] = 0.0
+        XY[:, 1] = first[ids]
+        R = R[:, 2:P + 1]
+        X, Y = XY[:, :, 0], XY[:, :, 1]
+        XN = np.empty((W, P + 2))
+        YN = np.empty((W, P + 2))
+        XN[:, :-1], YN[:, :-1] = X[:, 1:], Y[:, 1:]
+        XN[rows, nb], YN[rows, nb] = X[:, 1], Y[:, 1]       # a wall's last vertex -> its first
+        XN[:, -1] = YN[:, -1] = 0.0
+        CR = X * YN - XN * Y
+        AX = (X + XN) * CR
+        AY = (Y + YN) * CR
+        for a in (CR, AX, AY):
+            a[:, 0] = 0.0
+        seg = np.empty(2 * W, np.int64)                   # [0.0 + wall i) and the rest, per row
+        seg[0::2] = rows * (P + 2)
+        seg[1::2] = seg[0::2] + nb + 1
+        cr, ax, ay = (np.add.reduceat(a.ravel(), seg)[0::2] for a in (CR, AX, AY))
+        ar = cr / 2
+        S = np.empty((W, P))
+        S[:, 0] = 0.0
+        S[:, 1:] = np.hypot(X[:, 2:P + 1] - X[:, 1:P], Y[:, 2:P + 1] - Y[:, 1:P])
+        S = np.cumsum(S, axis=1)
+        MI = index[R]
+        # the orientation: sure when the sum of the cross products is beyond the rounding error
+        # of any order of summation, here and in BLAS (some n eps times the sum of the products'
+        # magnitudes: 8 (n + 4) eps times their bound 2 n M^2, M the block's largest coordinate);
+        # NaN and inf go to np.dot
+        M = max(float(XY.max()), -float(XY.min()))
+        sure = np.abs(cr) > 16 * (nb + 4) * eps * nb * M * M
+        ccw[ids] = cr >= 0
+        with np.errstate(divide="ignore", invalid="ignore"):   # (tiny areas: the means below)
+            cx, cy = ax / (6 * ar), ay / (6 * ar)
+        if (nb == P).all() and (np.diff(ids) == 1).all():
+            # one length, walls in order (a file of one shape): the row views in one go
+            w0 = int(ids[0])
+            xys[w0:w0 + W] = list(XY[:, 1:P + 1])
+            ss[w0:w0 + W] = list(S)
+            mis[w0:w0 + W] = list(MI)
+        else:
+            for i, (w, ni) in enumerate(zip(ids.tolist(), nb.tolist())):
+                xys[w] = XY[i, 1:ni + 1]
+                ss[w] = S[i, :ni]
+                mis[w] = MI[i, :ni - 1]
+        for i in np.flatnonzero(~sure).tolist():
+            ni, xy = int(nb[i]), xys[ids[i]]
+            area = 0.5 * float(np.dot(xy[:, 0], YN[i, 1:ni + 1])
+                               - np.dot(xy[:, 1], XN[i, 1:ni + 1]))
+            ccw[ids[i]] = area >= 0
+        for i in np.flatnonzero(np.abs(ar) < 1e-12).tolist():
+            xy = xys[ids[i]]
+            cx[i], cy[i] = float(xy[:, 0].mean()), float(xy[:, 1].mean())
+        cx_all[ids], cy_all[ids] = cx, cy
+        # the reference ray's crossings, as _ray_hit: per wall the one of greatest t (the first of
+        # equal ones, as argmax), or _ray_hit's fallback when there is none. _crossings only on the
+        # segments whose ends do not both lie well on one side of the ray's line: it finds the
+        # others not crossing it either (w outside 0..1), as lim lies far above the rounding
+        # errors of its arithmetic and of side's (some 50 eps times the largest coordinate)
+        V = XY[:, 1:P + 1]
+        side = V[:, :, 0] * dy - V[:, :, 1] * dx                  # - (cx dy - cy dx)
+        c_side = cx * dy - cy * dx
+        cand = np.arange(P - 1) < (nb - 1)[:, None]
+        lim = 1e-12 * (1.0 + max(M, float(np.abs(cx).max()), float(np.abs(cy).max())))
+        if math.isfinite(lim):
+            above = side > (c_side + lim)[:, None]
+            below = side < (c_side - lim)[:, None]
+            cand &= ~((above[:, :-1] & above[:, 1:]) | (below[:, :-1] & below[:, 1:]))
+        wi, ki = np.nonzero(cand)
+        t, wt, ok = _crossings(V[wi, ki], V[wi, ki + 1], cx[wi], cy[wi], dx, dy)
+        wi, ki, t, wt = wi[ok], ki[ok], t[ok], wt[ok]
+        o = np.lexsort((ki, -t, wi))                       # per wall: greatest t, first segment
+        o = o[np.unique(wi[o], return_index=True)[1]]
+        hw, hk = wi[o], ki[o]
+        s0, s1 = S[hw, hk], S[hw, hk + 1]
+        s_ref[ids[hw]] = s0 + wt[o] * (s1 - s0)
+        hit[ids[hw]] = True
+    cens = list(zip(cx_all.tolist(), cy_all.tolist()))
+    srefs = s_ref.tolist()
+    for w in np.flatnonzero(~hit).tolist():
+        srefs[w] = _ray_hit(xys[w], ss[w], cens[w], direction)
+    return xys, ss, mis, ccw.tolist(), cens, srefs
 
 
 def _ray_hit(xy: np.ndarray, s: np.ndarray, c, direction) -> float:
@@ -241,17 +341,17 @@ def _median_distance(pts: np.ndarray, poly: np.ndarray) -> float:
 
 class _Chain:
     """A run of eligible moves that join end to start at one layer bucket: its points are the
-    first move's start and every move's end (rows r0..r1-1 of the collected moves)."""
-    __slots__ = ("bucket", "r0", "r1", "_pts")
+    first move's start and every move's end (rows r0..r1-1 of the collected moves' ends)."""
+    __slots__ = ("bucket", "r0", "r1", "first", "_ends")
 
-    def __init__(self, bucket, r0, r1, ends):
+    def __init__(self, bucket, r0, r1, first, ends):
         self.bucket, self.r0, self.r1 = bucket, r0, r1
-        self._pts = ends
+        self.first = first                     # (x0, y0) of its first move
+        self._ends = ends
 
     @property
     def pts(self) -> np.ndarray:
-        e = self._pts
-        return np.concatenate([e[self.r0:self.r0 + 1, 0:2], e[self.r0:self.r1, 2:4]])
+        return np.concatenate([np.array([self.first]), self._ends[self.r0:self.r1]])
 
 
 def extract_walls(moves: Iterable[Move], layer_height: float | None = None,
@@ -268,13 +368,20 @@ def extract_walls(moves: Iterable[Move], layer_height: float | None = None,
                               ref_angle_deg, source, header_height)
 
 
-_ENDS_COLS = np.array([0, 1, 3, 4, 2, 5])        # RECORD's x0 y0 z0 x1 y1 z1 -> x0 y0 x1 y1 z0 z1
-
-
-def _coords(a: np.ndarray) -> np.ndarray:
-    """The RECORD array a's x0 y0 z0 x1 y1 z1 as an (n, 6) float64 view (no copy)."""
+def _coords(a: np.ndarray, rec: np.ndarray) -> np.ndarray:
+    """x0 y0 z0 x1 y1 z1 of the records rec of the RECORD array a, as an (n, 6) float64 array
+    (gathered as one 48-byte item a record: twice as fast as rows of 6 floats)."""
     a = np.ascontiguousarray(a)
-    return np.ndarray((len(a), 6), np.dtype("<f8"), a, 0, (a.itemsize, 8))
+    items = np.ndarray((len(a),), np.dtype("V48"), a, 0, (a.itemsize,))
+    return items[rec].view("<f8").reshape(-1, 6)
+
+
+def _runs(v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Where the runs of equal values of v start, and their values."""
+    if not len(v):
+        return np.empty(0, np.int64), v
+    st = np.flatnonzero(np.concatenate(([True], v[1:] != v[:-1])))
+    return st, v[st]
 
 
 def walls_from_records(chunks: Iterable[np.ndarray], layer_height: float | None = None,
@@ -285,65 +392,103 @@ def walls_from_records(chunks: Iterable[np.ndarray], layer_height: float | None 
     step per move: a 100 MB file has some three million. chunks may be a kept lean Scan's
     (movescan.Chunks.numbers) in marked mode: it holds every outer-wall move, and a move left
     out between two records is outside the wall, a break."""
-    # Per chunk: the eligible moves' ends (x0 y0 x1 y1 z0 z1) and their move numbers; other
-    # moves that travel (or leave the outer wall) break a chain: a NaN row with number -1, one
-    # for a run of them.
-    parts: list[np.ndarray] = []
+    # Per chunk, of the eligible moves (the rows): their ends (x1 y1), move numbers, z (0.01 mm)
+    # and whether each joins the row before (its start at that one's end, no break between: a
+    # move that travels or leaves the outer wall breaks a chain); the start (x0 y0) only of rows
+    # that may begin a chain (not joined, or another z); the z of the planar ones in runs.
+    e1s: list[np.ndarray] = []
     nums: list[np.ndarray] = []
-    planar_z: list[np.ndarray] = []
+    zst_parts: list[np.ndarray] = []           # rows where a run of one z begins
+    zr_parts: list[np.ndarray] = []            # and its z (0.01 mm)
+    links: list[np.ndarray] = []
+    firsts: list[np.ndarray] = []
+    first_rows: list[np.ndarray] = []
+    pz_lens: list[np.ndarray] = []             # and how many of its rows are flat
     any_outer = False
-    last_was_break = False
     done = 0                                   # moves before this chunk
+    rows_done = 0                              # rows before this chunk
+    breaks = 0                                 # breaks since the last row
+    last = None                                # the last row's x1, y1
     numbers = getattr(chunks, "numbers", None)
     if numbers is not None and geometric:
         raise ValueError("walls_from_records: lean chunks hold the outer-wall moves only")
     after = -1                                 # lean: the number of the last record's move
+    # from a move's class bits (movescan.classes): a row extrudes moving in XY, on the outer wall
+    # unless geometric; a move that is no row breaks a chain when it moves in XY or (marked
+    # mode) lies outside the outer wall: not (still and inside)
+    row = movescan.EXTRUDES | (0 if geometric else movescan.OUTER)
+    inside = 0 if geometric else movescan.OUTER
     for a in chunks:
         c, _, _ = movescan.classes(a)          # (one pass over the records)
-        outer = (c & movescan.OUTER) != 0
-        any_outer = any_outer or bool(outer.any())
-        moved = (c & movescan.MOVED) != 0
-        ok = (c & movescan.EXTRUDES) != 0       # e > 0, moving in XY
-        if not geometric:
-            ok &= outer
-        other = ~ok & (moved | (~outer if not geometric else False))
+        any_outer = any_outer or bool((c & movescan.OUTER).any())
+        ok = (c & row) == row
+        brk = ~ok & ((c & (movescan.MOVED | inside)) != inside)
         if numbers is not None:
-            # two slots a record: a break for the moves left out before it, then the record
+            # a break also for the moves left out before a record
             num = numbers[-1]
-            gap = np.diff(num, prepend=after) > 1
+            brk |= np.diff(num, prepend=after) > 1
             after = int(num[-1])
-            ok = np.stack([np.zeros(len(a), bool), ok], 1).ravel()
-            other = np.stack([gap, other], 1).ravel()
-        ev = np.flatnonzero(ok | other)
-        is_brk = other[ev]
-        prev = np.concatenate([[last_was_break], is_brk[:-1]])
-        ev = ev[~is_brk | ~prev]                 # a run of breaks makes one row
-        if len(ev):
-            last_was_break = bool(other[ev[-1]])
-        # the rows' x0 y0 x1 y1 z0 z1, gathered in one go from the records' first six numbers
-        rec = ev if numbers is None else ev // 2
-        rows = _coords(a)[rec[:, None], _ENDS_COLS]
-        brk = other[ev]
-        rows[brk] = np.nan
-        parts.append(rows)
-        nums.append(np.where(brk, -1, rec + done if numbers is None else num[rec]))
-        ok_rows = rows[~brk]
-        flat = np.abs(ok_rows[:, 5] - ok_rows[:, 4]) < 1e-6
-        planar_z.append(movescan.z_cmm(ok_rows[flat, 5]))
+        rec = np.flatnonzero(ok)
+        # breaks up to each record (with those of earlier chunks since the last row); a row has
+        # one behind it when the count grew since the row before (a break record is no row, a
+        # gap counts before the record it precedes)
+        nb = np.cumsum(brk)
+        if not len(rec):
+            breaks += int(nb[-1]) if len(nb) else 0
+            done += len(a)
+            continue
+        at = nb[rec]
+        broken = np.diff(at, prepend=-breaks) > 0
+        breaks = int(nb[-1] - at[-1])
+        rows = _coords(a, rec)                  # x0 y0 z0 x1 y1 z1
+        # the rows come in runs of one z (layers): z in 0.01 mm once per run, and how many of
+        # each run's rows are flat (planar)
+        z1 = rows[:, 5]
+        st = np.flatnonzero(np.concatenate(([True], z1[1:] != z1[:-1])))
+        zrun = movescan.z_cmm(z1[st])
+        flat = np.abs(z1 - rows[:, 2]) < 1e-6
+        pz_lens.append(np.add.reduceat(flat, st, dtype=np.int64))
+        zst_parts.append(st + rows_done)
+        zr_parts.append(zrun)
+        # its start at the end of the row before (columns one by one: numpy is slow on rows of 2)
+        link = np.empty(len(rows), bool)
+        link[1:] = np.maximum(np.abs(rows[1:, 0] - rows[:-1, 3]),
+                              np.abs(rows[1:, 1] - rows[:-1, 4])) <= 1e-4   # (NaN: no)
+        link[0] = (last is not None and abs(last[0] - rows[0, 0]) <= 1e-4
+                   and abs(last[1] - rows[0, 1]) <= 1e-4)
+        link &= ~broken
+        # (a chain begins where a row does not join the one before, or lies in another bucket:
+        # at another z)
+        may_begin = ~link
+        may_begin[st] = True
+        fr = np.flatnonzero(may_begin)
+        first_rows.append(fr + rows_done)
+        firsts.append(rows[fr, 0:2])
+        # (x1 y1 as one complex: concatenated some 3 times faster than rows of 2 floats)
+        e1s.append(np.ndarray((len(rows),), np.complex128, rows, 24, (48,)))
+        links.append(link)
+        nums.append(rec + done if numbers is None else num[rec])
+        last = (float(rows[-1, 3]), float(rows[-1, 4]))
         done += len(a)
+        rows_done += len(rec)
     if not geometric and not any_outer:
         raise WallError(
             f"{source}: no outer-wall feature comments found (;TYPE:External perimeter, "
             ";TYPE:Outer wall, ;TYPE:WALL-OUTER, ; outer perimeter). Slice with feature "
             "comments enabled, or use geometric mode (M720 S2): pass --geometric to take "
             "the outermost closed loop of each layer as the wall.")
-    ends = np.concatenate(parts) if parts else np.empty((0, 6))
+    ends = np.concatenate(e1s) if e1s else np.empty(0, np.complex128)
+    ends = ends.view(np.float64).reshape(-1, 2)                # x1 y1 of every row
     index = np.concatenate(nums) if nums else np.empty(0, np.int64)
-    del parts, nums
+    link = np.concatenate(links) if links else np.empty(0, bool)
+    first_row = np.concatenate(first_rows) if first_rows else np.empty(0, np.int64)
+    first_xy = np.concatenate(firsts) if firsts else np.empty((0, 2))
+    del e1s, nums, links, first_rows, firsts
     # A layer has many moves at its z; a spiral wall only now and then two
-    # consecutive moves at the same rounded z.
-    zp, counts = np.unique(np.concatenate(planar_z) if planar_z else np.empty(0, np.int64),
-                           return_counts=True)
+    # consecutive moves at the same rounded z. (np.unique over the runs of one z, weighed)
+    zp, inv = np.unique(np.concatenate(zr_parts) if zr_parts else np.empty(0, np.int64),
+                        return_inverse=True)
+    counts = np.bincount(inv.ravel(), np.concatenate(pz_lens) if pz_lens else None, len(zp))
     zs_planar = [int(z) for z in zp[counts >= 4]]
     if layer_height is not None and not (math.isfinite(layer_height) and 0 < layer_height <= 2.0):
         raise WallError(f"{source}: layer height {layer_height} mm must be > 0 and <= 2 mm")
@@ -361,116 +506,77 @@ def walls_from_records(chunks: Iterable[np.ndarray], layer_height: float | None 
     # The bucket of each move: the firmware's reading of its z, its end z in 0.01 mm rounded in
     # float32 (bulge_planner.cpp eligible()); a move off the planar layers (a spiral) snaps to
     # the layer grid above the highest planar layer below, nearest grid z, the lower one on a
-    # tie (as MapStore::find_layer).
-    real = index >= 0
-    zc = np.zeros(len(index), np.int64)
-    zc[real] = movescan.z_cmm(ends[real, 5])
+    # tie (as MapStore::find_layer). A planar move's z is a planar layer's, which that snapping
+    # leaves as it is: the bucket is a function of the z, computed once per run of one z.
+    zst = np.concatenate(zst_parts) if zst_parts else np.empty(0, np.int64)
+    zr = np.concatenate(zr_parts) if zr_parts else np.empty(0, np.int64)
     zsp = np.array(zs_planar, dtype=np.int64)
-    planar = real & (np.abs(ends[:, 5] - ends[:, 4]) < 1e-6) & np.isin(zc, zsp)
-    i = np.searchsorted(zsp, zc, side="right") - 1
+    i = np.searchsorted(zsp, zr, side="right") - 1
     base = np.where(i >= 0, zsp[np.maximum(i, 0)] if len(zsp) else 0, 0)
-    d = zc - base
-    bucket = np.where(planar, zc, base - ((h_cmm - 2 * d) // (2 * h_cmm)) * h_cmm)
-    # A chain starts after a break, or where a move does not start at the last one's end or
-    # lies in another bucket.
-    n = len(index)
-    start = real.copy()
-    if n > 1:
-        cont = (real[1:] & real[:-1] & (bucket[1:] == bucket[:-1])
-                & (np.abs(ends[:-1, 2] - ends[1:, 0]) <= 1e-4)
-                & (np.abs(ends[:-1, 3] - ends[1:, 1]) <= 1e-4))
-        start[1:] &= ~cont
+    d = zr - base
+    bucket_run = base - ((h_cmm - 2 * d) // (2 * h_cmm)) * h_cmm
+    # A chain starts where a row does not join the one before or lies in another bucket.
+    start = ~link
+    start[zst[1:][bucket_run[1:] != bucket_run[:-1]]] = True
     starts = np.flatnonzero(start)
-    stops = np.flatnonzero(real & np.concatenate([~real[1:] | start[1:], [True]])) + 1
-    chains = [_Chain(int(bucket[r0]), int(r0), int(r1), ends) for r0, r1 in zip(starts, stops)]
+    stops = np.append(starts[1:], len(link))
+    buckets = bucket_run[np.searchsorted(zst, starts, side="right") - 1]
+    long = stops - starts >= 2                  # three points or more
+    starts, stops, buckets = starts[long], stops[long], buckets[long]
+    fxy = first_xy[np.searchsorted(first_row, starts)]
     gap = max(2.0, 3 * h)
-    # whether each chain is closed (its end within gap of its start), on Python floats: no numpy
-    # scalar per chain
-    shut = {}
-    if len(starts):
-        for c, x0, y0, x1, y1 in zip(chains, ends[starts, 0].tolist(), ends[starts, 1].tolist(),
-                                     ends[stops - 1, 2].tolist(), ends[stops - 1, 3].tolist()):
-            shut[c.r0] = math.hypot(x1 - x0, y1 - y0) <= gap
-
-    by_bucket: dict[int, list[_Chain]] = {}
-    for c in chains:
-        if c.r1 - c.r0 >= 2:                    # three points or more
-            by_bucket.setdefault(c.bucket, []).append(c)
+    # whether each chain is closed (its end within gap of its start), with math.hypot on Python
+    # floats as ever (np.hypot may round otherwise)
+    dx_end = (ends[stops - 1, 0] - fxy[:, 0]).tolist() if len(starts) else []
+    dy_end = (ends[stops - 1, 1] - fxy[:, 1]).tolist() if len(starts) else []
+    hyp = math.hypot
+    shut = np.array([hyp(a, b) <= gap for a, b in zip(dx_end, dy_end)], bool)
     if not math.isfinite(ref_angle_deg):
         raise WallError(f"{source}: reference angle {ref_angle_deg} is not a finite number")
     direction = (math.cos(math.radians(ref_angle_deg)), math.sin(math.radians(ref_angle_deg)))
-    chosen: dict[int, _Chain] = {}
+    # The chains of each bucket (in file order), buckets ascending; most buckets have one chain,
+    # which is their wall: _Chain objects only for the others, and all of geometric mode's.
+    by = np.argsort(buckets, kind="stable")
+    bst, bvals = _runs(buckets[by])
+    bcount = np.diff(np.append(bst, len(by)))
+    pick = np.where(bcount == 1, by[bst] if len(by) else 0, -1)   # per bucket: the chain chosen
+    unclosed = (bcount == 1) & ~shut[pick] if len(by) else np.zeros(0, bool)
     upper: np.ndarray | None = None
     # Geometric mode goes top-down: the wall of a layer must lie near the wall
     # of the layer above, which rejects a skirt (it stands off the part) even
     # though it is the largest loop of the first layer.
-    order = sorted(by_bucket, reverse=geometric)
-    for b in order:
-        cands = by_bucket[b]
-        closed = [c for c in cands if shut[c.r0]]
+    general = range(len(bvals) - 1, -1, -1) if geometric else np.flatnonzero(bcount != 1).tolist()
+    for k in general:
+        b = int(bvals[k])
+        js = by[bst[k]:bst[k] + bcount[k]].tolist()
+        cands = [_Chain(b, int(starts[j]), int(stops[j]), (float(fxy[j, 0]), float(fxy[j, 1])), ends)
+                 for j in js]
+        closed = [c for c, j in zip(cands, js) if shut[j]]
         pool = closed or cands
         if geometric and upper is not None:
             near = [c for c in pool if _median_distance(np.array(c.pts), upper) <= max(1.0, 3 * h)]
             pool = near or pool
         # (most layers have one wall: no areas to compare)
         best = pool[0] if len(pool) == 1 else max(pool, key=lambda c: abs(_signed_area(np.array(c.pts))))
-        if not closed:
-            notes.append(f"layer z {b / 100:.2f}: no closed outer loop, using the largest open one")
-        chosen[b] = best
+        unclosed[k] = not closed
+        pick[k] = by[bst[k] + cands.index(best)]
         if geometric:
             upper = np.array(best.pts, dtype=float)
+    for k in (range(len(bvals) - 1, -1, -1) if geometric else range(len(bvals))):
+        if unclosed[k]:
+            notes.append(f"layer z {int(bvals[k]) / 100:.2f}: no closed outer loop, "
+                         "using the largest open one")
     walls: list[Wall] = []
     prev_z = None
-    order = sorted(chosen)
-    # 512 chosen walls' vertices in one array (each one's first move's start, then every move's
-    # end), and what _area_centroid and the arc lengths compute element by element, for all of
-    # them at once (thousands of layers); per wall only the sums and dot products, on slices with
-    # the strides they had as arrays of their own (np.dot of a column view and a contiguous
-    # array), so every number is the one computed per wall.
-
-    def block(k0: int, k1: int):
-        # walls order[k0:k1] (memory: 512 walls at a time)
-        spans = [(chosen[b].r0, chosen[b].r1) for b in order[k0:k1]]
-        XY = np.concatenate([p for r0, r1 in spans for p in (ends[r0:r0 + 1, 0:2], ends[r0:r1, 2:4])])
-        off = np.zeros(len(spans) + 1, np.int64)
-        np.cumsum([r1 - r0 + 1 for r0, r1 in spans], out=off[1:])
-        X, Y = XY[:, 0], XY[:, 1]
-        nxt = np.arange(1, len(XY) + 1)
-        nxt[off[1:] - 1] = off[:-1]                          # _next: a wall's last vertex -> its first
-        XN, YN = X[nxt], Y[nxt]
-        CR = X * YN - XN * Y
-        SEG = np.hypot(X[1:] - X[:-1], Y[1:] - Y[:-1])      # (across two walls: not used)
-        return off.tolist(), XY, XN, YN, CR, (X + XN) * CR, (Y + YN) * CR, SEG
-    for k, b in enumerate(order):
-        if k % 512 == 0:
-            off, XY, XN, YN, CR, AX, AY, SEG = block(k, k + 512)
-        best = chosen[b]
-        r0, r1 = best.r0, best.r1
-        a, e = off[k % 512], off[k % 512 + 1]
-        xy = XY[a:e]
-        s = np.empty(e - a)
-        s[0] = 0.0
-        np.cumsum(SEG[a:e - 1], out=s[1:])
-        # _area_centroid(xy), the same operations
-        area = 0.5 * float(np.dot(xy[:, 0], YN[a:e]) - np.dot(xy[:, 1], XN[a:e]))
-        ar = CR[a:e].sum() / 2
-        if abs(ar) < 1e-12:
-            cen = (float(xy[:, 0].mean()), float(xy[:, 1].mean()))
-        else:
-            cen = (float(AX[a:e].sum() / (6 * ar)), float(AY[a:e].sum() / (6 * ar)))
+    geom = (_walls_geometry(fxy[pick], ends, index, starts[pick], stops[pick], direction)
+            if len(pick) else ([],) * 6)
+    for b, xy, s, mi, ccw, cen, s_ref, closed in zip(bvals.tolist(), *geom, shut[pick].tolist()):
         z = b / 100
         height = (z - prev_z) if prev_z is not None else min(z, h)
         if prev_z is not None and height > 1.5 * h:
             height = h  # a layer without wall in between
         prev_z = z
-        w = Wall(z=z, xy=xy, s=s, move_index=index[r0:r1].copy(), height=height,
-                 ccw=area >= 0, centroid=cen, closed=shut[r0])
-        walls.append(w)
-    for k in range(0, len(walls), 512):                 # (memory: 512 walls at a time)
-        part = walls[k:k + 512]
-        for w, ref in zip(part, _ray_hits([w.xy for w in part], [w.s for w in part],
-                                          [w.centroid for w in part], direction)):
-            w.s_ref = ref
+        walls.append(Wall(z, xy, s, mi, height, ccw, s_ref, cen, closed))
     loops = [w for w in walls if w.closed]
     for w in walls:
         if not w.closed and loops:

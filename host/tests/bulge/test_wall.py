@@ -91,33 +91,62 @@ def test_layer_of_v_uses_the_bead_each_layer_covers():
     assert list(m.layer_of_v([0.0, 0.1, 0.2, 0.21, 0.4, 0.59, 0.6, 0.61])) == [0, 0, 0, 1, 1, 2, 2, -1]
 
 
-def test_ray_hits_of_many_walls_are_each_walls_own():
-    """The reference crossing of thousands of walls at once (_ray_hits) is, to the bit, what
-    _ray_hit gives for each: loops, open chains the ray misses (its fallback), a crossing at a
-    vertex shared by two segments (equal t: the first), directions along the axes."""
-    import numpy as np
-    from bulgekit.bulge.wall import _ray_hit, _ray_hits
+def test_walls_computed_together_are_each_walls_own_on_random_walls():
+    """_walls_geometry computes thousands of walls at once: every number is, to the bit, what one
+    wall's own arrays give (_area_centroid, cumsum of hypot, _ray_hit): walls of 3 to 700
+    vertices (sums of one block of 8 and of several halvings), many of one length in a row,
+    loops and open chains the ray misses (its fallback), a crossing at a vertex shared by two
+    segments (equal t: the first), walls of zero area (back and forth: np.dot decides the
+    orientation, the centroid is the mean), directions along the axes."""
+    from bulgekit.bulge.wall import _area_centroid, _ray_hit, _walls_geometry
     rng = np.random.default_rng(26)
-    xys, ss, cens = [], [], []
-    for i in range(300):
-        n = int(rng.integers(3, 40))
+    xys = []
+    for i in range(460):
+        n = int(rng.integers(3, 40)) if i % 5 else int(rng.integers(40, 600))
+        if i >= 400:
+            n = 700                                      # walls of one length in a row
         a = np.sort(rng.uniform(0, 2 * np.pi, n))
         r = rng.uniform(5, 20) * (1 + 0.2 * rng.random(n))
         xy = np.stack([r * np.cos(a), r * np.sin(a)], axis=1) + rng.uniform(-50, 50, 2)
-        if i % 3 == 0:
+        if i % 3 == 0 or i >= 400:
             xy = np.concatenate([xy, xy[:1]])            # closed
+        if i >= 400:
+            xys.append(xy)
+            continue
         if i % 7 == 0:
             xy = xy[: max(3, n // 4)]                    # a short open arc: the ray may miss
         if i % 11 == 0:
             xy = np.array([[0.0, 1.0], [0.0, -1.0], [2.0, -1.0], [2.0, 1.0], [0.0, 1.0]]) + i
-        seg = np.hypot(np.diff(xy[:, 0]), np.diff(xy[:, 1]))
+        if i % 13 == 0:
+            xy = np.array([[0.0, 0.0], [3.0, 1.0], [6.0, 2.0], [3.0, 1.0]]) + 0.1 * i   # no area
+        if i % 17 in (0, 1):
+            # a diamond round (i, i), its centroid to the bit: the ray towards -Y meets its lowest
+            # vertex, the end of one segment and the start of the next (at the loop's seam or not)
+            xy = np.array([[0.0, -1.0], [1.0, 0.0], [0.0, 1.0], [-1.0, 0.0], [0.0, -1.0]])
+            xy = (xy if i % 17 == 0 else np.concatenate([xy[1:], xy[1:2]])) + i
         xys.append(xy)
-        ss.append(np.concatenate([[0.0], np.cumsum(seg)]))
-        cens.append((float(xy[:, 0].mean()), float(xy[:, 1].mean())) if i % 11 else (1.0 + i, i - 1.0))
+    # the walls' moves' ends x1 y1, in another order than the walls, with moves between
+    rows, r0 = [], np.empty(len(xys), np.int64)
+    for i in rng.permutation(len(xys)):
+        rows.append(rng.uniform(-9, 9, (int(rng.integers(0, 3)), 2)))
+        r0[i] = sum(map(len, rows))
+        rows.append(xys[i][1:])
+    ends = np.concatenate(rows)
+    index = np.arange(len(ends)) * 3 + 7
+    r1 = r0 + np.array([len(xy) - 1 for xy in xys])
+    first = np.array([xy[0] for xy in xys])
     for d in ((0.0, -1.0), (1.0, 0.0), (0.6, 0.8)):
-        want = [_ray_hit(x, s, c, d) for x, s, c in zip(xys, ss, cens)]
-        got = _ray_hits(xys, ss, cens, d)
-        assert np.array(got).tobytes() == np.array(want).tobytes()
+        got = _walls_geometry(first, ends, index, r0, r1, d)
+        for i, (xy, s, mi, ccw, cen, s_ref) in enumerate(zip(*got)):
+            assert xy.tobytes() == xys[i].tobytes()
+            want_s = np.empty(len(xy))
+            want_s[0] = 0.0
+            np.cumsum(np.hypot(xy[1:, 0] - xy[:-1, 0], xy[1:, 1] - xy[:-1, 1]), out=want_s[1:])
+            assert s.tobytes() == want_s.tobytes()
+            assert mi.tolist() == index[r0[i]:r1[i]].tolist()
+            area, want_cen = _area_centroid(np.array(xy))
+            assert (ccw, cen) == (area >= 0, want_cen)
+            assert np.float64(s_ref).tobytes() == np.float64(_ray_hit(xy, want_s, want_cen, d)).tobytes()
 
 
 @pytest.mark.parametrize("name,geometric", [("prusa_cyl.gcode", False), ("prusa_vase.gcode", False),
