@@ -1178,6 +1178,24 @@ def _header(bmap: mapformat.BulgeMap, settings: Settings, stops: StockStops) -> 
             f"tolerance {settings.tolerance:.3f} mm, mode {settings.mode}{how}\n")
 
 
+_COPY_BYTES = 1 << 20
+
+
+def _copy(src, out, n: int | None) -> bytes:
+    """n bytes (None: the rest) of src to out, a megabyte at a time: the stretches between two
+    changed lines may be most of the file, and memory stays bounded. The last byte copied."""
+    last = b""
+    while n is None or n > 0:
+        b = src.read(_COPY_BYTES if n is None else min(n, _COPY_BYTES))
+        if not b:
+            break
+        out.write(b)
+        last = b[-1:]
+        if n is not None:
+            n -= len(b)
+    return last
+
+
 def _rewrite_records(src, out, chunks, bmap: mapformat.BulgeMap, settings: Settings,
                      source: str, res: RewriteResult, stops: StockStops = StockStops(),
                      m92: list | None = None, planner: RefPlanner | None = None,
@@ -1208,7 +1226,7 @@ def _rewrite_records(src, out, chunks, bmap: mapformat.BulgeMap, settings: Setti
             idx = np.arange(*np.searchsorted(lines, [ln_no, ln_no + 1]))   # the line's moves (an arc's chords)
             r0 = a[idx[0]]
             start = int(r0["offset"])
-            out.write(src.read(start - pos))
+            _copy(src, out, start - pos)
             raw = src.readline()                  # the line, through its \n
             pos = start + len(raw)
             text = raw.decode("utf-8")
@@ -1226,9 +1244,8 @@ def _rewrite_records(src, out, chunks, bmap: mapformat.BulgeMap, settings: Setti
             out.write("".join(_emit(Line(ln_no, text, head[0].upper(), words, [], None),
                                     per_move, st, sw)).encode())
     plan_records(planner, chunks, on_move, on_chunk=emit_changed)
-    rest = src.read()
-    out.write(rest)
-    if rest and not rest.endswith(b"\n"):
+    last = _copy(src, out, None)
+    if last and last != b"\n":
         out.write(b"\n")                         # as rewrite(): every line ends in a line end
     res.lines_in = chunks.lines
     res.stops = planner.stops
