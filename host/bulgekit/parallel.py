@@ -139,7 +139,8 @@ class Forked:
             os.close(self._to)
             self._to = None
         chunks = []
-        with os.fdopen(self._from, "rb") as f:
+        fd, self._from = self._from, -1
+        with os.fdopen(fd, "rb") as f:
             while True:
                 b = f.read(1 << 20)
                 if not b:
@@ -161,6 +162,9 @@ class Forked:
             if self._to is not None:
                 os.close(self._to)
                 self._to = None
+            if self._from >= 0:                # (closed without its result read)
+                os.close(self._from)
+                self._from = -1
 
     @staticmethod
     def _serve(fn, warm, to_child, from_child) -> None:

@@ -93,22 +93,25 @@ def test_an_unpicklable_value_is_made_here_instead():
     assert out.strip() == "True"
 
 
-def test_close_ends_a_child_still_working_and_leaves_no_process():
+def test_close_ends_a_child_still_working_and_leaves_no_process_or_pipe():
     out = fresh("""
         import os, time
         from bulgekit import parallel
+        fds = sorted(os.listdir("/proc/self/fd"))
         c = parallel.Forked.running(lambda: time.sleep(60))
+        w = parallel.Forked.waiting()      # and one never given a job
         pid = c._pid
         t = time.perf_counter()
         c.close()
+        w.close()
         try:
             os.waitpid(pid, os.WNOHANG)
             gone = False
         except ChildProcessError:
             gone = True                    # reaped: no zombie left
-        print(gone, time.perf_counter() - t < 5)
+        print(gone, time.perf_counter() - t < 5, sorted(os.listdir("/proc/self/fd")) == fds)
     """)
-    assert out.split() == ["True", "True"]
+    assert out.split() == ["True", "True", "True"]
 
 
 @pytest.mark.parametrize("why", ["env", "thread"])
