@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Benchmark the host commands on one large G-code (issue 12's goals, default 100 MB).
 
-    python3 tools/bench_host.py [--mb 100] [--keep DIR]
+    python3 tools/bench_host.py [--mb 100] [--keep DIR] [--repeat N]
     python3 tools/bench_host.py --gcode PART.gcode       # a sliced file of your own, as it is
 
 The input and its map are made as in tools/bench_annotate.py (a real PrusaSlicer file's middle
@@ -12,11 +12,14 @@ at 5,3 mm); the ratios are to a read of that file. The goals are judged on the m
 command: seconds, MB/s, the ratio to a plain Python line read of the same file measured in the same
 run (wall time, and user CPU time, which a machine loaded by other work disturbs less), peak MB, and
 the goals (issue 26: build <= 5x a plain read, annotate <= 2.5x, peak <= 500 MB; `bulgekit
-estimate` >= 1 M lines/s).
+estimate` >= 1 M lines/s). With --repeat N each command runs N times, one after the other: the
+median time and CPU (the goals are judged on them), the fastest and slowest run, the largest
+peak.
 """
 from __future__ import annotations
 
 import os
+import statistics
 import subprocess
 import sys
 import time
@@ -92,8 +95,14 @@ def run(args: list[str]) -> tuple[float, float, float]:
 
 
 def main() -> int:
-    a, folder = bench_setup(__doc__, lambda ap: ap.add_argument(
-        "--gcode", type=Path, help="time the commands on this sliced file instead (--mb ignored)"))
+    def more(ap):
+        ap.add_argument("--gcode", type=Path,
+                        help="time the commands on this sliced file instead (--mb ignored)")
+        ap.add_argument("--repeat", type=int, default=1, metavar="N",
+                        help="run each command N times: median, fastest and slowest (default 1)")
+    a, folder = bench_setup(__doc__, more)
+    if a.repeat < 1:
+        sys.exit(f"bench_host: --repeat {a.repeat}: give 1 or more")
     with folder as d:
         if a.gcode is None:
             src, bkm = d / "big.gcode", d / "big.bkm"
@@ -121,9 +130,16 @@ def main() -> int:
             ("stats", ["stats", str(bkm), "--gcode", str(src), "--quiet"], None),
             ("estimate", ["estimate", str(src)], None),
         ]
-        print(f"{'command':<10}{'s':>8}{'MB/s':>8}{'x read':>8}{'user s':>8}{'x read':>8}{'peak MB':>9}  goals")
+        spread = a.repeat > 1
+        print(f"{'command':<10}{'s':>8}{'MB/s':>8}{'x read':>8}{'user s':>8}{'x read':>8}{'peak MB':>9}"
+              + (f"{'runs: s min-max':>18}" if spread else "") + "  goals")
         for name, args, goal in cases:
-            dt, peak, user = run(args)
+            runs = [run(args) for _ in range(a.repeat)]
+            dt = statistics.median(r[0] for r in runs)
+            user = statistics.median(r[2] for r in runs)
+            peak = max(r[1] for r in runs)
+            rng = (f"{a.repeat:>6}: {min(r[0] for r in runs):.2f}-{max(r[0] for r in runs):.2f}"
+                   if spread else "")
             # goals are checked on the full 100 MB: a small file's run is mostly start-up
             g = "" if goal is None or not judged else f"<= {goal:g}x read: {'met' if dt / base <= goal else 'NOT met'}"
             # memory is checked on the full 100 MB only: it does not scale with size alone
@@ -132,7 +148,7 @@ def main() -> int:
                 g = (f"{lines / dt / 1e6:.2f} M lines/s ({lines / user / 1e6:.2f} M per user CPU s)"
                      + ("" if not judged else f": >= 1 M lines/s {'met' if lines / dt >= 1e6 else 'NOT met'}"))
             print(f"{name:<10}{dt:8.2f}{mb / dt:8.1f}{dt / base:8.1f}{user:8.2f}{user / base_user:8.1f}"
-                  f"{peak:9.0f}  {g}{m}")
+                  f"{peak:9.0f}{rng:>18}  {g}{m}")
     return 0
 
 
