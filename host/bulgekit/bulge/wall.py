@@ -444,8 +444,8 @@ def walls_from_records(chunks: Iterable[np.ndarray], layer_height: float | None 
         # the rows come in runs of one z (layers): z in 0.01 mm once per run, and how many of
         # each run's rows are flat (planar)
         z1 = rows[:, 5]
-        st = np.flatnonzero(np.concatenate(([True], z1[1:] != z1[:-1])))
-        zrun = movescan.z_cmm(z1[st])
+        st, zs = _runs(z1)
+        zrun = movescan.z_cmm(zs)
         flat = np.abs(z1 - rows[:, 2]) < 1e-6
         pz_lens.append(np.add.reduceat(flat, st, dtype=np.int64))
         zst_parts.append(st + rows_done)
