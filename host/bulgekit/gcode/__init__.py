@@ -516,15 +516,22 @@ def header_layer_height(text: str) -> float | None:
             while j >= 0 and text[j].isspace():
                 j -= 1
             start = text.rfind("\n", 0, j) + 1 if j >= 0 else 0
-        m = rx.search(text, start)
-        if m:
-            try:
-                v = float(m.group(1))
-            except ValueError:
-                continue
-            if v > 0:
-                return v
+        v = header_height_of(rx.search(text, start))
+        if v is not None:
+            return v
     return None
+
+
+def header_height_of(m: re.Match | None) -> float | None:
+    """The layer height a match of one of _HEADER_HEIGHT's patterns gives: its number, if it
+    reads as one and is > 0 (else the next pattern is tried)."""
+    if m is None:
+        return None
+    try:
+        v = float(m.group(1))
+    except ValueError:
+        return None
+    return v if v > 0 else None
 
 
 _M92_RX = re.compile(rb"^[ \t]*(?:[Nn]\d+[ \t]+)?[Mm]0*92(?![0-9.])([^\n;]*)", re.M)

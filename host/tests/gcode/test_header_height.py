@@ -6,20 +6,15 @@ from __future__ import annotations
 
 import random
 
-from bulgekit.gcode import _HEADER_HEIGHT, header_layer_height
+from bulgekit.gcode import _HEADER_HEIGHT, header_height_of, header_layer_height
 
 
 def whole_text_search(text: str) -> float | None:
     """header_layer_height as it was: every pattern searched from the start of the text."""
     for rx in _HEADER_HEIGHT:
-        m = rx.search(text)
-        if m:
-            try:
-                v = float(m.group(1))
-            except ValueError:
-                continue
-            if v > 0:
-                return v
+        v = header_height_of(rx.search(text))
+        if v is not None:
+            return v
     return None
 
 
