@@ -231,7 +231,7 @@ def build_unrolled(out, path, drawn=None):
         with open(path, "wb") as f:
             f.write(png)
     except OSError as e:
-        raise InputError(f"{os.fspath(path)}: cannot write preview: {e.strerror or e}") from None
+        raise _cannot_write(path, e) from None
     return path
 
 
@@ -247,8 +247,11 @@ def _save(fig, path):
     if isinstance(path, io.BytesIO):
         fig.savefig(path, format="png")
         return
-    path = os.fspath(path)
     try:
-        fig.savefig(path)
+        fig.savefig(os.fspath(path))
     except OSError as e:
-        raise InputError(f"{path}: cannot write preview: {e.strerror or e}") from None
+        raise _cannot_write(path, e) from None
+
+
+def _cannot_write(path, e: OSError) -> InputError:
+    return InputError(f"{os.fspath(path)}: cannot write preview: {e.strerror or e}")
