@@ -1,4 +1,5 @@
-"""The package's one compiled part: the G-code move scanner (bulgekit/gcode/_scan.c). It is optional:
+"""The package's compiled parts: the G-code move scanner (bulgekit/gcode/_scan.c), the estimator's
+planner passes (gcode/_plan.c) and the reach check's planning (bulge/_reach.c). They are optional:
 without a C compiler the package installs and reads G-code with the pure-Python parser
 (slower; `bulgekit --version` says which one is in use).
 
@@ -25,4 +26,7 @@ setup(cmdclass={"build_py": BuildPy},
                              extra_compile_args=["-O2"]),
                    # the estimator's planner passes; no fused multiply-add: the same bits as numpy
                    Extension("bulgekit.gcode._plan", ["bulgekit/gcode/_plan.c"], optional=True,
+                             extra_compile_args=["-O2", "-ffp-contract=off"]),
+                   # the reach check's planning (bulge/fallback.py): float32 as the Python planner
+                   Extension("bulgekit.bulge._reach", ["bulgekit/bulge/_reach.c"], optional=True,
                              extra_compile_args=["-O2", "-ffp-contract=off"])])

@@ -74,17 +74,17 @@ if [ -f tools/bkcore/main.cpp ]; then
     g++ -std=gnu++11 -O2 -Wall -Wextra -Isrc -Iconfig -o .build/bin/bkcore tools/bkcore/main.cpp src/*.cpp
 fi
 
-# The host's compiled helpers (G-code scanner, planner passes): built again when their source is
+# The host's compiled helpers (G-code scanner, planner passes, reach check): built again when their source is
 # newer than the build in the package (after a pull), since a stale scanner is not used and large
 # files then read many times slower.
-for c in host/bulgekit/gcode/_scan.c host/bulgekit/gcode/_plan.c; do
+for c in host/bulgekit/gcode/_scan.c host/bulgekit/gcode/_plan.c host/bulgekit/bulge/_reach.c; do
   [ -f "$c" ] || continue
   so=$(ls "${c%.c}".*.so 2>/dev/null | head -1 || true)
   if [ -z "$so" ] || [ "$c" -nt "$so" ]; then
     echo "bootstrap: building the host's compiled helpers (host/setup.py build_ext)"
     (cd host && python3 setup.py build_ext --inplace --force -q >/dev/null 2>&1) ||
       echo "bootstrap: they did not build; the slower Python paths will do their work" >&2
-    touch host/bulgekit/gcode/*.so 2>/dev/null || true
+    touch host/bulgekit/gcode/*.so host/bulgekit/bulge/*.so 2>/dev/null || true
     break
   fi
 done

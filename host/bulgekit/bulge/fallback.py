@@ -453,19 +453,23 @@ class Skipper:
         self.top_z = None
         self.own_top = True        # top_z from the chunks' records (lean chunks: their tops)
 
+    def classes_of(self, a: np.ndarray) -> np.ndarray:
+        """The chunk's class bits (movescan.classes, kept as self.classes), its highest extruding
+        z taken into top_z."""
+        c, top, top_line = movescan.classes(a)      # (one pass over the records)
+        self.classes = c
+        if self.arcs_bypass:
+            top = top_line                          # (arc chords: not the planner's)
+        if top is not None and self.own_top:
+            self.top_z = top if self.top_z is None else max(self.top_z, top)
+        return c
+
     def select(self, a: np.ndarray, followers: bool = True) -> np.ndarray:
         """Indices into the RECORD array a (one chunk, in file order) to plan. followers=False:
         without the first moving move after each (plan_records' lazy run picks those itself
         from self.moving, the chunk's moving moves, when the planner's state asks for one)."""
-        c, top, top_line = movescan.classes(a)      # (one pass over the records)
-        self.classes = c
-        if self.arcs_bypass:
-            seen = (c & movescan.ARC) == 0          # moves the planner sees
-            top = top_line
-        else:
-            seen = np.ones(len(a), bool)
-        if top is not None and self.own_top:
-            self.top_z = top if self.top_z is None else max(self.top_z, top)
+        c = self.classes_of(a)
+        seen = (c & movescan.ARC) == 0 if self.arcs_bypass else np.ones(len(a), bool)  # the planner's
         null = (c & movescan.NULL) != 0
         mode = self.p.s.mode
         ci = np.empty(0, np.intp)
@@ -586,6 +590,60 @@ def _plan_lazily(planner: RefPlanner, sk: Skipper, a, rows, done: int, roles) ->
     sk.owed = follow
 
 
+REACH_VERSION = 1      # the compiled reach planner's VERSION this code calls (_reach.c's module init)
+_reach_c = False       # the compiled reach planner once looked for: the module, or None
+
+
+def _compiled_reach():
+    """The compiled reach planner (bulge/_reach.c), or None: not built, or built from an older
+    _reach.c (gcode.compiled_helper); the Python planner then does the work, to the same stops."""
+    global _reach_c
+    if _reach_c is False:
+        from ..gcode import compiled_helper
+        _reach_c = compiled_helper("_reach", REACH_VERSION, "reach check (_reach)",
+                                   "the check runs slower", package=__package__)
+    return _reach_c
+
+
+def _native(planner: RefPlanner, sk: "Skipper"):
+    """A compiled twin of a fresh planner and its Skipper for a lazy run (_reach.new), or None:
+    not built, no map,
+    a planner that has planned already, or layers not in strictly ascending z (its window's search
+    assumes them so; RefPlanner searches others one by one)."""
+    c = _compiled_reach()
+    bm = planner.map
+    zs = planner._zs
+    if (c is None or bm is None or planner.layer is not None or planner.stops or planner.deferred
+            or any(a >= b for a, b in zip(zs, zs[1:]))):
+        return None
+    px, py, pw, off = [], [], [], [0]
+    for rec in bm.layers:            # each layer's points as RefPlanner._window sorts them
+        w = rec.weights or (255,) * len(rec.points)
+        for x, y, ww in sorted(((x, y, ww) for (x, y), ww in zip(rec.points, w)), key=lambda p: (p[0], p[1])):
+            px.append(x)
+            py.append(y)
+            pw.append(ww)
+        off.append(len(px))
+    f = movescan.RECORD.fields
+    offsets = tuple(f[k][1] for k in ("x0", "y0", "z0", "x1", "y1", "z1", "e", "line_no", "flags"))
+    i8 = np.int64
+    s = planner.s
+    return c.new(np.array(zs, i8), np.array(off, i8), np.array(px, i8), np.array(py, i8), np.array(pw, i8),
+                 planner.q_um, planner.lh, s.mode, s.dwell_ms, s.extra_e, s.tolerance, offsets,
+                 movescan.RECORD.itemsize, sk.lz, sk.pz, sk.px, sk.py, sk.margin, sk.arcs_bypass)
+
+
+def _adopt(planner: RefPlanner, native) -> None:
+    """The compiled run's stops, statistics, top_z and owed extra into the planner. Its layer
+    window stays behind: a planner run so is read, not planned further."""
+    stops, stats, top, carry, stop_ms = _compiled_reach().result(native)
+    planner.stops = [StopRecord(line, x, y, z, ms, (px, py), zc) for line, x, y, z, ms, px, py, zc in stops]
+    planner.stats = PlanStats(*stats)
+    planner.top_z = top
+    planner.carry = f32(carry)
+    planner.stop_ms = stop_ms
+
+
 def plan_records(planner: RefPlanner, chunks, on_move=None, arcs_bypass: bool = False,
                  on_chunk=None, lazy: bool = False) -> None:
     """Run a file's moves (movescan chunks) through the planner, skipping the moves that cannot
@@ -593,7 +651,8 @@ def plan_records(planner: RefPlanner, chunks, on_move=None, arcs_bypass: bool = 
     is planned; on_chunk(chunk, moves before it, {row: (move, actions)}) after each chunk.
     arcs_bypass: arc chords go to planner.bypass, as the firmware sees them. lazy (no on_move,
     no on_chunk: only the planner's stops, statistics and arcs count): the move after a picked
-    one is planned only when something is owed to it (_plan_lazily), the same stops."""
+    one is planned only when something is owed to it (_plan_lazily), the same stops; by the
+    compiled planner (_reach.c) when it is built and the planner is fresh (_native)."""
     if lazy and (on_move is not None or on_chunk is not None):
         raise ValueError("plan_records: lazy planning hands no moves to on_move or on_chunk")
     sk = Skipper(planner, arcs_bypass)
@@ -605,10 +664,14 @@ def plan_records(planner: RefPlanner, chunks, on_move=None, arcs_bypass: bool = 
         raise ValueError("plan_records: lean chunks hold what a lazy run in marked mode with "
                          "arcs bypassed plans, no more")
     sk.own_top = not lean or kept             # (kept: every extruding arc chord, for a top with arcs)
+    native = _native(planner, sk) if lazy else None
     done = 0
     for a in chunks:
         planned = {}
-        if lazy:
+        if native is not None:             # select(followers=False) and _plan_lazily, in C
+            sk.owed = _reach_c.run(native, np.ascontiguousarray(a), sk.classes_of(a), sk.owed)
+            rows = np.empty(0, np.intp)
+        elif lazy:
             _plan_lazily(planner, sk, a, sk.select(a, followers=False), done, chunks.roles)
             rows = np.empty(0, np.intp)
         else:
@@ -625,6 +688,8 @@ def plan_records(planner: RefPlanner, chunks, on_move=None, arcs_bypass: bool = 
             for m in record_moves(a, arcs[a["e"][arcs] > 0], done, chunks.roles):
                 planner.bypass(m)
         done += len(a)
+    if native is not None:
+        _adopt(planner, native)
     if lean:                                   # every part's top, as select() takes a chunk's
         for top in chunks.tops:
             if top is not None:

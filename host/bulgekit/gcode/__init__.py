@@ -377,24 +377,25 @@ SCAN_VERSION = 9      # the compiled scanner's VERSION this code calls (_scan.c'
 SCAN_REBUILD = "cd host && python3 setup.py build_ext --inplace (or make deps)"
 
 
-def _built(name: str, version: int):
+def _built(name: str, version: int, package: str = __name__):
     """("compiled" | "stale" | "missing", the module or None) for the compiled helper
-    bulgekit.gcode.<name>: stale when built from an older source, whose VERSION is not the one
+    <package>.<name>: stale when built from an older source, whose VERSION is not the one
     this code calls."""
     import importlib
     try:
-        mod = importlib.import_module(f"{__name__}.{name}")
+        mod = importlib.import_module(f"{package}.{name}")
     except ImportError:
         return "missing", None
     return ("compiled", mod) if getattr(mod, "VERSION", 0) == version else ("stale", None)
 
 
-def compiled_helper(name: str, version: int, what: str, slower: str):
-    """The compiled helper bulgekit.gcode.<name> (_scan, _plan), or None: not built (no C
+def compiled_helper(name: str, version: int, what: str, slower: str, package: str = __name__):
+    """The compiled helper <package>.<name> (bulgekit.gcode's _scan and _plan, bulgekit.bulge's
+    _reach), or None: not built (no C
     compiler), or built from an older source that lacks what this code calls; the Python paths
     then do the work, slower. A stale build is said once per helper (a RuntimeWarning: an update
     of the source without a rebuild would otherwise only show as slowness)."""
-    state, mod = _built(name, version)
+    state, mod = _built(name, version, package)
     if state == "stale" and name not in _STALE_SAID:
         _STALE_SAID.add(name)
         import warnings
