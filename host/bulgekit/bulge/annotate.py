@@ -367,5 +367,37 @@ def annotate_file(src, dst, map_bytes: bytes, settings: Settings, arena: int = A
         if msg:
             res.notes.append(msg)
     with open(dst, "wb") as f:
-        f.writelines(out)                     # the file's own bytes between the lines added
+        _write_pieces(f, out)                 # the file's own bytes between the lines added
     return res
+
+
+try:
+    _IOV_MAX = os.sysconf("SC_IOV_MAX")
+except (AttributeError, ValueError, OSError):
+    _IOV_MAX = 16                             # POSIX's least
+
+
+def _write_pieces(f, pieces: list) -> None:
+    """Write pieces (bytes, memoryviews) to the binary file f one after the other. By os.writev,
+    up to IOV_MAX pieces a call, where there is one: f.writelines copies each piece into the
+    file's buffer first, for annotate's 100 MB and 58,000 pieces about 0.06 s more (docs/host.md)."""
+    if not hasattr(os, "writev") or _IOV_MAX < 1:
+        f.writelines(pieces)
+        return
+    f.flush()
+    fd = f.fileno()
+    i, n = 0, len(pieces)
+    while i < n:
+        batch = pieces[i:i + _IOV_MAX]
+        done = os.writev(fd, batch)
+        if done == sum(map(len, batch)):
+            i += len(batch)
+            continue
+        # a short write (a signal; a full disk is an error): on from the first byte not written
+        for p in batch:
+            if done < len(p):
+                pieces = [memoryview(p)[done:]] + pieces[i + 1:]
+                i, n = 0, len(pieces)
+                break
+            done -= len(p)
+            i += 1

@@ -402,3 +402,31 @@ def test_compiled_marks_are_the_regular_expressions(data_dir, monkeypatch):
     z = annotate._z_events(ODD_MARKS)
     assert (ODD_MARKS.index(b"G1 Z0.015"), 2) in z       # round(1.5) is 2, half to even
     assert (ODD_MARKS.index(b"G1 Z1.5e3"), 150) in z     # "1.5", as the regex reads it
+
+
+def test_pieces_are_written_whole_after_short_writes(tmp_path, monkeypatch):
+    """annotate_file's writer (_write_pieces) goes on where os.writev stopped, in the middle of a
+    piece too, takes no more pieces a call than IOV_MAX, and writes them all without writev."""
+    import os
+    from bulgekit.bulge import annotate
+    data = bytes(range(256)) * 40
+    pieces = [memoryview(data)[i:i + i % 23] for i in range(0, 5000, 7)] + [b"", b"tail\n"]
+    whole = b"".join(bytes(p) for p in pieces)
+    real, calls = os.writev, []
+
+    def half(fd, bufs):                       # writes half of what it is given (a byte at least)
+        assert len(bufs) <= annotate._IOV_MAX
+        calls.append(len(bufs))
+        given = b"".join(bytes(b) for b in bufs)
+        return real(fd, [given[:max(1, len(given) // 2)] if given else b""])
+    monkeypatch.setattr(annotate, "_IOV_MAX", 64)
+    monkeypatch.setattr(os, "writev", half)
+    with open(tmp_path / "a", "wb") as f:
+        f.write(b"head ")                     # buffered: written before the pieces
+        annotate._write_pieces(f, list(pieces))
+    assert (tmp_path / "a").read_bytes() == b"head " + whole
+    assert len(calls) > len(pieces) / 64 and max(calls) == 64
+    monkeypatch.delattr(os, "writev")
+    with open(tmp_path / "b", "wb") as f:
+        annotate._write_pieces(f, list(pieces))
+    assert (tmp_path / "b").read_bytes() == whole
