@@ -140,8 +140,19 @@ class AnnotateResult:
     notes: list[str] = field(default_factory=list)
 
 
-def _record_bytes(bm: mapformat.BulgeMap) -> list[bytes]:
-    return [mapformat.encode_record(l, bm.has_weights) for l in bm.layers]
+def _record_bytes(map_bytes: bytes, count: int) -> list[bytes]:
+    """The first count layer records of map_bytes (a valid map), each as its bytes there:
+    decode_map takes only the one encoding encode_record writes (minimal varints, exact
+    lengths, CRCs checked), so they are the decoded records encoded again, without the work."""
+    recs = []
+    pos, end = mapformat.HEADER_BYTES, len(map_bytes)
+    for _ in range(count):
+        start = pos
+        _, pos = mapformat._read_varint(map_bytes, pos + 2, end)      # past z and n
+        body, pos = mapformat._read_varint(map_bytes, pos, end)
+        pos += body + 1                                                 # and the CRC
+        recs.append(bytes(map_bytes[start:pos]))
+    return recs
 
 
 def _z_events(data: bytes):
@@ -203,7 +214,7 @@ def _annotated(data: bytes, map_bytes: bytes, settings: Settings, arena: int, st
     res = result if result is not None else AnnotateResult()
     bm = bm if bm is not None else mapformat.decode_map(map_bytes, source="map")
     geometric = settings.mode == MODE_GEOMETRIC
-    recs = _record_bytes(bm)
+    recs = _record_bytes(map_bytes, len(bm.layers))
     zrec = [l.z_cmm for l in bm.layers]
     h = bm.layer_height_cmm
     header = bytes(map_bytes[:mapformat.HEADER_BYTES])
@@ -228,7 +239,7 @@ def _annotated(data: bytes, map_bytes: bytes, settings: Settings, arena: int, st
            f"{len(header) + sum(map(len, recs))} bytes, arena {arena}"
            + ("" if k == len(recs) else f", {len(recs) - k} layers streamed") , settings.m720(),
            "M721 X"]
-    top += mapformat.upload_lines(first)
+    top += mapformat.upload_lines(first, checked=True)
     inserts: list[tuple[int, int, bytes]] = []   # (offset, order, text)
     inserts.append((0, 0, eol.join(t.encode() for t in top) + eol))
 
@@ -292,7 +303,8 @@ def _annotated(data: bytes, map_bytes: bytes, settings: Settings, arena: int, st
                         f"{free} bytes free at z {zc / 100:.2f} mm")
                 payload = b"".join(recs[sent_until:j])
                 txt = [f"; bulgekit: layers {zrec[sent_until] / 100:.2f}..{zrec[j - 1] / 100:.2f} mm"]
-                txt += mapformat.upload_lines(payload, append=True, has_weights=bm.has_weights)
+                txt += mapformat.upload_lines(payload, append=True, has_weights=bm.has_weights,
+                                              checked=True)
                 inserts.append((off, 2, eol.join(t.encode() for t in txt) + eol))
                 res.appends.append((zc / 100, j - sent_until, len(payload)))
                 sent_until = j
@@ -351,10 +363,12 @@ def _reach(gcode, map_bytes: bytes, settings: Settings, source: str,
 
 def annotate_file(src, dst, map_bytes: bytes, settings: Settings, arena: int = ARENA_BYTES,
                   stream: bool = True, check: bool = True,
-                  allow_unreached: bool = False) -> AnnotateResult:
+                  allow_unreached: bool = False, *,
+                  decoded: mapformat.BulgeMap | None = None) -> AnnotateResult:
     """Annotate src into dst.  With check (default) the file is also run
     through the reference planner, and map points no move reaches are an
-    error unless allow_unreached (then the message is in result.notes)."""
+    error unless allow_unreached (then the message is in result.notes).
+    decoded: map_bytes decoded already (the CLI's check of the map file)."""
     from ..gcode import movescan
     kept = movescan.kept(src) is not None     # build's one scan checked it already
     with open(src, "rb") as f:
@@ -367,7 +381,8 @@ def annotate_file(src, dst, map_bytes: bytes, settings: Settings, arena: int = A
         check_complete(data, str(src))
     msg = flagged = failed = None
     try:                                      # (decoded once for both passes)
-        bm, bad_map = mapformat.decode_map(map_bytes, source="map"), None
+        bm = decoded if decoded is not None else mapformat.decode_map(map_bytes, source="map")
+        bad_map = None
     except mapformat.MapFormatError as e:
         bm, bad_map = None, e
     if check:
