@@ -86,16 +86,17 @@ def _feature_comments(data: bytes):
             yield end, role
 
 
-def _feature_marks(data: bytes) -> list[tuple[int, bool]]:
+def _feature_marks(data: bytes, lines: list | None = None) -> list[tuple[int, bool]]:
     """(end of line offset, whether its role is an outer wall) of every whole-line feature
     comment with a role (_feature_comments), each comment (or role) asked once: a file repeats a
-    few comments thousands of times."""
+    few comments thousands of times. lines: _scan.feature_lines(data) found already."""
     sc = _scanner()
-    if sc is None:
+    if lines is None and sc is None:
         found = list(_feature_comments_rx(data))
         outer_of = {role: is_outer(role) for role in {role for _, role in found}}
         return [(end, outer_of[role]) for end, role in found]
-    lines = sc.feature_lines(data)
+    if lines is None:
+        lines = sc.feature_lines(data)
     outer_of = {}
     for comment in {comment for _, comment in lines}:
         role = feature_of_comment(comment.decode("utf-8", "replace"))
@@ -243,10 +244,15 @@ def _annotated(data: bytes, map_bytes: bytes, settings: Settings, arena: int, st
     inserts: list[tuple[int, int, bytes]] = []   # (offset, order, text)
     inserts.append((0, 0, eol.join(t.encode() for t in top) + eol))
 
+    # the feature lines and the layer changes from one pass over the data when both are wanted
+    # (an older build of the scanner has no line_marks)
+    both = getattr(_scanner(), "line_marks", None) if not geometric and k < len(recs) else None
+    comment_lines, layer_changes = both(data) if both is not None else (None, None)
+
     # ---- markers
     if not geometric:
         inside = False
-        marks = _feature_marks(data)
+        marks = _feature_marks(data, comment_lines)
         res.features_seen = len(marks)
         on, off = b"M722 S1" + eol, b"M722 S0" + eol
         n = len(data)
@@ -279,7 +285,7 @@ def _annotated(data: bytes, map_bytes: bytes, settings: Settings, arena: int, st
     if k < len(recs):
         sent_until = k                 # records [0, sent_until) were sent
         last_layer_z = None            # z (cmm) of the layer printed last
-        for off, zc in _z_events(data):
+        for off, zc in layer_changes if layer_changes is not None else _z_events(data):
             if sent_until < len(recs) and 2 * (zrec[sent_until] - zc) <= h:
                 # resident: sent records at or above the record found for the
                 # layer printed last (or everything when none was found yet)

@@ -371,9 +371,10 @@ def _mark_lines(rng, odd: bool = False):
 
 def test_compiled_marks_are_the_regular_expressions(data_dir, monkeypatch):
     """annotate's feature comments and layer changes from the compiled scanner (_scan.feature_lines,
-    _scan.z_events) are the regular expressions' (the fallback without it), on every test file,
-    on odd lines (blanks, G00/G10, G90/G91 and their word ends, Z without a number, Z after a
-    ';', long and rounding-edge numbers, lone \\r, no line end at the end) and on random ones."""
+    _scan.z_events, both at once: _scan.line_marks) are the regular expressions' (the fallback
+    without it), on every test file, on odd lines (blanks, G00/G10, G90/G91 and their word ends,
+    Z without a number, Z after a ';', long and rounding-edge numbers, lone \\r, no line end at
+    the end) and on random ones."""
     import random
     from pathlib import Path
     from bulgekit.bulge import annotate
@@ -391,6 +392,8 @@ def test_compiled_marks_are_the_regular_expressions(data_dir, monkeypatch):
         assert z == annotate._z_events_rx(d)
         f = list(annotate._feature_comments(d))
         assert f == list(annotate._feature_comments_rx(d))
+        # both from one pass (annotate's way when it wants both), as each alone
+        assert movescan._scan.line_marks(d) == (movescan._scan.feature_lines(d), z)
         assert annotate._feature_marks(d) == [(end, is_outer(role)) for end, role in f]
         seen_z += len(z)
         seen_f += len(f)
