@@ -256,17 +256,21 @@ def _annotated(data: bytes, map_bytes: bytes, settings: Settings, arena: int, st
         res.features_seen = len(marks)
         on, off = b"M722 S1" + eol, b"M722 S0" + eol
         n = len(data)
+        add = inserts.append
+        markers = sections = 0                # (into res once, not per marker)
         for eol_at, outer in marks:
             if outer != inside:
                 inside = outer
                 # (eol_at is the comment's '\n', or the end of data: the line after it, or a
                 # line end first)
                 if eol_at < n:
-                    inserts.append((eol_at + 1, 1, on if outer else off))
+                    add((eol_at + 1, 1, on if outer else off))
                 else:
-                    inserts.append((n, 1, eol + (on if outer else off)))
-                res.markers += 1
-                res.outer_sections += outer
+                    add((n, 1, eol + (on if outer else off)))
+                markers += 1
+                sections += outer
+        res.markers += markers
+        res.outer_sections += sections
         if res.features_seen == 0:
             raise AnnotateError(
                 f"{source}: no slicer feature comments found, so the outer wall cannot be "
