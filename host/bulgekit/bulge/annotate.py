@@ -16,9 +16,9 @@ record sent whose z is at or above the record of the layer printed last,
 and sends only what fits in the rest of the arena (BK_MAP_ARENA_BYTES).
 
 The feature comment lines and layer changes are found by the compiled scanner's
-line walkers (_scan.feature_lines, _scan.z_events), or without it by the regular
-expressions they mirror (no per-line Python work either way), and the output is
-the file's own bytes between the added lines.  The check that every map point is
+line walkers (_scan.feature_lines, _scan.z_events, both in one pass: _scan.line_marks), or
+without it by the regular expressions they mirror (no per-line Python work either way), and the
+output is the file's own bytes between the added lines, written by os.writev.  The check that every map point is
 reached (check_reach, on by default) runs the reference planner on the moves that
 can stop or change its state (fallback.Skipper), read by the compiled scanner
 (movescan: in marked mode only the records the lazy planning can plan); its scan also tells
