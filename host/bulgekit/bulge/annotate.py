@@ -18,9 +18,9 @@ and sends only what fits in the rest of the arena (BK_MAP_ARENA_BYTES).
 The feature comment lines and layer changes are found by the compiled scanner's
 line walkers (_scan.feature_lines, _scan.z_events, both in one pass: _scan.line_marks), or
 without it by the regular expressions they mirror (no per-line Python work either way), and the
-output is the file's own bytes between the added lines, written by os.writev.  The check that every map point is
-reached (check_reach, on by default) runs the reference planner on the moves that
-can stop or change its state (fallback.Skipper), read by the compiled scanner
+output is the file's own bytes between the added lines, written by os.writev.  The check that
+every map point is reached (check_reach, on by default) runs the reference planner on the moves
+that can stop or change its state (fallback.Skipper), read by the compiled scanner
 (movescan: in marked mode only the records the lazy planning can plan); its scan also tells
 whether check_not_processed has anything to look at.  100 MB annotate in about 0.8 s of CPU
 (docs/host.md).
@@ -431,7 +431,8 @@ except (AttributeError, ValueError, OSError):
 def _write_pieces(f, pieces: list) -> None:
     """Write pieces (bytes, memoryviews) to the binary file f one after the other. By os.writev,
     up to IOV_MAX pieces a call, where there is one: f.writelines copies each piece into the
-    file's buffer first, for annotate's 100 MB and 58,000 pieces about 0.06 s more (docs/host.md)."""
+    file's buffer first, for annotate's 100 MB and 58,000 pieces about 0.06 s more
+    (docs/host.md)."""
     if not hasattr(os, "writev") or _IOV_MAX < 1:
         f.writelines(pieces)
         return

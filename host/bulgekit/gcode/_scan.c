@@ -1098,9 +1098,8 @@ static const char *find_mark(const char *p, const char *end, int semi, int zg) {
 #if defined(__SSE2__) && (defined(__GNUC__) || defined(__clang__))
     /* thirty-two places at a time: a mask of the ';'s, the 'Z's and the 'G's whose next byte is a
      * '9' (the same bytes loaded again one on); a mark not asked for compares with one that is */
-    const char s_c = semi ? ';' : 'Z', z_c = zg ? 'Z' : ';', g_c = zg ? 'G' : ';', n_c = zg ? '9' : ';';
-    const __m128i sv = _mm_set1_epi8(s_c), zv = _mm_set1_epi8(z_c), gv = _mm_set1_epi8(g_c),
-                  nv = _mm_set1_epi8(n_c);
+    const __m128i sv = _mm_set1_epi8(semi ? ';' : 'Z'), zv = _mm_set1_epi8(zg ? 'Z' : ';'),
+                  gv = _mm_set1_epi8(zg ? 'G' : ';'), nv = _mm_set1_epi8(zg ? '9' : ';');
     while (end - p >= 33) {
         __m128i a0 = _mm_loadu_si128((const __m128i *)p);
         __m128i b0 = _mm_loadu_si128((const __m128i *)(p + 1));
@@ -1145,7 +1144,8 @@ static Py_ssize_t start_of_line(const char *d, Py_ssize_t p) {
  * order, a ';' only as its line's first, and a line left at its ';' (what follows is a comment):
  * so a feature line (';' its first byte but blanks) is never skipped for a Z or a G9 before it,
  * and a G90/G91 (at a line's start) counts for the Z lines after it. 0, or -1 with an exception. */
-static int marks_pass(const char *d, Py_ssize_t n, PyObject *features, ZLine **zlp, Py_ssize_t *nzp) {
+static int marks_pass(const char *d, Py_ssize_t n, PyObject *features, ZLine **zlp,
+                      Py_ssize_t *nzp) {
     const int semi = features != NULL, zg = zlp != NULL;
     ZLine *zl = NULL;
     Py_ssize_t nz = 0, cz = 0;
@@ -1189,8 +1189,8 @@ static int marks_pass(const char *d, Py_ssize_t n, PyObject *features, ZLine **z
              * on its own line is not a move's) */
             Py_ssize_t b = zp;
             while (b > 0 && (d[b - 1] == ' ' || d[b - 1] == '\t')) b--;
-            if ((b == 0 || d[b - 1] == '\n') && zp + 2 < n && (d[zp + 2] == '0' || d[zp + 2] == '1') &&
-                (zp + 3 >= n || !is_word(d[zp + 3])))
+            if ((b == 0 || d[b - 1] == '\n') && zp + 2 < n &&
+                (d[zp + 2] == '0' || d[zp + 2] == '1') && (zp + 3 >= n || !is_word(d[zp + 3])))
                 absolute = d[zp + 2] == '0';
             pos = zp + 1;
             continue;
