@@ -18,13 +18,31 @@ __version__ = "0.1.0"
 if "numpy" not in _sys.modules:
     _os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-# Function names differ from the module names (bulge/annotate.py, bulge/fallback.py,
-# bulge/stats.py) so that `from bulgekit.bulge import annotate` keeps meaning the module.
-from .bulge.api import (BuildOutput, annotate_gcode, build, build_map, bulge_stats, fallback_gcode,
-                  load_strokes, walls)
-from .bulge.fallback import MODE_GEOMETRIC, MODE_MARKED, MODE_OFF, Settings, StockStops
 from .errors import BulgekitError, InputError
-from .bulge.strokes import Stroke, text_strokes
+
+# Function names differ from the module names (bulge/annotate.py, bulge/fallback.py,
+# bulge/stats.py) so that `from bulgekit.bulge import annotate` keeps meaning the module. Each name
+# is imported when first asked for (PEP 562): a command that needs none of build's modules
+# (`bulgekit annotate`: mapbuild, strokes, wall, stats) does not pay for them (docs/host.md).
+_LAZY = {**dict.fromkeys(["BuildOutput", "annotate_gcode", "build", "build_map", "bulge_stats",
+                          "fallback_gcode", "load_strokes", "walls"], "bulge.api"),
+         **dict.fromkeys(["MODE_GEOMETRIC", "MODE_MARKED", "MODE_OFF", "Settings", "StockStops"],
+                         "bulge.fallback"),
+         **dict.fromkeys(["Stroke", "text_strokes"], "bulge.strokes")}
+
+
+def __getattr__(name: str):
+    where = _LAZY.get(name)
+    if where is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    import importlib
+    value = globals()[name] = getattr(importlib.import_module("." + where, __name__), name)
+    return value
+
+
+def __dir__():
+    return sorted(set(globals()) | set(_LAZY))
+
 
 __all__ = [
     "BuildOutput", "BulgekitError", "InputError", "MODE_GEOMETRIC", "MODE_MARKED", "MODE_OFF",

@@ -16,21 +16,24 @@ record sent whose z is at or above the record of the layer printed last,
 and sends only what fits in the rest of the arena (BK_MAP_ARENA_BYTES).
 
 The feature comment lines and layer changes are found by the compiled scanner's
-line walkers (_scan.feature_lines, _scan.z_events), or without it by the regular
-expressions they mirror (no per-line Python work either way), and the output is
-the file's own bytes between the added lines.  The check that every map point is
-reached (check_reach, on by default) runs the reference planner on the moves that
-can stop or change its state (fallback.Skipper), read by the compiled scanner
+line walkers (_scan.feature_lines, _scan.z_events, both in one pass: _scan.line_marks), or
+without it by the regular expressions they mirror (no per-line Python work either way), and the
+output is the file's own bytes between the added lines, written by os.writev.  The check that
+every map point is reached (check_reach, on by default) runs the reference planner on the moves
+that can stop or change its state (fallback.Skipper), read by the compiled scanner
 (movescan: in marked mode only the records the lazy planning can plan); its scan also tells
 whether check_not_processed has anything to look at.  100 MB annotate in about 0.8 s of CPU
 (docs/host.md).
 """
 from __future__ import annotations
 
+import functools
+import gc
 import mmap
 import os
 import re
 from dataclasses import dataclass, field
+from operator import itemgetter
 
 from . import mapformat
 from .fallback import MODE_GEOMETRIC, MODE_MARKED, Settings
@@ -83,17 +86,22 @@ def _feature_comments(data: bytes):
             yield end, role
 
 
-def _feature_marks(data: bytes) -> list[tuple[int, bool]]:
+def _feature_marks(data: bytes, lines: list | None = None) -> list[tuple[int, bool]]:
     """(end of line offset, whether its role is an outer wall) of every whole-line feature
-    comment with a role (_feature_comments), each role asked once."""
-    outer_of: dict[str, bool] = {}
-    marks = []
-    for end, role in _feature_comments(data):
-        o = outer_of.get(role)
-        if o is None:
-            o = outer_of[role] = is_outer(role)
-        marks.append((end, o))
-    return marks
+    comment with a role (_feature_comments), each comment (or role) asked once: a file repeats a
+    few comments thousands of times. lines: _scan.feature_lines(data) found already."""
+    sc = _scanner()
+    if lines is None and sc is None:
+        found = list(_feature_comments_rx(data))
+        outer_of = {role: is_outer(role) for role in {role for _, role in found}}
+        return [(end, outer_of[role]) for end, role in found]
+    if lines is None:
+        lines = sc.feature_lines(data)
+    outer_of = {}
+    for comment in {comment for _, comment in lines}:
+        role = feature_of_comment(comment.decode("utf-8", "replace"))
+        outer_of[comment] = None if role is None else is_outer(role)
+    return [(end, o) for end, comment in lines if (o := outer_of[comment]) is not None]
 
 
 def _feature_comments_rx(data: bytes):
@@ -104,6 +112,22 @@ def _feature_comments_rx(data: bytes):
         role = feature_of_comment(mt.group(0).decode("utf-8", "replace")[1:])
         if role is not None:
             yield mt.end(), role
+
+
+def _gc_paused(fn):
+    """fn run with the cyclic garbage collector off (as it was after): annotate's tens of
+    thousands of small tuples hold no cycles, and the collector's passes while they are made
+    cost about 0.02 s on 100 MB (docs/host.md)."""
+    @functools.wraps(fn)
+    def run(*args, **kw):
+        if not gc.isenabled():
+            return fn(*args, **kw)
+        gc.disable()
+        try:
+            return fn(*args, **kw)
+        finally:
+            gc.enable()
+    return run
 
 
 @dataclass
@@ -117,8 +141,19 @@ class AnnotateResult:
     notes: list[str] = field(default_factory=list)
 
 
-def _record_bytes(bm: mapformat.BulgeMap) -> list[bytes]:
-    return [mapformat.encode_record(l, bm.has_weights) for l in bm.layers]
+def _record_bytes(map_bytes: bytes, count: int) -> list[bytes]:
+    """The first count layer records of map_bytes (a valid map), each as its bytes there:
+    decode_map takes only the one encoding encode_record writes (minimal varints, exact
+    lengths, CRCs checked), so they are the decoded records encoded again, without the work."""
+    recs = []
+    pos, end = mapformat.HEADER_BYTES, len(map_bytes)
+    for _ in range(count):
+        start = pos
+        _, pos = mapformat._read_varint(map_bytes, pos + 2, end)      # past z and n
+        body, pos = mapformat._read_varint(map_bytes, pos, end)
+        pos += body + 1                                                 # and the CRC
+        recs.append(bytes(map_bytes[start:pos]))
+    return recs
 
 
 def _z_events(data: bytes):
@@ -170,6 +205,7 @@ def annotate_bytes(data: bytes, map_bytes: bytes, settings: Settings,
     return b"".join(_annotated(data, map_bytes, settings, arena, stream, source, result))
 
 
+@_gc_paused
 def _annotated(data: bytes, map_bytes: bytes, settings: Settings, arena: int, stream: bool,
                source: str, result: AnnotateResult | None,
                bm: mapformat.BulgeMap | None = None) -> list:
@@ -179,7 +215,7 @@ def _annotated(data: bytes, map_bytes: bytes, settings: Settings, arena: int, st
     res = result if result is not None else AnnotateResult()
     bm = bm if bm is not None else mapformat.decode_map(map_bytes, source="map")
     geometric = settings.mode == MODE_GEOMETRIC
-    recs = _record_bytes(bm)
+    recs = _record_bytes(map_bytes, len(bm.layers))
     zrec = [l.z_cmm for l in bm.layers]
     h = bm.layer_height_cmm
     header = bytes(map_bytes[:mapformat.HEADER_BYTES])
@@ -204,28 +240,37 @@ def _annotated(data: bytes, map_bytes: bytes, settings: Settings, arena: int, st
            f"{len(header) + sum(map(len, recs))} bytes, arena {arena}"
            + ("" if k == len(recs) else f", {len(recs) - k} layers streamed") , settings.m720(),
            "M721 X"]
-    top += mapformat.upload_lines(first)
+    top += mapformat.upload_lines(first, checked=True)
     inserts: list[tuple[int, int, bytes]] = []   # (offset, order, text)
     inserts.append((0, 0, eol.join(t.encode() for t in top) + eol))
+
+    # the feature lines and the layer changes from one pass over the data when both are wanted
+    # (an older build of the scanner has no line_marks)
+    both = getattr(_scanner(), "line_marks", None) if not geometric and k < len(recs) else None
+    comment_lines, layer_changes = both(data) if both is not None else (None, None)
 
     # ---- markers
     if not geometric:
         inside = False
-        marks = _feature_marks(data)
+        marks = _feature_marks(data, comment_lines)
         res.features_seen = len(marks)
         on, off = b"M722 S1" + eol, b"M722 S0" + eol
         n = len(data)
+        add = inserts.append
+        markers = sections = 0                # (into res once, not per marker)
         for eol_at, outer in marks:
             if outer != inside:
                 inside = outer
                 # (eol_at is the comment's '\n', or the end of data: the line after it, or a
                 # line end first)
                 if eol_at < n:
-                    inserts.append((eol_at + 1, 1, on if outer else off))
+                    add((eol_at + 1, 1, on if outer else off))
                 else:
-                    inserts.append((n, 1, eol + (on if outer else off)))
-                res.markers += 1
-                res.outer_sections += outer
+                    add((n, 1, eol + (on if outer else off)))
+                markers += 1
+                sections += outer
+        res.markers += markers
+        res.outer_sections += sections
         if res.features_seen == 0:
             raise AnnotateError(
                 f"{source}: no slicer feature comments found, so the outer wall cannot be "
@@ -244,7 +289,7 @@ def _annotated(data: bytes, map_bytes: bytes, settings: Settings, arena: int, st
     if k < len(recs):
         sent_until = k                 # records [0, sent_until) were sent
         last_layer_z = None            # z (cmm) of the layer printed last
-        for off, zc in _z_events(data):
+        for off, zc in layer_changes if layer_changes is not None else _z_events(data):
             if sent_until < len(recs) and 2 * (zrec[sent_until] - zc) <= h:
                 # resident: sent records at or above the record found for the
                 # layer printed last (or everything when none was found yet)
@@ -268,7 +313,8 @@ def _annotated(data: bytes, map_bytes: bytes, settings: Settings, arena: int, st
                         f"{free} bytes free at z {zc / 100:.2f} mm")
                 payload = b"".join(recs[sent_until:j])
                 txt = [f"; bulgekit: layers {zrec[sent_until] / 100:.2f}..{zrec[j - 1] / 100:.2f} mm"]
-                txt += mapformat.upload_lines(payload, append=True, has_weights=bm.has_weights)
+                txt += mapformat.upload_lines(payload, append=True, has_weights=bm.has_weights,
+                                              checked=True)
                 inserts.append((off, 2, eol.join(t.encode() for t in txt) + eol))
                 res.appends.append((zc / 100, j - sent_until, len(payload)))
                 sent_until = j
@@ -285,15 +331,17 @@ def _annotated(data: bytes, map_bytes: bytes, settings: Settings, arena: int, st
     pre = b"" if not len(data) or data[-1:] == b"\n" else eol
     inserts.append((len(data), 3, pre + eol.join(tail) + eol))
 
-    inserts.sort(key=lambda t: (t[0], t[1]))
+    inserts.sort(key=itemgetter(0, 1))
     parts = []
-    pos = 0
+    add = parts.append
+    pos = lines = 0
     view = memoryview(data)
     for off, _, txt in inserts:
-        parts.append(view[pos:off])
-        parts.append(txt)
-        res.lines_added += txt.count(b"\n")
+        add(view[pos:off])
+        add(txt)
+        lines += txt.count(b"\n")
         pos = off
+    res.lines_added += lines
     parts.append(view[pos:])
     return parts
 
@@ -325,10 +373,12 @@ def _reach(gcode, map_bytes: bytes, settings: Settings, source: str,
 
 def annotate_file(src, dst, map_bytes: bytes, settings: Settings, arena: int = ARENA_BYTES,
                   stream: bool = True, check: bool = True,
-                  allow_unreached: bool = False) -> AnnotateResult:
+                  allow_unreached: bool = False, *,
+                  decoded: mapformat.BulgeMap | None = None) -> AnnotateResult:
     """Annotate src into dst.  With check (default) the file is also run
     through the reference planner, and map points no move reaches are an
-    error unless allow_unreached (then the message is in result.notes)."""
+    error unless allow_unreached (then the message is in result.notes).
+    decoded: map_bytes decoded already (the CLI's check of the map file)."""
     from ..gcode import movescan
     kept = movescan.kept(src) is not None     # build's one scan checked it already
     with open(src, "rb") as f:
@@ -341,7 +391,8 @@ def annotate_file(src, dst, map_bytes: bytes, settings: Settings, arena: int = A
         check_complete(data, str(src))
     msg = flagged = failed = None
     try:                                      # (decoded once for both passes)
-        bm, bad_map = mapformat.decode_map(map_bytes, source="map"), None
+        bm = decoded if decoded is not None else mapformat.decode_map(map_bytes, source="map")
+        bad_map = None
     except mapformat.MapFormatError as e:
         bm, bad_map = None, e
     if check:
@@ -367,5 +418,38 @@ def annotate_file(src, dst, map_bytes: bytes, settings: Settings, arena: int = A
         if msg:
             res.notes.append(msg)
     with open(dst, "wb") as f:
-        f.writelines(out)                     # the file's own bytes between the lines added
+        _write_pieces(f, out)                 # the file's own bytes between the lines added
     return res
+
+
+try:
+    _IOV_MAX = os.sysconf("SC_IOV_MAX")
+except (AttributeError, ValueError, OSError):
+    _IOV_MAX = 16                             # POSIX's least
+
+
+def _write_pieces(f, pieces: list) -> None:
+    """Write pieces (bytes, memoryviews) to the binary file f one after the other. By os.writev,
+    up to IOV_MAX pieces a call, where there is one: f.writelines copies each piece into the
+    file's buffer first, for annotate's 100 MB and 58,000 pieces about 0.06 s more
+    (docs/host.md)."""
+    if not hasattr(os, "writev") or _IOV_MAX < 1:
+        f.writelines(pieces)
+        return
+    f.flush()
+    fd = f.fileno()
+    i, n = 0, len(pieces)
+    while i < n:
+        batch = pieces[i:i + _IOV_MAX]
+        done = os.writev(fd, batch)
+        if done == sum(map(len, batch)):
+            i += len(batch)
+            continue
+        # a short write (a signal; a full disk is an error): on from the first byte not written
+        for p in batch:
+            if done < len(p):
+                pieces = [memoryview(p)[done:]] + pieces[i + 1:]
+                i, n = 0, len(pieces)
+                break
+            done -= len(p)
+            i += 1

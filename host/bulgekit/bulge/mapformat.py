@@ -475,12 +475,14 @@ def upload_lines(
     *,
     has_weights: bool | None = None,
     chunk_bytes: int = CHUNK_BYTES,
+    checked: bool = False,
 ) -> list[str]:
     """The M721 lines that upload data: begin, chunks, commit.
 
     append=False: data is a full image (validated here). append=True: data is
     layer records for "M721 A1"; they are validated too, with has_weights as
     the map in force has it (None: accepted if either reading is valid).
+    checked: data is a valid image or records already (cut from a decoded map): not decoded again.
     start_line: number the lines N<start_line>.. and add "*<checksum>".
     """
     data = bytes(data)
@@ -490,7 +492,7 @@ def upload_lines(
         raise MapTooLargeError(f"{len(data)} bytes exceed the M721 limit of {MAP_BYTES_MAX}")
     if not 1 <= chunk_bytes <= CHUNK_BYTES or chunk_bytes % 5:
         raise MapFormatError(f"chunk_bytes {chunk_bytes} must be a multiple of 5 within 5..{CHUNK_BYTES}")
-    if append:
+    if append and not checked:
         choices = [has_weights] if has_weights is not None else [False, True]
         errors = []
         for w in choices:
@@ -501,7 +503,7 @@ def upload_lines(
                 errors.append(e)
         else:
             raise errors[0]
-    else:
+    elif not checked:
         decode_map(data, source="map")
     cmds = [f"M721 S{len(data)} C{crc32(data)}" + (" A1" if append else "")]
     for off in range(0, len(data), chunk_bytes):

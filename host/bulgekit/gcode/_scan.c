@@ -1064,43 +1064,6 @@ static const char *const FEATURE_WORDS[] = {
     "TYPE:", "FEATURE:", "outer perimeter", "inner perimeter", "infill", "solid layer", "support",
     "dense support", "skirt", "raft", "bridge", "gap fill", "prime pillar", "ooze shield", NULL};
 
-/* feature_lines(data) -> [(end, comment)]: every line whose first byte other than ' ' and '\t'
- * is ';' followed by blanks and a feature word (_FEATURE_RX); end: its '\n' (or the data's end),
- * comment: the bytes after the ';' up to end, for gcode.feature_of_comment. Looks only at the
- * lines holding a ';' (memchr to it, then to the line end): the moves between are not walked. */
-static PyObject *feature_lines(PyObject *self, PyObject *args) {
-    (void)self;
-    Py_buffer buf;
-    if (!PyArg_ParseTuple(args, "y*", &buf)) return NULL;
-    const char *d = buf.buf;
-    Py_ssize_t n = buf.len, pos = 0;
-    PyObject *out = PyList_New(0);
-    while (out && pos < n) {
-        const char *semi = memchr(d + pos, ';', (size_t)(n - pos));
-        if (!semi) break;
-        Py_ssize_t p = semi - d, b = p;
-        const char *nl = memchr(semi, '\n', (size_t)(n - p));
-        Py_ssize_t le = nl ? nl - d : n;
-        while (b > 0 && (d[b - 1] == ' ' || d[b - 1] == '\t')) b--;
-        if (b == 0 || d[b - 1] == '\n') {      /* the line's first ';' is its first byte but blanks */
-            Py_ssize_t q = p + 1;
-            while (q < le && (d[q] == ' ' || d[q] == '\t')) q++;
-            for (int k = 0; FEATURE_WORDS[k]; k++) {
-                size_t l = strlen(FEATURE_WORDS[k]);
-                if ((size_t)(le - q) >= l && memcmp(d + q, FEATURE_WORDS[k], l) == 0) {
-                    PyObject *t = Py_BuildValue("(ny#)", le, d + p + 1, le - p - 1);
-                    if (!t || PyList_Append(out, t) < 0) Py_CLEAR(out);
-                    Py_XDECREF(t);
-                    break;
-                }
-            }
-        }
-        pos = le + 1;                          /* (a later ';' on the line is not its first) */
-    }
-    PyBuffer_Release(&buf);
-    return out;
-}
-
 static int is_word(char c) {
     return (c >= '0' && c <= '9') || (c >= 'A' && c <= 'Z') || (c >= 'a' && c <= 'z') || c == '_';
 }
@@ -1122,21 +1085,50 @@ static int line_extrudes(const char *d, Py_ssize_t ls, Py_ssize_t le, Py_ssize_t
     return 0;
 }
 
-/* The first "G9" at or after p (before end), or NULL: eight bytes at a time, looking closer only
- * at a word holding a 'G' (memmem compares at every 'G', one a line). */
-static const char *find_g9(const char *p, const char *end) {
+/* Whether p (before end) is a byte the marks pass looks closer at: a ';' (semi), a 'Z' or the 'G'
+ * of a "G9" (zg). */
+static inline int is_mark(const char *p, const char *end, int semi, int zg) {
+    return (semi && *p == ';') || (zg && (*p == 'Z' || (*p == 'G' && end - p >= 2 && p[1] == '9')));
+}
+
+/* The first mark (is_mark) at or after p (before end), or NULL: what the marks pass looks closer
+ * at, found in one pass over the data (memchr to each ';', to each 'Z' and a third pass for the
+ * "G9"s read the 100 MB three times). */
+static const char *find_mark(const char *p, const char *end, int semi, int zg) {
+#if defined(__SSE2__) && (defined(__GNUC__) || defined(__clang__))
+    /* thirty-two places at a time: a mask of the ';'s, the 'Z's and the 'G's whose next byte is a
+     * '9' (the same bytes loaded again one on); a mark not asked for compares with one that is */
+    const __m128i sv = _mm_set1_epi8(semi ? ';' : 'Z'), zv = _mm_set1_epi8(zg ? 'Z' : ';'),
+                  gv = _mm_set1_epi8(zg ? 'G' : ';'), nv = _mm_set1_epi8(zg ? '9' : ';');
+    while (end - p >= 33) {
+        __m128i a0 = _mm_loadu_si128((const __m128i *)p);
+        __m128i b0 = _mm_loadu_si128((const __m128i *)(p + 1));
+        __m128i a1 = _mm_loadu_si128((const __m128i *)(p + 16));
+        __m128i b1 = _mm_loadu_si128((const __m128i *)(p + 17));
+        __m128i m0 = _mm_or_si128(_mm_or_si128(_mm_cmpeq_epi8(a0, sv), _mm_cmpeq_epi8(a0, zv)),
+                                  _mm_and_si128(_mm_cmpeq_epi8(a0, gv), _mm_cmpeq_epi8(b0, nv)));
+        __m128i m1 = _mm_or_si128(_mm_or_si128(_mm_cmpeq_epi8(a1, sv), _mm_cmpeq_epi8(a1, zv)),
+                                  _mm_and_si128(_mm_cmpeq_epi8(a1, gv), _mm_cmpeq_epi8(b1, nv)));
+        unsigned lo = (unsigned)_mm_movemask_epi8(m0), hi = (unsigned)_mm_movemask_epi8(m1);
+        if (lo | hi) return p + __builtin_ctz(lo | (hi << 16));
+        p += 32;
+    }
+#else
+    /* eight bytes at a time, looking closer only at a word holding a ';', a 'Z' or a 'G' (a byte
+     * of them is 0 after the xor; the zero test has no false negatives) */
     const uint64_t ones = 0x0101010101010101ULL, highs = 0x8080808080808080ULL;
     while (end - p >= 9) {
         uint64_t w;
         memcpy(&w, p, 8);
-        uint64_t x = w ^ (ones * 'G');         /* a 'G' byte is 0 now */
-        if ((x - ones) & ~x & highs)
+        uint64_t x = w ^ (ones * ';'), y = w ^ (ones * 'Z'), g = w ^ (ones * 'G');
+        if ((((x - ones) & ~x) | ((y - ones) & ~y) | ((g - ones) & ~g)) & highs)
             for (int k = 0; k < 8; k++)
-                if (p[k] == 'G' && p[k + 1] == '9') return p + k;
+                if (is_mark(p + k, end, semi, zg)) return p + k;
         p += 8;
     }
-    for (; end - p >= 2; p++)
-        if (p[0] == 'G' && p[1] == '9') return p;
+#endif
+    for (; p < end; p++)
+        if (is_mark(p, end, semi, zg)) return p;
     return NULL;
 }
 
@@ -1146,41 +1138,72 @@ static Py_ssize_t start_of_line(const char *d, Py_ssize_t p) {
     return p;
 }
 
-/* z_events(data) -> [(offset, z in 0.01 mm)]: annotate._z_events. Each Z word (_Z_RX:
- * Z[ \t]*[-+]?[0-9]*\.?[0-9]+) before any ';' of a G0/G1 line sets z (added to it under G91;
- * G90/G91 at a line's start switch); such a line is a layer change when it, or a line after it
- * and before the next one, extrudes in XY, and its z in 0.01 mm (round(), half to even)
- * differs from the last layer change's. Only the lines around a 'Z' or "G9" are looked at
- * (memchr, find_g9), and after a Z line the lines up to its first extruding one: a file's
- * millions of moves between are not walked. */
-static PyObject *z_events(PyObject *self, PyObject *args) {
-    (void)self;
-    Py_buffer buf;
-    if (!PyArg_ParseTuple(args, "y*", &buf)) return NULL;
-    const char *d = buf.buf;
-    Py_ssize_t n = buf.len;
+/* The marks pass over d[0, n): with features (a list), feature_lines' (end, comment) of every
+ * feature comment line appended to it; with zl, the Z words z_events reads (ZLine: the line's
+ * start, the word's end, z after it) in *zl (PyMem), *nz of them. The marks are looked at in file
+ * order, a ';' only as its line's first, and a line left at its ';' (what follows is a comment):
+ * so a feature line (';' its first byte but blanks) is never skipped for a Z or a G9 before it,
+ * and a G90/G91 (at a line's start) counts for the Z lines after it. 0, or -1 with an exception. */
+static int marks_pass(const char *d, Py_ssize_t n, PyObject *features, ZLine **zlp,
+                      Py_ssize_t *nzp) {
+    const int semi = features != NULL, zg = zlp != NULL;
     ZLine *zl = NULL;
     Py_ssize_t nz = 0, cz = 0;
-    int absolute = 1, failed = 0;
+    int absolute = 1;
     double z = 0.0;
     char small[64];
-    Py_ssize_t g9 = 0;                     /* where to look for the next G90/G91 line */
     Py_ssize_t pos = 0;
     /* the line of the last 'Z' looked at: [cur_ls, cur_lim) may hold Z words, cur_le its end */
     Py_ssize_t cur_ls = -1, cur_le = -1, cur_lim = -1;
-    while (pos < n && !failed) {
-        const char *zc = memchr(d + pos, 'Z', (size_t)(n - pos));
-        if (!zc) break;
-        Py_ssize_t zp = zc - d;
+    while (pos < n) {
+        const char *hit = find_mark(d + pos, d + n, semi, zg);
+        if (!hit) break;
+        Py_ssize_t zp = hit - d;
+        if (*hit == ';') {
+            /* feature_lines: the line's first ';' is its first byte but blanks, then blanks and a
+             * feature word */
+            Py_ssize_t b = zp;
+            const char *nl = memchr(hit, '\n', (size_t)(n - zp));
+            Py_ssize_t le = nl ? nl - d : n;
+            while (b > 0 && (d[b - 1] == ' ' || d[b - 1] == '\t')) b--;
+            if (b == 0 || d[b - 1] == '\n') {
+                Py_ssize_t q = zp + 1;
+                while (q < le && (d[q] == ' ' || d[q] == '\t')) q++;
+                for (int k = 0; FEATURE_WORDS[k]; k++) {
+                    size_t l = strlen(FEATURE_WORDS[k]);
+                    if (q < le && d[q] == FEATURE_WORDS[k][0] && (size_t)(le - q) >= l &&
+                        memcmp(d + q, FEATURE_WORDS[k], l) == 0) {
+                        PyObject *t = Py_BuildValue("(ny#)", le, d + zp + 1, le - zp - 1);
+                        int bad = !t || PyList_Append(features, t) < 0;
+                        Py_XDECREF(t);
+                        if (bad) goto fail;
+                        break;
+                    }
+                }
+            }
+            pos = le + 1;                      /* (a later ';' on the line is not its first) */
+            continue;
+        }
+        if (*hit == 'G') {
+            /* G90/G91 at a line's start, in file order: it counts for the Z lines after it (a Z
+             * on its own line is not a move's) */
+            Py_ssize_t b = zp;
+            while (b > 0 && (d[b - 1] == ' ' || d[b - 1] == '\t')) b--;
+            if ((b == 0 || d[b - 1] == '\n') && zp + 2 < n &&
+                (d[zp + 2] == '0' || d[zp + 2] == '1') && (zp + 3 >= n || !is_word(d[zp + 3])))
+                absolute = d[zp + 2] == '0';
+            pos = zp + 1;
+            continue;
+        }
         if (zp > cur_le) {                     /* a new line */
             cur_ls = start_of_line(d, zp);
-            const char *nl = memchr(zc, '\n', (size_t)(n - zp));
+            const char *nl = memchr(hit, '\n', (size_t)(n - zp));
             cur_le = nl ? nl - d : n;
             Py_ssize_t h = move_head(d, cur_ls, n);
             cur_lim = -1;
             if (h >= 0) {
-                const char *semi = memchr(d + h, ';', (size_t)(cur_le - h));
-                cur_lim = semi ? semi - d : cur_le;
+                const char *semi_at = memchr(d + h, ';', (size_t)(cur_le - h));
+                cur_lim = semi_at ? semi_at - d : cur_le;
             }
         }
         if (zp >= cur_lim) { pos = cur_le + 1; continue; }    /* not a move, or after its ';' */
@@ -1197,32 +1220,21 @@ static PyObject *z_events(PyObject *self, PyObject *args) {
             pos = zp + 1;                      /* no number: not a Z word */
             continue;
         }
-        /* the G90/G91 lines before this one, in order */
-        while (g9 < cur_ls) {
-            const char *g = find_g9(d + g9, d + n);
-            if (!g || g - d >= cur_ls) { g9 = g ? g - d : n; break; }
-            Py_ssize_t p = g - d, b = p;
-            g9 = p + 1;
-            while (b > 0 && (d[b - 1] == ' ' || d[b - 1] == '\t')) b--;
-            if ((b == 0 || d[b - 1] == '\n') && p + 2 < n && (d[p + 2] == '0' || d[p + 2] == '1') &&
-                (p + 3 >= n || !is_word(d[p + 3])))
-                absolute = d[p + 2] == '0';
-        }
         char *num = small;
         if (q - ns >= (Py_ssize_t)sizeof small) {
             num = PyMem_Malloc((size_t)(q - ns + 1));
-            if (!num) { failed = 1; break; }
+            if (!num) { PyErr_NoMemory(); goto fail; }
         }
         memcpy(num, d + ns, (size_t)(q - ns));
         num[q - ns] = 0;
         double v = PyOS_string_to_double(num, NULL, NULL);   /* float()'s own */
         if (num != small) PyMem_Free(num);
-        if (v == -1.0 && PyErr_Occurred()) { failed = 1; break; }
+        if (v == -1.0 && PyErr_Occurred()) goto fail;
         z = absolute ? v : z + v;
         if (nz == cz) {
             cz = cz ? 2 * cz : 1024;
             ZLine *t = PyMem_Realloc(zl, (size_t)cz * sizeof *t);
-            if (!t) { failed = 1; break; }
+            if (!t) { PyErr_NoMemory(); goto fail; }
             zl = t;
         }
         zl[nz].start = cur_ls;
@@ -1231,8 +1243,16 @@ static PyObject *z_events(PyObject *self, PyObject *args) {
         nz++;
         pos = q;                               /* the number holds no Z */
     }
-    PyObject *out = failed ? NULL : PyList_New(0);
-    if (failed && !PyErr_Occurred()) PyErr_NoMemory();
+    if (zlp) { *zlp = zl; *nzp = nz; }
+    return 0;
+fail:
+    PyMem_Free(zl);
+    return -1;
+}
+
+/* z_events' list from the marks pass's Z words (see z_events). */
+static PyObject *layer_events(const char *d, Py_ssize_t n, const ZLine *zl, Py_ssize_t nz) {
+    PyObject *out = PyList_New(0);
     PyObject *last = NULL;                     /* the last layer change's z in 0.01 mm */
     Py_ssize_t self_at = -1, le = -1;          /* the Z line looked at last, its end */
     int self_ext = 0;
@@ -1275,6 +1295,58 @@ static PyObject *z_events(PyObject *self, PyObject *args) {
         Py_XDECREF(t);
     }
     Py_XDECREF(last);
+    return out;
+}
+
+/* feature_lines(data) -> [(end, comment)]: every line whose first byte other than ' ' and '\t'
+ * is ';' followed by blanks and a feature word (_FEATURE_RX); end: its '\n' (or the data's end),
+ * comment: the bytes after the ';' up to end, for gcode.feature_of_comment. Looks only at the
+ * lines holding a ';' (marks_pass): the moves between are not walked. */
+static PyObject *feature_lines(PyObject *self, PyObject *args) {
+    (void)self;
+    Py_buffer buf;
+    if (!PyArg_ParseTuple(args, "y*", &buf)) return NULL;
+    PyObject *out = PyList_New(0);
+    if (out && marks_pass(buf.buf, buf.len, out, NULL, NULL) < 0) Py_CLEAR(out);
+    PyBuffer_Release(&buf);
+    return out;
+}
+
+/* z_events(data) -> [(offset, z in 0.01 mm)]: annotate._z_events. Each Z word (_Z_RX:
+ * Z[ \t]*[-+]?[0-9]*\.?[0-9]+) before any ';' of a G0/G1 line sets z (added to it under G91;
+ * G90/G91 at a line's start switch); such a line is a layer change when it, or a line after it
+ * and before the next one, extrudes in XY, and its z in 0.01 mm (round(), half to even)
+ * differs from the last layer change's. Only the lines around a 'Z' or "G9" are looked at
+ * (marks_pass), and after a Z line the lines up to its first extruding one: a file's
+ * millions of moves between are not walked. */
+static PyObject *z_events(PyObject *self, PyObject *args) {
+    (void)self;
+    Py_buffer buf;
+    if (!PyArg_ParseTuple(args, "y*", &buf)) return NULL;
+    ZLine *zl = NULL;
+    Py_ssize_t nz = 0;
+    PyObject *out = NULL;
+    if (marks_pass(buf.buf, buf.len, NULL, &zl, &nz) == 0)
+        out = layer_events(buf.buf, buf.len, zl, nz);
+    PyMem_Free(zl);
+    PyBuffer_Release(&buf);
+    return out;
+}
+
+/* line_marks(data) -> (feature_lines(data), z_events(data)), from one pass over the data. */
+static PyObject *line_marks(PyObject *self, PyObject *args) {
+    (void)self;
+    Py_buffer buf;
+    if (!PyArg_ParseTuple(args, "y*", &buf)) return NULL;
+    ZLine *zl = NULL;
+    Py_ssize_t nz = 0;
+    PyObject *features = PyList_New(0), *events = NULL, *out = NULL;
+    if (features && marks_pass(buf.buf, buf.len, features, &zl, &nz) == 0)
+        events = layer_events(buf.buf, buf.len, zl, nz);
+    if (events)
+        out = PyTuple_Pack(2, features, events);
+    Py_XDECREF(features);
+    Py_XDECREF(events);
     PyMem_Free(zl);
     PyBuffer_Release(&buf);
     return out;
@@ -1355,6 +1427,8 @@ static PyMethodDef module_methods[] = {
      "feature_lines(data) -> [(end, comment)]: annotate's feature comment lines"},
     {"z_events", z_events, METH_VARARGS,
      "z_events(data) -> [(offset, z_cmm)]: annotate's layer changes"},
+    {"line_marks", line_marks, METH_VARARGS,
+     "line_marks(data) -> (feature_lines(data), z_events(data)), in one pass"},
     {"flag_lines", flag_lines, METH_VARARGS,
      "flag_lines(data) -> (ours, m92): lines check_not_processed's / scan_m92's regexes may match"},
     {"move_classes", move_classes, METH_VARARGS,

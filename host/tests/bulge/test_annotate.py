@@ -371,9 +371,10 @@ def _mark_lines(rng, odd: bool = False):
 
 def test_compiled_marks_are_the_regular_expressions(data_dir, monkeypatch):
     """annotate's feature comments and layer changes from the compiled scanner (_scan.feature_lines,
-    _scan.z_events) are the regular expressions' (the fallback without it), on every test file,
-    on odd lines (blanks, G00/G10, G90/G91 and their word ends, Z without a number, Z after a
-    ';', long and rounding-edge numbers, lone \\r, no line end at the end) and on random ones."""
+    _scan.z_events, both at once: _scan.line_marks) are the regular expressions' (the fallback
+    without it), on every test file, on odd lines (blanks, G00/G10, G90/G91 and their word ends,
+    Z without a number, Z after a ';', long and rounding-edge numbers, lone \\r, no line end at
+    the end) and on random ones."""
     import random
     from pathlib import Path
     from bulgekit.bulge import annotate
@@ -391,6 +392,8 @@ def test_compiled_marks_are_the_regular_expressions(data_dir, monkeypatch):
         assert z == annotate._z_events_rx(d)
         f = list(annotate._feature_comments(d))
         assert f == list(annotate._feature_comments_rx(d))
+        # both from one pass (annotate's way when it wants both), as each alone
+        assert movescan._scan.line_marks(d) == (movescan._scan.feature_lines(d), z)
         assert annotate._feature_marks(d) == [(end, is_outer(role)) for end, role in f]
         seen_z += len(z)
         seen_f += len(f)
@@ -402,3 +405,53 @@ def test_compiled_marks_are_the_regular_expressions(data_dir, monkeypatch):
     z = annotate._z_events(ODD_MARKS)
     assert (ODD_MARKS.index(b"G1 Z0.015"), 2) in z       # round(1.5) is 2, half to even
     assert (ODD_MARKS.index(b"G1 Z1.5e3"), 150) in z     # "1.5", as the regex reads it
+
+
+def test_pieces_are_written_whole_after_short_writes(tmp_path, monkeypatch):
+    """annotate_file's writer (_write_pieces) goes on where os.writev stopped, in the middle of a
+    piece too, takes no more pieces a call than IOV_MAX, and writes them all without writev."""
+    import os
+    from bulgekit.bulge import annotate
+    data = bytes(range(256)) * 40
+    pieces = [memoryview(data)[i:i + i % 23] for i in range(0, 5000, 7)] + [b"", b"tail\n"]
+    whole = b"".join(bytes(p) for p in pieces)
+    real, calls = os.writev, []
+
+    def half(fd, bufs):                       # writes half of what it is given (a byte at least)
+        assert len(bufs) <= annotate._IOV_MAX
+        calls.append(len(bufs))
+        given = b"".join(bytes(b) for b in bufs)
+        return real(fd, [given[:max(1, len(given) // 2)] if given else b""])
+    monkeypatch.setattr(annotate, "_IOV_MAX", 64)
+    monkeypatch.setattr(os, "writev", half)
+    with open(tmp_path / "a", "wb") as f:
+        f.write(b"head ")                     # buffered: written before the pieces
+        annotate._write_pieces(f, list(pieces))
+    assert (tmp_path / "a").read_bytes() == b"head " + whole
+    assert len(calls) > len(pieces) / 64 and max(calls) == 64
+    monkeypatch.delattr(os, "writev")
+    with open(tmp_path / "b", "wb") as f:
+        annotate._write_pieces(f, list(pieces))
+    assert (tmp_path / "b").read_bytes() == whole
+
+
+def test_record_bytes_are_the_records_encoded_again():
+    """annotate cuts the layer records out of the map's bytes (_record_bytes) rather than encoding
+    the decoded layers again: the same bytes, on every valid vector map (weights, extremes, a
+    full layer) and on random ones with weights, many-byte varints and negative points."""
+    import random
+    from pathlib import Path
+    from bulgekit.bulge import annotate
+    vectors = Path(__file__).resolve().parents[3] / "test" / "vectors"
+    maps = [p.read_bytes() for p in sorted(vectors.glob("*.bkm")) if not p.name.startswith("bad_")]
+    rng = random.Random(26)
+    for w in (False, True):
+        layers = [(0.3 * (k + 1), [(rng.uniform(-1500, 1500), rng.uniform(-1500, 1500))
+                                   for _ in range(rng.randint(1, 64))]) for k in range(40)]
+        weights = [[rng.randint(0, 255) for _ in pts] for _, pts in layers] if w else None
+        maps.append(mapformat.encode_map(layers, weights=weights))
+    assert len(maps) >= 7
+    for m in maps:
+        bm = mapformat.decode_map(m)
+        assert annotate._record_bytes(m, len(bm.layers)) == [
+            mapformat.encode_record(l, bm.has_weights) for l in bm.layers]

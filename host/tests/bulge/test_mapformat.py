@@ -401,6 +401,19 @@ def test_upload_lines_validate_payload():
         mf.upload_lines(b"")
 
 
+def test_upload_lines_checked_skips_only_the_decode():
+    """checked=True (data cut from a map decoded already, as annotate does): the same lines, and
+    the data not decoded again; the other checks stay."""
+    data = (VECTORS / "text_cylinder.bkm").read_bytes()
+    tail = (VECTORS / "text_cylinder_tail.bkr").read_bytes()
+    assert mf.upload_lines(data, checked=True) == mf.upload_lines(data)
+    assert mf.upload_lines(tail, append=True, checked=True) == mf.upload_lines(tail, append=True)
+    bad = (VECTORS / "bad_record_crc.bkm").read_bytes()
+    assert mf.upload_lines(bad, checked=True)[0] == f"M721 S{len(bad)} C{zlib.crc32(bad)}"
+    with pytest.raises(mf.MapFormatError):
+        mf.upload_lines(b"", checked=True)
+
+
 def test_realistic_case_bytes_per_point(capsys):
     d, data = load(VECTORS / "text_cylinder.json")
     bpp = len(data) / d["point_count"]
