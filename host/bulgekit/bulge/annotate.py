@@ -39,6 +39,7 @@ from . import mapformat
 from .fallback import MODE_GEOMETRIC, MODE_MARKED, Settings
 from ..gcode import check_complete, check_not_processed, feature_of_comment, is_outer
 from ..errors import BulgekitError
+from ..parallel import Forked
 
 ARENA_BYTES = mapformat.ARENA_BYTES
 
@@ -395,31 +396,76 @@ def annotate_file(src, dst, map_bytes: bytes, settings: Settings, arena: int = A
         bad_map = None
     except mapformat.MapFormatError as e:
         bm, bad_map = None, e
-    if check:
-        # the reach check's scan comes first, as it also tells where check_not_processed can
-        # find something; what it finds wrong is said in the order the checks always had
-        try:
-            if bad_map is not None:
-                raise bad_map
-            msg, flagged = _reach(src if kept else data, map_bytes, settings, str(src), bm)
-        except (BulgekitError, mapformat.MapFormatError) as e:
-            failed = e
-    if not kept and flagged != 0:
-        check_not_processed(data, str(src))
     res = AnnotateResult()
-    if bad_map is not None:
-        raise bad_map
-    out = _annotated(data, map_bytes, settings, arena, stream, str(src), res, bm)
-    if failed is not None:
-        raise failed
-    if check:
-        if msg and not allow_unreached:
-            raise AnnotateError(msg)
-        if msg:
-            res.notes.append(msg)
-    with open(dst, "wb") as f:
-        _write_pieces(f, out)                 # the file's own bytes between the lines added
+    out = made = wrote = None                 # the markers, or what making or writing them raised
+    tmp = f"{os.fspath(dst)}.part"            # renamed to dst once every check passed
+    job = None
+    try:
+        if check and bad_map is None and not kept:
+            # the reach check in a child on the second core (bulgekit.parallel) while the markers
+            # are made and written here: a 100 MB file's 0.65-0.75 s became 0.50-0.57 s. What either
+            # finds wrong is said below in the order the checks always had.
+            job = Forked.running(lambda: _reach(data, map_bytes, settings, str(src), bm))
+            if job.forked:
+                made, out = _attempt(_annotated, data, map_bytes, settings, arena, stream, str(src), res, bm)
+                if made is None:
+                    wrote = _attempt(_write_file, tmp, out, dst)[0]
+        if check:
+            # the reach check's scan comes first, as it also tells where check_not_processed can
+            # find something
+            try:
+                if bad_map is not None:
+                    raise bad_map
+                msg, flagged = (job.result() if job is not None
+                                else _reach(src if kept else data, map_bytes, settings, str(src), bm))
+            except (BulgekitError, mapformat.MapFormatError) as e:
+                failed = e
+        if not kept and flagged != 0:
+            check_not_processed(data, str(src))
+        if bad_map is not None:
+            raise bad_map
+        if job is None or not job.forked:
+            out = _annotated(data, map_bytes, settings, arena, stream, str(src), res, bm)
+        elif made is not None:
+            raise made
+        if failed is not None:
+            raise failed
+        if check:
+            if msg and not allow_unreached:
+                raise AnnotateError(msg)
+            if msg:
+                res.notes.append(msg)
+        if job is None or not job.forked:
+            _write_file(tmp, out, dst)
+        elif wrote is not None:
+            raise wrote
+        try:
+            os.replace(tmp, dst)
+        except OSError as e:                  # (said of the file the user named)
+            raise type(e)(e.errno, e.strerror, os.fspath(dst)) from None
+    finally:
+        if job is not None:
+            job.close()
+        if os.path.exists(tmp):
+            os.unlink(tmp)
     return res
+
+
+def _attempt(fn, *args):
+    """(None, fn(*args)), or (the exception it raised, None): raised later, in its turn."""
+    try:
+        return None, fn(*args)
+    except Exception as e:
+        return e, None
+
+
+def _write_file(tmp, pieces: list, dst) -> None:
+    """pieces into tmp; what goes wrong is said of dst, the file the user named."""
+    try:
+        with open(tmp, "wb") as f:
+            _write_pieces(f, pieces)          # the file's own bytes between the lines added
+    except OSError as e:
+        raise type(e)(e.errno, e.strerror, os.fspath(dst)) from None
 
 
 try:

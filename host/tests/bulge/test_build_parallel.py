@@ -4,6 +4,7 @@ child dies), no child left behind; the preview's PNG the same bytes either way."
 from __future__ import annotations
 
 import os
+import re
 import subprocess
 import sys
 import textwrap
@@ -190,3 +191,88 @@ def test_build_that_fails_after_the_map_leaves_no_preview_and_no_child(tmp_path)
     """)
     assert "exit 1" in out and "no child" in out
     assert sorted(p.name for p in d.iterdir()) == ["prusa_cyl.bulge.gcode"]
+
+
+def _annotate_runs(tmp_path, gcode, bmap, out, fork: str) -> str:
+    """`bulgekit annotate` in a fresh interpreter: whether its reach check went to a child, its
+    exit code and stderr's last line, the output's bytes (or 'none'), any .part and any child
+    left."""
+    return fresh(f"""
+        import os, sys, hashlib
+        from bulgekit.bulge import annotate
+        from bulgekit.cli import main
+        forked = []
+        class Seen(annotate.Forked):
+            def __init__(self, *a):
+                super().__init__(*a)
+                forked.append(self.forked)
+        annotate.Forked = Seen
+        sys.argv = ["bulgekit", "annotate", {str(gcode)!r}, {str(bmap)!r}, "-o", {str(out)!r}]
+        sys.stderr = sys.stdout
+        try:
+            main()
+        except SystemExit as e:
+            print("exit", e.code)
+        print("forked", forked)
+        p = {str(out)!r}
+        print("out", hashlib.sha256(open(p, "rb").read()).hexdigest() if os.path.isfile(p) else "none")
+        print("part", os.path.exists(p + ".part"))
+        try:
+            os.waitpid(-1, os.WNOHANG)
+            print("a child is left")
+        except ChildProcessError:
+            print("no child")
+    """, BULGEKIT_FORK=fork)
+
+
+def test_annotate_checks_reach_beside_the_markers_with_the_same_file_and_errors(tmp_path):
+    """annotate's reach check runs in a forked child while the markers are made and written: the
+    same file as in one process (BULGEKIT_FORK=0), and when a check fails, the same message, no
+    file, no .part and no child. A map for another file (unreached points), a file annotated
+    before (refused before anything else) and a folder that cannot be written (said after the
+    checks, as before)."""
+    from bulgekit.bulge.mapbuild import build
+    from bulgekit.bulge.strokes import Stroke
+    from bulgekit.bulge.wall import walls_from_gcode
+    bmap = tmp_path / "cyl.bkm"
+    bmap.write_bytes(build([Stroke(((10.0, 1.0), (10.0, 4.0)))], walls_from_gcode(GCODE)).map_bytes)
+    other = tmp_path / "other.bkm"                  # points off the wall: no move reaches them
+    other.write_bytes(mapformat_far())
+    done = tmp_path / "done.gcode"
+    cases = {"ok": (GCODE, bmap, tmp_path / "{}" / "a.gcode"),
+             "unreached": (GCODE, other, tmp_path / "{}" / "b.gcode"),
+             "annotated before": (done, bmap, tmp_path / "{}" / "c.gcode"),
+             "no folder": (GCODE, bmap, tmp_path / "{}" / "missing" / "d.gcode")}
+    seen = {}
+    for fork in ("1", "0"):
+        (tmp_path / fork).mkdir()
+        if fork == "1":
+            fresh(f"""
+                import sys
+                from bulgekit.cli import main
+                sys.argv = ["bulgekit", "annotate", {str(GCODE)!r}, {str(bmap)!r}, "-o", {str(done)!r}]
+                try:
+                    main()
+                except SystemExit as e:
+                    assert not e.code, e.code
+            """)
+        for name, (g, m, out) in cases.items():
+            seen[fork, name] = _annotate_runs(tmp_path, g, m, str(out).format(fork), fork)
+    for name in cases:
+        one, two = seen["1", name], seen["0", name]
+        assert "forked [True]" in one and "forked [False]" in two, (name, one, two)
+        same = lambda t: re.sub(r"\(\d+\.\d+ s\)", "", t.replace("/0/", "/1/"))  # noqa: E731 (not its time)
+        assert same(one).replace("[True]", "") == same(two).replace("[False]", ""), name
+        assert "part False" in one and "no child" in one
+        if name == "ok":
+            assert "out none" not in one and ("exit" not in one or "exit 0" in one)
+        else:
+            assert "out none" in one and "exit 1" in one, (name, one)
+    assert "map points are not within" in seen["1", "unreached"]
+    assert "bulge twice" in seen["1", "annotated before"]
+    assert "missing/d.gcode: No such file" in seen["1", "no folder"]
+
+
+def mapformat_far() -> bytes:
+    from bulgekit.bulge import mapformat
+    return mapformat.encode_map([(0.4, [(150.0, 150.0)]), (0.6, [(150.0, 150.0)])])
