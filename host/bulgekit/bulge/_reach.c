@@ -73,6 +73,9 @@ typedef struct {
     double *sx, *sy, sk_margin;
     int bypass, has_last_zc;
     int64_t last_zc;
+    int has_near_zc;            /* the points near the last candidate's z: pz[near_lo..near_hi) */
+    int64_t near_zc;
+    Py_ssize_t near_lo, near_hi;
     /* the record layout */
     Py_ssize_t itemsize, o[9];
     /* the layer window */
@@ -477,10 +480,15 @@ static Py_ssize_t first_above(const int64_t *a, Py_ssize_t lo, Py_ssize_t hi, do
 /* Skipper._near for one candidate: a map point of a layer within half a layer height of zc lies in
  * its box widened by the margin. The points of one z ascend in x: only those from bx0 on are
  * looked at. */
-static int near_point(const Reach *r, const Move *m, int64_t zc) {
-    double half = (double)r->lh / 2;
-    Py_ssize_t lo = first_at_least(r->pz, 0, r->npz, (double)zc - half);
-    Py_ssize_t hi = first_above(r->pz, lo, r->npz, (double)zc + half);
+static int near_point(Reach *r, const Move *m, int64_t zc) {
+    if (!r->has_near_zc || zc != r->near_zc) {   /* (a file's moves come in runs of one z) */
+        double half = (double)r->lh / 2;
+        r->near_lo = first_at_least(r->pz, 0, r->npz, (double)zc - half);
+        r->near_hi = first_above(r->pz, r->near_lo, r->npz, (double)zc + half);
+        r->has_near_zc = 1;
+        r->near_zc = zc;
+    }
+    Py_ssize_t lo = r->near_lo, hi = r->near_hi;
     double bx0 = (m->x1 < m->x0 ? m->x1 : m->x0) - r->sk_margin, bx1 = (m->x1 > m->x0 ? m->x1 : m->x0) + r->sk_margin;
     double by0 = (m->y1 < m->y0 ? m->y1 : m->y0) - r->sk_margin, by1 = (m->y1 > m->y0 ? m->y1 : m->y0) + r->sk_margin;
     while (lo < hi) {

@@ -382,14 +382,6 @@ def annotate_file(src, dst, map_bytes: bytes, settings: Settings, arena: int = A
     decoded: map_bytes decoded already (the CLI's check of the map file)."""
     from ..gcode import movescan
     kept = movescan.kept(src) is not None     # build's one scan checked it already
-    with open(src, "rb") as f:
-        size = os.fstat(f.fileno()).st_size
-        # in build, mapped rather than read (its scan checked the file; the output is slices of
-        # it): 100 MB read into memory cost 0.1-0.2 s and its size in memory again while the
-        # stock fallback reads it beside (bulgekit.parallel)
-        data = mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) if kept and size else f.read()
-    if not kept:
-        check_complete(data, str(src))
     msg = flagged = failed = None
     try:                                      # (decoded once for both passes)
         bm = decoded if decoded is not None else mapformat.decode_map(map_bytes, source="map")
@@ -402,21 +394,31 @@ def annotate_file(src, dst, map_bytes: bytes, settings: Settings, arena: int = A
     job = None
     try:
         if check and bad_map is None and not kept:
-            # the reach check in a child on the second core (bulgekit.parallel) while the markers
-            # are made and written here: a 100 MB file's 0.65-0.75 s became 0.50-0.57 s. What either
-            # finds wrong is said below in the order the checks always had.
-            job = Forked.running(lambda: _reach(data, map_bytes, settings, str(src), bm))
-            if job.forked:
-                made, out = _attempt(_annotated, data, map_bytes, settings, arena, stream, str(src), res, bm)
-                if made is None:
-                    wrote = _attempt(_write_file, tmp, out, dst)[0]
+            # the reach check in a child on the second core (bulgekit.parallel), reading the file
+            # itself, while it is read here and the markers are made and written: a 100 MB file's
+            # 0.65-0.75 s in one process became 0.45-0.5 s. What either finds wrong is said below
+            # in the order the checks always had.
+            job = Forked.running(lambda: _reach(src, map_bytes, settings, str(src), bm))
+        with open(src, "rb") as f:
+            size = os.fstat(f.fileno()).st_size
+            # in build, mapped rather than read (its scan checked the file; the output is slices
+            # of it): 100 MB read into memory cost 0.1-0.2 s and its size in memory again while
+            # the stock fallback reads it beside (bulgekit.parallel)
+            data = mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) if kept and size else f.read()
+        if not kept:
+            check_complete(data, str(src))
+        forked = job is not None and job.forked
+        if forked:
+            made, out = _attempt(_annotated, data, map_bytes, settings, arena, stream, str(src), res, bm)
+            if made is None:
+                wrote = _attempt(_write_file, tmp, out, dst)[0]
         if check:
             # the reach check's scan comes first, as it also tells where check_not_processed can
             # find something
             try:
                 if bad_map is not None:
                     raise bad_map
-                msg, flagged = (job.result() if job is not None
+                msg, flagged = (job.result() if forked
                                 else _reach(src if kept else data, map_bytes, settings, str(src), bm))
             except (BulgekitError, mapformat.MapFormatError) as e:
                 failed = e
@@ -424,7 +426,7 @@ def annotate_file(src, dst, map_bytes: bytes, settings: Settings, arena: int = A
             check_not_processed(data, str(src))
         if bad_map is not None:
             raise bad_map
-        if job is None or not job.forked:
+        if not forked:
             out = _annotated(data, map_bytes, settings, arena, stream, str(src), res, bm)
         elif made is not None:
             raise made
@@ -435,7 +437,7 @@ def annotate_file(src, dst, map_bytes: bytes, settings: Settings, arena: int = A
                 raise AnnotateError(msg)
             if msg:
                 res.notes.append(msg)
-        if job is None or not job.forked:
+        if not forked:
             _write_file(tmp, out, dst)
         elif wrote is not None:
             raise wrote
