@@ -597,6 +597,69 @@ static PyObject *run(PyObject *self, PyObject *args) {
     return PyBool_FromLong(owed);
 }
 
+/* fallback.Skipper.select(a) with its followers: the rows a planner that is handed every planned
+ * move (the stock rewrite, the statistics) plans in Python; (rows as int64 bytes, owed). */
+static PyObject *pick(PyObject *self, PyObject *args) {
+    (void)self;
+    PyObject *cap, *orec, *ocls;
+    int owed;
+    if (!PyArg_ParseTuple(args, "OOOp", &cap, &orec, &ocls, &owed)) return NULL;
+    Reach *r = PyCapsule_GetPointer(cap, "bulgekit.reach");
+    if (!r) return NULL;
+    Py_buffer rec, cls;
+    if (PyObject_GetBuffer(orec, &rec, PyBUF_C_CONTIGUOUS) < 0) return NULL;
+    if (PyObject_GetBuffer(ocls, &cls, PyBUF_C_CONTIGUOUS) < 0) { PyBuffer_Release(&rec); return NULL; }
+    Py_ssize_t n = rec.len / r->itemsize, ntodo = 0, nmov = 0, nout = 0, np_ = 0, nf = 0, i, j;
+    int64_t *todo = NULL, *moving = NULL, *out = NULL, *P = NULL, *F = NULL;
+    int bad = rec.len % r->itemsize != 0 || cls.len != n;
+    if (!bad) {
+        todo = malloc((size_t)(n ? n : 1) * 8);
+        moving = malloc((size_t)(n ? n : 1) * 8);
+        P = malloc((size_t)(n + 1) * 8);
+        F = malloc((size_t)(n + 1) * 8);
+        out = malloc((size_t)(2 * n + 2) * 8);
+    }
+    if (bad || !todo || !moving || !P || !F || !out) {
+        free(todo); free(moving); free(P); free(F); free(out);
+        PyBuffer_Release(&rec); PyBuffer_Release(&cls);
+        if (bad) PyErr_SetString(PyExc_ValueError, "_reach.pick: need whole records and one class byte each");
+        else PyErr_NoMemory();
+        return NULL;
+    }
+    Py_BEGIN_ALLOW_THREADS
+    select_rows(r, rec.buf, n, cls.buf, todo, &ntodo, moving, &nmov);
+    /* the picked rows, and the chunk's first moving row when one is owed to it */
+    int first = owed && nmov > 0;
+    for (i = 0; i < ntodo; i++) {
+        if (first && moving[0] <= todo[i]) {
+            if (moving[0] < todo[i]) P[np_++] = moving[0];
+            first = 0;
+        }
+        P[np_++] = todo[i];
+    }
+    if (first) P[np_++] = moving[0];
+    /* each one's follower: the first moving row after it (in order, as the rows are) */
+    for (i = 0, j = 0; i < np_; i++) {
+        while (j < nmov && moving[j] <= P[i]) j++;
+        if (j < nmov) F[nf++] = moving[j];
+    }
+    /* both, in order and once each (numpy: pick[...] = True) */
+    Py_ssize_t a = 0, b = 0;
+    while (a < np_ || b < nf) {
+        int64_t v = (b >= nf || (a < np_ && P[a] <= F[b])) ? P[a++] : F[b++];
+        if (!nout || v > out[nout - 1]) out[nout++] = v;
+    }
+    if (np_)                                 /* a picked row with no moving row after it */
+        owed = nmov == 0 || P[np_ - 1] >= moving[nmov - 1];
+    Py_END_ALLOW_THREADS
+    free(P); free(F);
+    PyObject *rows = PyBytes_FromStringAndSize((const char *)out, nout * 8);
+    free(todo); free(moving); free(out);
+    PyBuffer_Release(&rec); PyBuffer_Release(&cls);
+    if (!rows) return NULL;
+    return Py_BuildValue("(Ni)", rows, owed);
+}
+
 static PyObject *result(PyObject *self, PyObject *args) {
     (void)self;
     PyObject *cap;
@@ -622,6 +685,7 @@ static PyObject *result(PyObject *self, PyObject *args) {
 static PyMethodDef methods[] = {
     {"new", new_reach, METH_VARARGS, "A reach planner for a map (see the file's comment)."},
     {"run", run, METH_VARARGS, "Pick and plan one chunk's rows lazily; whether a move is owed on."},
+    {"pick", pick, METH_VARARGS, "The rows Skipper.select(a) picks, and whether a move is owed on."},
     {"result", result, METH_VARARGS, "(stops, stats, top_z, carry, stop_ms)."},
     {NULL, NULL, 0, NULL}};
 

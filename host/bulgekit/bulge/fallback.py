@@ -605,16 +605,17 @@ def _compiled_reach():
     return _reach_c
 
 
-def _native(planner: RefPlanner, sk: "Skipper"):
-    """A compiled twin of a fresh planner and its Skipper for a lazy run (_reach.new), or None:
-    not built, no map,
-    a planner that has planned already, or layers not in strictly ascending z (its window's search
-    assumes them so; RefPlanner searches others one by one)."""
+def _native(planner: RefPlanner, sk: "Skipper", fresh: bool = True):
+    """A compiled twin of a planner and its Skipper (_reach.new), or None: not built, no map, or
+    layers not in strictly ascending z (its window's search assumes them so; RefPlanner searches
+    others one by one). fresh: the twin plans (a lazy run), so the planner must not have planned
+    yet; else it only picks the moves (Skipper.select, _reach.pick)."""
     c = _compiled_reach()
     bm = planner.map
     zs = planner._zs
-    if (c is None or bm is None or planner.layer is not None or planner.stops or planner.deferred
-            or any(a >= b for a, b in zip(zs, zs[1:]))):
+    if c is None or bm is None or any(a >= b for a, b in zip(zs, zs[1:])):
+        return None
+    if fresh and (planner.layer is not None or planner.stops or planner.deferred):
         return None
     px, py, pw, off = [], [], [], [0]
     for rec in bm.layers:            # each layer's points as RefPlanner._window sorts them
@@ -652,7 +653,8 @@ def plan_records(planner: RefPlanner, chunks, on_move=None, arcs_bypass: bool = 
     arcs_bypass: arc chords go to planner.bypass, as the firmware sees them. lazy (no on_move,
     no on_chunk: only the planner's stops, statistics and arcs count): the move after a picked
     one is planned only when something is owed to it (_plan_lazily), the same stops; by the
-    compiled planner (_reach.c) when it is built and the planner is fresh (_native)."""
+    compiled planner (_reach.c) when it is built and the planner is fresh (_native). Otherwise
+    the moves are picked in C when it is built (_reach.pick) and planned here."""
     if lazy and (on_move is not None or on_chunk is not None):
         raise ValueError("plan_records: lazy planning hands no moves to on_move or on_chunk")
     sk = Skipper(planner, arcs_bypass)
@@ -664,16 +666,19 @@ def plan_records(planner: RefPlanner, chunks, on_move=None, arcs_bypass: bool = 
         raise ValueError("plan_records: lean chunks hold what a lazy run in marked mode with "
                          "arcs bypassed plans, no more")
     sk.own_top = not lean or kept             # (kept: every extruding arc chord, for a top with arcs)
-    native = _native(planner, sk) if lazy else None
+    native = _native(planner, sk, fresh=lazy)
     done = 0
     for a in chunks:
         planned = {}
-        if native is not None:             # select(followers=False) and _plan_lazily, in C
+        if lazy and native is not None:    # select(followers=False) and _plan_lazily, in C
             sk.owed = _reach_c.run(native, np.ascontiguousarray(a), sk.classes_of(a), sk.owed)
             rows = np.empty(0, np.intp)
         elif lazy:
             _plan_lazily(planner, sk, a, sk.select(a, followers=False), done, chunks.roles)
             rows = np.empty(0, np.intp)
+        elif native is not None:           # select(a), in C
+            got, sk.owed = _reach_c.pick(native, np.ascontiguousarray(a), sk.classes_of(a), sk.owed)
+            rows = np.frombuffer(got, np.int64)
         else:
             rows = sk.select(a)
         for i, m in zip(rows.tolist(), record_moves(a, rows, done, chunks.roles)):
@@ -688,7 +693,7 @@ def plan_records(planner: RefPlanner, chunks, on_move=None, arcs_bypass: bool = 
             for m in record_moves(a, arcs[a["e"][arcs] > 0], done, chunks.roles):
                 planner.bypass(m)
         done += len(a)
-    if native is not None:
+    if lazy and native is not None:
         _adopt(planner, native)
     if lean:                                   # every part's top, as select() takes a chunk's
         for top in chunks.tops:

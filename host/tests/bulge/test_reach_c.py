@@ -178,3 +178,44 @@ def test_bad_buffers_are_refused_by_name():
     st = c.new(*args)
     with pytest.raises(ValueError, match="whole records"):
         c.run(st, np.zeros(100, np.uint8), np.zeros(1, np.uint8), False)
+
+
+def _picked(gcode, bm, settings, compiled: bool, monkeypatch, bypass: bool, chunk=None):
+    """The rows a planner handed every planned move plans (as the stock rewrite's), per chunk,
+    and the planner."""
+    rows = []
+    p = RefPlanner(bm, settings)
+    with monkeypatch.context() as mp:
+        if not compiled:
+            mp.setattr(fallback, "_reach_c", None)
+        if chunk:
+            mp.setattr(movescan, "CHUNK_BYTES", chunk)
+        movescan.run(gcode, lambda ch: plan_records(
+            p, ch, on_chunk=lambda a, done, planned: rows.append(sorted(done + i for i in planned)),
+            arcs_bypass=bypass))
+    return rows, p
+
+
+def test_the_compiled_picking_picks_the_rows_the_skipper_does(monkeypatch):
+    """_reach.pick (Skipper.select with the first moving move after each picked one, and the one
+    owed across chunks) on the test files and random walls: the same rows, the same stops."""
+    rng = random.Random("pick")
+    cases = []
+    for path in FILES:
+        geometric = path.name.startswith("slic3r")
+        cases.append((path, _random_map(path, rng, geometric), Settings(mode=2 if geometric else 1)))
+    for _ in range(15):
+        data, bm = _wall_file(rng)
+        cases.append((data, bm, Settings(mode=rng.choice([0, 1, 2]), tolerance=rng.choice([0.05, 0.3]))))
+    picked = 0
+    for gcode, bm, settings in cases:
+        for bypass in (False, True):
+            chunk = rng.choice([None, 700, 4096])
+            assert fallback._native(RefPlanner(bm, settings), fallback.Skipper(RefPlanner(bm, settings)),
+                                    fresh=False) is not None
+            got, p = _picked(gcode, bm, settings, True, monkeypatch, bypass, chunk)
+            ref, q = _picked(gcode, bm, settings, False, monkeypatch, bypass, chunk)
+            assert got == ref
+            _same(p, q)
+            picked += sum(map(len, got))
+    assert picked > 1000
