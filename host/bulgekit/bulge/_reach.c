@@ -23,6 +23,9 @@
  *       picks and plans one chunk (classes: movescan.classes' bits, one byte per record). owed:
  *       a moving move is owed a planning after the last chunk's (in) or after this one (out). The
  *       GIL is released meanwhile.
+ *   (rows, owed) = pick(st, records, classes, owed)
+ *       only picks (Skipper.select with followers: rows as int64 bytes) for a planner that is
+ *       handed every planned move and plans in Python (the stock rewrite, the statistics).
  *   result(st) -> (stops, stats, top_z, carry, stop_ms)
  *       stops: [(line_no, x, y, z, ms, px, py, layer z)], stats: (moves_split, points_fired,
  *       extra_applied, extra_dropped, layers_loaded, dwell_ms_total), top_z: float or None. */
