@@ -60,7 +60,7 @@ typedef struct {
 
 typedef struct {
     /* the map */
-    Py_ssize_t nl, np;
+    Py_ssize_t nl, np, most;    /* layers, points, the most points of one layer */
     int64_t *zs, *off, *px, *py, *pw;
     uint8_t *fired;             /* per point; a layer loaded anew starts unfired */
     uint8_t *deferred;          /* per point of the loaded layer */
@@ -422,6 +422,7 @@ static PyObject *new_reach(PyObject *self, PyObject *args) {
     }
     Py_ssize_t most = 0;
     for (i = 0; i < nl; i++) if (r->off[i + 1] - r->off[i] > most) most = r->off[i + 1] - r->off[i];
+    r->most = most;
     r->fired = calloc((size_t)(np ? np : 1), 1);
     r->deferred = calloc((size_t)(most ? most : 1), 1);
     if (!r->fired || !r->deferred) { PyErr_NoMemory(); goto fail; }
@@ -538,32 +539,38 @@ static void select_rows(Reach *r, const char *base, Py_ssize_t n, const uint8_t 
     *nmoving = nm;
 }
 
-static PyObject *run(PyObject *self, PyObject *args) {
-    (void)self;
+/* run's and pick's arguments (st, records, classes, owed): the planner, the two buffers (held:
+ * the caller releases them) and the records' count; NULL with an exception */
+static Reach *chunk_args(PyObject *args, const char *name, Py_buffer *rec, Py_buffer *cls, int *owed,
+                         Py_ssize_t *n) {
     PyObject *cap, *orec, *ocls;
-    int owed;
-    if (!PyArg_ParseTuple(args, "OOOp", &cap, &orec, &ocls, &owed)) return NULL;
+    if (!PyArg_ParseTuple(args, "OOOp", &cap, &orec, &ocls, owed)) return NULL;
     Reach *r = PyCapsule_GetPointer(cap, "bulgekit.reach");
     if (!r) return NULL;
-    Py_buffer rec, cls;
-    if (PyObject_GetBuffer(orec, &rec, PyBUF_C_CONTIGUOUS) < 0) return NULL;
-    if (PyObject_GetBuffer(ocls, &cls, PyBUF_C_CONTIGUOUS) < 0) { PyBuffer_Release(&rec); return NULL; }
-    Py_ssize_t n = rec.len / r->itemsize, i, most = 0;
-    for (i = 0; i < r->nl; i++) if (r->off[i + 1] - r->off[i] > most) most = r->off[i + 1] - r->off[i];
-    int64_t *todo = NULL, *moving = NULL;
-    Hit *hits = NULL;
-    int bad = rec.len % r->itemsize != 0 || cls.len != n;
-    if (!bad) {
-        todo = malloc((size_t)(n ? n : 1) * 8);
-        moving = malloc((size_t)(n ? n : 1) * 8);
-        hits = malloc((size_t)(most ? most : 1) * sizeof(Hit));
+    if (PyObject_GetBuffer(orec, rec, PyBUF_C_CONTIGUOUS) < 0) return NULL;
+    if (PyObject_GetBuffer(ocls, cls, PyBUF_C_CONTIGUOUS) < 0) { PyBuffer_Release(rec); return NULL; }
+    *n = rec->len / r->itemsize;
+    if (rec->len % r->itemsize != 0 || cls->len != *n) {
+        PyBuffer_Release(rec); PyBuffer_Release(cls);
+        PyErr_Format(PyExc_ValueError, "_reach.%s: need whole records and one class byte each", name);
+        return NULL;
     }
-    if (bad || !todo || !moving || !hits) {
+    return r;
+}
+
+static PyObject *run(PyObject *self, PyObject *args) {
+    (void)self;
+    Py_buffer rec, cls;
+    int owed;
+    Py_ssize_t n;
+    Reach *r = chunk_args(args, "run", &rec, &cls, &owed, &n);
+    if (!r) return NULL;
+    int64_t *todo = malloc((size_t)(n ? n : 1) * 8), *moving = malloc((size_t)(n ? n : 1) * 8);
+    Hit *hits = malloc((size_t)(r->most ? r->most : 1) * sizeof(Hit));
+    if (!todo || !moving || !hits) {
         free(todo); free(moving); free(hits);
         PyBuffer_Release(&rec); PyBuffer_Release(&cls);
-        if (bad) PyErr_SetString(PyExc_ValueError, "_reach.run: need whole records and one class byte each");
-        else PyErr_NoMemory();
-        return NULL;
+        return PyErr_NoMemory();
     }
     Py_BEGIN_ALLOW_THREADS
     const char *base = rec.buf;
@@ -604,30 +611,18 @@ static PyObject *run(PyObject *self, PyObject *args) {
  * move (the stock rewrite, the statistics) plans in Python; (rows as int64 bytes, owed). */
 static PyObject *pick(PyObject *self, PyObject *args) {
     (void)self;
-    PyObject *cap, *orec, *ocls;
-    int owed;
-    if (!PyArg_ParseTuple(args, "OOOp", &cap, &orec, &ocls, &owed)) return NULL;
-    Reach *r = PyCapsule_GetPointer(cap, "bulgekit.reach");
-    if (!r) return NULL;
     Py_buffer rec, cls;
-    if (PyObject_GetBuffer(orec, &rec, PyBUF_C_CONTIGUOUS) < 0) return NULL;
-    if (PyObject_GetBuffer(ocls, &cls, PyBUF_C_CONTIGUOUS) < 0) { PyBuffer_Release(&rec); return NULL; }
-    Py_ssize_t n = rec.len / r->itemsize, ntodo = 0, nmov = 0, nout = 0, np_ = 0, nf = 0, i, j;
-    int64_t *todo = NULL, *moving = NULL, *out = NULL, *P = NULL, *F = NULL;
-    int bad = rec.len % r->itemsize != 0 || cls.len != n;
-    if (!bad) {
-        todo = malloc((size_t)(n ? n : 1) * 8);
-        moving = malloc((size_t)(n ? n : 1) * 8);
-        P = malloc((size_t)(n + 1) * 8);
-        F = malloc((size_t)(n + 1) * 8);
-        out = malloc((size_t)(2 * n + 2) * 8);
-    }
-    if (bad || !todo || !moving || !P || !F || !out) {
+    int owed;
+    Py_ssize_t n, ntodo = 0, nmov = 0, nout = 0, np_ = 0, nf = 0, i, j;
+    Reach *r = chunk_args(args, "pick", &rec, &cls, &owed, &n);
+    if (!r) return NULL;
+    int64_t *todo = malloc((size_t)(n ? n : 1) * 8), *moving = malloc((size_t)(n ? n : 1) * 8),
+            *P = malloc((size_t)(n + 1) * 8), *F = malloc((size_t)(n + 1) * 8),
+            *out = malloc((size_t)(2 * n + 2) * 8);
+    if (!todo || !moving || !P || !F || !out) {
         free(todo); free(moving); free(P); free(F); free(out);
         PyBuffer_Release(&rec); PyBuffer_Release(&cls);
-        if (bad) PyErr_SetString(PyExc_ValueError, "_reach.pick: need whole records and one class byte each");
-        else PyErr_NoMemory();
-        return NULL;
+        return PyErr_NoMemory();
     }
     Py_BEGIN_ALLOW_THREADS
     select_rows(r, rec.buf, n, cls.buf, todo, &ntodo, moving, &nmov);

@@ -25,14 +25,21 @@ def _built():
         "the compiled reach check is not built: cd host && python3 setup.py build_ext --inplace"
 
 
-def _run(gcode, bm, settings, compiled: bool, monkeypatch, bypass=True, lean=False, chunk=None):
-    p = RefPlanner(bm, settings)
+def _scanned(gcode, consume, compiled: bool, monkeypatch, chunk=None, lean=False):
+    """movescan.run(gcode, consume) with the compiled reach check or without it, in chunks of
+    chunk bytes."""
     with monkeypatch.context() as mp:
         if not compiled:
             mp.setattr(fallback, "_reach_c", None)
         if chunk:
             mp.setattr(movescan, "CHUNK_BYTES", chunk)
-        movescan.run(gcode, lambda ch: plan_records(p, ch, arcs_bypass=bypass, lazy=True), lean=lean)
+        movescan.run(gcode, consume, lean=lean)
+
+
+def _run(gcode, bm, settings, compiled: bool, monkeypatch, bypass=True, lean=False, chunk=None):
+    p = RefPlanner(bm, settings)
+    _scanned(gcode, lambda ch: plan_records(p, ch, arcs_bypass=bypass, lazy=True), compiled, monkeypatch,
+             chunk, lean)
     return p
 
 
@@ -185,14 +192,9 @@ def _picked(gcode, bm, settings, compiled: bool, monkeypatch, bypass: bool, chun
     and the planner."""
     rows = []
     p = RefPlanner(bm, settings)
-    with monkeypatch.context() as mp:
-        if not compiled:
-            mp.setattr(fallback, "_reach_c", None)
-        if chunk:
-            mp.setattr(movescan, "CHUNK_BYTES", chunk)
-        movescan.run(gcode, lambda ch: plan_records(
-            p, ch, on_chunk=lambda a, done, planned: rows.append(sorted(done + i for i in planned)),
-            arcs_bypass=bypass))
+    _scanned(gcode, lambda ch: plan_records(
+        p, ch, on_chunk=lambda a, done, planned: rows.append(sorted(done + i for i in planned)),
+        arcs_bypass=bypass), compiled, monkeypatch, chunk)
     return rows, p
 
 
