@@ -71,38 +71,26 @@ def _scanner():
     return movescan._scan
 
 
-def _feature_comments(data: bytes):
+def _feature_comments(data: bytes, lines: list | None = None) -> list[tuple[int, str]]:
     """(end of line offset, role) of every whole-line feature comment: the compiled scanner
-    finds the lines (_scan.feature_lines), else the regular expression."""
+    finds the lines (_scan.feature_lines; lines: found already), else the regular expression.
+    Each distinct comment is read once: a file repeats a few comments thousands of times."""
     sc = _scanner()
-    if sc is None:
-        yield from _feature_comments_rx(data)
-        return
-    roles: dict[bytes, str | None] = {}       # a file repeats a few comments thousands of times
-    for end, comment in sc.feature_lines(data):
-        role = roles.get(comment, roles)
-        if role is roles:
-            role = roles[comment] = feature_of_comment(comment.decode("utf-8", "replace"))
-        if role is not None:
-            yield end, role
+    if lines is None and sc is None:
+        return list(_feature_comments_rx(data))
+    if lines is None:
+        lines = sc.feature_lines(data)
+    roles = {c: feature_of_comment(c.decode("utf-8", "replace")) for c in {c for _, c in lines}}
+    return [(end, role) for end, c in lines if (role := roles[c]) is not None]
 
 
 def _feature_marks(data: bytes, lines: list | None = None) -> list[tuple[int, bool]]:
     """(end of line offset, whether its role is an outer wall) of every whole-line feature
-    comment with a role (_feature_comments), each comment (or role) asked once: a file repeats a
-    few comments thousands of times. lines: _scan.feature_lines(data) found already."""
-    sc = _scanner()
-    if lines is None and sc is None:
-        found = list(_feature_comments_rx(data))
-        outer_of = {role: is_outer(role) for role in {role for _, role in found}}
-        return [(end, outer_of[role]) for end, role in found]
-    if lines is None:
-        lines = sc.feature_lines(data)
-    outer_of = {}
-    for comment in {comment for _, comment in lines}:
-        role = feature_of_comment(comment.decode("utf-8", "replace"))
-        outer_of[comment] = None if role is None else is_outer(role)
-    return [(end, o) for end, comment in lines if (o := outer_of[comment]) is not None]
+    comment with a role (_feature_comments), each role asked once. lines:
+    _scan.feature_lines(data) found already."""
+    found = _feature_comments(data, lines)
+    outer_of = {role: is_outer(role) for role in {role for _, role in found}}
+    return [(end, outer_of[role]) for end, role in found]
 
 
 def _feature_comments_rx(data: bytes):
