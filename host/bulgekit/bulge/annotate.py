@@ -130,21 +130,6 @@ class AnnotateResult:
     notes: list[str] = field(default_factory=list)
 
 
-def _record_bytes(map_bytes: bytes, count: int) -> list[bytes]:
-    """The first count layer records of map_bytes (a valid map), each as its bytes there:
-    decode_map takes only the one encoding encode_record writes (minimal varints, exact
-    lengths, CRCs checked), so they are the decoded records encoded again, without the work."""
-    recs = []
-    pos, end = mapformat.HEADER_BYTES, len(map_bytes)
-    for _ in range(count):
-        start = pos
-        _, pos = mapformat._read_varint(map_bytes, pos + 2, end)      # past z and n
-        body, pos = mapformat._read_varint(map_bytes, pos, end)
-        pos += body + 1                                                 # and the CRC
-        recs.append(bytes(map_bytes[start:pos]))
-    return recs
-
-
 def _z_events(data: bytes):
     """[(offset, z_cmm)] for each G0/G1 Z move followed by XY extrusion
     before the next Z move (real layer changes; z-hops are skipped): from the compiled
@@ -204,7 +189,7 @@ def _annotated(data: bytes, map_bytes: bytes, settings: Settings, arena: int, st
     res = result if result is not None else AnnotateResult()
     bm = bm if bm is not None else mapformat.decode_map(map_bytes, source="map")
     geometric = settings.mode == MODE_GEOMETRIC
-    recs = _record_bytes(map_bytes, len(bm.layers))
+    recs = mapformat.record_bytes(map_bytes)
     zrec = [l.z_cmm for l in bm.layers]
     h = bm.layer_height_cmm
     header = bytes(map_bytes[:mapformat.HEADER_BYTES])

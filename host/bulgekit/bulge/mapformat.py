@@ -426,6 +426,21 @@ def decode_map(data: bytes, source: str | None = None, max_points: int = LAYER_P
     return BulgeMap(data[5], data[6], has_w, layers, data[3])
 
 
+def record_bytes(map_bytes: bytes) -> list[bytes]:
+    """The layer records of a map image decode_map has accepted, each as its bytes there:
+    decode_map takes only the one encoding encode_record writes (minimal varints, exact
+    lengths, CRCs checked), so they are its layers encoded again, without the work."""
+    recs = []
+    pos, end = HEADER_BYTES, len(map_bytes)
+    while pos < end:
+        start = pos
+        _, pos = _read_varint(map_bytes, pos + 2, end)       # past z and n
+        body, pos = _read_varint(map_bytes, pos, end)
+        pos += body + 1                                      # and the CRC
+        recs.append(bytes(map_bytes[start:pos]))
+    return recs
+
+
 def decode_records(
     data: bytes,
     has_weights: bool,

@@ -433,25 +433,3 @@ def test_pieces_are_written_whole_after_short_writes(tmp_path, monkeypatch):
     with open(tmp_path / "b", "wb") as f:
         annotate._write_pieces(f, list(pieces))
     assert (tmp_path / "b").read_bytes() == whole
-
-
-def test_record_bytes_are_the_records_encoded_again():
-    """annotate cuts the layer records out of the map's bytes (_record_bytes) rather than encoding
-    the decoded layers again: the same bytes, on every valid vector map (weights, extremes, a
-    full layer) and on random ones with weights, many-byte varints and negative points."""
-    import random
-    from pathlib import Path
-    from bulgekit.bulge import annotate
-    vectors = Path(__file__).resolve().parents[3] / "test" / "vectors"
-    maps = [p.read_bytes() for p in sorted(vectors.glob("*.bkm")) if not p.name.startswith("bad_")]
-    rng = random.Random(26)
-    for w in (False, True):
-        layers = [(0.3 * (k + 1), [(rng.uniform(-1500, 1500), rng.uniform(-1500, 1500))
-                                   for _ in range(rng.randint(1, 64))]) for k in range(40)]
-        weights = [[rng.randint(0, 255) for _ in pts] for _, pts in layers] if w else None
-        maps.append(mapformat.encode_map(layers, weights=weights))
-    assert len(maps) >= 7
-    for m in maps:
-        bm = mapformat.decode_map(m)
-        assert annotate._record_bytes(m, len(bm.layers)) == [
-            mapformat.encode_record(l, bm.has_weights) for l in bm.layers]

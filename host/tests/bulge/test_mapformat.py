@@ -429,3 +429,24 @@ def test_realistic_case_bytes_per_point(capsys):
     mm = [(layer.z_cmm / 100, m.points_mm(layer)) for layer in m.layers]
     coarse = mf.encode_map(mm, quantum_um=100)
     assert len(coarse) < len(data)
+
+
+def test_record_bytes_are_the_records_encoded_again():
+    """record_bytes cuts the layer records out of a map's bytes (annotate's way) rather than
+    encoding the decoded layers again: the same bytes, on every valid vector map (weights,
+    extremes, a full layer) and on random ones with weights, many-byte varints and negative
+    points."""
+    import random
+    vectors = Path(__file__).resolve().parents[3] / "test" / "vectors"
+    maps = [p.read_bytes() for p in sorted(vectors.glob("*.bkm")) if not p.name.startswith("bad_")]
+    rng = random.Random(26)
+    for w in (False, True):
+        layers = [(0.3 * (k + 1), [(rng.uniform(-1500, 1500), rng.uniform(-1500, 1500))
+                                   for _ in range(rng.randint(1, 64))]) for k in range(40)]
+        weights = [[rng.randint(0, 255) for _ in pts] for _, pts in layers] if w else None
+        maps.append(mf.encode_map(layers, weights=weights))
+    assert len(maps) >= 7
+    for m in maps:
+        bm = mf.decode_map(m)
+        assert mf.record_bytes(m) == [
+            mf.encode_record(l, bm.has_weights) for l in bm.layers]
