@@ -38,6 +38,7 @@ from operator import itemgetter
 from . import mapformat
 from .fallback import MODE_GEOMETRIC, MODE_MARKED, Settings
 from ..gcode import check_complete, check_not_processed, feature_of_comment, is_outer
+from .. import progress
 from ..errors import BulgekitError
 from ..parallel import Forked
 
@@ -441,6 +442,18 @@ def _write_file(tmp, pieces: list, dst) -> None:
             _write_pieces(f, pieces)          # the file's own bytes between the lines added
     except OSError as e:
         raise type(e)(e.errno, e.strerror, os.fspath(dst)) from None
+
+
+def annotate_gcode(gcode, map_bytes: bytes, out, settings: Settings = Settings(), *,
+                   stream: bool = True, arena: int = ARENA_BYTES, check: bool = True,
+                   allow_unreached: bool = False,
+                   _decoded: mapformat.BulgeMap | None = None) -> AnnotateResult:
+    """Map points no move reaches are an error unless allow_unreached
+    (check=False skips the reference-planner run that finds them). _decoded: map_bytes decoded
+    already (the CLI's check of the map file)."""
+    with progress.phase("annotating", path=gcode):
+        return annotate_file(gcode, out, map_bytes, settings, arena, stream, check,
+                             allow_unreached, decoded=_decoded)
 
 
 try:

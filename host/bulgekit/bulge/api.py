@@ -63,14 +63,8 @@ def build_map(model: wall.WallModel, strokes: Sequence[Stroke], *, spacing: floa
                           quantum_um=quantum_um)
 
 
-def annotate_gcode(gcode, map_bytes: bytes, out, settings: Settings = Settings(), *,
-                   stream: bool = True, arena: int = _annotate.ARENA_BYTES, check: bool = True,
-                   allow_unreached: bool = False) -> _annotate.AnnotateResult:
-    """Map points no move reaches are an error unless allow_unreached
-    (check=False skips the reference-planner run that finds them)."""
-    with progress.phase("annotating", path=gcode):
-        return _annotate.annotate_file(gcode, out, map_bytes, settings, arena, stream, check,
-                                       allow_unreached)
+annotate_gcode = _annotate.annotate_gcode    # (defined beside annotate_file: the CLI's
+                                             # annotate calls it without importing build's modules)
 
 
 def fallback_gcode(gcode, map_bytes: bytes, out, settings: Settings = Settings(), *,

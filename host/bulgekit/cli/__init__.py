@@ -292,15 +292,12 @@ def annotate(gcode, map_file, output, no_stream, arena, allow_unreached, dwell, 
 
     GCODE is also run through the reference planner: map points that no move
     reaches (a map made for another file) are an error unless --allow-unreached."""
-    from .. import progress
-    from ..bulge import annotate as an
+    from ..bulge import annotate as an        # (not the api: none of build's modules, 0.025 s)
     settings = _settings(dwell, extra, tolerance, geometric)
     t0 = time.perf_counter()
     map_bytes, bm = _read_decoded_map(map_file)
-    # api.annotate_gcode's call, without importing the api's build modules (about 0.025 s)
-    with progress.phase("annotating", path=gcode):
-        res = an.annotate_file(gcode, output, map_bytes, settings, arena, not no_stream, True,
-                               allow_unreached, decoded=bm)
+    res = an.annotate_gcode(gcode, map_bytes, output, settings, stream=not no_stream, arena=arena,
+                            allow_unreached=allow_unreached, _decoded=bm)
     for note in res.notes:
         click.echo(f"WARNING: {note}", err=True)
     dt = time.perf_counter() - t0
