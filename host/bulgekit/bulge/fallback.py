@@ -122,6 +122,13 @@ def _bits(v) -> int:
     return int(np.array(v, dtype=np.float32).view(np.uint32))
 
 
+def _sorted_points(rec: mapformat.Layer) -> list[tuple[int, int, int]]:
+    """A map layer's points (x, y, weight) in the order the planner looks at them: by x, then y
+    (as BulgePlanner's layer window holds them)."""
+    w = rec.weights or (255,) * len(rec.points)
+    return sorted(((x, y, ww) for (x, y), ww in zip(rec.points, w)), key=lambda p: (p[0], p[1]))
+
+
 class RefPlanner:
     """Python mirror of bk::BulgePlanner (no arena: the whole map is present)."""
 
@@ -213,9 +220,7 @@ class RefPlanner:
         self.miss_z = None
         rec = self.map.layers[i]
         old = self.layer
-        w = rec.weights or (255,) * len(rec.points)
-        pts = sorted(((x, y, ww) for (x, y), ww in zip(rec.points, w)),
-                     key=lambda p: (p[0], p[1]))
+        pts = _sorted_points(rec)
         self.below, self.above = self._neighbors(rec.z_cmm)
         if old is not None and old[0] == rec.z_cmm:
             self.layer = (rec.z_cmm, pts, old[2])  # the same layer again keeps its marks
@@ -618,9 +623,8 @@ def _native(planner: RefPlanner, sk: "Skipper", fresh: bool = True):
     if fresh and (planner.layer is not None or planner.stops or planner.deferred):
         return None
     px, py, pw, off = [], [], [], [0]
-    for rec in bm.layers:            # each layer's points as RefPlanner._window sorts them
-        w = rec.weights or (255,) * len(rec.points)
-        for x, y, ww in sorted(((x, y, ww) for (x, y), ww in zip(rec.points, w)), key=lambda p: (p[0], p[1])):
+    for rec in bm.layers:            # each layer's points in the planner's order
+        for x, y, ww in _sorted_points(rec):
             px.append(x)
             py.append(y)
             pw.append(ww)
