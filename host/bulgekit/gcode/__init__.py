@@ -392,8 +392,9 @@ def _built(name: str, version: int, package: str = __name__):
 def compiled_helper(name: str, version: int, what: str, slower: str, package: str = __name__):
     """The compiled helper <package>.<name> (bulgekit.gcode's _scan and _plan, bulgekit.bulge's
     _reach), or None: not built (no C compiler), or built from an older source that lacks what
-    this code calls; the Python paths then do the work, slower. A stale build is said once per helper (a RuntimeWarning: an update
-    of the source without a rebuild would otherwise only show as slowness)."""
+    this code calls; the Python paths then do the work, slower. A stale build is said once per
+    helper (a RuntimeWarning: an update of the source without a rebuild would otherwise only
+    show as slowness)."""
     state, mod = _built(name, version, package)
     if state == "stale" and name not in _STALE_SAID:
         _STALE_SAID.add(name)
