@@ -376,14 +376,6 @@ def _coords(a: np.ndarray, rec: np.ndarray) -> np.ndarray:
     return items[rec].view("<f8").reshape(-1, 6)
 
 
-def _runs(v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Where the runs of equal values of v start, and their values."""
-    if not len(v):
-        return np.empty(0, np.int64), v
-    st = np.flatnonzero(np.concatenate(([True], v[1:] != v[:-1])))
-    return st, v[st]
-
-
 def walls_from_records(chunks: Iterable[np.ndarray], layer_height: float | None = None,
                        geometric: bool = False, ref_angle_deg: float = -90.0,
                        source: str = "<gcode>", header_height: float | None = None
@@ -444,7 +436,7 @@ def walls_from_records(chunks: Iterable[np.ndarray], layer_height: float | None 
         # the rows come in runs of one z (layers): z in 0.01 mm once per run, and how many of
         # each run's rows are flat (planar)
         z1 = rows[:, 5]
-        st, zs = _runs(z1)
+        st, zs = movescan.runs(z1)
         zrun = movescan.z_cmm(zs)
         flat = np.abs(z1 - rows[:, 2]) < 1e-6
         pz_lens.append(np.add.reduceat(flat, st, dtype=np.int64))
@@ -537,7 +529,7 @@ def walls_from_records(chunks: Iterable[np.ndarray], layer_height: float | None 
     # The chains of each bucket (in file order), buckets ascending; most buckets have one chain,
     # which is their wall: _Chain objects only for the others, and all of geometric mode's.
     by = np.argsort(buckets, kind="stable")
-    bst, bvals = _runs(buckets[by])
+    bst, bvals = movescan.runs(buckets[by])
     bcount = np.diff(np.append(bst, len(by)))
     pick = np.where(bcount == 1, by[bst] if len(by) else 0, -1)   # per bucket: the chain chosen
     unclosed = (bcount == 1) & ~shut[pick] if len(by) else np.zeros(0, bool)

@@ -191,10 +191,18 @@ def z_cmm(z: np.ndarray) -> np.ndarray:
     z = np.asarray(z)
     if z.ndim == 1 and len(z) > 64:
         # a file's moves come in runs of one z (its layers): each run's value once
-        starts = np.flatnonzero(np.concatenate(([True], z[1:] != z[:-1])))
+        starts, values = runs(z)
         if 4 * len(starts) < len(z):
-            return np.repeat(_z_cmm(z[starts]), np.diff(np.append(starts, len(z))))
+            return np.repeat(_z_cmm(values), np.diff(np.append(starts, len(z))))
     return _z_cmm(z)
+
+
+def runs(v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Where the runs of equal values of the 1-D array v start, and their values."""
+    if not len(v):
+        return np.empty(0, np.int64), v
+    st = np.flatnonzero(np.concatenate(([True], v[1:] != v[:-1])))
+    return st, v[st]
 
 
 def _z_cmm(z: np.ndarray) -> np.ndarray:
