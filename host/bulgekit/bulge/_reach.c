@@ -60,7 +60,7 @@ typedef struct {
 
 typedef struct {
     /* the map */
-    Py_ssize_t nl, np, most;    /* layers, points, the most points of one layer */
+    Py_ssize_t nl, most;        /* layers, the most points of one layer */
     int64_t *zs, *off, *px, *py, *pw;
     uint8_t *fired;             /* per point; a layer loaded anew starts unfired */
     uint8_t *deferred;          /* per point of the loaded layer */
@@ -87,8 +87,8 @@ typedef struct {
     int64_t miss_z, below, above, floor;
     float carry;
     int64_t stop_ms;
-    int has_last;
-    uint32_t last_x, last_y;    /* float bits of the last eligible move's end */
+    uint32_t last_x, last_y;    /* float bits of the last eligible move's end (points are
+                                 * deferred only by one: flush never reads them unset) */
     int has_top;
     double top_z;
     /* statistics */
@@ -299,7 +299,6 @@ static void plan(Reach *r, const Move *m, Hit *hits) {
         }
         return;
     }
-    r->has_last = 1;
     r->last_x = bits(m->x1);
     r->last_y = bits(m->y1);
     float x0 = (float)m->x0, y0 = (float)m->y0, z0 = (float)m->z0;
@@ -412,7 +411,6 @@ static PyObject *new_reach(PyObject *self, PyObject *args) {
     noff = nl + 1;
     if (!(r->off = copy_i64(ooff, &noff, "off"))) goto fail;
     if (!(r->px = copy_i64(opx, &np, "px"))) goto fail;
-    r->np = np;
     if (!(r->py = copy_i64(opy, &np, "py")) || !(r->pw = copy_i64(opw, &np, "pw"))) goto fail;
     for (i = 0; i < nl; i++)
         if ((i && r->zs[i] <= r->zs[i - 1]) || r->off[i] < 0 || r->off[i] > r->off[i + 1]) break;
