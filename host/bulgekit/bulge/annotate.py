@@ -39,7 +39,7 @@ from . import mapformat
 from .fallback import MODE_GEOMETRIC, MODE_MARKED, Settings
 from ..gcode import check_complete, check_not_processed, feature_of_comment, is_outer
 from .. import progress
-from ..errors import BulgekitError
+from ..errors import BulgekitError, output_part
 from ..parallel import Forked
 
 ARENA_BYTES = mapformat.ARENA_BYTES
@@ -364,66 +364,62 @@ def annotate_file(src, dst, map_bytes: bytes, settings: Settings, arena: int = A
         bm, bad_map = None, e
     res = AnnotateResult()
     out = made = wrote = None                 # the markers, or what making or writing them raised
-    tmp = f"{os.fspath(dst)}.part"            # renamed to dst once every check passed
     job = None
     try:
-        if check and bad_map is None and not kept:
-            # the reach check in a child on the second core (bulgekit.parallel), reading the file
-            # itself, while it is read here and the markers are made and written: a 100 MB file's
-            # 0.65-0.75 s in one process became 0.45-0.5 s. What either finds wrong is said below
-            # in the order the checks always had.
-            job = Forked.running(lambda: _reach(src, map_bytes, settings, str(src), bm))
-        with open(src, "rb") as f:
-            size = os.fstat(f.fileno()).st_size
-            # in build, mapped rather than read (its scan checked the file; the output is slices
-            # of it): 100 MB read into memory cost 0.1-0.2 s and its size in memory again while
-            # the stock fallback reads it beside (bulgekit.parallel)
-            data = mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) if kept and size else f.read()
-        if not kept:
-            check_complete(data, str(src))
-        forked = job is not None and job.forked
-        if forked:
-            made, out = _attempt(_annotated, data, map_bytes, settings, arena, stream, str(src), res, bm)
-            if made is None:
-                wrote = _attempt(_write_file, tmp, out, dst)[0]
-        if check:
-            # the reach check's scan comes first, as it also tells where check_not_processed can
-            # find something
-            try:
-                if bad_map is not None:
-                    raise bad_map
-                msg, flagged = (job.result() if forked
-                                else _reach(src if kept else data, map_bytes, settings, str(src), bm))
-            except (BulgekitError, mapformat.MapFormatError) as e:
-                failed = e
-        if not kept and flagged != 0:
-            check_not_processed(data, str(src))
-        if bad_map is not None:
-            raise bad_map
-        if not forked:
-            out = _annotated(data, map_bytes, settings, arena, stream, str(src), res, bm)
-        elif made is not None:
-            raise made
-        if failed is not None:
-            raise failed
-        if check:
-            if msg and not allow_unreached:
-                raise AnnotateError(msg)
-            if msg:
-                res.notes.append(msg)
-        if not forked:
-            _write_file(tmp, out, dst)
-        elif wrote is not None:
-            raise wrote
-        try:
+        with output_part(dst) as tmp:         # renamed to dst once every check passed
+            if check and bad_map is None and not kept:
+                # the reach check in a child on the second core (bulgekit.parallel), reading the
+                # file itself, while it is read here and the markers are made and written: a 100 MB
+                # file's 0.65-0.75 s in one process became 0.45-0.5 s. What either finds wrong is
+                # said below in the order the checks always had.
+                job = Forked.running(lambda: _reach(src, map_bytes, settings, str(src), bm))
+            with open(src, "rb") as f:
+                size = os.fstat(f.fileno()).st_size
+                # in build, mapped rather than read (its scan checked the file; the output is
+                # slices of it): 100 MB read into memory cost 0.1-0.2 s and its size in memory
+                # again while the stock fallback reads it beside (bulgekit.parallel)
+                data = mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) if kept and size else f.read()
+            if not kept:
+                check_complete(data, str(src))
+            forked = job is not None and job.forked
+            if forked:
+                made, out = _attempt(_annotated, data, map_bytes, settings, arena, stream, str(src),
+                                     res, bm)
+                if made is None:
+                    wrote = _attempt(_write_file, tmp, out)[0]
+            if check:
+                # the reach check's scan comes first, as it also tells where check_not_processed
+                # can find something
+                try:
+                    if bad_map is not None:
+                        raise bad_map
+                    msg, flagged = (job.result() if forked
+                                    else _reach(src if kept else data, map_bytes, settings, str(src), bm))
+                except (BulgekitError, mapformat.MapFormatError) as e:
+                    failed = e
+            if not kept and flagged != 0:
+                check_not_processed(data, str(src))
+            if bad_map is not None:
+                raise bad_map
+            if not forked:
+                out = _annotated(data, map_bytes, settings, arena, stream, str(src), res, bm)
+            elif made is not None:
+                raise made
+            if failed is not None:
+                raise failed
+            if check:
+                if msg and not allow_unreached:
+                    raise AnnotateError(msg)
+                if msg:
+                    res.notes.append(msg)
+            if not forked:
+                _write_file(tmp, out)
+            elif wrote is not None:
+                raise wrote
             os.replace(tmp, dst)
-        except OSError as e:                  # (said of the file the user named)
-            raise type(e)(e.errno, e.strerror, os.fspath(dst)) from None
     finally:
         if job is not None:
             job.close()
-        if os.path.exists(tmp):
-            os.unlink(tmp)
     return res
 
 
@@ -435,13 +431,9 @@ def _attempt(fn, *args):
         return e, None
 
 
-def _write_file(tmp, pieces: list, dst) -> None:
-    """pieces into tmp; what goes wrong is said of dst, the file the user named."""
-    try:
-        with open(tmp, "wb") as f:
-            _write_pieces(f, pieces)          # the file's own bytes between the lines added
-    except OSError as e:
-        raise type(e)(e.errno, e.strerror, os.fspath(dst)) from None
+def _write_file(path, pieces: list) -> None:
+    with open(path, "wb") as f:
+        _write_pieces(f, pieces)              # the file's own bytes between the lines added
 
 
 def annotate_gcode(gcode, map_bytes: bytes, out, settings: Settings = Settings(), *,

@@ -38,7 +38,7 @@ import numpy as np
 from . import mapformat
 from ..gcode import movescan
 from ..gcode import GcodeState, Line, Move, parse_lines
-from ..errors import BulgekitError
+from ..errors import BulgekitError, output_part
 from ..gcode import _M92_RX, _m92_e, _plain_lines, scan_m92
 
 
@@ -1351,12 +1351,11 @@ def rewrite_file(src, dst, bmap: mapformat.BulgeMap, settings: Settings,
         lines = kept.text_lines()
     else:
         _, lines = open_checked(src, checks=(check_not_processed, plain))     # streamed, not held
-    tmp = f"{os.fspath(dst)}.part"
 
     def new_planner():
         p = RefPlanner(bmap, settings)
         return p, (on_plan(p) if on_plan is not None else None)
-    try:
+    with output_part(dst) as tmp:
         done = False
         if byte_path:
             def fast(chunks):
@@ -1383,7 +1382,4 @@ def rewrite_file(src, dst, bmap: mapformat.BulgeMap, settings: Settings,
         if res.unreached and not allow_unreached:
             raise UnreachedError(res.unreached)
         os.replace(tmp, dst)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
     return res

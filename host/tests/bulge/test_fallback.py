@@ -598,3 +598,23 @@ def test_stats_time_of_a_fast_stop_leaves_out_the_next_moves_start():
     s = plan_stop(25, 93, 1.0)
     sw.count(s, 6 / 93)
     assert sw.run_s == pytest.approx(s.still - 93 / (287 * 80)) and sw.run_s == pytest.approx(6 / 287)
+
+
+def test_an_output_that_cannot_be_written_is_named_and_leaves_no_part(data_dir, tmp_path):
+    """The stock rewrite and annotate write OUT.part and rename it (errors.output_part): a folder
+    that is missing is said of OUT, the file asked for, and no part stays behind."""
+    from bulgekit.bulge import api
+    from bulgekit.bulge.mapbuild import build
+    from bulgekit.bulge.strokes import Stroke
+    from bulgekit.bulge.wall import walls_from_gcode
+    g = data_dir / "prusa_cyl.gcode"
+    m = build([Stroke(((10.0, 1.0), (10.0, 4.0)))], walls_from_gcode(g)).map_bytes
+    out = tmp_path / "missing" / "x.gcode"
+    for write in (api.fallback_gcode, api.annotate_gcode):
+        with pytest.raises(FileNotFoundError) as e:
+            write(g, m, out)
+        assert e.value.filename == str(out)
+    (tmp_path / "missing").mkdir()
+    for write in (api.fallback_gcode, api.annotate_gcode):
+        write(g, m, out)
+        assert out.stat().st_size > g.stat().st_size and not (tmp_path / "missing" / "x.gcode.part").exists()
