@@ -1,4 +1,6 @@
-"""The errors bulgekit reports to its user; every job's errors derive from BulgekitError.
+"""The errors bulgekit reports to its user; every job's errors derive from BulgekitError. Also
+the two places where a file's OS errors are put in the user's terms: a picture read
+(reading_picture) and an output written all or nothing (output_part).
 
 At the base of the package, so that every floor (gcode, the jobs, cli and studio) may raise
 them: `bk.BulgekitError` and `bk.InputError` are the same classes.
