@@ -77,7 +77,7 @@ def look_table(a) -> None:
     from skimage import data
 
     print()
-    print("| picture | curve | mean abs dL* | SSIM on L* | samples shared by the walls | time s |")
+    print("| picture | curve | mean abs dL* | SSIM on L* | samples with a thin mid-line / shared by the walls | time s |")
     print("|---|---|---:|---:|---:|---:|")
     with tempfile.TemporaryDirectory() as d:
         for pic in a.look:
@@ -94,9 +94,11 @@ def look_table(a) -> None:
                 target, pred = (x[plan.field.inside] for x in lt.look(plan))
                 sim = tone.similarity(target, pred)
                 f = plan.field
-                shared = f.shared / f.t[f.n_foot:].size
+                # gaps under a printable mid-line: the walls narrow for a thin one (--light-gaps
+                # mid-line, the default) or share the gap (walls)
+                narrowed, shared = (x / f.t[f.n_foot:].size for x in (f.narrowed, f.shared))
                 print(f"| {Path(pic).name} | {c} | {sim['mean_abs_dL']:.2f} | {sim['ssim_L']:.3f} | "
-                      f"{100 * shared:.1f} % | {time.time() - t0:.0f} |", flush=True)
+                      f"{100 * narrowed:.1f} % / {100 * shared:.1f} % | {time.time() - t0:.0f} |", flush=True)
 
 
 def edges_table() -> None:
