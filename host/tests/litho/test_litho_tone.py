@@ -112,8 +112,8 @@ def wedge(tmp_path):
 def test_wedge_steps_within_one_L(tmp_path, curve, within):
     """16-step grey wedge at the defaults: the perceptual curve puts every step's predicted L*
     within 1 of its target (the grey's L* on the plate's range); the other two do not. Measured on
-    the planned thickness and on the thickness as printed (the walls share gaps narrower than a
-    mid-line: nothing is snapped)."""
+    the planned thickness and on the thickness as printed (where the gap is narrower than a
+    mid-line the walls narrow for a thin one: nothing is snapped)."""
     p, codes = wedge(tmp_path)
     o = lt.LithoOptions(curve=curve, height=2.0)
     plan = lt.plan_lithophane(p, o)
