@@ -1621,6 +1621,29 @@ def laid_area(plan: Plan, k: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 
+def laid_volume(plan: Plan) -> dict:
+    """How the filament the pieces lay (laid_area, from their E) follows the body's volume, on
+    the picture's layers: the largest deviation of a layer's total, and per interval between
+    neighbouring samples the median, 99th percentile and largest (a merged piece averages the
+    intervals it spans: the block-rate budget's price), the planar plate's end intervals apart."""
+    o, fld = plan.options, plan.field
+    per_layer, dev, ends = [], [], []
+    for k in range(fld.n_foot, len(plan.layers)):
+        laid, body = laid_area(plan, k)
+        per_layer.append(abs(laid.sum() / body.sum() - 1))
+        d = np.abs(laid / np.maximum(body, 1e-12) - 1)
+        if o.shape == "planar":
+            ends.append(max(d[0], d[-1]))
+        dev.append(d)
+    if not dev:
+        return {}
+    dev = np.concatenate(dev)
+    r = lambda v: round(float(v), 4)
+    return {"layer_total_max_dev": r(max(per_layer)), "interval_median_dev": r(np.median(dev)),
+            "interval_p99_dev": r(np.percentile(dev, 99)), "interval_max_dev": r(dev.max()),
+            "end_intervals_max_dev": r(max(ends)) if ends else None}
+
+
 def look(plan: Plan):
     """(target L*, predicted L*) on the layer x sample grid, 0..100. Predicted: the printed
     plate's luminance relative to the thinnest plate, exp(-mu (t - t_min)), as L*. Target: the
@@ -1675,10 +1698,12 @@ def plan_stats(plan: Plan, stl_volume: float) -> dict:
         for s in L.sections:
             seg = np.linalg.norm(np.diff(s.pts, axis=0), axis=1)
             laid = s.e > 0
-            d = by_kind.setdefault(s.kind, {"length_mm": 0.0, "filament_mm": 0.0, "time_s": 0.0, "moves": 0})
+            d = by_kind.setdefault(s.kind, {"length_mm": 0.0, "filament_mm": 0.0, "time_no_accel_s": 0.0,
+                                            "moves": 0})
             d["length_mm"] += float(seg[laid].sum())
             d["filament_mm"] += float(s.e.sum())
-            d["time_s"] += float((seg[laid] / s.v[laid]).sum()) + float((seg[~laid] / o.travel_speed).sum())
+            d["time_no_accel_s"] += (float((seg[laid] / s.v[laid]).sum())
+                                     + float((seg[~laid] / o.travel_speed).sum()))
             d["moves"] += int(laid.sum())
             moves += int(laid.sum())
             if s.kind == "mid-line" and laid.any():
@@ -1692,9 +1717,9 @@ def plan_stats(plan: Plan, stl_volume: float) -> dict:
     r = float(np.corrcoef(src.ravel(), pred.ravel())[0, 1]) if src.std() > 0 and pred.std() > 0 else float("nan")
     sim = tone.similarity(src, pred)
     L_lo, L_hi = tone.plate_range(o.attenuation, o.min_thickness, o.max_thickness)
-    t_print = printed_thickness(plan)
     pic = fld.t[fld.n_foot:]
     samples = pic.size
+    laid = laid_volume(plan)
     return {
         "shape": o.shape,
         "layers": len(plan.layers),
@@ -1706,7 +1731,7 @@ def plan_stats(plan: Plan, stl_volume: float) -> dict:
         "deposited_mm3": round(filament * area, 2),
         "stl_volume_mm3": round(stl_volume, 2),
         "fill_ratio": round(filament * area / stl_volume, 4),
-        "time_no_accel_s": round(sum(d["time_s"] for d in by_kind.values()), 1),
+        "time_no_accel_s": round(sum(d["time_no_accel_s"] for d in by_kind.values()), 1),
         "by_kind": {k: {kk: round(vv, 3) for kk, vv in d.items()} for k, d in by_kind.items()},
         "rates": {"wall_mm3_s": round(o.wall_flow, 4), "mid_line_mm3_s": round(o.mid_flow, 4),
                   "mid_line_e_mm_s": round(o.mid_flow / area, 5), "paper_rate": o.paper_rate,
@@ -1731,8 +1756,8 @@ def plan_stats(plan: Plan, stl_volume: float) -> dict:
             "narrowed_share": round(fld.narrowed / samples, 4),
             "light_gaps": o.light_gaps,
             "min_line_mm": round(o.line_min(), 4), "max_line_mm": o.max_line,
-            "printed_vs_planned_thickness_max_mm": round(float(np.abs(t_print - pic).max()), 3),
         },
+        "laid_volume": laid,
         "look": {"attenuation_per_mm": o.attenuation, "curve": o.curve,
                  "plate_L_range": [round(L_lo, 2), round(L_hi, 2)],
                  "mean_abs_dL": round(sim["mean_abs_dL"], 3),
