@@ -175,15 +175,20 @@ def test_look_in_L_and_the_png_unstretched(tmp_path):
     assert im[top + 12, x2 + w + pad + 6] <= 2                    # the stretched panel: black
 
 
-def test_end_columns_print_what_the_picture_says(tmp_path):
+@pytest.mark.parametrize("block_rate", [None, 0], ids=["defaults", "block-rate 0"])
+def test_end_columns_print_what_the_picture_says(tmp_path, block_rate):
     """A noisy photo-like picture (planar defaults): the predicted look's first and last two
     columns show the planned thickness, as the columns inside do; the end probes once sat on the
-    gap's edge and printed white specks (left) and a white line (right)."""
+    gap's edge and printed white specks (left) and a white line (right). What the pieces lay
+    (their E, laid_area) at the plate's ends is the body's there on every layer, as inside.
+    (The look's end columns are the end walls, solid by construction: the laid area is what
+    says that the G-code lays them.)"""
     rng = np.random.default_rng(3)
     y, x = np.mgrid[0:60, 0:100]
     g = 128 + 60 * np.sin(x / 9.0) * np.cos(y / 7.0) + rng.normal(0, 12, (60, 100))
     Image.fromarray(np.clip(g, 0, 255).astype(np.uint8)).save(tmp_path / "noisy.png")
-    plan = lt.plan_lithophane(tmp_path / "noisy.png", lt.LithoOptions(width=40.0, height=8.0))
+    kw = {} if block_rate is None else {"block_rate": block_rate}
+    plan = lt.plan_lithophane(tmp_path / "noisy.png", lt.LithoOptions(width=40.0, height=8.0, **kw))
     o = plan.options
     L = lambda t: tone.lightness(tone.plate_luminance(t, o.attenuation, o.min_thickness))
     dL = L(lt.printed_thickness(plan)) - L(plan.field.t[plan.field.n_foot:])
@@ -191,7 +196,16 @@ def test_end_columns_print_what_the_picture_says(tmp_path):
     inner = dL[:, 2:-2]
     assert np.abs(edges).max() <= max(2.0, np.abs(inner).max())
     assert np.abs(edges).mean() <= np.abs(inner).mean() + 0.5
-    assert np.abs(dL[:, [0, -1]]).max() < 1e-6                       # the end walls fill these
+    ends, inside = [], []
+    for k in range(plan.field.n_foot, len(plan.layers)):
+        laid, body = lt.laid_area(plan, k)
+        d = np.abs(laid / body - 1)
+        ends += [d[0], d[-1]]
+        inside.append(d[1:-1])
+    assert max(ends) <= 0.03                                     # (measured: 2.2 %, 1.8 %)
+    assert np.median(ends) <= 2 * np.median(np.concatenate(inside)) + 0.01
+    figures = lt.plan_stats(plan, 1.0)["laid_volume"]
+    assert figures["end_intervals_max_dev"] == pytest.approx(max(ends), abs=1e-4)
 
 
 # --- calibration plate ------------------------------------------------------------------------------
