@@ -24,15 +24,26 @@ from bulgekit.gcode import estimate as es  # noqa: E402
 from bulgekit import litho as lt  # noqa: E402
 
 
-def timed(path) -> str:
+def timed(path, block_rate: float = 120.0) -> str:
     r6 = es.estimate_file(path, es.Machine())
     r0 = es.estimate_file(path, es.Machine(min_segment_steps=0))
     ext = es.extruding(r0)
     L = r0.blocks["length"][ext]
-    return (f"{path}: {int(ext.sum())} extruding moves, shortest {L.min():.4f} mm, "
-            f"{int((L < 0.075).sum())} under 0.075 mm; estimate (3000 mm/s^2, JD 0.013, 16 blocks) "
-            f"{r6.total_s:.1f} s with Marlin's 6-step rule, {r0.total_s:.1f} s with every move planned "
-            f"({100 * (r0.total_s / r6.total_s - 1):+.2f} %)")
+    out = (f"{path}: {int(ext.sum())} extruding moves, shortest {L.min():.4f} mm, "
+           f"{int((L < 0.075).sum())} under 0.075 mm; estimate (3000 mm/s^2, JD 0.013, 16 blocks) "
+           f"{r6.total_s:.1f} s with Marlin's 6-step rule, {r0.total_s:.1f} s with every move planned "
+           f"({100 * (r0.total_s / r6.total_s - 1):+.2f} %)")
+    if block_rate:
+        # moves in XY the board would plan faster than block_rate a second (speed / length)
+        b = r0.blocks
+        xy = (b["dx"] != 0) | (b["dy"] != 0)
+        rate = np.where(xy, b["nominal_speed"] / np.maximum(b["length"], 1e-12), 0.0)
+        over = rate > block_rate * 1.001
+        for name, sel in (("laid", ext), ("passing", xy & ~ext)):
+            k = over & sel
+            out += (f"; {name} moves over {block_rate:g} blocks/s: {int(k.sum())}"
+                    + (f" (up to {rate[k].max():.0f})" if k.any() else ""))
+    return out
 
 
 def where(plan) -> str:
@@ -81,7 +92,7 @@ def main(argv=None) -> int:
     out = a.out or Path(tempfile.mkdtemp(prefix="litho_paths_"))
     res = lt.make(a.picture, out, options=lt.LithoOptions(shape=a.shape, **kw))
     for key in ("gcode", "stock"):
-        print(timed(res.paths[key]))
+        print(timed(res.paths[key], res.plan.options.block_rate))
     plan = res.plan
     print(where(plan))
     dev, tot = [], []
