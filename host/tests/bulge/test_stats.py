@@ -45,6 +45,33 @@ def test_slicer_time_dialects():
     assert slicer_time("G1 X1\n") is None
 
 
+def test_slicer_time_is_the_first_match_of_its_dialects_regexes():
+    # slicer_time finds a word of the match first and starts the regex at its line: the same
+    # answer as the regexes tried on the whole text, also where ";" and "Build time" are lines
+    # apart (\s spans them) or a word stands where no match begins
+    import random
+    import re
+    from bulgekit.bulge import stats
+
+    def whole(text):
+        for rx, kind, _ in stats._TIME_RX:
+            if rx.search(text):
+                return slicer_time(rx.search(text).group(0) + "\n")
+        return None
+    pieces = ["; estimated printing time (normal mode) = 1h 2m 3s",
+              "; estimated printing time (silent mode) = 2h", "; estimated printing time",
+              ";TIME:123", "; TIME:5", "x;TIME:7", " ;TIME:9", ";  Build time: 2 hours 3 minutes",
+              "Build time: 1 hour 2 minutes", "; ;Build time: 1 hour 1 minute", ";", ";\t", "",
+              "\r", "G1 X1"]
+    rng = random.Random(1)
+    seen = set()
+    for _ in range(20000):
+        text = "\n".join(rng.choice(pieces) for _ in range(rng.randint(0, 8)))
+        assert slicer_time(text) == whole(text), repr(text)
+        seen.add(whole(text))
+    assert {None, 3723, 123, 7380, 3720} <= seen
+
+
 def test_build_stats_give_the_stock_files_stops_as_printed(data_dir, tmp_path):
     from bulgekit.bulge import api
     from bulgekit.bulge.fallback import StockStops, still_s
