@@ -105,7 +105,8 @@ def main():
       bulgekit build part.gcode --text "HELLO" --at 5,3 -o out/
       -> out/part.bkm (bulge map), out/part.bulge.gcode (print this on bulgekit
          firmware), out/part.stats.txt; --fallback adds out/part.stock.gcode for
-         stock firmware (G4 dwells + extra E + G92, the paper's rewrite).
+         stock firmware (each stop an extruder-only move plus the extra E;
+         --stop g4 for the paper's G4 dwells).
 
     Strokes are drawn on the unrolled outer wall: u = mm along the wall,
     counter-clockwise (left to right seen from outside) from the front (-Y) of
