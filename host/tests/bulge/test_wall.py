@@ -166,3 +166,40 @@ def test_walls_computed_together_are_each_walls_own(data_dir, name, geometric):
         assert s.tobytes() == np.asarray(w.s).tobytes()
         gap = max(2.0, 3 * m.layer_height)
         assert w.closed == (math.hypot(*(xy[-1] - xy[0])) <= gap)
+
+
+def _median_distance_every_segment(pts, poly):
+    """wall._median_distance as it was: every point projected on every segment."""
+    if len(pts) > 64:
+        pts = pts[np.linspace(0, len(pts) - 1, 64).astype(int)]
+    a = poly[:-1][None, :, :]
+    d = (poly[1:] - poly[:-1])[None, :, :]
+    p = pts[:, None, :]
+    l2 = np.maximum((d * d).sum(-1), 1e-18)
+    t = np.clip(((p - a) * d).sum(-1) / l2, 0, 1)
+    q = a + t[..., None] * d
+    return float(np.median(np.sqrt(((q - p) ** 2).sum(-1)).min(axis=1)))
+
+
+def test_median_distance_is_that_of_every_segment():
+    """Geometric mode's distance from a loop to the wall above projects each point only on the
+    segments that can be nearest: to the bit the median of projecting on all of them, on loops
+    near and far, closed and open, noisy, with repeated vertices and long straight sides."""
+    from bulgekit.bulge.wall import _median_distance
+    rng = np.random.default_rng(7)
+    for k in range(1500):
+        m = int(rng.integers(2, 300))
+        th = np.sort(rng.uniform(0, 2 * np.pi, m))
+        r = rng.uniform(2, 80)
+        poly = np.c_[r * np.cos(th), r * np.sin(th)] + rng.normal(0, [0, 0.01, 1][k % 3], (m, 2))
+        if k % 4 == 0:
+            poly = np.vstack([poly, poly[:1]])                  # closed
+        if k % 5 == 0:
+            poly = np.round(poly, 0)                            # repeats, zero-length segments
+        if k % 11 == 0:
+            poly = np.array([[-r, -r], [r, -r], [r, r], [-r, r], [-r, -r]])   # long sides
+        n = int(rng.integers(1, 150))
+        near = poly[rng.integers(0, len(poly), n)] + rng.normal(0, 0.6, (n, 2))
+        pts = near if k % 2 else rng.normal(0, r, (n, 2))
+        want = _median_distance_every_segment(pts, poly)
+        assert np.float64(_median_distance(pts, poly)).tobytes() == np.float64(want).tobytes(), k
