@@ -15,6 +15,7 @@ the grid of layer heights, the same windows the firmware matches moves in.
 """
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field
 from typing import Iterable
@@ -326,10 +327,19 @@ def _ray_hit(xy: np.ndarray, s: np.ndarray, c, direction) -> float:
     return float(s[int(np.argmax(proj))])
 
 
+@functools.lru_cache(maxsize=1024)
+def _spread(n: int) -> np.ndarray:
+    """Which 64 of n points _median_distance takes (spread evenly: many layers' loops have the
+    same number of points)."""
+    i = np.linspace(0, n - 1, 64).astype(int)
+    i.flags.writeable = False
+    return i
+
+
 def _median_distance(pts: np.ndarray, poly: np.ndarray) -> float:
     """Median distance from (up to 64 of) pts to the polyline poly."""
     if len(pts) > 64:
-        pts = pts[np.linspace(0, len(pts) - 1, 64).astype(int)]
+        pts = pts[_spread(len(pts))]
     # A point is no farther from the polyline than from its nearest vertex (ub), and a segment
     # ab can be nearer only if |pa| + |pb| - |ab| <= 2 ub (for q on ab, |pq| >= (|pa| + |pb| -
     # |ab|) / 2). Only those segments are projected on, with the arithmetic once used on all
@@ -348,7 +358,9 @@ def _median_distance(pts: np.ndarray, poly: np.ndarray) -> float:
     q = a + t[..., None] * d
     near = np.full(len(pts), np.inf)
     np.minimum.at(near, ii, np.sqrt(((q - p) ** 2).sum(-1)))
-    return float(np.median(near))
+    near.sort()                                          # the median as np.median takes it
+    k = len(near) // 2
+    return float(near[k]) if len(near) % 2 else (float(near[k - 1]) + float(near[k])) / 2
 
 
 class _Chain:
@@ -557,11 +569,18 @@ def walls_from_records(chunks: Iterable[np.ndarray], layer_height: float | None 
                  for j in js]
         closed = [c for c, j in zip(cands, js) if shut[j]]
         pool = closed or cands
-        if geometric and upper is not None:
-            near = [c for c in pool if _median_distance(np.array(c.pts), upper) <= max(1.0, 3 * h)]
-            pool = near or pool
         # (most layers have one wall: no areas to compare)
-        best = pool[0] if len(pool) == 1 else max(pool, key=lambda c: abs(_signed_area(np.array(c.pts))))
+        if len(pool) == 1:
+            best = pool[0]
+        else:
+            area = [abs(_signed_area(np.array(c.pts))) for c in pool]
+            # the largest (the first of equals); in geometric mode below the top, the largest of
+            # those near the wall above, if any is: looked for from the largest down
+            big = sorted(range(len(pool)), key=lambda i: -area[i])
+            best = pool[big[0]]
+            if geometric and upper is not None:
+                best = next((pool[i] for i in big if _median_distance(np.array(pool[i].pts), upper)
+                             <= max(1.0, 3 * h)), best)
         unclosed[k] = not closed
         pick[k] = by[bst[k] + cands.index(best)]
         if geometric:
