@@ -1620,7 +1620,6 @@ def laid_area(plan: Plan, k: int) -> tuple[np.ndarray, np.ndarray]:
     return laid, body
 
 
-
 def laid_volume(plan: Plan) -> dict:
     """How the filament the pieces lay (laid_area, from their E) follows the body's volume, on
     the picture's layers: the largest deviation of a layer's total, and per interval between

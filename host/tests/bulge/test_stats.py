@@ -50,13 +50,13 @@ def test_slicer_time_is_the_first_match_of_its_dialects_regexes():
     # answer as the regexes tried on the whole text, also where ";" and "Build time" are lines
     # apart (\s spans them) or a word stands where no match begins
     import random
-    import re
     from bulgekit.bulge import stats
 
-    def whole(text):
-        for rx, kind, _ in stats._TIME_RX:
-            if rx.search(text):
-                return slicer_time(rx.search(text).group(0) + "\n")
+    def whole(text):                           # the first dialect whose regex matches anywhere
+        for rx, _, _ in stats._TIME_RX:
+            m = rx.search(text)
+            if m:
+                return slicer_time(m.group(0) + "\n")
         return None
     pieces = ["; estimated printing time (normal mode) = 1h 2m 3s",
               "; estimated printing time (silent mode) = 2h", "; estimated printing time",
