@@ -646,21 +646,24 @@ def test_cli_writes_everything(tmp_path):
 
 
 def test_every_phase_reports_progress(tmp_path):
-    """Planning through the callback; writing each file and the estimates through
-    bulgekit.progress (what the CLI draws and the studio listens to)."""
+    """Planning through the callback; reading the picture, writing each file and the estimates
+    through bulgekit.progress (what the CLI draws and the studio listens to)."""
     from bulgekit import progress
 
     heard, planned = [], []
+    pic = picture(tmp_path)
     progress.listen(lambda label, done, total: heard.append((label, done, total)))
     try:
-        lt.make(picture(tmp_path), tmp_path / "o", options=opts(), name="p",
+        lt.make(pic, tmp_path / "o", options=opts(), name="p",
                 progress=lambda done, total: planned.append((done, total)))
     finally:
         progress.listen(None)
     assert planned[-1] == (15, 15)
     labels = {h[0] for h in heard}
-    assert {"writing p.stl", "writing p.litho.gcode", "writing p.stock.gcode", "estimating p.litho.gcode",
-            "estimating p.stock.gcode"} <= labels
+    assert {f"reading {pic.name}", "writing p.stl", "writing p.litho.gcode", "writing p.stock.gcode",
+            "estimating p.litho.gcode", "estimating p.stock.gcode"} <= labels
+    rows = Image.open(pic).size[1]
+    assert (f"reading {pic.name}", rows, rows) in heard           # in rows, to the last
     ends = [h for h in heard if h[1] == h[2]]
     assert {h[0] for h in ends} == labels                          # every phase closes
 
