@@ -381,8 +381,9 @@ def annotate_file(src, dst, map_bytes: bytes, settings: Settings, arena: int = A
                 data = mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) if kept and size else f.read()
             if not kept:
                 check_complete(data, str(src))
-            forked = job is not None and job.forked
-            if forked:
+            # the markers made and written first (while a forked check runs beside); what making
+            # or writing them raised is said in its turn below
+            if bad_map is None:
                 made, out = _attempt(_annotated, data, map_bytes, settings, arena, stream, str(src),
                                      res, bm)
                 if made is None:
@@ -393,7 +394,7 @@ def annotate_file(src, dst, map_bytes: bytes, settings: Settings, arena: int = A
                 try:
                     if bad_map is not None:
                         raise bad_map
-                    msg, flagged = (job.result() if forked
+                    msg, flagged = (job.result() if job is not None and job.forked
                                     else _reach(src if kept else data, map_bytes, settings, str(src), bm))
                 except (BulgekitError, mapformat.MapFormatError) as e:
                     failed = e
@@ -401,9 +402,7 @@ def annotate_file(src, dst, map_bytes: bytes, settings: Settings, arena: int = A
                 check_not_processed(data, str(src))
             if bad_map is not None:
                 raise bad_map
-            if not forked:
-                out = _annotated(data, map_bytes, settings, arena, stream, str(src), res, bm)
-            elif made is not None:
+            if made is not None:
                 raise made
             if failed is not None:
                 raise failed
@@ -412,9 +411,7 @@ def annotate_file(src, dst, map_bytes: bytes, settings: Settings, arena: int = A
                     raise AnnotateError(msg)
                 if msg:
                     res.notes.append(msg)
-            if not forked:
-                _write_file(tmp, out)
-            elif wrote is not None:
+            if wrote is not None:
                 raise wrote
             os.replace(tmp, dst)
     finally:
