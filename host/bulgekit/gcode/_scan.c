@@ -1298,6 +1298,18 @@ static PyObject *layer_events(const char *d, Py_ssize_t n, const ZLine *zl, Py_s
     return out;
 }
 
+/* z_events' list of the data in buf, from the marks pass (with features: feature_lines' too, into
+ * that list); NULL with an exception. */
+static PyObject *marked_events(const Py_buffer *buf, PyObject *features) {
+    ZLine *zl = NULL;
+    Py_ssize_t nz = 0;
+    PyObject *out = NULL;
+    if (marks_pass(buf->buf, buf->len, features, &zl, &nz) == 0)
+        out = layer_events(buf->buf, buf->len, zl, nz);
+    PyMem_Free(zl);
+    return out;
+}
+
 /* feature_lines(data) -> [(end, comment)]: every line whose first byte other than ' ' and '\t'
  * is ';' followed by blanks and a feature word (_FEATURE_RX); end: its '\n' (or the data's end),
  * comment: the bytes after the ';' up to end, for gcode.feature_of_comment. Looks only at the
@@ -1323,12 +1335,7 @@ static PyObject *z_events(PyObject *self, PyObject *args) {
     (void)self;
     Py_buffer buf;
     if (!PyArg_ParseTuple(args, "y*", &buf)) return NULL;
-    ZLine *zl = NULL;
-    Py_ssize_t nz = 0;
-    PyObject *out = NULL;
-    if (marks_pass(buf.buf, buf.len, NULL, &zl, &nz) == 0)
-        out = layer_events(buf.buf, buf.len, zl, nz);
-    PyMem_Free(zl);
+    PyObject *out = marked_events(&buf, NULL);
     PyBuffer_Release(&buf);
     return out;
 }
@@ -1338,16 +1345,11 @@ static PyObject *line_marks(PyObject *self, PyObject *args) {
     (void)self;
     Py_buffer buf;
     if (!PyArg_ParseTuple(args, "y*", &buf)) return NULL;
-    ZLine *zl = NULL;
-    Py_ssize_t nz = 0;
     PyObject *features = PyList_New(0), *events = NULL, *out = NULL;
-    if (features && marks_pass(buf.buf, buf.len, features, &zl, &nz) == 0)
-        events = layer_events(buf.buf, buf.len, zl, nz);
-    if (events)
+    if (features && (events = marked_events(&buf, features)) != NULL)
         out = PyTuple_Pack(2, features, events);
     Py_XDECREF(features);
     Py_XDECREF(events);
-    PyMem_Free(zl);
     PyBuffer_Release(&buf);
     return out;
 }
