@@ -95,10 +95,7 @@ def main(argv=None) -> int:
         print(timed(res.paths[key], res.plan.options.block_rate))
     plan = res.plan
     print(where(plan))
-    dev, tot = [], []
-    for k in range(plan.field.n_foot + 1, len(plan.layers)):        # the first layer runs slower only
-        laid, body = lt.laid_area(plan, k)
-        dev.append(np.abs(laid / body - 1)), tot.append(laid.sum() / body.sum() - 1)
+    tot, dev = lt.laid_deviations(plan, plan.field.n_foot + 1)      # the first layer runs slower only
     d = np.concatenate(dev)
     inner = np.concatenate([x[1:-1] for x in dev]) if a.shape == "planar" else d
     print(f"volume laid per sample interval vs the body: median {100 * np.median(d):.3f} %, "

@@ -1620,25 +1620,31 @@ def laid_area(plan: Plan, k: int) -> tuple[np.ndarray, np.ndarray]:
     return laid, body
 
 
+def laid_deviations(plan: Plan, first: int | None = None) -> tuple[list[float], list[np.ndarray]]:
+    """What the pieces lay (laid_area, from their E) against the body, on layers first.. (the
+    picture's first by default): per layer its total's deviation (laid / body - 1), and the
+    deviation |laid / body - 1| of each interval between neighbouring samples."""
+    fld = plan.field
+    totals, dev = [], []
+    for k in range(fld.n_foot if first is None else first, len(plan.layers)):
+        laid, body = laid_area(plan, k)
+        totals.append(float(laid.sum() / body.sum() - 1))
+        dev.append(np.abs(laid / np.maximum(body, 1e-12) - 1))
+    return totals, dev
+
+
 def laid_volume(plan: Plan) -> dict:
-    """How the filament the pieces lay (laid_area, from their E) follows the body's volume, on
-    the picture's layers: the largest deviation of a layer's total, and per interval between
+    """How the filament the pieces lay follows the body's volume, on the picture's layers
+    (laid_deviations): the largest deviation of a layer's total, and per interval between
     neighbouring samples the median, 99th percentile and largest (a merged piece averages the
     intervals it spans: the block-rate budget's price), the planar plate's end intervals apart."""
-    o, fld = plan.options, plan.field
-    per_layer, dev, ends = [], [], []
-    for k in range(fld.n_foot, len(plan.layers)):
-        laid, body = laid_area(plan, k)
-        per_layer.append(abs(laid.sum() / body.sum() - 1))
-        d = np.abs(laid / np.maximum(body, 1e-12) - 1)
-        if o.shape == "planar":
-            ends.append(max(d[0], d[-1]))
-        dev.append(d)
-    if not dev:
+    totals, per = laid_deviations(plan)
+    if not per:
         return {}
-    dev = np.concatenate(dev)
+    dev = np.concatenate(per)
+    ends = [max(d[0], d[-1]) for d in per] if plan.options.shape == "planar" else []
     r = lambda v: round(float(v), 4)
-    return {"layer_total_max_dev": r(max(per_layer)), "interval_median_dev": r(np.median(dev)),
+    return {"layer_total_max_dev": r(max(map(abs, totals))), "interval_median_dev": r(np.median(dev)),
             "interval_p99_dev": r(np.percentile(dev, 99)), "interval_max_dev": r(dev.max()),
             "end_intervals_max_dev": r(max(ends)) if ends else None}
 
