@@ -88,8 +88,6 @@ def preview_unrolled(points, wall_length: float, height: float, path, *, title: 
     u, v, w = (pts[:, 0], pts[:, 1], pts[:, 2]) if len(pts) else (np.zeros(0),) * 3
     inside = (u >= 0) & (u <= wall_length) & (v >= 0) & (v <= height)
     # Marker size in points²: bump_mm converted through the axes' scale.
-    fig.canvas.draw()
-    bbox = ax.get_window_extent()
     # Limits include every point, so bumps outside the wall stay visible.
     umin = min(0.0, float(u.min()) if len(u) else 0.0)
     umax = max(wall_length, float(u.max()) if len(u) else 0.0)
@@ -99,7 +97,7 @@ def preview_unrolled(points, wall_length: float, height: float, path, *, title: 
     ax.set_xlim(umin - pad_u, umax + pad_u)
     ax.set_ylim(vmin - pad_v, vmax + pad_v)
     ax.set_aspect("equal", adjustable="box")
-    fig.canvas.draw()
+    ax.apply_aspect()
     bbox = ax.get_window_extent()
     x0, x1 = ax.get_xlim()
     pts_per_mm = bbox.width / (x1 - x0) * 72.0 / fig.dpi
