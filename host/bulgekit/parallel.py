@@ -18,6 +18,7 @@ shows no progress (bulgekit.progress): its lines would cross this process's.
 """
 from __future__ import annotations
 
+import gc
 import os
 import pickle
 import signal
@@ -171,6 +172,9 @@ class Forked:
         code = 0
         try:
             signal.signal(signal.SIGINT, signal.SIG_IGN)   # Ctrl-C is the parent's to handle
+            # the parent's objects out of the collector's sight: a collection here would write to
+            # every one of them, copying the pages the fork shares (the job's own are collected)
+            gc.freeze()
             # no progress lines from here: they would cross the parent's on its terminal
             from . import progress
             progress.disable()
