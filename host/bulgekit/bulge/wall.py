@@ -26,6 +26,9 @@ from ..gcode import movescan
 from ..gcode import Move, header_layer_height, open_checked
 from ..errors import BulgekitError
 
+# one chunk of walls_from_records' pass in C (None without the compiled scanner: numpy's steps)
+_wall_rows = getattr(movescan._scan, "wall_rows", None)
+
 
 class WallError(BulgekitError):
     """The G-code has no usable outer wall."""
@@ -392,6 +395,74 @@ def extract_walls(moves: Iterable[Move], layer_height: float | None = None,
                               ref_angle_deg, source, header_height)
 
 
+def _rows_np(a: np.ndarray, c: np.ndarray, num: np.ndarray | None, row: int, inside: int,
+             breaks: int, last: tuple[float, float] | None, after: int, done: int,
+             rows_done: int):
+    """One chunk of walls_from_records' pass (a: RECORD array, c: its movescan.classes, num: its
+    move numbers in a lean scan, else None), from the state the chunk before left: the breaks
+    since the last row, that row's end (x1, y1) and the last record's number. -> (breaks, after,
+    whether a move is on the outer wall, parts): parts None when no move is a row, else per row
+    its end (x1 + i y1), number and whether it joins the row before; the rows that may begin a
+    chain and their starts (x0, y0); where each run of one z begins, its z (0.01 mm) and how many
+    of its rows are flat. (_scan.wall_rows does the same steps in one pass over the records.)"""
+    outer = bool((c & movescan.OUTER).any())
+    ok = (c & row) == row
+    brk = ~ok & ((c & (movescan.MOVED | inside)) != inside)
+    if num is not None:
+        # a break also for the moves left out before a record
+        brk |= np.diff(num, prepend=after) > 1
+        after = int(num[-1])
+    rec = np.flatnonzero(ok)
+    # breaks up to each record (with those of earlier chunks since the last row); a row has
+    # one behind it when the count grew since the row before (a break record is no row, a
+    # gap counts before the record it precedes)
+    nb = np.cumsum(brk)
+    if not len(rec):
+        return breaks + (int(nb[-1]) if len(nb) else 0), after, outer, None
+    at = nb[rec]
+    broken = np.diff(at, prepend=-breaks) > 0
+    breaks = int(nb[-1] - at[-1])
+    rows = _coords(a, rec)                  # x0 y0 z0 x1 y1 z1
+    # the rows come in runs of one z (layers): z in 0.01 mm once per run, and how many of
+    # each run's rows are flat (planar)
+    z1 = rows[:, 5]
+    st, zs = movescan.runs(z1)
+    zrun = movescan.z_cmm(zs)
+    flat = np.abs(z1 - rows[:, 2]) < 1e-6
+    pz = np.add.reduceat(flat, st, dtype=np.int64)
+    # its start at the end of the row before (columns one by one: numpy is slow on rows of 2)
+    link = np.empty(len(rows), bool)
+    link[1:] = np.maximum(np.abs(rows[1:, 0] - rows[:-1, 3]),
+                          np.abs(rows[1:, 1] - rows[:-1, 4])) <= 1e-4   # (NaN: no)
+    link[0] = (last is not None and abs(last[0] - rows[0, 0]) <= 1e-4
+               and abs(last[1] - rows[0, 1]) <= 1e-4)
+    link &= ~broken
+    # (a chain begins where a row does not join the one before, or lies in another bucket:
+    # at another z)
+    may_begin = ~link
+    may_begin[st] = True
+    fr = np.flatnonzero(may_begin)
+    # (x1 y1 as one complex: concatenated some 3 times faster than rows of 2 floats)
+    e1 = np.ndarray((len(rows),), np.complex128, rows, 24, (48,))
+    return breaks, after, outer, (e1, rec + done if num is None else num[rec], link,
+                                  fr + rows_done, rows[fr, 0:2], st + rows_done, zrun, pz)
+
+
+def _rows_c(a, c, num, row, inside, breaks, last, after, done, rows_done):
+    """_rows_np by the compiled scanner's wall_rows (the same parts, to the bit); None for a
+    chunk it leaves to numpy (a row's z not finite)."""
+    got = _wall_rows(np.ascontiguousarray(a), c, num, row, inside, breaks, last, after, done,
+                     rows_done)
+    if got is None or got[3] is None:
+        return got
+    breaks, after, outer, (e1, nm, link, fr, fxy, st, zr, pz) = got
+    i8 = np.int64
+    return breaks, after, outer, (
+        np.frombuffer(e1, np.complex128), np.frombuffer(nm, i8), np.frombuffer(link, bool),
+        np.frombuffer(fr, i8), np.frombuffer(fxy, np.float64).reshape(-1, 2),
+        np.frombuffer(st, i8), np.frombuffer(zr, i8), np.frombuffer(pz, i8))
+
+
 def _coords(a: np.ndarray, rec: np.ndarray) -> np.ndarray:
     """x0 y0 z0 x1 y1 z1 of the records rec of the RECORD array a, as an (n, 6) float64 array
     (gathered as one 48-byte item a record: twice as fast as rows of 6 floats)."""
@@ -434,59 +505,29 @@ def walls_from_records(chunks: Iterable[np.ndarray], layer_height: float | None 
     # mode) lies outside the outer wall: not (still and inside)
     row = movescan.EXTRUDES | (0 if geometric else movescan.OUTER)
     inside = 0 if geometric else movescan.OUTER
+    rows_of = _rows_c if _wall_rows is not None else _rows_np
     for a in chunks:
         c, _, _ = movescan.classes(a)          # (one pass over the records)
-        any_outer = any_outer or bool((c & movescan.OUTER).any())
-        ok = (c & row) == row
-        brk = ~ok & ((c & (movescan.MOVED | inside)) != inside)
-        if numbers is not None:
-            # a break also for the moves left out before a record
-            num = numbers[-1]
-            brk |= np.diff(num, prepend=after) > 1
-            after = int(num[-1])
-        rec = np.flatnonzero(ok)
-        # breaks up to each record (with those of earlier chunks since the last row); a row has
-        # one behind it when the count grew since the row before (a break record is no row, a
-        # gap counts before the record it precedes)
-        nb = np.cumsum(brk)
-        if not len(rec):
-            breaks += int(nb[-1]) if len(nb) else 0
-            done += len(a)
-            continue
-        at = nb[rec]
-        broken = np.diff(at, prepend=-breaks) > 0
-        breaks = int(nb[-1] - at[-1])
-        rows = _coords(a, rec)                  # x0 y0 z0 x1 y1 z1
-        # the rows come in runs of one z (layers): z in 0.01 mm once per run, and how many of
-        # each run's rows are flat (planar)
-        z1 = rows[:, 5]
-        st, zs = movescan.runs(z1)
-        zrun = movescan.z_cmm(zs)
-        flat = np.abs(z1 - rows[:, 2]) < 1e-6
-        pz_lens.append(np.add.reduceat(flat, st, dtype=np.int64))
-        zst_parts.append(st + rows_done)
-        zr_parts.append(zrun)
-        # its start at the end of the row before (columns one by one: numpy is slow on rows of 2)
-        link = np.empty(len(rows), bool)
-        link[1:] = np.maximum(np.abs(rows[1:, 0] - rows[:-1, 3]),
-                              np.abs(rows[1:, 1] - rows[:-1, 4])) <= 1e-4   # (NaN: no)
-        link[0] = (last is not None and abs(last[0] - rows[0, 0]) <= 1e-4
-                   and abs(last[1] - rows[0, 1]) <= 1e-4)
-        link &= ~broken
-        # (a chain begins where a row does not join the one before, or lies in another bucket:
-        # at another z)
-        may_begin = ~link
-        may_begin[st] = True
-        fr = np.flatnonzero(may_begin)
-        first_rows.append(fr + rows_done)
-        firsts.append(rows[fr, 0:2])
-        # (x1 y1 as one complex: concatenated some 3 times faster than rows of 2 floats)
-        e1s.append(np.ndarray((len(rows),), np.complex128, rows, 24, (48,)))
-        links.append(link)
-        nums.append(rec + done if numbers is None else num[rec])
-        last = (float(rows[-1, 3]), float(rows[-1, 4]))
+        num = numbers[-1] if numbers is not None else None
+        got = rows_of(a, c, num, row, inside, breaks, last, after, done, rows_done)
+        if got is None:                        # (a z the compiled pass leaves to numpy)
+            got = _rows_np(a, c, num, row, inside, breaks, last, after, done, rows_done)
+        breaks, after, outer, parts = got
+        any_outer = any_outer or outer
         done += len(a)
-        rows_done += len(rec)
+        if parts is None:
+            continue
+        e1, num_rows, link, fr, fxy, st, zrun, pz = parts
+        e1s.append(e1)
+        nums.append(num_rows)
+        links.append(link)
+        first_rows.append(fr)
+        firsts.append(fxy)
+        zst_parts.append(st)
+        zr_parts.append(zrun)
+        pz_lens.append(pz)
+        last = (float(e1[-1].real), float(e1[-1].imag))
+        rows_done += len(e1)
     if not geometric and not any_outer:
         raise WallError(
             f"{source}: no outer-wall feature comments found (;TYPE:External perimeter, "

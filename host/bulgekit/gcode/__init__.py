@@ -371,7 +371,7 @@ def might_hold(data: bytes, words) -> bool:
     return any(w in data for w in words) or b"M0" in data or b"m0" in data
 
 
-SCAN_VERSION = 9      # the compiled scanner's VERSION this code calls (_scan.c's module init)
+SCAN_VERSION = 10     # the compiled scanner's VERSION this code calls (_scan.c's module init)
 
 
 SCAN_REBUILD = "cd host && python3 setup.py build_ext --inplace (or make deps)"

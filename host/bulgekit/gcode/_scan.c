@@ -1396,6 +1396,136 @@ static PyObject *move_classes(PyObject *self, PyObject *args) {
     return Py_BuildValue("(NNN)", out, t, tl);
 }
 
+/* A z as the firmware reads it, in 0.01 mm (movescan._z_cmm, element by element the same
+ * operations): rounded to float32, times 100 in float32, half away from zero. Only for finite z. */
+static int64_t z_cmm(double z) {
+    float f = (float)z * 100.0f;
+    double v = (double)f;
+    return (int64_t)(v >= 0 ? floor(v + 0.5) : -floor(0.5 - v));
+}
+
+/* wall_rows(records, classes, numbers, row, inside, breaks, last, after, done, rows_done):
+ * one chunk of wall.walls_from_records' pass over the moves, as its numpy steps compute it (they
+ * say what each part is): the rows (moves whose class has all of row's bits), the breaks between
+ * them (a move that is no row and moves in XY or lies outside `inside`'s bits; lean chunks also
+ * a gap in the move numbers), whether each row joins the row before (its start within 1e-4 mm of
+ * that one's end, no break between), the rows that may begin a chain, and the runs of one z with
+ * their z in 0.01 mm and how many of their rows are flat. numbers: the records' move numbers
+ * (lean chunks) or None; breaks, last ((x1, y1) of the last row, or None), after (the last
+ * record's number): carried from the chunk before; done, rows_done: moves and rows before it.
+ * -> (breaks, after, any_outer, parts) with parts None when the chunk has no row, else
+ * (ends, nums, link, first_rows, firsts, zst, zr, pz) as bytes (complex128 x1+iy1, int64, bool,
+ * int64, complex128 x0+iy0, int64, int64, int64); None when a row's z is not finite (numpy's
+ * cast of those is the platform's: the numpy steps do such a chunk). */
+static PyObject *wall_rows(PyObject *self, PyObject *args) {
+    (void)self;
+    Py_buffer rb, cb, nb = {0};
+    PyObject *numbers, *last;
+    int row, inside;
+    long long breaks, after, done, rows_done;
+    if (!PyArg_ParseTuple(args, "y*y*OiiLOLLL", &rb, &cb, &numbers, &row, &inside, &breaks, &last,
+                          &after, &done, &rows_done))
+        return NULL;
+    PyObject *res = NULL, *out[8] = {0};
+    void *scratch = NULL;
+    Py_ssize_t n = rb.len / (Py_ssize_t)sizeof(Record);
+    int have_last = last != Py_None;
+    double lx = 0, ly = 0;
+    if (numbers != Py_None && PyObject_GetBuffer(numbers, &nb, PyBUF_SIMPLE) < 0) goto fail;
+    if (cb.len != n || (numbers != Py_None && nb.len != n * 8)) {
+        PyErr_SetString(PyExc_ValueError, "wall_rows: records, classes and numbers differ in length");
+        goto fail;
+    }
+    if (have_last && !PyArg_ParseTuple(last, "dd", &lx, &ly)) goto fail;
+    const Record *r = rb.buf;
+    const unsigned char *c = cb.buf;
+    const int64_t *num = numbers != Py_None ? nb.buf : NULL;
+    /* the rows' parts at their size; the chains' and runs' (far fewer) in scratch space, copied
+     * out at theirs (bytes cut to size would leave holes in the heap as large as the chunk) */
+    Py_ssize_t n_rows = 0;
+    for (Py_ssize_t i = 0; i < n; i++) n_rows += (c[i] & row) == row;
+    Py_ssize_t sizes[3] = {16 * n_rows, 8 * n_rows, n_rows};
+    for (int k = 0; k < 3; k++)
+        if (!(out[k] = PyBytes_FromStringAndSize(NULL, sizes[k]))) goto fail;
+    scratch = PyMem_Malloc((size_t)(n_rows ? n_rows : 1) * 48);
+    if (!scratch) { PyErr_NoMemory(); goto fail; }
+    double *ends = (double *)PyBytes_AS_STRING(out[0]), *firsts = (double *)scratch;
+    int64_t *nums = (int64_t *)PyBytes_AS_STRING(out[1]);
+    int64_t *first_rows = (int64_t *)(firsts + 2 * n_rows), *zst = first_rows + n_rows;
+    int64_t *zr = zst + n_rows, *pz = zr + n_rows;
+    char *link = PyBytes_AS_STRING(out[2]);
+    Py_ssize_t rows = 0, nf = 0, nz = 0;
+    int any_outer = 0, finite = 1;
+    long long pending = breaks;             /* breaks since the last row */
+    double px = lx, py = ly, pzv = 0;       /* the last row's x1 y1; the z of the run in hand */
+    int joined_last = have_last;            /* (the first row's link looks at `last`) */
+    Py_BEGIN_ALLOW_THREADS
+    for (Py_ssize_t i = 0; i < n; i++) {
+        unsigned char k = c[i];
+        any_outer |= k & 1;
+        int ok = (k & row) == row;
+        int brk = !ok && (k & (4 | inside)) != inside;
+        if (num) {
+            brk |= num[i] - after > 1;
+            after = num[i];
+        }
+        pending += brk;                     /* (a row's own gap counts before it) */
+        if (!ok) continue;
+        Record m;
+        memcpy(&m, r + i, sizeof m);
+        if (!isfinite(m.z1)) { finite = 0; break; }
+        /* joins the row before: its start at that one's end (NaN: no) and no break between */
+        int j = rows ? 1 : joined_last;
+        j = j && fabs(m.x0 - px) <= 1e-4 && fabs(m.y0 - py) <= 1e-4 && !pending;
+        link[rows] = (char)j;
+        int new_run = !rows || m.z1 != pzv;
+        if (new_run) {
+            zst[nz] = rows + rows_done;
+            zr[nz] = z_cmm(m.z1);
+            pz[nz] = 0;
+            pzv = m.z1;
+            nz++;
+        }
+        pz[nz - 1] += fabs(m.z1 - m.z0) < 1e-6;
+        if (!j || new_run) {
+            first_rows[nf] = rows + rows_done;
+            firsts[2 * nf] = m.x0, firsts[2 * nf + 1] = m.y0;
+            nf++;
+        }
+        ends[2 * rows] = m.x1, ends[2 * rows + 1] = m.y1;
+        nums[rows] = num ? num[i] : i + done;
+        px = m.x1, py = m.y1;
+        pending = 0;
+        rows++;
+    }
+    Py_END_ALLOW_THREADS
+    if (!finite) {
+        res = Py_NewRef(Py_None);
+        goto fail;
+    }
+    if (!rows) {
+        res = Py_BuildValue("(LLOO)", pending, after, any_outer ? Py_True : Py_False, Py_None);
+        goto fail;
+    }
+    out[3] = PyBytes_FromStringAndSize((const char *)first_rows, 8 * nf);
+    out[4] = PyBytes_FromStringAndSize((const char *)firsts, 16 * nf);
+    out[5] = PyBytes_FromStringAndSize((const char *)zst, 8 * nz);
+    out[6] = PyBytes_FromStringAndSize((const char *)zr, 8 * nz);
+    out[7] = PyBytes_FromStringAndSize((const char *)pz, 8 * nz);
+    for (int k = 3; k < 8; k++)
+        if (!out[k]) goto fail;
+    res = Py_BuildValue("(LLO(NNNNNNNN))", pending, after, any_outer ? Py_True : Py_False,
+                        out[0], out[1], out[2], out[3], out[4], out[5], out[6], out[7]);
+    for (int k = 0; k < 8; k++) out[k] = NULL;    /* (the tuple holds them now, or they are gone) */
+fail:
+    for (int k = 0; k < 8; k++) Py_XDECREF(out[k]);
+    PyMem_Free(scratch);
+    PyBuffer_Release(&rb);
+    PyBuffer_Release(&cb);
+    if (nb.obj) PyBuffer_Release(&nb);
+    return res;
+}
+
 /* flag_lines(data) -> (ours, m92): the lines of data (split as feed() splits them) that
  * gcode.check_not_processed's regex (a comment starting "; bulgekit", an M0...72x) and
  * scan_m92's (an M0...92) may match, by flag()'s look at each line start: supersets, so that
@@ -1435,6 +1565,9 @@ static PyMethodDef module_methods[] = {
      "flag_lines(data) -> (ours, m92): lines check_not_processed's / scan_m92's regexes may match"},
     {"move_classes", move_classes, METH_VARARGS,
      "move_classes(records) -> (classes, top, top_not_arc): see movescan.classes"},
+    {"wall_rows", wall_rows, METH_VARARGS,
+     "wall_rows(records, classes, numbers, row, inside, breaks, last, after, done, rows_done): "
+     "one chunk of wall.walls_from_records' pass"},
     {NULL, NULL, 0, NULL}};
 
 static struct PyModuleDef scan_module = {
@@ -1453,6 +1586,6 @@ PyMODINIT_FUNC PyInit__scan(void) {
     PyModule_AddObject(m, "Scanner", (PyObject *)&ScannerType);
     PyModule_AddIntConstant(m, "RECORD_SIZE", (long)sizeof(Record));
     /* what gcode.SCAN_VERSION expects: a module built from an older _scan.c is not used */
-    PyModule_AddIntConstant(m, "VERSION", 9);
+    PyModule_AddIntConstant(m, "VERSION", 10);
     return m;
 }
