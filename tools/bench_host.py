@@ -43,8 +43,17 @@ _RUNNER = ("import resource, runpy, sys\n"
            "sys.exit(code)\n")
 
 
+def _quiet_disk() -> None:
+    """Write out what earlier runs (and the made input) left in the page cache before a timed
+    run: the kernel writes dirty pages back some 30 s after they were written, and on a small
+    machine that work lands in whichever run is timed then."""
+    if hasattr(os, "sync"):
+        os.sync()
+
+
 def plain_read(path: Path) -> tuple[float, float, int]:
     """Seconds, user CPU seconds and lines of a plain Python line read."""
+    _quiet_disk()
     t, u = time.perf_counter(), time.process_time()
     n = 0
     with open(path, encoding="utf-8", errors="replace") as f:
@@ -78,6 +87,7 @@ def run(args: list[str]) -> tuple[float, float, float]:
     and the children it forks to work beside it (bulgekit.parallel) held together, sampled
     every 20 ms as their proportional set sizes (pages they share counted once)."""
     env = {"PYTHONPATH": str(ROOT / "host"), "PATH": "/usr/bin:/bin"}
+    _quiet_disk()
     t = time.perf_counter()
     pr = subprocess.Popen([sys.executable, "-c", _RUNNER, *args], stdout=subprocess.PIPE,
                           stderr=subprocess.PIPE, text=True, env=env)
