@@ -19,6 +19,7 @@ peak.
 from __future__ import annotations
 
 import os
+import shutil
 import statistics
 import subprocess
 import sys
@@ -43,10 +44,18 @@ _RUNNER = ("import resource, runpy, sys\n"
            "sys.exit(code)\n")
 
 
-def _quiet_disk() -> None:
-    """Write out what earlier runs (and the made input) left in the page cache before a timed
-    run: the kernel writes dirty pages back some 30 s after they were written, and on a small
-    machine that work lands in whichever run is timed then."""
+def _quiet_disk(outputs: tuple[Path, ...] = ()) -> None:
+    """Before a timed run: take away what the command's last run wrote (outputs: files or
+    folders), so that each run writes new files as a first build does (a file replaced on ext4
+    costs the replacing run the old file's freeing, and writeback of the new one), and write out
+    what is left in the page cache (the made input, other commands' outputs): the kernel writes
+    dirty pages back some 30 s after they were written, and on a small machine that work lands
+    in whichever run is timed then."""
+    for p in outputs:
+        if p.is_dir():
+            shutil.rmtree(p)
+        elif p.exists():
+            p.unlink()
     if hasattr(os, "sync"):
         os.sync()
 
@@ -81,13 +90,13 @@ def _tree_pss_kb(pid: int) -> int:
     return total
 
 
-def run(args: list[str]) -> tuple[float, float, float]:
+def run(args: list[str], outputs: tuple[Path, ...] = ()) -> tuple[float, float, float]:
     """Seconds, peak MB and user CPU seconds (its children's too) of one command in a fresh
     process. The peak is the larger of the process's own (ru_maxrss) and the most the process
     and the children it forks to work beside it (bulgekit.parallel) held together, sampled
     every 20 ms as their proportional set sizes (pages they share counted once)."""
     env = {"PYTHONPATH": str(ROOT / "host"), "PATH": "/usr/bin:/bin"}
-    _quiet_disk()
+    _quiet_disk(outputs)
     t = time.perf_counter()
     pr = subprocess.Popen([sys.executable, "-c", _RUNNER, *args], stdout=subprocess.PIPE,
                           stderr=subprocess.PIPE, text=True, env=env)
@@ -132,8 +141,9 @@ def main() -> int:
             # issue 12's build: map, annotated, stock fallback, stats and previews
             ("build", ["build", str(src), "--text", "HELLO", "--at", "5,3", "-o", str(d / "build"),
                        "--fallback", "--quiet"], 5.0),
+            # the same build without its preview (what drawing it costs)
             ("build -P", ["build", str(src), "--text", "HELLO", "--at", "5,3", "-o", str(d / "b2"),
-                          "--no-preview", "--quiet"], None),
+                          "--fallback", "--no-preview", "--quiet"], None),
             ("annotate", ["annotate", str(src), str(bkm), "-o", str(d / "a.gcode"), "--quiet"], 2.5),
             ("fallback", ["fallback", str(src), str(bkm), "-o", str(d / "f.gcode"), "--quiet",
                           "--allow-unreached"], None),
@@ -144,7 +154,9 @@ def main() -> int:
         print(f"{'command':<10}{'s':>8}{'MB/s':>8}{'x read':>8}{'user s':>8}{'x read':>8}{'peak MB':>9}"
               + (f"{'runs: s min-max':>18}" if spread else "") + "  goals")
         for name, args, goal in cases:
-            runs = [run(args) for _ in range(a.repeat)]
+            # (what follows -o: the output the run before left, taken away before each run)
+            outs = (Path(args[args.index("-o") + 1]),) if "-o" in args else ()
+            runs = [run(args, outs) for _ in range(a.repeat)]
             dt = statistics.median(r[0] for r in runs)
             user = statistics.median(r[2] for r in runs)
             peak = max(r[1] for r in runs)
