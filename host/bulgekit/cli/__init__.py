@@ -157,6 +157,14 @@ def build(ctx, gcode, placement, stroke_files, text, text_size, at, font, letter
           write_fallback, preview, preview_3d, dwell, extra, tolerance, geometric, stop_kind, e_steps,
           stop_e_steps):
     """Place strokes on GCODE's outer wall: map + annotated G-code + stats."""
+    from .. import parallel
+    from ..bulge import preview as pv
+    # the preview is drawn on a second core while the build works: a child forked first thing
+    # (before any thread) imports matplotlib while this process reads the strokes and the file,
+    # and draws once the map is placed; it is ended however the command ends
+    drawn = parallel.Forked.waiting(pv.warm) if preview else None
+    if drawn is not None:
+        ctx.call_on_close(drawn.close)
     from ..bulge import api
     from ..bulge.strokes import text_strokes
     strokes = []
@@ -187,35 +195,26 @@ def build(ctx, gcode, placement, stroke_files, text, text_size, at, font, letter
     settings = _settings(dwell, extra, tolerance, geometric)
     stops = _stops(stop_kind, e_steps, stop_e_steps)
     t0 = time.perf_counter()
-    from .. import parallel
-    from ..bulge import preview as pv
     stem = name or Path(gcode).stem
-    # the preview is drawn on a second core while the build works: a child forked now (before
-    # any thread) imports matplotlib while the file is read, and draws once the map is placed
-    drawn = parallel.Forked.waiting(pv.warm) if preview else None
     on_map = None
     if drawn is not None:
         def on_map(res):
             args, kw = pv.unrolled_job(res, f"{stem}.bulge.gcode")
             drawn.give(pv.unrolled_png, *args, **kw)
-    try:
-        out = api.build(gcode, strokes, outdir, name=name, spacing=spacing, line_width=line_width,
-                        layer_height=layer_height, ref_angle_deg=ref_angle, settings=settings,
-                        stream=not no_stream, write_fallback=write_fallback, stops=stops,
-                        _on_map=on_map)
-        click.echo(out.stats.text(per_layer=False))
-        for note in out.result.notes:
-            click.echo(f"note: {note}")
-        if out.annotate.appends:
-            click.echo(f"streaming: {out.annotate.initial_records} layers at the start, "
-                       f"{len(out.annotate.appends)} appends while printing")
-        click.echo(f"wrote {out.map_path}, {out.gcode_path}, {out.stats_path}"
-                   + (f", {out.fallback_path}" if out.fallback_path else ""))
-        if preview:
-            click.echo(f"wrote {pv.build_unrolled(out, Path(outdir) / f'{stem}.preview.png', drawn)}")
-    finally:
-        if drawn is not None:
-            drawn.close()
+    out = api.build(gcode, strokes, outdir, name=name, spacing=spacing, line_width=line_width,
+                    layer_height=layer_height, ref_angle_deg=ref_angle, settings=settings,
+                    stream=not no_stream, write_fallback=write_fallback, stops=stops,
+                    _on_map=on_map)
+    click.echo(out.stats.text(per_layer=False))
+    for note in out.result.notes:
+        click.echo(f"note: {note}")
+    if out.annotate.appends:
+        click.echo(f"streaming: {out.annotate.initial_records} layers at the start, "
+                   f"{len(out.annotate.appends)} appends while printing")
+    click.echo(f"wrote {out.map_path}, {out.gcode_path}, {out.stats_path}"
+               + (f", {out.fallback_path}" if out.fallback_path else ""))
+    if preview:
+        click.echo(f"wrote {pv.build_unrolled(out, Path(outdir) / f'{stem}.preview.png', drawn)}")
     if preview_3d:
         click.echo(f"wrote {pv.build_3d(out, Path(outdir) / f'{stem}.preview3d.png')}")
     click.echo(f"done in {time.perf_counter() - t0:.1f} s")
