@@ -98,8 +98,9 @@ _NUM = re.compile(r"[-+]?(?:\d+\.?\d*|\.\d+)$")
 ARC_CHORD_MM = 0.5  # chord length used to linearise G2/G3 (Marlin uses 1 mm)
 
 
-def parse_words(code: str, where: str) -> dict[str, float]:
-    """X10 Y-2.5 ... -> {'X': 10.0, ...}.  Raises GcodeError naming `where`."""
+def parse_words(code: str, where: str, bare: bool = False) -> dict[str, float]:
+    """X10 Y-2.5 ... -> {'X': 10.0, ...}.  Raises GcodeError naming `where`. bare: a letter
+    without a value is taken as None (G28 X Y, M84 E) rather than refused."""
     # Fast path: float() takes every value _NUM takes; of what it takes besides, only '_'
     # digit separators can come out of _WORD (letters such as 'inf' split into words), so a
     # value with '_' or one float() refuses goes the checked way, which names the bad word.
@@ -110,18 +111,21 @@ def parse_words(code: str, where: str) -> dict[str, float]:
                 continue
             if "_" in val:
                 raise ValueError(val)
-            out[letter] = float(val)
+            out[letter] = None if bare and not val else float(val)
         return out
     except ValueError:
-        return _parse_words_checked(code, where)
+        return _parse_words_checked(code, where, bare)
 
 
-def _parse_words_checked(code: str, where: str) -> dict[str, float]:
+def _parse_words_checked(code: str, where: str, bare: bool = False) -> dict[str, float]:
     out: dict[str, float] = {}
     up = code.upper()
     for mt in _WORD.finditer(up):
         letter, val = mt.group(1), mt.group(2)
         if letter == "N" and not out:
+            continue
+        if bare and not val:
+            out[letter] = None
             continue
         if not _NUM.match(val):
             # name the whole word as written: "X1O" rather than "O"
@@ -131,6 +135,14 @@ def _parse_words_checked(code: str, where: str) -> dict[str, float]:
             raise GcodeError(f"{where}: unparsable value {word!r} in {code.strip()!r}")
         out[letter] = float(val)
     return out
+
+
+def command_of(token: str) -> str:
+    """A line's command as every reader names it: upper case, G01 -> G1, M082 -> M82."""
+    cmd = token.upper()
+    if len(cmd) > 1 and cmd[0] in "GM" and cmd[1:].isdigit():
+        cmd = cmd[0] + str(int(cmd[1:]))
+    return cmd
 
 
 def split_code(raw: str) -> tuple[str, str | None]:
@@ -201,10 +213,7 @@ def parse_lines(lines: Iterable[str], source: str = "<gcode>",
             yield Line(no, raw, None, None, [], role)
             continue
         head = code.split(None, 1)
-        cmd = head[0].upper()
-        # normalise G01 -> G1, M082 -> M82
-        if len(cmd) > 1 and cmd[0] in "GM" and cmd[1:].isdigit():
-            cmd = cmd[0] + str(int(cmd[1:]))
+        cmd = command_of(head[0])
         where = f"{source}:{no}"
         rest = head[1] if len(head) > 1 else ""
         moves: list[Move] = []

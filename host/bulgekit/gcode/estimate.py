@@ -75,12 +75,12 @@ import functools
 import math
 import operator
 import os
-import re
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from ..errors import BulgekitError
+from . import GcodeError, command_of, parse_words, split_code
 
 PLAN_VERSION = 1       # the compiled planner's VERSION this code calls (_plan.c's module init)
 
@@ -198,21 +198,18 @@ class _Parser:
     def err(self, n, msg):
         raise EstimateError(f"{self.src}:{n}: {msg}")
 
-    def words(self, n, toks):
-        w = {}
-        for t in toks:
-            if not t:
-                continue
-            k = t[0].upper()
-            try:
-                w[k] = float(t[1:]) if len(t) > 1 else None
-            except ValueError:
-                self.err(n, f"bad number in {t!r}")
-        return w
+    def words(self, n, rest, bare=False):
+        """The words after a command, read as every reader of the package reads them
+        (gcode.parse_words, which refuses a letter without a value in a move or a G92, as
+        gcode.parse_lines does; bare: it is None, as in G28 X)."""
+        try:
+            return parse_words(rest, f"{self.src}:{n}", bare)
+        except GcodeError as e:
+            raise EstimateError(str(e)) from None
 
     def line(self, n: int, raw: str):
         if ";" in raw:
-            code, _, comment = raw.partition(";")
+            comment = raw.partition(";")[2]
             c = comment.strip()
             if c.startswith("TYPE:"):
                 name = c[5:].strip()
@@ -227,23 +224,20 @@ class _Parser:
                     pass
             elif c == "LAYER_CHANGE":
                 self.layer += 1
-        else:
-            code = raw
-        toks = code.split()
-        if not toks:
+        # the command and its words as gcode.parse_lines reads them: no comment, checksum or
+        # line number; G01 is G1
+        code, _ = split_code(raw)
+        if not code:
             return
-        cmd = toks[0].upper()
-        if cmd[0] == "N" and len(toks) > 1:              # line numbers from a host
-            toks = toks[1:]
-            cmd = toks[0].upper()
-        if "*" in toks[-1]:
-            toks[-1] = toks[-1].split("*")[0]
-        if cmd in ("G1", "G0", "G01", "G00"):
-            self.move(n, self.words(n, toks[1:]))
-        elif cmd in ("G2", "G3", "G02", "G03"):
-            self.arc(n, cmd in ("G2", "G02"), self.words(n, toks[1:]))
+        head = code.split(None, 1)
+        cmd = command_of(head[0])
+        rest = head[1] if len(head) > 1 else ""
+        if cmd in ("G0", "G1"):
+            self.move(n, self.words(n, rest))
+        elif cmd in ("G2", "G3"):
+            self.arc(n, cmd == "G2", self.words(n, rest))
         elif cmd == "G92":
-            w = self.words(n, toks[1:])
+            w = self.words(n, rest)
             if not any(a in w for a in AXES):
                 w = {a: 0.0 for a in AXES}
             for i, a in enumerate(AXES):
@@ -259,20 +253,20 @@ class _Parser:
         elif cmd == "M83":
             self.rel[3] = True
         elif cmd == "G4":
-            w = self.words(n, toks[1:])
+            w = self.words(n, rest, bare=True)
             t = (w.get("P") or 0.0) / 1000 + (w.get("S") or 0.0)
             self.dwell += t
             self.dwell_by_feature[self.feature] = self.dwell_by_feature.get(self.feature, 0.0) + t
             self.brk = True
         elif cmd == "G28":
-            w = self.words(n, toks[1:])
+            w = self.words(n, rest, bare=True)
             for i, a in enumerate("XYZ"):
                 if not any(k in w for k in "XYZ") or a in w:
                     self.pos[i] = 0.0
             self.brk = True
         elif cmd == "M92":
             # steps/mm: the E-only rule and the tiny-move rule count whole steps
-            w = self.words(n, toks[1:])
+            w = self.words(n, rest, bare=True)
             for a in AXES:
                 if w.get(a) and w[a] > 0:
                     self.spm[a] = w[a]
@@ -280,15 +274,15 @@ class _Parser:
         elif cmd in ("M400", "M109", "M190", "M116", "M0", "M1"):
             self.brk = True
         elif cmd == "M220":
-            w = self.words(n, toks[1:])
+            w = self.words(n, rest, bare=True)
             if w.get("S") is not None:
                 if w["S"] <= 0:
                     self.err(n, f"M220 S{w['S']:g}: feed rate percentage must be > 0")
                 self.pct = w["S"]
         elif cmd == "M723":
-            self.m723(n, self.words(n, toks[1:]))
+            self.m723(n, self.words(n, rest, bare=True))
         elif cmd in ("M201", "M203", "M204", "M205") and self.m.honour_file_limits:
-            self.limits(cmd, self.words(n, toks[1:]))
+            self.limits(cmd, self.words(n, rest, bare=True))
 
     def limits(self, cmd, w):
         if cmd == "M201":
@@ -1012,19 +1006,14 @@ def estimate_file(path, machine: Machine | None = None, scanned: bool | None = N
 # first. Every other event (comments, feed and acceleration settings, dwells, G90/M83 ...)
 # leaves the position alone, and the moves on either side of it are taken together, each with
 # the state it set; so does a G92 of numbers, which the scanner sets alike.
-_HARD = frozenset(("G0", "G1", "G00", "G01", "G2", "G3", "G02", "G03", "G92", "G28", "M92", "M723"))
-_G92_WORD = re.compile(r"[XYZEF][-+]?(?:\d+\.?\d*|\.\d+)$")
+_HARD = frozenset(("G0", "G1", "G2", "G3", "G92", "G28", "M92", "M723"))
 
 
 @functools.lru_cache(maxsize=4096)                     # slicers repeat the same few event lines
 def _command(raw: str) -> str | None:
     """The command of a line as _Parser.line reads it (None: a comment or blank)."""
-    toks = raw.partition(";")[0].split()
-    if not toks:
-        return None
-    if toks[0][0] in "Nn" and len(toks) > 1:
-        toks = toks[1:]
-    return toks[0].upper()
+    code, _ = split_code(raw)
+    return command_of(code.split(None, 1)[0]) if code else None
 
 
 def _estimate_scanned(path: str, m: Machine, source: str, blocks: bool = True) -> Result:
@@ -1139,12 +1128,14 @@ def _take(p: _Parser, a: np.ndarray, text, e_last: float) -> None:
 @functools.lru_cache(maxsize=4096)
 def _plain_g92(raw: str) -> bool:
     """A G92 that sets E, and only axes given as numbers (as the scanner sets them)."""
-    toks = raw.partition(";")[0].split()
-    if toks and toks[0][0] in "Nn" and len(toks) > 1:
-        toks = toks[1:]
-    words = [t.upper() for t in toks[1:]]
-    return (any(w[0] == "E" for w in words) and all(_G92_WORD.match(w) and w[0] != "F" for w in words)
-            and "*" not in raw and "(" not in raw)
+    if "*" in raw or "(" in raw:
+        return False
+    head = split_code(raw)[0].split(None, 1)
+    try:
+        w = parse_words(head[1] if len(head) > 1 else "", "", bare=True)
+    except GcodeError:
+        return False
+    return "E" in w and w.keys() <= {"X", "Y", "Z", "E"} and None not in w.values()
 
 
 def _in_step(p: _Parser, r) -> bool:

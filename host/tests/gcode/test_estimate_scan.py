@@ -54,7 +54,7 @@ def _random_gcode(seed: int, n: int) -> str:
         (8, lambda: f"G1 E{r.uniform(-0.02, 0.02):.5f}"),
         (5, lambda: f"G1 E{r.choice(['-0.8', '0.8'])} F{r.choice([1800, 2400])}"),
         (3, lambda: "G92 E0"), (2, lambda: f"G92 E{r.uniform(0, 3):.3f}"), (0.3, lambda: "G92"),
-        (0.5, lambda: "G92 X10 Y10"), (0.2, lambda: "G92 E"), (1, lambda: "M400"),
+        (0.5, lambda: "G92 X10 Y10"), (1, lambda: "M400"),
         (1, lambda: f"G4 P{r.randint(0, 99)}"), (1, lambda: f";TYPE:X{r.randint(0, 3)}"),
         (1, lambda: ";LAYER_CHANGE"), (0.5, lambda: "M82"), (0.5, lambda: "M83"), (0.5, lambda: "G91"),
         (0.5, lambda: "G90"), (0.2, lambda: "G28"), (0.2, lambda: "G28 X"),
@@ -64,7 +64,7 @@ def _random_gcode(seed: int, n: int) -> str:
         (0.5, lambda: f"G1 Z{r.uniform(0, 2):.2f}"), (0.2, lambda: "G1 X1e1 Y10"),
         (0.3, lambda: f"G1 X{x:.3f} Y{y:.3f} ; café"), (0.2, lambda: f"M203 X{r.choice([100, 300])}"),
         (0.2, lambda: f"M201 E{r.choice([1000, 5000])}"), (0.2, lambda: f"M205 J{r.choice([0.01, 0.05])}"),
-        (0.1, lambda: "G1 X"), (0.3, lambda: f"N5 G1 X{x:.2f} Y{y:.2f}*7"), (0.2, lambda: "T0"),
+        (0.3, lambda: f"N5 G1 X{x:.2f} Y{y:.2f}*7"), (0.2, lambda: "T0"),
         (0.2, lambda: f"G1X{x:.2f}Y{y:.2f}"), (0.2, lambda: f"G1 X{x:.3f} Y{y:.3f} ;TYPE:Infill"),
     ]
     weights = [w for w, _ in lines]
@@ -83,11 +83,19 @@ def test_records_give_the_text_parsers_blocks_on_odd_lines(seed, tmp_path, monke
     _same(p)
 
 
-def test_a_bad_line_is_refused_alike(tmp_path):
+@pytest.mark.parametrize("bad, said", [("G1 X2 Yabc", "unparsable value 'Yabc' in 'X2 Yabc'"),
+                                       ("G1 X", "unparsable value 'X' in 'X'"),
+                                       ("G92 E", "unparsable value 'E' in 'E'")])
+def test_a_bad_line_is_refused_alike(tmp_path, bad, said):
+    """Both ways, and as every other command reads the line (gcode.parse_lines): a move or a
+    G92 with a letter and no value is refused, not taken as no word or as 0."""
+    from bulgekit.gcode import GcodeError, parse_lines
     p = tmp_path / "bad.gcode"
-    p.write_text("G90\nM83\nG1 X1 Y1 E0.1\nG1 X2 Yabc\n")
+    p.write_text(f"G90\nM83\nG1 X1 Y1 E0.1\n{bad}\n")
     with pytest.raises(es.EstimateError) as old:
         es.estimate_file(p, scanned=False)
     with pytest.raises(es.EstimateError) as new:
         es.estimate_file(p, scanned=True)
-    assert str(new.value) == str(old.value) == f"{p}:4: bad number in 'Yabc'"
+    assert str(new.value) == str(old.value) == f"{p}:4: {said}"
+    with pytest.raises(GcodeError, match=f"^{p}:4: {said}$".replace("(", r"\(").replace(")", r"\)")):
+        list(parse_lines(p.read_text().splitlines(), str(p)))
