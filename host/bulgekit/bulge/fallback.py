@@ -744,8 +744,8 @@ def unreached_message(planner: RefPlanner, source: str) -> str | None:
         top = planner.top_z
         above = [z for z in whole if top is None or 2 * (z - round(top * 100)) > bm.layer_height_cmm]
         if above:
-            out.append(f"{len(above)} of them above the print's last extrusion at "
-                       + (f"z {top:.2f} mm" if top is not None else "(none)"))
+            out.append(f"{len(above)} of them above the print's last extrusion at z {top:.2f} mm"
+                       if top is not None else "the G-code has no extruding X/Y move")
     if part:
         out.append(f"{sum(n for _, n in part)} point(s) missed on {len(part)} other layer(s) "
                    f"(z {zl(z for z, _ in part)} mm)")

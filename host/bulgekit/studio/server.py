@@ -261,7 +261,7 @@ class Studio:
         for cli, page in (("pass --geometric", "choose Mode: geometric (M720 S2)"),
                           ("--geometric", "Mode: geometric"), ("Use --allow-unreached to write the file anyway.", ""),
                           ("--image-width MM", "Width on the wall"), ("at --image-width", "at a width on the wall of"),
-                          ("--at U,V", "u, v")):
+                          ("--at U,V", "u, v"), ("--spacing", "Spacing")):
             msg = msg.replace(cli, page)
         return msg.strip()
 
