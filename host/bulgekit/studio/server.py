@@ -261,7 +261,7 @@ class Studio:
         for cli, page in (("pass --geometric", "choose Mode: geometric (M720 S2)"),
                           ("--geometric", "Mode: geometric"), ("Use --allow-unreached to write the file anyway.", ""),
                           ("--image-width MM", "Width on the wall"), ("at --image-width", "at a width on the wall of"),
-                          ("--at U,V", "u, v")):
+                          ("--at U,V", "u, v"), ("--spacing", "Spacing")):
             msg = msg.replace(cli, page)
         return msg.strip()
 
@@ -638,12 +638,14 @@ def make_app(st: Studio, port_ref: dict) -> web.Application:
                             headers={"Content-Security-Policy": csp})
 
     async def state(request):
+        from ..bulge.mapformat import LAYER_POINTS_MAX
         from ..bulge.strokes import font_names
         return web.json_response({
             "gcode": st.gcode_state(), "assets": st.asset_kinds, "design": st.design,
             "design_gcode": st.design_gcode, "fonts": font_names(),
             "limits": {"gcode_mb": st.limits.gcode_bytes / MB, "asset_mb": st.limits.asset_bytes / MB,
-                       "image_megapixels": st.limits.image_pixels / 1e6, "arena": st.limits.arena},
+                       "image_megapixels": st.limits.image_pixels / 1e6, "arena": st.limits.arena,
+                       "layer_points": LAYER_POINTS_MAX},
             "jobs": [j.json() for j in st.jobs.values() if j.state == "running"],
             "workdir": str(st.workdir), "litho": litho_choices()})
 
