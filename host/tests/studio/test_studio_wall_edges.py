@@ -123,6 +123,9 @@ def test_added_texts_keep_every_layer_within_the_limit(browser, studio):
     for i in range(5):
         for j in range(i):
             assert apart(b[i], b[j]), (i, j, b)
+    # the sixth finds no free place (the wall is 124 mm around): the list says what it overlaps
+    crossed = [j for j in range(5) if not apart(b[5], b[j])]
+    assert pg.locator("#items > li").nth(5).locator("li.overlap").count() == len(crossed) > 0
     assert not errors, errors
 
 
