@@ -57,10 +57,10 @@ def walls(gcode, *, geometric: bool = False, layer_height: float | None = None,
 
 
 def build_map(model: wall.WallModel, strokes: Sequence[Stroke], *, spacing: float | None = None,
-              line_width: float = mapbuild.DEFAULT_LINE_WIDTH, quantum_um: int = mapbuild.MAP_QUANTUM_UM
-              ) -> mapbuild.BuildResult:
+              line_width: float = mapbuild.DEFAULT_LINE_WIDTH, quantum_um: int = mapbuild.MAP_QUANTUM_UM,
+              strict: bool = True) -> mapbuild.BuildResult:
     return mapbuild.build(strokes, model, spacing=spacing, line_width=line_width,
-                          quantum_um=quantum_um)
+                          quantum_um=quantum_um, strict=strict)
 
 
 annotate_gcode = _annotate.annotate_gcode    # (defined beside annotate_file: the CLI's

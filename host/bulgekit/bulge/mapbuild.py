@@ -56,6 +56,10 @@ class BuildResult:
     spacing: float
     record_sizes: list[int] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
+    # build(strict=False) only: the layers over the per-layer limit, (z, points), left out of
+    # the map, and their points
+    too_many: list[tuple[float, int]] = field(default_factory=list)
+    over_points: list[BulgePoint] = field(default_factory=list)
 
     @property
     def bulge_map(self) -> mapformat.BulgeMap:
@@ -211,8 +215,10 @@ MAP_QUANTUM_UM = 100
 
 def build(strokes: Sequence[Stroke], model: WallModel, spacing: float | None = None,
           line_width: float = DEFAULT_LINE_WIDTH, quantum_um: int = MAP_QUANTUM_UM,
-          max_points: int = LAYER_POINTS_MAX) -> BuildResult:
-    """Place strokes on the walls and encode the map."""
+          max_points: int = LAYER_POINTS_MAX, strict: bool = True) -> BuildResult:
+    """Place strokes on the walls and encode the map. A layer over max_points is an error;
+    with strict=False (the studio's preview, which shows the rest) it is left out of the map
+    and listed in the result's too_many, its points in over_points."""
     if not strokes:
         raise BuildError("no strokes to place")
     if spacing is None:
@@ -226,32 +232,30 @@ def build(strokes: Sequence[Stroke], model: WallModel, spacing: float | None = N
     layers = []
     weights = []
     too_many = []
+    over_points: list[BulgePoint] = []
     for li in sorted(per_layer):
         wall = model.walls[li]
         merged = _merge(per_layer[li], wall.length, spacing / 2, wall.closed)
-        if len(merged) > max_points:
+        over = len(merged) > max_points
+        if over:
             too_many.append((wall.z, len(merged)))
-            continue
+            if strict:
+                continue
         us = np.array([m[0] for m in merged])
         ss = wall.s_of_u(us)
         xy = wall.xy_of_s(ss)
         order = np.argsort(ss, kind="stable")
-        lpts = []
-        lw = []
-        for j in order:
-            bp = BulgePoint(li, wall.z, float(us[j]), float(ss[j]), float(xy[j, 0]),
-                            float(xy[j, 1]), int(merged[j][1]), tuple(sorted(merged[j][2])))
-            points.append(bp)
-            lpts.append((bp.x, bp.y))
-            lw.append(bp.weight)
-        layers.append((wall.z, lpts))
-        weights.append(lw)
-    if too_many:
-        detail = ", ".join(f"z {z:.2f} mm: {n}" for z, n in too_many)
-        raise BuildError(
-            f"too many points in {len(too_many)} layer(s) (at most {max_points} per layer): "
-            f"{detail}. Increase --spacing (now {spacing:.2f} mm) or simplify the strokes.")
-    if not layers:
+        lbp = [BulgePoint(li, wall.z, float(us[j]), float(ss[j]), float(xy[j, 0]), float(xy[j, 1]),
+                          int(merged[j][1]), tuple(sorted(merged[j][2]))) for j in order]
+        if over:
+            over_points += lbp
+            continue
+        points += lbp
+        layers.append((wall.z, [(bp.x, bp.y) for bp in lbp]))
+        weights.append([bp.weight for bp in lbp])
+    if too_many and strict:
+        raise BuildError(too_many_message(too_many, max_points, spacing))
+    if not layers and not too_many:
         raise BuildError("the strokes produced no points")
     use_w = any(w != 255 for lw in weights for w in lw)
     wts = weights if use_w else None
@@ -262,8 +266,15 @@ def build(strokes: Sequence[Stroke], model: WallModel, spacing: float | None = N
         raise BuildError(f"map encoding failed: {e}") from None
     bm = mapformat.decode_map(data)
     sizes = [len(mapformat.encode_record(l, bm.has_weights)) for l in bm.layers]
-    res = BuildResult(model, points, layers, wts, data, quantum_um, spacing, sizes, notes)
+    res = BuildResult(model, points, layers, wts, data, quantum_um, spacing, sizes, notes,
+                      too_many, over_points)
     return res
+
+
+def too_many_message(too_many: list[tuple[float, int]], max_points: int, spacing: float) -> str:
+    detail = ", ".join(f"z {z:.2f} mm: {n}" for z, n in too_many)
+    return (f"too many points in {len(too_many)} layer(s) (at most {max_points} per layer): "
+            f"{detail}. Increase --spacing (now {spacing:.2f} mm) or simplify the strokes.")
 
 
 def _wrap_note(per_layer, model: WallModel) -> list[str]:

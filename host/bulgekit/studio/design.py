@@ -31,7 +31,7 @@ import numpy as np
 from ..bulge import api, mapformat, stats as _stats
 from ..bulge.fallback import (DEFAULT_DWELL_MS, DEFAULT_E_STEPS, DEFAULT_EXTRA_E_MM, DEFAULT_TOLERANCE_MM,
                         MODE_GEOMETRIC, MODE_MARKED, Settings, StockStops)
-from ..bulge.mapbuild import DEFAULT_LINE_WIDTH, BuildError
+from ..bulge.mapbuild import DEFAULT_LINE_WIDTH, BuildError, too_many_message
 from ..bulge.placement import PlacementError, dump_placement, load_placement
 from ..errors import BulgekitError, InputError
 
@@ -214,7 +214,7 @@ def _entry_name(msg: str) -> str | None:
 @dataclass
 class Preview:
     items: dict = field(default_factory=dict)     # id -> {"strokes": [[u, v, ...]], "errors": [], "warnings": []}
-    points: list = field(default_factory=list)    # [u, v, x, y, z, weight, [ids], missed]
+    points: list = field(default_factory=list)    # [u, v, x, y, z, weight, [ids], missed, over]
     errors: list = field(default_factory=list)    # not tied to an item
     warnings: list = field(default_factory=list)
     summary: dict = field(default_factory=dict)
@@ -256,7 +256,7 @@ def preview(design: dict, assets: dict[str, Asset], model, gcode: Path, scratch:
         try:
             pl = load_placement(path)
             res = api.build_map(model, pl.strokes, spacing=b.get("spacing"),
-                                line_width=b.get("line_width", DEFAULT_LINE_WIDTH))
+                                line_width=b.get("line_width", DEFAULT_LINE_WIDTH), strict=False)
             break
         except (PlacementError, InputError, BuildError) as e:
             pl = res = None
@@ -282,12 +282,16 @@ def preview(design: dict, assets: dict[str, Asset], model, gcode: Path, scratch:
             [round(c, 3) for p in st.points for c in p])
     out.warnings += res.notes
     walls = model.walls
-    for p in res.points:
-        owners = sorted({by_entry[e] for s in p.sources if (e := _entry_name(s))})
-        out.points.append([round(p.u, 3), round(p.z - walls[p.layer].height / 2, 3), round(p.x, 3),
-                           round(p.y, 3), round(p.z, 3), p.weight, owners, False])
+    for over, pts in ((False, res.points), (True, res.over_points)):
+        for p in pts:
+            owners = sorted({by_entry[e] for s in p.sources if (e := _entry_name(s))})
+            out.points.append([round(p.u, 3), round(p.z - walls[p.layer].height / 2, 3), round(p.x, 3),
+                               round(p.y, 3), round(p.z, 3), p.weight, owners, False, over])
     out.summary = {"points": len(res.points), "layers": len(res.layers), "map_bytes": len(res.map_bytes),
-                   "spacing": res.spacing, "arena": arena, "checked": False}
+                   "spacing": res.spacing, "arena": arena, "checked": False, "over": len(res.too_many)}
+    if res.too_many:
+        _blame_too_many(out, res)
+        return out                  # the planner's check waits until every layer fits
     over = res.overflow(arena)
     if over:
         out.warnings.append(
@@ -300,6 +304,28 @@ def preview(design: dict, assets: dict[str, Asset], model, gcode: Path, scratch:
                            added_s=round(st.added_s, 1), missed=len(st.missed))
         _blame_missed(out, st.missed, res, settings)
     return out
+
+
+def _blame_too_many(out: Preview, res) -> None:
+    """Layers over the firmware's per-layer limit: said below the views, and beside each item
+    with points on them. The other layers' bumps still show; these layers' points are drawn
+    red (over) and are in no map, and the export refuses the design until they fit."""
+    most = mapformat.LAYER_POINTS_MAX
+    out.errors.append(too_many_message(res.too_many, most, res.spacing) + " Until they fit, those "
+                      "layers get no bumps (drawn red) and Export refuses the design; the items on "
+                      "them say so.")
+    total = {round(z, 3): n for z, n in res.too_many}
+    mine: dict[str, dict[float, int]] = {}
+    for pt in out.points:
+        if pt[8]:
+            for iid in pt[6]:
+                per = mine.setdefault(iid, {})
+                per[pt[4]] = per.get(pt[4], 0) + 1
+    for iid, per in mine.items():
+        where = ", ".join(f"z {z:.2f} mm: {total[z]} points, {k} its own" for z, k in sorted(per.items()))
+        out.items[iid]["errors"].append(
+            f"on {len(per)} layer(s) over the printer's {most} points per layer ({where}); those "
+            "layers get no bumps: move it to another height, make it smaller or increase Spacing")
 
 
 def _blame_missed(out: Preview, missed, res, settings) -> None:

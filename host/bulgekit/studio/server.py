@@ -638,12 +638,14 @@ def make_app(st: Studio, port_ref: dict) -> web.Application:
                             headers={"Content-Security-Policy": csp})
 
     async def state(request):
+        from ..bulge.mapformat import LAYER_POINTS_MAX
         from ..bulge.strokes import font_names
         return web.json_response({
             "gcode": st.gcode_state(), "assets": st.asset_kinds, "design": st.design,
             "design_gcode": st.design_gcode, "fonts": font_names(),
             "limits": {"gcode_mb": st.limits.gcode_bytes / MB, "asset_mb": st.limits.asset_bytes / MB,
-                       "image_megapixels": st.limits.image_pixels / 1e6, "arena": st.limits.arena},
+                       "image_megapixels": st.limits.image_pixels / 1e6, "arena": st.limits.arena,
+                       "layer_points": LAYER_POINTS_MAX},
             "jobs": [j.json() for j in st.jobs.values() if j.state == "running"],
             "workdir": str(st.workdir), "litho": litho_choices()})
 

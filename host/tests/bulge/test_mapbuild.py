@@ -77,6 +77,16 @@ def test_too_many_points_names_the_layer(model):
         build([Stroke(((0.0, 5.0), (69.0, 5.0)))], model, spacing=1.0)
 
 
+def test_not_strict_leaves_full_layers_out_and_keeps_the_rest(model):
+    strokes = [Stroke(((0.0, 5.0), (69.0, 5.0))), Stroke(((80.0, 2.0), (80.0, 3.0)))]
+    r = build(strokes, model, spacing=1.0, strict=False)
+    assert r.too_many == [(pytest.approx(5.1), 70)]
+    assert len(r.over_points) == 70 and {round(p.z, 2) for p in r.over_points} == {5.1}
+    # the other stroke's layers are in the map, and only they
+    assert r.points and all(p.u == pytest.approx(80.0, abs=0.01) for p in r.points)
+    assert [round(l.z_cmm / 100, 2) for l in r.bulge_map.layers] == sorted({round(p.z, 2) for p in r.points})
+
+
 def test_stroke_outside_the_wall_height_names_the_stroke(model):
     with pytest.raises(BuildError, match=r"logo\.svg#path3: stroke spans v 8\.00\.\.12\.00 mm, outside.*0\.00\.\.9\.90"):
         build([Stroke(((0.0, 8.0), (0.0, 12.0)), source="logo.svg#path3")], model)

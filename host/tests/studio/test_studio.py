@@ -187,6 +187,29 @@ def test_unreached_points_are_counted_beside_their_item(studio):
     assert f"{missed} point(s) not within 0.01 mm" in p["items"]["t"]["warnings"][0]
 
 
+def test_a_layer_over_the_limit_is_said_and_the_rest_still_shows(studio):
+    # four default texts on one row: their top bars put 4 x 17 points on the layer at z 13.20,
+    # more than the firmware's 64; the other layers' bumps stay, and the export refuses
+    texts = [text_item(f"t{k}", text="TEXT", at=[5 + 23 * k, 7.05]) for k in range(4)]
+    status, p = call(studio, "/api/preview", {"design": design(*texts), "check": True})
+    assert status == 200
+    assert p["errors"] == ["too many points in 1 layer(s) (at most 64 per layer): z 13.20 mm: 68. Increase "
+                           "Spacing (now 0.90 mm) or simplify the strokes. Until they fit, those layers get no "
+                           "bumps (drawn red) and Export refuses the design; the items on them say so."]
+    for t in texts:
+        it = p["items"][t["id"]]
+        assert it["strokes"] and it["errors"] == [
+            "on 1 layer(s) over the printer's 64 points per layer (z 13.20 mm: 68 points, 17 its own); "
+            "those layers get no bumps: move it to another height, make it smaller or increase Spacing"]
+        mine = [pt for pt in p["points"] if t["id"] in pt[6]]
+        assert sum(not pt[8] for pt in mine) > 80 and sum(pt[8] for pt in mine) == 17
+    assert {pt[4] for pt in p["points"] if pt[8]} == {13.2}
+    s = p["summary"]
+    assert s["over"] == 1 and s["points"] == sum(not pt[8] for pt in p["points"]) and not s["checked"]
+    job = wait_job(studio, call(studio, "/api/export", {"design": design(*texts)})[1])
+    assert job["state"] == "error" and "z 13.20 mm: 68. Increase Spacing" in job["error"]
+
+
 def test_arena_warning(tmp_path):
     run = start(tmp_path, arena=64)
     try:

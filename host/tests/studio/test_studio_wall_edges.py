@@ -8,6 +8,7 @@ from pathlib import Path
 
 import pytest
 
+from bulgekit.bulge.mapformat import LAYER_POINTS_MAX
 from studio_util import GCODE, call, open_gcode, start, wait_job
 from test_studio_browser import browser, open_sample, page_for, settled  # noqa: F401 (fixture)
 
@@ -83,6 +84,73 @@ def test_a_full_wall_says_so(browser, studio):
     pg.fill("#item-form input[name=u]", "115")
     settled(pg)
     assert pg.locator("#items li.overlap").count() == 0
+    assert not errors, errors
+
+
+def layer_points(pg):
+    """Points per layer (z) of the last preview, and those on layers left out of the map."""
+    pts = pg.evaluate("() => window.studio.S.preview.points")
+    per = {}
+    for q in pts:
+        per[q[4]] = per.get(q[4], 0) + 1
+    return per, [q for q in pts if len(q) > 8 and q[8]]
+
+
+def test_added_texts_keep_every_layer_within_the_limit(browser, studio):
+    # a default text puts 17 points on one layer (its top bars): a fourth beside three on
+    # its row would make 68, over the firmware's 64
+    pg, errors = page_for(browser, studio)
+    open_sample(pg)
+    for k in range(6):
+        pg.click("#add-text")
+        pg.wait_for_function(f"() => window.studio.S.items.length === {k + 1}")
+        settled(pg)
+    per, left_out = layer_points(pg)
+    assert per, pg.locator("#global-msgs").inner_text()          # bumps at all
+    assert max(per.values()) <= LAYER_POINTS_MAX and not left_out, per
+    assert pg.locator("#global-msgs li.error").all_inner_texts() == []
+    assert "bumps on" in pg.inner_text("#summary")
+    # every item keeps its strokes and its bumps
+    n = pg.evaluate("""() => window.studio.S.items.map((it) => [
+        window.studio.S.preview.items[it.id].strokes.length,
+        window.studio.S.preview.points.filter((q) => q[6].includes(it.id)).length])""")
+    assert all(st > 0 and b > 0 for st, b in n), n
+    info = pg.locator("#items > li > .info").all_inner_texts()
+    assert len(info) == 6 and all(t.endswith(" bumps") and int(t.split()[0]) > 0 for t in info), info
+    # the fourth and fifth went to the next row up (a layer higher), beside the first three
+    b = boxes(pg)
+    assert [round(x[1], 2) for x in b[:5]] == [7.05, 7.05, 7.05, 7.35, 7.35]
+    for i in range(5):
+        for j in range(i):
+            assert apart(b[i], b[j]), (i, j, b)
+    # the sixth finds no free place (the wall is 124 mm around): the list says what it overlaps
+    crossed = [j for j in range(5) if not apart(b[5], b[j])]
+    assert pg.locator("#items > li").nth(5).locator("li.overlap").count() == len(crossed) > 0
+    assert not errors, errors
+
+
+def test_a_text_over_the_limit_anywhere_says_so_and_keeps_its_other_bumps(browser, studio):
+    pg, errors = page_for(browser, studio)
+    open_sample(pg)
+    pg.fill("#bulge-form input[name=spacing]", "0.15")      # the text's top bars alone make 81
+    settled(pg)
+    pg.click("#add-text")
+    pg.wait_for_function("() => window.studio.S.items.length === 1")
+    settled(pg)
+    assert ("no free place on the wall keeps every layer within 64 points with Text “TEXT”: it is placed anyway"
+            in pg.inner_text("#status-text"))
+    assert pg.locator("#global-msgs li.error").all_inner_texts() == [
+        "too many points in 1 layer(s) (at most 64 per layer): z 13.20 mm: 81. Increase Spacing (now 0.15 mm) or "
+        "simplify the strokes. Until they fit, those layers get no bumps (drawn red) and Export refuses the design; "
+        "the items on them say so."]
+    assert pg.locator("#items li.error").all_inner_texts() == [
+        "on 1 layer(s) over the printer's 64 points per layer (z 13.20 mm: 81 points, 81 its own); those layers "
+        "get no bumps: move it to another height, make it smaller or increase Spacing"]
+    per, left_out = layer_points(pg)
+    assert len(left_out) == 81 and per[13.2] == 81
+    info = pg.inner_text("#items > li > .info")
+    assert info == f"{sum(per.values()) - 81} bumps, 81 left out (layers over the limit)", info
+    assert "1 layer over 64 points left out" in pg.inner_text("#summary")
     assert not errors, errors
 
 

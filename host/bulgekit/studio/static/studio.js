@@ -155,22 +155,61 @@ function addText() {
 
 // ---------------------------------------------------------------- free space for new items
 
-// A new item goes where it touches no other: first by a guess at its size, then, once its first
-// preview gives its strokes, by its real box (placeNew). Only a full wall leaves it overlapping,
-// and the status line says so.
+// A new item goes where it touches no other and no layer gets more points than the firmware
+// takes (S.limits.layer_points, 64): first by a guess at its size, then, once its first
+// preview gives its strokes and points, by its real box and points (placeNew). When no such
+// place is left it goes where it touches no other, or else overlaps, and the page says so.
 const GAP = 3;                 // mm kept between items: about a word space at the 6 mm default
 const touches = (a, b) => a.u0 < b.u1 + GAP && b.u0 < a.u1 + GAP && a.v0 < b.v1 + GAP && b.v0 < a.v1 + GAP;
 
-// The lower-left corner of the first free w x h mm on the wall: along the row at v, then the
-// rows above and below it in turn (0.5 mm steps), each from u = 0; null when there is none.
-function freeSpot(w, h, v, others) {
-  const [lo, hi] = S.gcode.walls.v_range, len = S.gcode.length_max;
+// Index of the layer whose bead holds height v (as wall.layer_of_v), -1 outside the wall.
+function layerOfV(v) {
+  const L = S.gcode.walls.layers;
+  let a = 0, b = L.length;
+  while (a < b) { const m = (a + b) >> 1; if (L[m].z < v - 1e-9) a = m + 1; else b = m; }
+  return a < L.length && v >= L[a].z - L[a].h - 1e-9 ? a : -1;
+}
+
+// The last preview's points per layer: the other items' (a point shared with them counts
+// for them too), and `it`'s own as the heights they stand at, to count them after a move.
+function layerLoad(it) {
+  if (!S.preview || !S.preview.items[it.id] || !S.preview.items[it.id].strokes.length) return null;
+  const L = S.gcode.walls.layers, at = new Map(L.map((l, i) => [l.z.toFixed(3), i]));
+  const others = new Array(L.length).fill(0), mine = [];
+  for (const q of S.preview.points) {
+    const i = at.get(q[4].toFixed(3));
+    if (i === undefined) continue;
+    if (q[6].some((id) => id !== it.id)) others[i]++;
+    if (q[6].includes(it.id)) mine.push(q[1]);
+  }
+  return { others, mine };
+}
+
+// Whether `it`'s points, moved dv mm up, keep every layer within the limit. A move by whole
+// layers (the rows freeSpot tries) carries each layer's points to another one unchanged.
+function fitsAfter(load, dv) {
+  const most = S.limits.layer_points || 64, n = new Map();
+  for (const v of load.mine) {
+    const i = layerOfV(v + dv);
+    if (i >= 0) n.set(i, (n.get(i) || 0) + 1);
+  }
+  for (const [i, k] of n) if (load.others[i] + k > most) return false;
+  return true;
+}
+
+// The lower-left corner of the first free w x h mm on the wall whose rows `fits` accepts:
+// along the row at v, then the rows above and below it in turn (a layer apart), each from
+// u = 0; null when there is none.
+function freeSpot(w, h, v, others, fits = () => true) {
+  const [lo, hi] = S.gcode.walls.v_range, len = S.gcode.length_max, L = S.gcode.walls.layers;
+  const step = L.length > 1 ? Math.max(0.05, (L.at(-1).z - L[0].z) / (L.length - 1)) : 0.5;
   const rows = [Math.min(Math.max(v, lo), hi - h)];
-  for (let d = 0.5; rows[0] - d >= lo || rows[0] + d + h <= hi; d += 0.5) {
+  for (let d = step; rows[0] - d >= lo || rows[0] + d + h <= hi; d += step) {
     if (rows[0] + d + h <= hi) rows.push(rows[0] + d);
     if (rows[0] - d >= lo) rows.push(rows[0] - d);
   }
   for (const v0 of rows) {
+    if (!fits(v0)) continue;
     for (let u0 = 0; u0 + w <= len; u0 += 0.5) {
       const b = { u0, v0, u1: u0 + w, v1: v0 + h };
       if (!others.some((o) => touches(b, o))) return [u0, v0];
@@ -179,15 +218,24 @@ function freeSpot(w, h, v, others) {
   return null;
 }
 
-// Move `it`, whose strokes span `box` (a guess or its real one), out of the others' way; the
-// offset between its anchor (`at`) and its box stays. Returns false when the wall is full.
-function moveToFreeSpace(it, box) {
+// Move `it`, whose strokes span `box` (a guess or its real one), out of the others' way and,
+// given its points (layerLoad), off layers it would take over the limit; the offset between
+// its anchor (`at`) and its box stays. Returns "ok", "over" (placed where it touches no other,
+// but some layer is over the limit) or "full" (no place touches no other).
+function moveToFreeSpace(it, box, load = null) {
   const others = S.items.filter((o) => o !== it).map(itemBox);
-  if (!others.some((o) => touches(box, o))) return true;
-  const spot = freeSpot(box.u1 - box.u0, box.v1 - box.v0, box.v0, others);
-  if (!spot) return false;
+  const fits = (v0) => !load || fitsAfter(load, v0 - box.v0);
+  const free = !others.some((o) => touches(box, o));
+  if (free && fits(box.v0)) return "ok";
+  let spot = freeSpot(box.u1 - box.u0, box.v1 - box.v0, box.v0, others, fits), how = "ok";
+  if (!spot) {
+    if (free) return "over";               // as good a place as any other: it stays
+    spot = freeSpot(box.u1 - box.u0, box.v1 - box.v0, box.v0, others);
+    how = "over";
+  }
+  if (!spot) return "full";
   it.at = [round2(it.at[0] + spot[0] - box.u0), round2(it.at[1] + spot[1] - box.v0)];
-  return true;
+  return load && how === "over" ? "over" : "ok";
 }
 
 function placeInFreeSpace(it, w, h) {
@@ -206,14 +254,20 @@ function overlapping(it) {
   });
 }
 
+// Returns whether it moved (a new preview is then on its way).
 function placeNew(it) {
   delete it.placing;
-  if (!moveToFreeSpace(it, itemBox(it))) {      // the list says which item it overlaps
+  const was = String(it.at);
+  const how = moveToFreeSpace(it, itemBox(it), layerLoad(it));
+  if (how === "full")                           // the list says which item it overlaps
     status(`no free space on the wall for ${itemName(it)}: it overlaps another item (move, shrink or delete one)`);
-    return;
-  }
+  else if (how === "over")                      // the list says which layers, beside the items
+    status(`no free place on the wall keeps every layer within ${S.limits.layer_points || 64} points with ` +
+      `${itemName(it)}: it is placed anyway, and layers over the limit get no bumps (move, shrink or delete an item, or increase Spacing)`);
+  if (String(it.at) === was) return false;
   if (it.id === S.selected) fillItemForm(it);
   requestPreview();
+  return true;
 }
 
 // Upload a drawing or picture; a refusal is shown in the element errId.
@@ -342,10 +396,11 @@ function renderItems() {
     name.textContent = itemName(it);
     li.append(name);
     const info = p && p.items[it.id];
-    const n = p ? p.points.filter((q) => q[6].includes(it.id)).length : 0;
+    const n = p ? p.points.filter((q) => q[6].includes(it.id) && !q[8]).length : 0;
+    const out = p ? p.points.filter((q) => q[6].includes(it.id) && q[8]).length : 0;
     const sub = document.createElement("div");
     sub.className = "info";
-    sub.textContent = info ? `${n} bump${n === 1 ? "" : "s"}` : "";
+    sub.textContent = info ? `${n} bump${n === 1 ? "" : "s"}` + (out ? `, ${out} left out (layers over the limit)` : "") : "";
     li.append(sub);
     const over = overlapping(it);
     if (info && (info.errors.length || info.warnings.length || over.length)) {
@@ -479,17 +534,21 @@ async function pump(check = false) {
   const d = design();
   const key = JSON.stringify(d);
   const geom = Object.fromEntries(S.items.map((it) => [it.id, geomOf(it)]));
-  if (check) status(`checking against ${S.gcode.name}…`, null);
+  // (a design with layers over the limit is not checked: the line keeps what placing said)
+  if (check && !(S.preview && S.preview.summary && S.preview.summary.over)) status(`checking against ${S.gcode.name}…`, null);
   try {
     const p = await postJSON("/api/preview", { design: d, check });
     S.preview = p;
     S.strokesAt = geom;
     if (p.walls) { S.gcode.walls = p.walls; view3d.setWalls(p.walls); }   // the mode's own walls
     if (check) checkedFor = key;
-    showPreview(p);
+    let moved = false;
     for (const it of S.items) if (it.placing && p.items[it.id] && geom[it.id] && geomOf(it).u === geom[it.id].u
-      && geomOf(it).v === geom[it.id].v) placeNew(it);      // its first strokes: now its real box
-    if (check) status(p.points.length ? `${S.gcode.name}: checked, ${p.summary.stops} stops` : `${S.gcode.name}: ${S.gcode.layers} layers of outer wall`);
+      && geomOf(it).v === geom[it.id].v) moved = placeNew(it) || moved;     // its first strokes: now its real box
+    // (a preview that moved a new item is not shown: its messages were of the place it left)
+    if (!moved) showPreview(p);
+    if (check && !p.summary.over)
+      status(p.summary.checked ? `${S.gcode.name}: checked, ${p.summary.stops} stops` : `${S.gcode.name}: ${S.gcode.layers} layers of outer wall`);
   } catch (e) {
     S.preview = { items: {}, points: [], errors: [String(e.message || e)], warnings: [], summary: {} };
     showPreview(S.preview);
@@ -507,7 +566,9 @@ function showPreview(p) {
   const s = p.summary || {};
   let line = s.points !== undefined ? `${s.points} bumps on ${s.layers} layers, map ${s.map_bytes} bytes ` +
     `(printer arena ${s.arena})` : "no bumps";
-  if (s.checked) line += `; when printed: ${s.stops} stops, ${s.dwell_s} s dwell, about ${s.added_s} s added` +
+  if (s.over) line += `; ${s.over} layer${s.over === 1 ? "" : "s"} over ${S.limits.layer_points || 64} points left out, ` +
+    "drawn red: not checked against the G-code, and Export refuses until they fit";
+  else if (s.checked) line += `; when printed: ${s.stops} stops, ${s.dwell_s} s dwell, about ${s.added_s} s added` +
     (s.missed ? `, ${s.missed} not reached` : "");
   else if (s.points !== undefined) line += "; checking the G-code…";
   $("summary").textContent = line;
@@ -644,7 +705,7 @@ const view2d = (() => {
       for (const p of S.preview.points) {
         const [x, y] = toPx(p[0], p[1]);
         ctx.beginPath(); ctx.arc(x, y, r * (0.5 + p[5] / 510), 0, 2 * Math.PI);
-        ctx.fillStyle = p[7] ? "rgba(229,57,53,.85)" : p[6].includes(S.selected) ? "rgba(239,108,0,.8)" : "rgba(38,50,56,.55)";
+        ctx.fillStyle = p[7] || p[8] ? "rgba(229,57,53,.85)" : p[6].includes(S.selected) ? "rgba(239,108,0,.8)" : "rgba(38,50,56,.55)";
         ctx.fill();
       }
     }
@@ -802,7 +863,7 @@ const view3d = (() => {
         const s = 0.5 + p[5] / 510;
         m.makeScale(s, s, s).setPosition(p[2], p[3], p[4] - 0.1);
         bumps.setMatrixAt(i, m);
-        bumps.setColorAt(i, p[7] ? red : orange);
+        bumps.setColorAt(i, p[7] || p[8] ? red : orange);
       });
       scene.add(bumps);
     }
