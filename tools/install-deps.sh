@@ -72,7 +72,8 @@ case $home in venv*)
     for d in "${dirs[@]}"; do [ "$d" -ef "$VENV/bin" ] || outside+=("$d"); done
     base=$(IFS=:; PATH="${outside[*]}"; command -v python3) ||
       { echo "install-deps: no python3 outside $VENV to make it from" >&2; exit 1; }
-    echo "install-deps: $base -m venv $VENV"
+    if [ -e "$VENV" ]; then echo "install-deps: $base -m venv --clear $VENV (the one there has no pip)"
+    else echo "install-deps: $base -m venv $VENV"; fi
     "$base" -m venv --clear "$VENV"
   fi
   PY=$VENV/bin/python3 ;;
