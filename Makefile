@@ -34,7 +34,7 @@ test-arm: bootstrap
 bench: bootstrap
 	$(ENV) set -o pipefail; for e in avr_sim cm3_qemu cm4f_qemu; do \
 	  echo "== $$e"; pio test -e $$e -f 'test_bench_*' -v | grep -v '^bksim: marker' || exit 1; done
-	@for a in avr cm3 cm4f; do echo "== core flash, $$a (tools/size/size.sh)"; \
+	@$(ENV) for a in avr cm3 cm4f; do echo "== core flash, $$a (tools/size/size.sh)"; \
 	  ARCH=$$a bash tools/size/size.sh 0 | head -1 || exit 1; done
 
 fuzz: bootstrap

@@ -6,7 +6,9 @@
 #     (the version PlatformIO pins), so PlatformIO never downloads it,
 #  3. builds the simulator harness bksim and the core runner bkcore into .build/bin.
 # Anything missing is installed first by tools/install-deps.sh (apt + pip + npm), so `make demo`
-# and `make test` work on a fresh machine; BK_NO_INSTALL=1 stops with the list instead.
+# and `make test` work on a fresh machine; BK_NO_INSTALL=1 stops with the list instead. Where the
+# python3 on PATH may not take pip's packages (Debian's own: PEP 668) they go into .venv, which
+# tools/env.sh puts first on PATH.
 set -euo pipefail
 source "$(dirname "${BASH_SOURCE[0]}")/env.sh"
 cd "$BK_ROOT"
@@ -42,6 +44,7 @@ if [ -n "$missing" ]; then
   echo "bootstrap: installing them now with tools/install-deps.sh (Debian packages with apt-get," \
        "through sudo when not root; PyPI; npm). This happens once." >&2
   bash tools/install-deps.sh
+  source tools/env.sh  # again: install-deps may have made .venv, whose bin/ comes first now
   hash -r
   missing=$(missing_now)
   if [ -n "$missing" ]; then

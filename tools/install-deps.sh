@@ -1,8 +1,40 @@
 #!/usr/bin/env bash
 # Installs what bulgekit's build and tests need, from Debian's packages and PyPI
 # only. Idempotent: packages already present are not fetched again.
+# The Python packages go into the python3 on PATH when its pip may install there (pyenv, an
+# activated virtual environment). When it may not (Debian's own python3 is "externally managed",
+# PEP 668, or has no pip) they go into a virtual environment .venv in this checkout instead, never
+# into the system's Python; tools/env.sh puts .venv/bin first on PATH, so every make target runs
+# that venv's python3, pio and bulgekit.
+#   bash tools/install-deps.sh --where    only say where the Python packages go, install nothing
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
+VENV=.venv
+
+# Prints "venv REASON" or "path PYTHON3". Once .venv exists it stays the place: make runs it.
+python_home() {
+  if [ -x "$VENV/bin/python3" ]; then echo "venv $VENV exists"; return; fi
+  local py why
+  py=$(command -v python3) || { echo "venv there is no python3 on PATH yet (Debian's is externally managed)"; return; }
+  why=$("$py" - 2>/dev/null <<'PY'
+import importlib.util, os, sys, sysconfig
+# pip's own rule (PEP 668): the marker beside the standard library counts outside a virtual environment
+if sys.prefix == sys.base_prefix and os.path.isfile(os.path.join(sysconfig.get_path("stdlib"), "EXTERNALLY-MANAGED")):
+    print("is externally managed (PEP 668)")
+elif importlib.util.find_spec("pip") is None:
+    print("has no pip")
+PY
+  ) || why="does not run"
+  if [ -n "$why" ]; then echo "venv the python3 on PATH ($py) $why"; else echo "path $py"; fi
+}
+home=$(python_home)
+if [ "${1:-}" = --where ]; then
+  case $home in
+    venv*) echo "install-deps: the Python packages go into $VENV: ${home#venv }" ;;
+    *) echo "install-deps: the Python packages go into $("${home#path }" -c 'import sys; print(sys.executable)')" ;;
+  esac
+  exit 0
+fi
 
 APT_PACKAGES=(gcc g++ make pkg-config gcc-avr avr-libc binutils-avr simavr libsimavr-dev libelf-dev
               clang libclang-rt-14-dev
@@ -16,6 +48,8 @@ PIP_PACKAGES=("platformio==6.2.0" "scons==4.11.1")
 
 # npm fetches three.js for the studio (host/web/build.py); Debian's package unless one is there
 command -v npm >/dev/null || APT_PACKAGES+=(npm)
+# `python3 -m venv` with pip in it needs Debian's python3-venv (ensurepip)
+case $home in venv*) APT_PACKAGES+=(python3-venv) ;; esac
 
 missing=()
 for p in "${APT_PACKAGES[@]}"; do
@@ -28,8 +62,25 @@ if [ ${#missing[@]} -gt 0 ]; then
   DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null
 fi
 
+PY=python3
+case $home in venv*)
+  echo "install-deps: the Python packages go into the virtual environment $VENV: ${home#venv }"
+  if ! "$VENV/bin/python3" -c "import pip" 2>/dev/null; then
+    # made from the python3 outside .venv (bootstrap has put .venv/bin first on PATH)
+    outside=()
+    IFS=: read -ra dirs <<< "$PATH"
+    for d in "${dirs[@]}"; do [ "$d" -ef "$VENV/bin" ] || outside+=("$d"); done
+    base=$(IFS=:; PATH="${outside[*]}"; command -v python3) ||
+      { echo "install-deps: no python3 outside $VENV to make it from" >&2; exit 1; }
+    if [ -e "$VENV" ]; then echo "install-deps: $base -m venv --clear $VENV (the one there has no pip)"
+    else echo "install-deps: $base -m venv $VENV"; fi
+    "$base" -m venv --clear "$VENV"
+  fi
+  PY=$VENV/bin/python3 ;;
+esac
+
 need_pip=0
-python3 - "${PIP_PACKAGES[@]}" <<'PY' || need_pip=1
+"$PY" - "${PIP_PACKAGES[@]}" <<'PY' || need_pip=1
 import sys
 from importlib.metadata import version, PackageNotFoundError
 for spec in sys.argv[1:]:
@@ -42,10 +93,15 @@ for spec in sys.argv[1:]:
 PY
 if [ $need_pip = 1 ]; then
   echo "install-deps: pip install ${PIP_PACKAGES[*]}"
-  python3 -m pip install -q "${PIP_PACKAGES[@]}"
+  "$PY" -m pip install -q "${PIP_PACKAGES[@]}"
 fi
 if [ -f host/pyproject.toml ]; then
-  python3 host/web/build.py       # the studio's front-end files, from npm (pinned by package-lock.json)
-  python3 -m pip install -q -e "host[test]"
+  "$PY" host/web/build.py       # the studio's front-end files, from npm (pinned by package-lock.json)
+  case $home in venv*) echo "install-deps: pip install -e 'host[test]' (numpy, matplotlib, trimesh, playwright...; minutes the first time)" ;; esac
+  "$PY" -m pip install -q -e "host[test]"
 fi
-echo "install-deps: done"
+case $home in venv*)
+  echo "install-deps: done; the make targets run $VENV/bin's python3, pio and bulgekit (tools/env.sh)."
+  echo "install-deps: to run bulgekit yourself: $VENV/bin/bulgekit --help, or 'source $VENV/bin/activate' first" ;;
+*) echo "install-deps: done" ;;
+esac
