@@ -120,7 +120,7 @@ def load_placement(path) -> Placement:
                                 u0=u, v0=v, mirror=t.get("mirror", False), font=t.get("font", "futural"))
         except InputError as e:
             raise PlacementError(f"{src}: {where}: {e}") from None
-        strokes += _tagged(_rotated(made, t.get("rotate", 0), (u, v)), where)
+        strokes += _tagged(_rotated(made, t.get("rotate", 0), (u, v)), where, src)
         entries.append(where)
     for i, t in enumerate(_tables(doc, "strokes", src)):
         where = f"strokes[{i}]"
@@ -140,7 +140,7 @@ def load_placement(path) -> Placement:
                                     curve_tolerance_mm=float(t.get("curve_tolerance", 0.05)))
         except InputError as e:
             raise PlacementError(f"{src}: {where}: {e}") from None
-        strokes += _tagged(_rotated(made, t.get("rotate", 0), at), where)
+        strokes += _tagged(_rotated(made, t.get("rotate", 0), at), where, src)
         entries.append(where)
     bulges = doc.get("bulges", {})
     if not isinstance(bulges, dict):
@@ -161,8 +161,15 @@ def _rotated(strokes: list[Stroke], degrees: float, about: tuple[float, float]) 
                                      for u, v in st.points)) for st in strokes]
 
 
-def _tagged(strokes: list[Stroke], where: str) -> list[Stroke]:
-    return [replace(st, source=f"{where} {st.source}" if st.source else where) for st in strokes]
+def _tagged(strokes: list[Stroke], where: str, src: Path) -> list[Stroke]:
+    """Strokes whose source starts with their entry, and whose drawing (a message about it
+    names the entry's keys, not the CLI's options) knows it."""
+    placed: dict = {}
+    for st in strokes:
+        if st.drawing is not None and id(st.drawing) not in placed:
+            placed[id(st.drawing)] = st.drawing.placed(f"{src}: {where}")
+    return [replace(st, source=f"{where} {st.source}" if st.source else where,
+                    drawing=placed.get(id(st.drawing))) for st in strokes]
 
 
 def _toml_value(v) -> str:
