@@ -41,7 +41,7 @@ import tomllib
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
-from ..errors import InputError
+from ..errors import InputError, MissingInputError
 from .strokes import Stroke
 
 _TEXT_KEYS = {"text": str, "at": list, "size": (int, float), "font": str, "letter_spacing": (int, float),
@@ -55,6 +55,10 @@ _BULGE_KEYS = {"dwell": int, "extra": (int, float), "tolerance": (int, float), "
 
 class PlacementError(InputError):
     """A placement file that cannot be used (the message names the file and key)."""
+
+
+class PlacementFileMissing(PlacementError, MissingInputError):
+    """The placement file, or a file it names, is not there (exit status 2 from the CLI)."""
 
 
 @dataclass
@@ -101,7 +105,7 @@ def load_placement(path) -> Placement:
         with open(src, "rb") as f:
             doc = tomllib.load(f)
     except FileNotFoundError:
-        raise PlacementError(f"{src}: placement file not found") from None
+        raise PlacementFileMissing(f"{src}: placement file not found") from None
     except tomllib.TOMLDecodeError as e:
         raise PlacementError(f"{src}: not valid TOML: {e}") from None
     for k in doc:
@@ -129,7 +133,7 @@ def load_placement(path) -> Placement:
             raise PlacementError(f"{src}: {where}: 'file' is missing")
         f = (src.parent / t["file"]) if not Path(t["file"]).is_absolute() else Path(t["file"])
         if not f.is_file():
-            raise PlacementError(f"{src}: {where}.file: {f} not found")
+            raise PlacementFileMissing(f"{src}: {where}.file: {f} not found")
         at = _at(t, where, src)
         if f.suffix.lower() in api._IMAGE_EXT and "image_width" not in t:
             raise PlacementError(f"{src}: {where}: {t['file']} is a picture: give image_width "

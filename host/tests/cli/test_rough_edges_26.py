@@ -1,5 +1,7 @@
 """More of issue 26's rough edges, each in the user's words: `estimate` refuses what is not
-G-code as every other command does."""
+G-code as every other command does; a text or drawing off the wall is said as a whole, with the
+option (or placement key) that fixes it; a file missing from inside a placement file is a usage
+error like any missing input file."""
 from __future__ import annotations
 
 import re
@@ -159,3 +161,20 @@ def test_in_a_placement_file_the_message_names_its_entry_and_keys(tmp_path, body
         assert said in r.output and r.output.startswith(f"Error: {p}: "), r.output
         assert "--" not in r.output                 # no CLI option named for a placement file
     assert g.read_bytes() == CYL.read_bytes()
+
+
+# -- a file missing from inside a placement file is a missing input file like any other
+
+@pytest.mark.parametrize("cmd", ["build", "post-process"])
+def test_a_file_missing_from_a_placement_is_a_usage_error(tmp_path, cmd):
+    p = _placement(tmp_path, '[[text]]\ntext = "HI"\n\n[[strokes]]\nfile = "nothing.svg"\n')
+    g = tmp_path / "part.gcode"
+    g.write_bytes(CYL.read_bytes())
+    argv = (["build", g, "--placement", p, "-o", tmp_path / "o"] if cmd == "build" else
+            ["post-process", "--placement", p, g])
+    r = run(*argv)
+    assert r.exit_code == 2, r.output                 # as click's, for a file named on the command line
+    assert r.output.startswith("Usage: ") and f" {cmd} [OPTIONS]" in r.output.splitlines()[0]
+    assert r.output.rstrip().endswith(f"Error: {p}: strokes[0].file: {tmp_path / 'nothing.svg'} not found")
+    assert g.read_bytes() == CYL.read_bytes() and not (tmp_path / "o").exists()
+    assert not [d for d in tmp_path.iterdir() if d.name.startswith(".bulgekit-")]
