@@ -179,9 +179,11 @@ class Drawing:
         """The same drawing asked for by a placement file's entry ("p.toml: text[0]")."""
         return replace(self, entry=f"{entry}: ")
 
-    def _given(self, value: float) -> str:
+    @property
+    def given(self) -> str:
+        """The size as the user gave it: "--text-size 30 mm", from a placement "size = 30 mm"."""
         unit = " mm" if self.mm else ""
-        return f"{self.key} = {value:g}{unit}" if self.entry else f"{self.option} {value:g}{unit}"
+        return f"{self.key} = {self.size:g}{unit}" if self.entry else f"{self.option} {self.size:g}{unit}"
 
     def fit(self, height: float, wall: float) -> str:
         """What size fits a wall `wall` mm tall (the drawing's height is in proportion to it)."""
@@ -198,7 +200,7 @@ class Drawing:
         bottom, top = self.extent(strokes)
         h, wall = top - bottom, hi - lo
         if h > wall + 1e-9:
-            return (f"{self.entry}{self.what} is {_mm(h)} mm tall at {self._given(self.size)}, "
+            return (f"{self.entry}{self.what} is {_mm(h)} mm tall at {self.given}, "
                     f"but the wall is only {_mm(wall)} mm tall; {self.fit(h, wall)}")
         way, by = ("down", top - hi) if top > hi else ("up", lo - bottom)
         at = "at = [U, V]" if self.entry else "--at U,V"
