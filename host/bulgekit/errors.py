@@ -19,6 +19,12 @@ class InputError(BulgekitError):
     """A stroke input (SVG, JSON, image, text, mesh) could not be used."""
 
 
+class MissingInputError(InputError):
+    """An input file that is not there, named inside another file (a placement file's
+    strokes[0].file): a usage error, exit status 2, as click's own for a file named on the
+    command line."""
+
+
 @contextlib.contextmanager
 def reading_picture(path: str):
     """Pillow's errors while a picture file is opened and read, as one InputError naming it."""

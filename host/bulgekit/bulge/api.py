@@ -36,10 +36,7 @@ def load_strokes(path, *, image_width_mm: float | None = None, offset=(0.0, 0.0)
     p = os.fspath(path)
     ext = Path(p).suffix.lower()
     if ext == ".json":
-        out = st.load_json(p)
-        if offset != (0.0, 0.0) or scale != 1.0:
-            out = st.transform(out, offset=offset, scale=scale)
-        return out
+        return st.load_json(p, offset=offset, scale=scale)
     if ext == ".svg":
         return st.load_svg(p, offset=offset, scale=scale, tolerance_mm=curve_tolerance_mm)
     if ext in _IMAGE_EXT:

@@ -21,7 +21,7 @@ import numpy as np
 
 from . import mapformat
 from ..errors import BulgekitError
-from .strokes import Stroke
+from .strokes import Picture, Stroke
 from .wall import WallModel
 
 ARENA_BYTES = mapformat.ARENA_BYTES   # BK_MAP_ARENA_BYTES
@@ -115,11 +115,11 @@ def sample_strokes(strokes: Sequence[Stroke], model: WallModel, spacing: float
             raise BuildError(f"{name}: weight {st.weight} outside 0..255")
         vmin, vmax = float(arr[:, 1].min()), float(arr[:, 1].max())
         if vmin < lo - 1e-9 or vmax > hi + 1e-9:
-            pic = getattr(st, "picture", None)
-            if pic is not None and pic.holds(*st.points[0]):          # a picture's dot, not turned
-                # keep what names the stroke's entry ("strokes[0] " in a placement file)
-                i = name.find(pic.path)
-                raise BuildError((name[:i] if i > 0 else "") + pic.too_tall(lo, hi))
+            # said of the text, drawing or picture as asked for (a picture's dot: if not turned
+            # since, its grid's place is the picture's)
+            d = st.drawing
+            if d is not None and (not isinstance(d, Picture) or d.holds(*st.points[0])):
+                raise BuildError(d.off_the_wall(strokes, lo, hi))
             raise BuildError(
                 f"{name}: stroke spans v {vmin:.2f}..{vmax:.2f} mm, outside the outer wall's "
                 f"height {lo:.2f}..{hi:.2f} mm")

@@ -41,7 +41,7 @@ import tomllib
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
-from ..errors import InputError
+from ..errors import InputError, MissingInputError
 from .strokes import Stroke
 
 _TEXT_KEYS = {"text": str, "at": list, "size": (int, float), "font": str, "letter_spacing": (int, float),
@@ -55,6 +55,10 @@ _BULGE_KEYS = {"dwell": int, "extra": (int, float), "tolerance": (int, float), "
 
 class PlacementError(InputError):
     """A placement file that cannot be used (the message names the file and key)."""
+
+
+class PlacementFileMissing(PlacementError, MissingInputError):
+    """The placement file, or a file it names, is not there (exit status 2 from the CLI)."""
 
 
 @dataclass
@@ -101,7 +105,7 @@ def load_placement(path) -> Placement:
         with open(src, "rb") as f:
             doc = tomllib.load(f)
     except FileNotFoundError:
-        raise PlacementError(f"{src}: placement file not found") from None
+        raise PlacementFileMissing(f"{src}: placement file not found") from None
     except tomllib.TOMLDecodeError as e:
         raise PlacementError(f"{src}: not valid TOML: {e}") from None
     for k in doc:
@@ -120,7 +124,7 @@ def load_placement(path) -> Placement:
                                 u0=u, v0=v, mirror=t.get("mirror", False), font=t.get("font", "futural"))
         except InputError as e:
             raise PlacementError(f"{src}: {where}: {e}") from None
-        strokes += _tagged(_rotated(made, t.get("rotate", 0), (u, v)), where)
+        strokes += _tagged(_rotated(made, t.get("rotate", 0), (u, v)), where, src)
         entries.append(where)
     for i, t in enumerate(_tables(doc, "strokes", src)):
         where = f"strokes[{i}]"
@@ -129,7 +133,7 @@ def load_placement(path) -> Placement:
             raise PlacementError(f"{src}: {where}: 'file' is missing")
         f = (src.parent / t["file"]) if not Path(t["file"]).is_absolute() else Path(t["file"])
         if not f.is_file():
-            raise PlacementError(f"{src}: {where}.file: {f} not found")
+            raise PlacementFileMissing(f"{src}: {where}.file: {f} not found")
         at = _at(t, where, src)
         if f.suffix.lower() in api._IMAGE_EXT and "image_width" not in t:
             raise PlacementError(f"{src}: {where}: {t['file']} is a picture: give image_width "
@@ -140,7 +144,7 @@ def load_placement(path) -> Placement:
                                     curve_tolerance_mm=float(t.get("curve_tolerance", 0.05)))
         except InputError as e:
             raise PlacementError(f"{src}: {where}: {e}") from None
-        strokes += _tagged(_rotated(made, t.get("rotate", 0), at), where)
+        strokes += _tagged(_rotated(made, t.get("rotate", 0), at), where, src)
         entries.append(where)
     bulges = doc.get("bulges", {})
     if not isinstance(bulges, dict):
@@ -161,8 +165,15 @@ def _rotated(strokes: list[Stroke], degrees: float, about: tuple[float, float]) 
                                      for u, v in st.points)) for st in strokes]
 
 
-def _tagged(strokes: list[Stroke], where: str) -> list[Stroke]:
-    return [replace(st, source=f"{where} {st.source}" if st.source else where) for st in strokes]
+def _tagged(strokes: list[Stroke], where: str, src: Path) -> list[Stroke]:
+    """Strokes whose source starts with their entry, and whose drawing (a message about it
+    names the entry's keys, not the CLI's options) knows it."""
+    placed: dict = {}
+    for st in strokes:
+        if st.drawing is not None and id(st.drawing) not in placed:
+            placed[id(st.drawing)] = st.drawing.placed(f"{src}: {where}")
+    return [replace(st, source=f"{where} {st.source}" if st.source else where,
+                    drawing=placed.get(id(st.drawing))) for st in strokes]
 
 
 def _toml_value(v) -> str:

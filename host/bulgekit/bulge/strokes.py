@@ -20,7 +20,7 @@ import re
 import warnings
 import xml.etree.ElementTree as ET
 import xml.parsers.expat as expat
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 from typing import Iterable, Sequence
 
 from ..errors import BulgekitError, InputError  # noqa: F401  (bulgekit.bulge.strokes.InputError)
@@ -33,6 +33,8 @@ class Stroke:
     points: tuple[tuple[float, float], ...]
     weight: int = 255
     source: str = ""
+    # the text, drawing or picture it is part of (Drawing), for messages about the whole
+    drawing: "Drawing | None" = field(default=None, compare=False, repr=False)
 
     def __post_init__(self):
         if not self.points:
@@ -139,10 +141,77 @@ def transform(strokes: Iterable[Stroke], offset=(0.0, 0.0), scale=1.0, mirror_u:
     if mirror_u and strokes:
         us = [p[0] for s in strokes for p in s.points]
         lo, hi = min(us), max(us)
-        strokes = [Stroke(tuple((lo + hi - u, v) for u, v in s.points), s.weight, s.source) for s in strokes]
+        strokes = [replace(s, points=tuple((lo + hi - u, v) for u, v in s.points)) for s in strokes]
     ou, ov = offset
-    return [Stroke(tuple((u * scale + ou, v * scale + ov) for u, v in s.points), s.weight, s.source)
-            for s in strokes]
+    return [replace(s, points=tuple((u * scale + ou, v * scale + ov) for u, v in s.points)) for s in strokes]
+
+
+# --------------------------------------------------------------------------
+# Drawings: a message about strokes that leave the wall, in the user's terms
+
+
+def _mm(x: float) -> str:
+    return f"{round(x, 2) + 0.0:g}"
+
+
+def _floor_2(x: float) -> str:
+    """x rounded down to two significant digits (a size to suggest that surely fits)."""
+    e = math.floor(math.log10(x)) - 1
+    return f"{round(math.floor(x / 10 ** e + 1e-9) * 10 ** e, max(0, -e)):g}"
+
+
+@dataclass(frozen=True, eq=False)
+class Drawing:
+    """A text, SVG or JSON drawing or a picture as the user asked for it (its size and where it
+    goes), shared by its strokes, so that one of them off the wall is reported as the whole:
+    taller than the wall at the size given, or reaching above or below it, with the option that
+    changes that (or, from a placement file, its key)."""
+    what: str                 # "the text 'HI'", "logo.svg: the drawing"
+    size: float               # as given: the option's value
+    option: str               # the CLI option giving it: "--text-size"
+    key: str                  # the placement key giving it: "size"
+    word: str                 # its plain name: "size", "scale", "width"
+    mm: bool                  # whether it is a length
+    corner: str               # the point --at U,V (at = [U, V]) sets: "its baseline start"
+    entry: str = ""           # "p.toml: text[0]: ": from a placement file's entry
+
+    def placed(self, entry: str) -> "Drawing":
+        """The same drawing asked for by a placement file's entry ("p.toml: text[0]")."""
+        return replace(self, entry=f"{entry}: ")
+
+    @property
+    def given(self) -> str:
+        """The size as the user gave it: "--text-size 30 mm", from a placement "size = 30 mm"."""
+        unit = " mm" if self.mm else ""
+        return f"{self.key} = {self.size:g}{unit}" if self.entry else f"{self.option} {self.size:g}{unit}"
+
+    def fit(self, height: float, wall: float) -> str:
+        """What size fits a wall `wall` mm tall (the drawing's height is in proportion to it)."""
+        return (f"use a smaller {self.word}, {_floor_2(self.size * wall / height)}"
+                f"{' mm' if self.mm else ''} or less")
+
+    def extent(self, strokes: Sequence[Stroke]) -> tuple[float, float]:
+        """Its lowest and highest v (mm), from its strokes among `strokes`."""
+        vs = [v for st in strokes if st.drawing is self for _, v in st.points]
+        return min(vs), max(vs)
+
+    def off_the_wall(self, strokes: Sequence[Stroke], lo: float, hi: float) -> str:
+        """The message for a drawing not within the wall's height lo..hi (mm)."""
+        bottom, top = self.extent(strokes)
+        h, wall = top - bottom, hi - lo
+        if h > wall + 1e-9:
+            return (f"{self.entry}{self.what} is {_mm(h)} mm tall at {self.given}, "
+                    f"but the wall is only {_mm(wall)} mm tall; {self.fit(h, wall)}")
+        way, by = ("down", top - hi) if top > hi else ("up", lo - bottom)
+        at = "at = [U, V]" if self.entry else "--at U,V"
+        return (f"{self.entry}{self.what} reaches from {_mm(bottom)} to {_mm(top)} mm above the bed, "
+                f"but the wall goes from {_mm(lo)} to {_mm(hi)} mm; move it {way} by at least "
+                f"{math.ceil(by * 100 - 1e-7) / 100:g} mm ({self.corner}, {at})")   # (rounded up: enough)
+
+
+def drawn(strokes: list[Stroke], drawing: Drawing) -> list[Stroke]:
+    """The strokes, each knowing the drawing they make up."""
+    return [replace(st, drawing=drawing) for st in strokes]
 
 
 # --------------------------------------------------------------------------
@@ -470,7 +539,9 @@ def load_svg(path: str, *, offset: tuple[float, float] = (0.0, 0.0), scale: floa
     if page_h_mm is None:
         page_h_mm = max(y for pts, _, _ in raw for _, y in pts)
     strokes = [Stroke(tuple((x, page_h_mm - y) for x, y in pts), w, loc) for pts, w, loc in raw]
-    return transform(strokes, offset=offset, scale=scale, mirror_u=mirror)
+    return drawn(transform(strokes, offset=offset, scale=scale, mirror_u=mirror),
+                 Drawing(f"{path}: the drawing", scale, "--scale", "scale", "scale", False,
+                         "its page's lower-left corner"))
 
 
 # --------------------------------------------------------------------------
@@ -696,18 +767,22 @@ def text_strokes(text: str, size_mm: float, spacing: float = 0.0, u0: float = 0.
             strokes.append(Stroke(tuple(_dedupe(pts)), s.weight, s.source))
     if not strokes:
         raise InputError("text: nothing to write (only spaces)")
-    return strokes
+    said = text if len(text) <= 24 else text[:20] + "..."
+    return drawn(strokes, Drawing(f"the text {said!r}", size_mm, "--text-size", "size", "size", True,
+                                  "its last line's baseline start" if len(lines) > 1 else "its baseline start"))
 
 
 # --------------------------------------------------------------------------
 # JSON stroke lists
 
 
-def load_json(path: str) -> list[Stroke]:
+def load_json(path: str, *, offset: tuple[float, float] = (0.0, 0.0), scale: float = 1.0,
+              mirror: bool = False) -> list[Stroke]:
     """Strokes from JSON: {"strokes": [{"points": [[u, v], ...], "weight": 255}, ...]}.
 
     u, v in mm; weight optional (default 255); an optional "source" string
-    per stroke is kept for messages.  A one-point stroke is a dot.
+    per stroke is kept for messages.  A one-point stroke is a dot.  Then
+    scaled, mirrored and shifted as transform() does.
     """
     path = os.fspath(path)
     try:
@@ -750,7 +825,10 @@ def load_json(path: str) -> list[Stroke]:
         out.append(Stroke(tuple(clean), w, src or f"{path}: stroke {i}"))
     if not out:
         raise InputError(f"{path}: no strokes")
-    return out
+    if offset != (0.0, 0.0) or scale != 1.0 or mirror:
+        out = transform(out, offset=offset, scale=scale, mirror_u=mirror)
+    return drawn(out, Drawing(f"{path}: the drawing", scale, "--scale", "scale", "scale", False,
+                              "its point 0,0"))
 
 
 def save_json(strokes: Sequence[Stroke], path: str) -> None:
@@ -767,16 +845,26 @@ def save_json(strokes: Sequence[Stroke], path: str) -> None:
 # Images
 
 
-@dataclass(frozen=True)
-class Picture:
-    """Where a picture's dots came from, so an error about them is said in the picture's terms
-    (its size at the width asked for) rather than a single cell's."""
+@dataclass(frozen=True, eq=False, kw_only=True)
+class Picture(Drawing):
+    """A picture's Drawing: its size is the grid image_dots laid, so its height and the widths
+    that fit follow the pitch, not the dots that happen to be dark."""
     path: str
-    width_mm: float
     pitch_mm: float
     size_px: tuple[int, int]
     u0: float
     v0: float
+
+    @classmethod
+    def of(cls, path: str, width_mm: float, pitch_mm: float, size_px: tuple[int, int], u0: float,
+           v0: float) -> "Picture":
+        return cls(what=f"{path}: the picture", size=width_mm, option="--image-width", key="image_width",
+                   word="width", mm=True, corner="its lower-left corner", path=path,
+                   pitch_mm=pitch_mm, size_px=size_px, u0=u0, v0=v0)
+
+    @property
+    def width_mm(self) -> float:
+        return self.size
 
     def rows_at(self, width_mm: float) -> int:
         cols = max(1, round(width_mm / self.pitch_mm))
@@ -792,27 +880,16 @@ class Picture:
         return (self.u0 - 1e-6 <= u <= self.u0 + cols * self.pitch_mm + 1e-6
                 and self.v0 - 1e-6 <= v <= self.v0 + self.height_mm + 1e-6)
 
-    def too_tall(self, lo: float, hi: float) -> str:
-        """The message for dots outside the wall's height lo..hi (mm)."""
-        h, top, wall = self.height_mm, self.v0 + self.height_mm, hi - lo
-        if h > wall + 1e-9:
-            cols = max(1, round(self.width_mm / self.pitch_mm))
-            while cols > 1 and self.rows_at(cols * self.pitch_mm) * self.pitch_mm > wall + 1e-9:
-                cols -= 1
-            fit = (f"use a smaller width, {cols * self.pitch_mm:g} mm or less"
-                   if self.rows_at(cols * self.pitch_mm) * self.pitch_mm <= wall + 1e-9 else
-                   "use a smaller pitch")
-            return (f"{self.path}: the picture is {h:g} mm tall at --image-width {self.width_mm:g} mm, "
-                    f"but the wall is only {wall:g} mm tall; {fit}")
-        return (f"{self.path}: the picture reaches from {self.v0:g} to {top:g} mm above the bed, "
-                f"but the wall goes from {lo:g} to {hi:g} mm; move it {'down' if top > hi else 'up'} "
-                f"(its lower-left corner, --at U,V)")
+    def extent(self, strokes: Sequence[Stroke]) -> tuple[float, float]:
+        return self.v0, self.v0 + self.height_mm
 
-
-@dataclass(frozen=True)
-class PictureDot(Stroke):
-    """One dot of a picture (image_dots), knowing its picture."""
-    picture: Picture | None = None
+    def fit(self, height: float, wall: float) -> str:
+        cols = max(1, round(self.width_mm / self.pitch_mm))
+        while cols > 1 and self.rows_at(cols * self.pitch_mm) * self.pitch_mm > wall + 1e-9:
+            cols -= 1
+        return (f"use a smaller width, {cols * self.pitch_mm:g} mm or less"
+                if self.rows_at(cols * self.pitch_mm) * self.pitch_mm <= wall + 1e-9 else
+                "use a smaller pitch")
 
 
 def read_gray(path):
@@ -859,7 +936,7 @@ def image_dots(path: str, width_mm: float, u0: float = 0.0, v0: float = 0.0, pit
     # BOX resampling averages all pixels of a cell.
     cells = gray.resize((cols, rows), Image.Resampling.BOX)
     px = cells.load()
-    pic = Picture(path, width_mm, pitch_mm, (w_px, h_px), u0, v0)
+    pic = Picture.of(path, width_mm, pitch_mm, (w_px, h_px), u0, v0)
     dots = []
     for r in range(rows):
         v = v0 + (rows - 1 - r) * pitch_mm + pitch_mm / 2
@@ -871,8 +948,8 @@ def image_dots(path: str, width_mm: float, u0: float = 0.0, v0: float = 0.0, pit
                 continue
             cc = (cols - 1 - c) if mirror else c
             u = u0 + cc * pitch_mm + pitch_mm / 2
-            dots.append(PictureDot(((u, v),), max(min_weight, round(dark * 255)),
-                                   f"{path}: pixel cell row {r} col {c}", pic))
+            dots.append(Stroke(((u, v),), max(min_weight, round(dark * 255)),
+                               f"{path}: pixel cell row {r} col {c}", pic))
     return dots
 
 

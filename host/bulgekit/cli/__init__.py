@@ -239,7 +239,9 @@ def post_process(placement, arena, keep, gcode):
       Cura: Extensions > Post Processing > Add a script > bulgekit (integrations/cura/)
 
     The file is replaced only when everything succeeded; on any error it is left as the slicer
-    wrote it, the message goes to stderr and the exit status is 1."""
+    wrote it, the message goes to stderr and the exit status is 1 (2 for a missing input file,
+    named here or in the placement file, as for a bad option: slicers take any other than 0 as
+    a failure)."""
     import shutil
     import tempfile
 

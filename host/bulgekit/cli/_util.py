@@ -7,17 +7,20 @@ import sys
 
 import click
 
-from ..errors import BulgekitError
+from ..errors import BulgekitError, MissingInputError
 
 
 def friendly(fn):
     """Turn expected failures into one-line messages (exit status 1): our own
     errors (they name the file and line, stroke or layer), map-format errors,
-    and I/O errors."""
+    and I/O errors. An input file named inside another and not there is a usage
+    error (exit status 2), as click's for one named on the command line."""
     @functools.wraps(fn)
     def wrapper(*a, **kw):
         try:
             return fn(*a, **kw)
+        except MissingInputError as e:
+            raise click.UsageError(str(e), click.get_current_context(silent=True)) from None
         except BulgekitError as e:
             raise click.ClickException(str(e)) from None
         except ValueError as e:  # mapformat.MapFormatError and friends

@@ -54,7 +54,7 @@ def collect_strokes(inputs, text, text_size, font, letter_spacing, at, scale, mi
             out += st.load_svg(f, offset=at, scale=scale, tolerance_mm=curve_tolerance, dot_radius_mm=dot_radius,
                                mirror=mirror, skip_unsupported=skip_unsupported)
         elif ext == ".json":
-            out += st.transform(st.load_json(f), offset=at, scale=scale, mirror_u=mirror)
+            out += st.load_json(f, offset=at, scale=scale, mirror=mirror)
         elif ext in _IMAGE_EXT:
             if not image_width:
                 raise st.InputError(f"{f}: an image needs its width on the wall: --image-width MM")

@@ -349,6 +349,23 @@ def check_complete(text, source: str = "<gcode>") -> None:
     refuse_cut_off(last, nlines, source)
 
 
+def check_file_ends(path, source: str) -> str | None:
+    """check_complete for a pass that reads the file itself, once (estimate): check_text on its
+    first 64 KB, here, and its last line when that has no line end, returned for refuse_cut_off
+    once the pass has counted the lines (None: it ends with one). Reads 64 KB at each end only,
+    so the checks add no second pass over a large file."""
+    with open(path, "rb") as f:
+        head = f.read(65537)                  # one byte more: the blank-file verdict is for small files only
+        check_text(head, source)
+        f.seek(0, 2)
+        size = f.tell()
+        f.seek(max(0, size - 65536))
+        tail = f.read(65536)
+    if not tail or tail.endswith(b"\n"):
+        return None
+    return tail[tail.rfind(b"\n") + 1:].decode("utf-8", "replace")
+
+
 def refuse_cut_off(last: str, nlines: int, source: str) -> None:
     """check_complete's verdict on a file whose line `nlines`, `last`, has no line end."""
     code, _ = split_code(last.rstrip("\r"))

@@ -80,7 +80,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import BulgekitError
-from . import GcodeError, command_of, parse_words, split_code
+from . import GcodeError, check_file_ends, command_of, parse_words, refuse_cut_off, split_code
 
 PLAN_VERSION = 1       # the compiled planner's VERSION this code calls (_plan.c's module init)
 
@@ -984,21 +984,32 @@ def estimate_file(path, machine: Machine | None = None, scanned: bool | None = N
     """The file's estimate: from the compiled scanner's move records (movescan, events mode)
     when it is built, else (or scanned=False) from its lines; both give the same blocks
     (host/tests/gcode/test_estimate_scan.py). blocks=False: Result.blocks is None (the totals
-    only, in less memory: what `bulgekit estimate` prints)."""
+    only, in less memory: what `bulgekit estimate` prints). The file is checked as every
+    command checks G-code (gcode.check_complete: empty, binary, cut off: the same messages) on
+    the way, not in a pass of its own; one with no move or dwell to time (an SVG, say) is
+    refused too."""
     from . import movescan
     path = os.fspath(path)
     try:
+        last = check_file_ends(path, path)
+        r = None
         if scanned is None:
             scanned = movescan.available()
         if scanned:
             try:
-                return _estimate_scanned(path, machine or Machine(), path, blocks)
+                r = _estimate_scanned(path, machine or Machine(), path, blocks)
             except movescan.Unsupported:
                 pass                                   # a line only the text parser takes
-        with open(path, encoding="utf-8", errors="replace") as f:
-            return estimate_lines(f, machine, source=path, blocks=blocks)
+        if r is None:
+            with open(path, encoding="utf-8", errors="replace") as f:
+                r = estimate_lines(f, machine, source=path, blocks=blocks)
     except OSError as e:
         raise EstimateError(f"{path}: {e.strerror or e}") from None
+    if last is not None:
+        refuse_cut_off(last, r.lines, path)
+    if r.n_blocks == 0 and r.dwell_s == 0:
+        raise EstimateError(f"{path}: no move or dwell to time (G0-G3, G4); is it a G-code file?")
+    return r
 
 
 # Lines the estimator reads itself (the scanner's events) that move the head or set its position

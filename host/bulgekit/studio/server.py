@@ -261,7 +261,10 @@ class Studio:
         for cli, page in (("pass --geometric", "choose Mode: geometric (M720 S2)"),
                           ("--geometric", "Mode: geometric"), ("Use --allow-unreached to write the file anyway.", ""),
                           ("--image-width MM", "Width on the wall"), ("at --image-width", "at a width on the wall of"),
-                          ("--at U,V", "u, v"), ("--spacing", "Spacing")):
+                          ("--at U,V", "u, v"), ("--spacing", "Spacing"),
+                          # a drawing off the wall, said with the placement file's keys
+                          ("at image_width =", "at a width on the wall of"), ("at size =", "at a size of"),
+                          ("at scale =", "at a scale of"), ("at = [U, V]", "u, v")):
             msg = msg.replace(cli, page)
         return msg.strip()
 

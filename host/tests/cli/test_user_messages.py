@@ -60,9 +60,9 @@ def test_a_picture_taller_than_the_wall_is_said_in_its_own_size(tmp_path):
 
 
 @pytest.mark.parametrize("at, said", [("0,15", "reaches from 15 to 25.5 mm above the bed, but the wall goes "
-                                                "from 0 to 20.1 mm; move it down"),
+                                                "from 0 to 20.1 mm; move it down by at least 5.4 mm"),
                                       ("0,-3", "reaches from -3 to 7.5 mm above the bed, but the wall goes "
-                                                "from 0 to 20.1 mm; move it up")])
+                                                "from 0 to 20.1 mm; move it up by at least 3 mm")])
 def test_a_picture_that_fits_but_sits_off_the_wall_is_told_to_move(tmp_path, at, said):
     p = square(tmp_path)
     r = run("build", CYL, "-s", p, "--image-width", 10, "--at", at, "-o", tmp_path / "o", "--no-preview")

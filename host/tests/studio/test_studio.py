@@ -173,7 +173,7 @@ def test_messages_go_beside_the_item_at_fault(studio):
     status, p = call(studio, "/api/preview", {"design": d})
     assert status == 200 and not p["errors"]
     assert "'€'" in p["items"]["euro"]["errors"][0] and "not in font" in p["items"]["euro"]["errors"][0]
-    assert "outside the outer wall's height" in p["items"]["high"]["errors"][0]
+    assert p["items"]["high"]["errors"][0].startswith("the text 'UP' reaches from 19 to 25 mm above the bed")
     assert not p["items"]["ok"]["errors"] and p["points"]          # the good one still builds
     assert {o for pt in p["points"] for o in pt[6]} == {"ok"}
 

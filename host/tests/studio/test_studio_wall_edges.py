@@ -273,7 +273,7 @@ def test_a_picture_too_tall_is_said_in_the_pages_words(studio, tmp_path):
     for width, said in ((30, "sq.png: the picture is 30 mm tall at a width on the wall of 30 mm, but the "
                              "wall is only 20.1 mm tall; use a smaller width, 19.5 mm or less"),
                         (10, "sq.png: the picture reaches from 15 to 25.5 mm above the bed, but the wall "
-                             "goes from 0 to 20.1 mm; move it down (its lower-left corner, u, v)")):
+                             "goes from 0 to 20.1 mm; move it down by at least 5.4 mm (its lower-left corner, u, v)")):
         d = {"items": [{"id": "p", "kind": "file", "asset": pic["name"], "at": [5, 15 if width == 10 else 0],
                         "image_width": width, "rotate": 0}], "bulges": {}}
         status, p = call(studio, "/api/preview", {"design": d})
