@@ -361,6 +361,12 @@ def check_file_ends(path, source: str) -> str | None:
         size = f.tell()
         f.seek(max(0, size - 65536))
         tail = f.read(65536)
+    return unended_line(tail)
+
+
+def unended_line(tail: bytes) -> str | None:
+    """The last line of a file whose last bytes are `tail`, when it has no line end (for
+    refuse_cut_off); None when the file ends with one."""
     if not tail or tail.endswith(b"\n"):
         return None
     return tail[tail.rfind(b"\n") + 1:].decode("utf-8", "replace")

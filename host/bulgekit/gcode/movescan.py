@@ -542,10 +542,9 @@ class Scan:
 
     def _complete(self, tail: bytes) -> None:
         """gcode.check_complete's line-end check, on the file's last bytes."""
-        if not tail or tail.endswith(b"\n"):
-            return
-        last = tail[tail.rfind(b"\n") + 1:].decode("utf-8", "replace")
-        gcode.refuse_cut_off(last, self.nl + 1, self.source)
+        last = gcode.unended_line(tail)
+        if last is not None:
+            gcode.refuse_cut_off(last, self.nl + 1, self.source)
 
     def run(self, consume: Callable[[Chunks], T], fast: bool | None = None) -> T:
         """As movescan.run on the file, from the kept records."""
