@@ -1,5 +1,5 @@
 """The package's layout (issue 26): imports flow one way, cli/studio -> jobs (bulge, litho,
-printer) -> gcode -> base (errors, progress, parallel); no flat module comes back beside the base; the
+printer) -> gcode -> the printer model (machine) -> base (errors, progress, parallel); no flat module comes back beside the base; the
 public API (`import bulgekit as bk`) keeps its names.  Where things live: docs/host.md."""
 from __future__ import annotations
 
@@ -11,7 +11,8 @@ import bulgekit as bk
 PKG = Path(__file__).resolve().parents[1] / "bulgekit"
 
 # floor of each part: an import goes to a lower floor, or stays inside its own package
-FLOORS = {"errors": 0, "progress": 0, "parallel": 0, "gcode": 1, "bulge": 2, "litho": 2, "printer": 2, "studio": 3, "cli": 3}
+FLOORS = {"errors": 0, "progress": 0, "parallel": 0, "machine": 1, "gcode": 2, "bulge": 3, "litho": 3,
+          "printer": 3, "studio": 4, "cli": 4}
 # imports between two packages on the same floor, each with its reason
 SIDEWAYS = {
     ("litho", "bulge"): "the calibration plate's labels are drawn with the stroke fonts "
