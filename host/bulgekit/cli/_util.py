@@ -117,3 +117,34 @@ def outdir_option(*old_spellings):
     return click.option("-o", "--outdir", *old_spellings, "outdir", cls=_OldSpellings,
                         old_spellings=old_spellings, type=click.Path(file_okay=False),
                         default=OUTDIR_DEFAULT, show_default=True, help="Output folder.")
+
+
+def printer_options(fn):
+    """--printer and --firmware: the printer model every writer and the estimator read
+    (bulgekit.machine; docs/host.md, "The printer model")."""
+    from ..machine import FIRMWARES, PRESETS
+    fn = click.option("--firmware", type=click.Choice(FIRMWARES),
+                      help="The printer's firmware, which sets the form of a stock file's stops "
+                           "[the printer model's].")(fn)
+    fn = click.option("--printer", "printer", metavar="PRESET|FILE",
+                      help="The printer: a preset (" + ", ".join(PRESETS) + ") or a file: a saved "
+                           "M503 reply, a Klipper printer.cfg or a profile TOML (bulgekit printer "
+                           "read). The G-code's own M92/M201/M203/M204/M205/M900 then apply. "
+                           "[marlin: Marlin's defaults, E 93]")(fn)
+    return fn
+
+
+def printer_model(printer: str | None, firmware: str | None, gcode=None, e_steps: float | None = None):
+    """The model a command works for: --printer (or the default), --firmware, then the file's own
+    settings before its first extrusion (gcode: a path), then --e-steps when given."""
+    from dataclasses import replace
+
+    from ..machine import resolve, with_gcode
+    m = resolve(printer, firmware)
+    if gcode is not None:
+        with open(gcode, "rb") as f:
+            head = f.read(1 << 20).split(b"\n")[:-1]
+        m = with_gcode(m, head, str(gcode))
+    if e_steps is not None:
+        m = replace(m, steps_per_mm=m.steps_per_mm.with_(E=e_steps))
+    return m
