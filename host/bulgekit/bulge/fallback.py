@@ -39,6 +39,8 @@ from . import mapformat
 from ..gcode import movescan
 from ..gcode import GcodeState, Line, Move, parse_lines
 from ..errors import BulgekitError, output_part
+from .. import machine
+from ..machine import PrinterModel
 from ..gcode import _M92_RX, _m92_e, _plain_lines, scan_m92
 
 
@@ -814,7 +816,7 @@ def _on_arcs(planner: RefPlanner, miss) -> tuple[int, int] | None:
 # the last E step, k being its leading axis's steps per mm of path. Below v k = 120 this is
 # 1/120 + (n - 1)/r + 1/120 (issue 25's rule); short, fast stops end sooner than that rule says.
 STOP_MOVE, STOP_G4 = "move", "g4"
-DEFAULT_E_STEPS = 93.0         # E steps/mm of an Ender-3's stock extruder
+DEFAULT_E_STEPS = machine.DEFAULT.e_steps   # the default printer model's E steps/mm
 MIN_STEPS_PER_SEGMENT = 6      # Marlin drops a move with fewer steps on every axis
 MINIMAL_STEP_RATE = 120        # steps/s: Marlin's floor for a block's first and last step rate
 SLOWEST_STEP_RATE = 32         # steps/s: AVR stepper timer's longest interval (F_CPU / 500000)
@@ -832,16 +834,20 @@ G4_OVER_S = 0.017              # G4 P100 held the head 116.4-117.4 ms (issue 25)
 
 @dataclass(frozen=True)
 class StockStops:
-    """How a stock file writes its stops. e_steps: the printer's E steps/mm until the file's own
-    M92 E changes it (the printer runs the file's M92, so that wins from its line on).
-    stop_e_steps: E steps laid during each stop (None: the fewest that make a move, 6, or more
-    when a long dwell needs them to keep the rate above SLOWEST_STEP_RATE); they are taken from
-    the stop's extra filament, the rest of which goes on the next piece as before."""
+    """How a stock file writes its stops, for which printer. e_steps: the printer's E steps/mm
+    until the file's own M92 E changes it (the printer runs the file's M92, so that wins from its
+    line on); None: the printer model's. stop_e_steps: E steps laid during each stop (None: the
+    fewest that make a move, 6, or more when a long dwell needs them to keep the rate above
+    SLOWEST_STEP_RATE); they are taken from the stop's extra filament, the rest of which goes on
+    the next piece as before. printer: the model whose planner runs the file (bulgekit.machine)."""
     stop: str = STOP_MOVE
-    e_steps: float = DEFAULT_E_STEPS
+    e_steps: float | None = None
     stop_e_steps: int | None = None
+    printer: PrinterModel = machine.DEFAULT
 
     def __post_init__(self):
+        if self.e_steps is None:
+            object.__setattr__(self, "e_steps", self.printer.e_steps)
         if self.stop not in (STOP_MOVE, STOP_G4):
             raise ValueError(f"stop {self.stop!r} must be {STOP_MOVE!r} or {STOP_G4!r}")
         if not (math.isfinite(self.e_steps) and 1 <= self.e_steps <= 10000):
@@ -1249,7 +1255,11 @@ def _header(bmap: mapformat.BulgeMap, settings: Settings, stops: StockStops) -> 
                + (f", {stops.stop_e_steps} E steps each" if stops.stop_e_steps else ""))
     return (f"; bulgekit fallback: {len(bmap.layers)} layers, {bmap.point_count} points, "
             f"dwell {settings.dwell_ms} ms, extra E {settings.extra_e:.3f} mm, "
-            f"tolerance {settings.tolerance:.3f} mm, mode {settings.mode}{how}\n")
+            f"tolerance {settings.tolerance:.3f} mm, mode {settings.mode}{how}\n"
+            f"{PRINTER_HEADER}{stops.printer.describe()}\n")
+
+
+PRINTER_HEADER = "; bulgekit printer: "   # the header's second line: the model the file is for
 
 
 _COPY_BYTES = 1 << 20

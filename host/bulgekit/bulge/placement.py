@@ -27,7 +27,10 @@ post-processing step (`bulgekit post-process`) or `bulgekit build --placement` r
     line_width = 0.45
     fallback = false             # write stock-firmware G-code (stops + extra E) instead of M720-M722
     stop = "move"                # stock stops: "move" (E-only moves, exact) or "g4" (G4 P<ms>)
-    e_steps = 93                 # the printer's E steps/mm (an M92 E in the G-code wins)
+    printer = "ender3"           # the printer model: a preset, or a file (an M503 reply, a Klipper
+                                 # printer.cfg, a profile TOML) relative to this file
+    firmware = "marlin"          # marlin, klipper, prusa or reprap [the printer model's]
+    e_steps = 93                 # the printer's E steps/mm (an M92 E in the G-code wins) [the model's]
     stop_e_steps = 6             # E steps laid during each stop (default: the fewest that make a move)
 
 Unknown tables or keys, wrong types and missing files are errors that name the file and key.
@@ -50,7 +53,8 @@ _STROKE_KEYS = {"file": str, "at": list, "scale": (int, float), "image_width": (
                 "curve_tolerance": (int, float), "rotate": (int, float)}
 _BULGE_KEYS = {"dwell": int, "extra": (int, float), "tolerance": (int, float), "geometric": bool,
                "spacing": (int, float), "line_width": (int, float), "fallback": bool,
-               "stop": str, "e_steps": (int, float), "stop_e_steps": int}
+               "stop": str, "e_steps": (int, float), "stop_e_steps": int, "printer": str,
+               "firmware": str}
 
 
 class PlacementError(InputError):
@@ -67,6 +71,21 @@ class Placement:
     strokes: list[Stroke]
     bulges: dict = field(default_factory=dict)
     entries: list[str] = field(default_factory=list)   # "text[0]", "strokes[0]" ...: those that drew, in order
+
+    @property
+    def printer(self) -> str | None:
+        """[bulges] printer: a preset's name, or its file's path taken from this file's folder."""
+        v = self.bulges.get("printer")
+        if v is None:
+            return None
+        from ..machine import PRESETS
+        if v in PRESETS:
+            return v
+        f = Path(v) if Path(v).is_absolute() else self.path.parent / v
+        if not f.is_file():
+            raise PlacementFileMissing(f"{self.path}: bulges.printer: {v} is neither a preset "
+                                       f"({', '.join(PRESETS)}) nor a file")
+        return str(f)
 
 
 def _check(table: dict, keys: dict, where: str, src: Path) -> None:

@@ -8,7 +8,8 @@ from pathlib import Path
 
 import click
 
-from ._util import FINITE, POSITIVE, Num, friendly, outdir_option, pair, progress_option
+from ._util import (FINITE, POSITIVE, Num, friendly, outdir_option, pair, printer_model, printer_options,
+                    progress_option)
 from .. import __version__
 from ..bulge import mapformat
 from ..bulge.fallback import (DEFAULT_DWELL_MS, DEFAULT_E_STEPS, DEFAULT_EXTRA_E_MM, DEFAULT_TOLERANCE_MM,
@@ -46,19 +47,27 @@ def _stock_options(fn):
                       help="Stock file: E steps laid during each stop, taken from its extra filament "
                            "(the rest goes on the next piece) [the fewest that make a move: "
                            f"{MIN_STEPS_PER_SEGMENT}, more for long dwells].")(fn)
-    fn = click.option("--e-steps", type=Num(1.0, 10000.0), default=DEFAULT_E_STEPS, show_default=True,
+    fn = click.option("--e-steps", type=Num(1.0, 10000.0),
                       help="Stock file: the printer's E steps/mm (M92 E), until an M92 E in the "
-                           "G-code changes it.")(fn)
+                           "G-code changes it [the printer model's; Marlin's defaults: "
+                           f"{_fmt_num(DEFAULT_E_STEPS)}].")(fn)
     fn = click.option("--stop", "stop_kind", type=click.Choice(["move", "g4"]), default="move",
                       show_default=True,
                       help="Stock file: each stop as an extruder-only move (queued, no planner "
                            "drain, exact to the millisecond) or as G4 P<ms> (the paper's rewrite).")(fn)
-    return fn
+    return printer_options(fn)
 
 
-def _stops(stop_kind, e_steps, stop_e_steps) -> StockStops:
+def _fmt_num(v: float) -> str:
+    return f"{v:g}"
+
+
+def _stops(stop_kind, e_steps, stop_e_steps, printer=None, firmware=None, gcode=None) -> StockStops:
+    """How the stock file writes its stops, for the printer model (--printer, --firmware, then
+    the G-code's own settings before its first extrusion)."""
+    pm = printer_model(printer, firmware, gcode)
     try:
-        return StockStops(stop_kind, e_steps, stop_e_steps)
+        return StockStops(stop_kind, e_steps, stop_e_steps, pm)
     except ValueError as e:        # values from a placement file's [bulges]
         raise click.BadParameter(str(e), param_hint="'--stop', '--e-steps' or '--stop-e-steps'") from None
 
@@ -155,7 +164,7 @@ def main():
 def build(ctx, gcode, placement, stroke_files, text, text_size, at, font, letter_spacing, scale, image_width,
           curve_tolerance, mirror, outdir, name, spacing, line_width, layer_height, ref_angle, no_stream,
           write_fallback, preview, preview_3d, dwell, extra, tolerance, geometric, stop_kind, e_steps,
-          stop_e_steps):
+          stop_e_steps, printer, firmware):
     """Place strokes on GCODE's outer wall: map + annotated G-code + stats."""
     from .. import parallel
     from ..bulge import preview as pv
@@ -184,6 +193,8 @@ def build(ctx, gcode, placement, stroke_files, text, text_size, at, font, letter
         stop_kind = stop_kind if given("stop_kind") else b.get("stop", stop_kind)
         e_steps = e_steps if given("e_steps") else b.get("e_steps", e_steps)
         stop_e_steps = stop_e_steps if given("stop_e_steps") else b.get("stop_e_steps", stop_e_steps)
+        printer = printer if given("printer") else pl.printer
+        firmware = firmware if given("firmware") else b.get("firmware", firmware)
     for f in stroke_files:
         strokes += api.load_strokes(f, image_width_mm=image_width, offset=at, scale=scale,
                                     curve_tolerance_mm=curve_tolerance)
@@ -193,7 +204,7 @@ def build(ctx, gcode, placement, stroke_files, text, text_size, at, font, letter
     if not strokes:
         raise click.UsageError("nothing to draw: give --strokes FILE, --text TEXT or --placement FILE")
     settings = _settings(dwell, extra, tolerance, geometric)
-    stops = _stops(stop_kind, e_steps, stop_e_steps)
+    stops = _stops(stop_kind, e_steps, stop_e_steps, printer, firmware, gcode)
     t0 = time.perf_counter()
     stem = name or Path(gcode).stem
     on_map = None
@@ -255,7 +266,8 @@ def post_process(placement, arena, keep, gcode):
         settings = Settings(MODE_GEOMETRIC if b.get("geometric") else MODE_MARKED,
                             b.get("dwell", DEFAULT_DWELL_MS), b.get("extra", DEFAULT_EXTRA_E_MM),
                             b.get("tolerance", DEFAULT_TOLERANCE_MM))
-        stops = StockStops(b.get("stop", "move"), b.get("e_steps", DEFAULT_E_STEPS), b.get("stop_e_steps"))
+        stops = StockStops(b.get("stop", "move"), b.get("e_steps"), b.get("stop_e_steps"),
+                           printer_model(pl.printer, b.get("firmware"), gcode))
     except ValueError as e:
         raise PlacementError(f"{placement}: bulges: {e}") from None
     src = Path(gcode)
@@ -319,7 +331,7 @@ def annotate(gcode, map_file, output, no_stream, arena, allow_unreached, dwell, 
 @progress_option
 @friendly
 def fallback(gcode, map_file, output, allow_unreached, dwell, extra, tolerance, geometric, stop_kind,
-             e_steps, stop_e_steps):
+             e_steps, stop_e_steps, printer, firmware):
     """Rewrite GCODE for stock firmware: split at each point, stop there (an extruder-only
     move of whole E steps timed to the dwell, or G4 P<ms> with --stop g4), extra E on the
     next piece, G92 E.
@@ -329,7 +341,7 @@ def fallback(gcode, map_file, output, allow_unreached, dwell, extra, tolerance, 
     from ..bulge import api
     settings = _settings(dwell, extra, tolerance, geometric)
     res = api.fallback_gcode(gcode, _read_map(map_file), output, settings, allow_unreached=allow_unreached,
-                             stops=_stops(stop_kind, e_steps, stop_e_steps))
+                             stops=_stops(stop_kind, e_steps, stop_e_steps, printer, firmware, gcode))
     if res.unreached:
         click.echo(f"WARNING: {res.unreached}", err=True)
     st = res.stats

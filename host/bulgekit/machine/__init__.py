@@ -28,7 +28,7 @@ import re
 import tomllib
 from dataclasses import dataclass, field, replace
 
-from ..errors import BulgekitError
+from ..errors import BulgekitError, MissingInputError
 
 FIRMWARES = ("marlin", "klipper", "prusa", "reprap")
 AXES = "XYZE"
@@ -36,6 +36,10 @@ AXES = "XYZE"
 
 class ProfileError(BulgekitError):
     """A printer profile that cannot be used: names the file, line and setting."""
+
+
+class ProfileMissing(ProfileError, MissingInputError):
+    """--printer names neither a preset nor a file: a usage error (exit status 2)."""
 
 
 @dataclass(frozen=True)
@@ -223,7 +227,7 @@ def resolve(spec: str | None, firmware: str | None = None) -> PrinterModel:
     elif os.path.exists(spec):
         m = load(spec)
     else:
-        raise ProfileError(f"--printer {spec}: neither a file nor a preset (presets: {', '.join(PRESETS)})")
+        raise ProfileMissing(f"--printer {spec}: neither a file nor a preset (presets: {', '.join(PRESETS)})")
     if firmware is not None and firmware != m.firmware:
         m = _klipper_shape(replace(m, firmware=firmware)) if firmware == "klipper" else replace(m, firmware=firmware)
     return m
