@@ -460,9 +460,10 @@ def _examples_dir() -> Path:
 
 
 # preview, send and strokes live in io.py; litho, estimate and studio in their own modules.
-from . import estimate, io, litho, studio  # noqa: E402  (needs `main` defined above)
+from . import estimate, io, litho, printer, studio  # noqa: E402  (needs `main` defined above)
 
 io.register(main)
 litho.register(main)
 estimate.register(main)
+printer.register(main)
 studio.register(main)

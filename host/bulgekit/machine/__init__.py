@@ -325,6 +325,11 @@ def _classic_jerk_reply(text: str) -> bool:
     return False
 
 
+def has_settings(text: str) -> bool:
+    """Whether the text holds an M92, M201, M203, M204, M205 or M900 line (an M503 reply's)."""
+    return any(mt.group(1).upper() != "M115" for mt in _M_LINE.finditer(text))
+
+
 def firmware_of_m115(reply: str) -> str | None:
     """The firmware kind in an M115 reply's FIRMWARE_NAME, or None."""
     mt = re.search(r"FIRMWARE_NAME:\s*([^\n]*)", reply, re.I)
@@ -350,16 +355,13 @@ def from_m503(text: str, base: PrinterModel = DEFAULT, source: str = "<M503>",
     m = replace(base, name=name, firmware=fw, source=f"M503 reply {source}")
     if _classic_jerk_reply(text) and m.jerk is None:
         m = replace(m, junction_deviation=None, jerk=Axes(10, 10, 0.3, 5))
-    seen = False
+    if not has_settings(text):
+        raise ProfileError(f"{source}: no M92/M201/M203/M204/M205/M900 line in the M503 reply")
     for mt in _M_LINE.finditer(text):
         cmd = mt.group(1).upper()
-        if cmd == "M115":
-            continue
-        line = text.count("\n", 0, mt.start()) + 1
-        m = apply_mcode(m, cmd, _words(mt.group(2)), f"{source}:{line}")
-        seen = True
-    if not seen:
-        raise ProfileError(f"{source}: no M92/M201/M203/M204/M205/M900 line in the M503 reply")
+        if cmd != "M115":
+            line = text.count("\n", 0, mt.start()) + 1
+            m = apply_mcode(m, cmd, _words(mt.group(2)), f"{source}:{line}")
     return m
 
 
