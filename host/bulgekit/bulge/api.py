@@ -29,16 +29,18 @@ _IMAGE_EXT = {".png", ".jpg", ".jpeg", ".bmp", ".gif", ".tif", ".tiff", ".webp"}
 
 def load_strokes(path, *, image_width_mm: float | None = None, offset=(0.0, 0.0),
                  scale: float = 1.0, pitch_mm: float = 1.5,
-                 curve_tolerance_mm: float = 0.05) -> list[Stroke]:
+                 curve_tolerance_mm: float = 0.05, skip_unsupported: bool = False) -> list[Stroke]:
     """Strokes from a .json stroke list, an .svg drawing or a grayscale image
-    (dots; needs image_width_mm)."""
+    (dots; needs image_width_mm). skip_unsupported: an SVG's <text>/<image> is warned about
+    and skipped instead of refused."""
     from . import strokes as st
     p = os.fspath(path)
     ext = Path(p).suffix.lower()
     if ext == ".json":
         return st.load_json(p, offset=offset, scale=scale)
     if ext == ".svg":
-        return st.load_svg(p, offset=offset, scale=scale, tolerance_mm=curve_tolerance_mm)
+        return st.load_svg(p, offset=offset, scale=scale, tolerance_mm=curve_tolerance_mm,
+                           skip_unsupported=skip_unsupported)
     if ext in _IMAGE_EXT:
         if not image_width_mm:
             raise InputError(f"{p}: an image needs a width on the wall (--image-width MM)")

@@ -9,7 +9,7 @@ from pathlib import Path
 import click
 
 from ._util import (FINITE, POSITIVE, Num, friendly, outdir_option, pair, printer_model, printer_options,
-                    progress_option)
+                    progress_option, show_warning)
 from .. import __version__
 from ..bulge import mapformat
 from ..bulge.fallback import (DEFAULT_DWELL_MS, DEFAULT_E_STEPS, DEFAULT_EXTRA_E_MM, DEFAULT_TOLERANCE_MM,
@@ -121,6 +121,8 @@ def main():
     counter-clockwise (left to right seen from outside) from the front (-Y) of
     each layer; v = mm above the bed. Run `bulgekit demo` for a worked example.
     """
+    import warnings
+    warnings.showwarning = show_warning
 
 
 @main.command(short_help="Strokes + sliced G-code -> map, annotated G-code, stats, preview.")
@@ -144,6 +146,7 @@ def main():
 @click.option("--curve-tolerance", type=POSITIVE, default=0.05, show_default=True,
               help="SVG curve flattening tolerance, mm (--tolerance is M720 T).")
 @click.option("--mirror", is_flag=True, help="Mirror --text (paint rollers).")
+@click.option("--skip-unsupported", is_flag=True, help="Warn about and skip SVG <text>/<image>.")
 @outdir_option()
 @click.option("--name", help="Output base name (default: the G-code's name).")
 @click.option("--spacing", type=POSITIVE, help="Distance (mm) between points along a layer [2 x line width].")
@@ -162,7 +165,7 @@ def main():
 @friendly
 @click.pass_context
 def build(ctx, gcode, placement, stroke_files, text, text_size, at, font, letter_spacing, scale, image_width,
-          curve_tolerance, mirror, outdir, name, spacing, line_width, layer_height, ref_angle, no_stream,
+          curve_tolerance, mirror, skip_unsupported, outdir, name, spacing, line_width, layer_height, ref_angle, no_stream,
           write_fallback, preview, preview_3d, dwell, extra, tolerance, geometric, stop_kind, e_steps,
           stop_e_steps, printer, firmware):
     """Place strokes on GCODE's outer wall: map + annotated G-code + stats."""
@@ -197,7 +200,7 @@ def build(ctx, gcode, placement, stroke_files, text, text_size, at, font, letter
         firmware = firmware if given("firmware") else b.get("firmware", firmware)
     for f in stroke_files:
         strokes += api.load_strokes(f, image_width_mm=image_width, offset=at, scale=scale,
-                                    curve_tolerance_mm=curve_tolerance)
+                                    curve_tolerance_mm=curve_tolerance, skip_unsupported=skip_unsupported)
     if text:
         strokes += text_strokes(text, text_size, spacing=letter_spacing, u0=at[0], v0=at[1],
                                 mirror=mirror, font=font)

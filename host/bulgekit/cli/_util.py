@@ -10,6 +10,13 @@ import click
 from ..errors import BulgekitError, MissingInputError
 
 
+class MissingInput(click.ClickException):
+    """An input file named inside another (a placement file's drawing) that is not there: exit
+    status 2 as a usage error, but one `Error:` line, without click's Usage lines (the command
+    line itself was right)."""
+    exit_code = 2
+
+
 def friendly(fn):
     """Turn expected failures into one-line messages (exit status 1): our own
     errors (they name the file and line, stroke or layer), map-format errors,
@@ -20,7 +27,7 @@ def friendly(fn):
         try:
             return fn(*a, **kw)
         except MissingInputError as e:
-            raise click.UsageError(str(e), click.get_current_context(silent=True)) from None
+            raise MissingInput(str(e)) from None
         except BulgekitError as e:
             raise click.ClickException(str(e)) from None
         except ValueError as e:  # mapformat.MapFormatError and friends
@@ -148,3 +155,9 @@ def printer_model(printer: str | None, firmware: str | None, gcode=None, e_steps
     if e_steps is not None:
         m = replace(m, steps_per_mm=m.steps_per_mm.with_(E=e_steps))
     return m
+
+
+def show_warning(message, category, filename, lineno, file=None, line=None):
+    """Python warnings (bulgekit's: a filled SVG shape drawn as its outline, a skipped <text>) as
+    one `WARNING:` line on stderr, without the source line Python shows."""
+    click.echo(f"WARNING: {message}", err=True)

@@ -192,3 +192,28 @@ def test_progress_shows_a_rate_only_after_a_second(monkeypatch):
             assert "1,000 of 1,000 lines), 500 lines/s, 0 s left" in buf.getvalue()
     finally:
         progress.disable()
+
+
+def test_svg_text_and_fill_are_said_in_builds_words(tmp_path):
+    """An SVG <text> is refused with the build's own option named (not `strokes --text`), skipped
+    with a warning under build --skip-unsupported; a filled shape is drawn as its outline and
+    that is said, once, with the first shape's line."""
+    from click.testing import CliRunner
+    from bulgekit.cli import main
+    from pathlib import Path
+    gcode = Path(__file__).parents[3] / "examples" / "cylinder40x20.gcode"
+    svg = tmp_path / "d.svg"
+    svg.write_text('<svg xmlns="http://www.w3.org/2000/svg" width="20mm" height="10mm" viewBox="0 0 20 10">\n'
+                   '<rect x="1" y="1" width="8" height="8" style="fill:#000"/>\n'
+                   '<circle cx="14" cy="5" r="3" fill="red"/>\n'
+                   '<text x="1" y="9">A</text>\n'
+                   '<path d="M 10 5 L 19 5" style="fill:none;stroke:#000"/>\n</svg>\n')
+    args = ["build", str(gcode), "-s", str(svg), "--at", "3,5", "-o", str(tmp_path / "o"), "--no-preview", "-q"]
+    r = CliRunner().invoke(main, args)
+    assert r.exit_code == 1 and "--text, or a [[text]] table" in r.stderr and "strokes --text" not in r.stderr
+    r = CliRunner().invoke(main, args + ["--skip-unsupported"])
+    assert r.exit_code == 0, r.stderr
+    warn = [ln for ln in r.stderr.splitlines() if ln.startswith("WARNING:")]
+    assert len(warn) == 2, r.stderr
+    assert "<text>" in warn[0] and "skipped" in warn[0]
+    assert "2 filled shape(s) drawn as their outlines only (the first: " in warn[1] and ":2 <rect>" in warn[1]
