@@ -10,6 +10,12 @@ post-processing step (`bulgekit post-process`) or `bulgekit build --placement` r
     mirror = false
     rotate = 0                   # degrees, counter-clockwise about `at`
 
+    [[braille]]                  # any number of these: text in braille, the standard's spacing
+    text = "HELLO"
+    at = [5, 3]                  # u, v mm: the first cell's bottom dots
+    grade = 1                    # 1 or 2 (Unified English Braille), or:
+    table = "de-g2.ctb"          # any liblouis table by name
+
     [[strokes]]                  # SVG, JSON stroke list or an image; path relative to this file
     file = "wave.json"
     at = [0, 0]
@@ -49,6 +55,7 @@ from .strokes import Stroke
 
 _TEXT_KEYS = {"text": str, "at": list, "size": (int, float), "font": str, "letter_spacing": (int, float),
               "mirror": bool, "rotate": (int, float)}
+_BRAILLE_KEYS = {"text": str, "at": list, "grade": int, "table": str}
 _STROKE_KEYS = {"file": str, "at": list, "scale": (int, float), "image_width": (int, float),
                 "curve_tolerance": (int, float), "rotate": (int, float)}
 _BULGE_KEYS = {"dwell": int, "extra": (int, float), "tolerance": (int, float), "geometric": bool,
@@ -128,8 +135,8 @@ def load_placement(path) -> Placement:
     except tomllib.TOMLDecodeError as e:
         raise PlacementError(f"{src}: not valid TOML: {e}") from None
     for k in doc:
-        if k not in ("text", "strokes", "bulges"):
-            raise PlacementError(f"{src}: unknown table {k!r} (known: text, strokes, bulges)")
+        if k not in ("text", "braille", "strokes", "bulges"):
+            raise PlacementError(f"{src}: unknown table {k!r} (known: text, braille, strokes, bulges)")
     strokes: list[Stroke] = []
     entries: list[str] = []
     for i, t in enumerate(_tables(doc, "text", src)):
@@ -144,6 +151,19 @@ def load_placement(path) -> Placement:
         except InputError as e:
             raise PlacementError(f"{src}: {where}: {e}") from None
         strokes += _tagged(_rotated(made, t.get("rotate", 0), (u, v)), where, src)
+        entries.append(where)
+    for i, t in enumerate(_tables(doc, "braille", src)):
+        where = f"braille[{i}]"
+        _check(t, _BRAILLE_KEYS, where, src)
+        if "text" not in t:
+            raise PlacementError(f"{src}: {where}: 'text' is missing")
+        u, v = _at(t, where, src)
+        from .braille import braille_strokes
+        try:
+            made = braille_strokes(t["text"], u, v, t.get("grade"), t.get("table"))
+        except InputError as e:
+            raise PlacementError(f"{src}: {where}: {e}") from None
+        strokes += _tagged(made, where, src)
         entries.append(where)
     for i, t in enumerate(_tables(doc, "strokes", src)):
         where = f"strokes[{i}]"
@@ -170,7 +190,7 @@ def load_placement(path) -> Placement:
         raise PlacementError(f"{src}: 'bulges' must be a table ([bulges])")
     _check(bulges, _BULGE_KEYS, "bulges", src)
     if not strokes:
-        raise PlacementError(f"{src}: nothing to draw: add a [[text]] or [[strokes]] table")
+        raise PlacementError(f"{src}: nothing to draw: add a [[text]], [[braille]] or [[strokes]] table")
     return Placement(src, strokes, dict(bulges), entries)
 
 

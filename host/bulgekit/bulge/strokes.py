@@ -35,10 +35,15 @@ class Stroke:
     source: str = ""
     # the text, drawing or picture it is part of (Drawing), for messages about the whole
     drawing: "Drawing | None" = field(default=None, compare=False, repr=False)
+    # a dot with height (a braille dot): the layers within this many mm of its v each get a point,
+    # weighted by a dome, weight x sqrt(1 - (dv / dome)^2) at the layer's middle (mapbuild)
+    dome: float = 0.0
 
     def __post_init__(self):
         if not self.points:
             raise InputError(f"{self.source or 'stroke'}: stroke has no points")
+        if self.dome and (len(self.points) != 1 or not (math.isfinite(self.dome) and self.dome > 0)):
+            raise InputError(f"{self.source or 'stroke'}: a dome is one point with a radius > 0")
         if not (isinstance(self.weight, int) and 0 <= self.weight <= 255):
             raise InputError(f"{self.source or 'stroke'}: weight {self.weight!r} is not an integer 0..255")
         for k, (u, v) in enumerate(self.points):

@@ -72,6 +72,12 @@ def _stops(stop_kind, e_steps, stop_e_steps, printer=None, firmware=None, gcode=
         raise click.BadParameter(str(e), param_hint="'--stop', '--e-steps' or '--stop-e-steps'") from None
 
 
+def _braille_check(strokes, settings: Settings, spacing, line_width):
+    """The check that a print can make readable braille dots, when there is braille to place."""
+    from ..bulge.braille import wall_check
+    return wall_check(strokes, settings.dwell_ms, spacing, line_width)
+
+
 def _arena_option(fn):
     return click.option("--arena", type=click.IntRange(min=1), default=mapformat.ARENA_BYTES,
                         show_default=True,
@@ -133,6 +139,12 @@ def main():
               help="TOML placement file (text, strokes, [bulges] settings; see examples/placement.toml), "
                    "as `post-process` reads it; options given here win over its [bulges].")
 @click.option("--text", help="Write this text on the wall (single-stroke font).")
+@click.option("--braille", help="Write this text in braille at --at (liblouis; the standard's "
+                                "spacing: dots 2.5 mm, cells 6 mm, lines 10 mm; \\n between lines).")
+@click.option("--braille-grade", type=click.IntRange(1, 2), default=1, show_default=True,
+              help="Braille grade of Unified English Braille (2: contracted).")
+@click.option("--braille-table", metavar="TABLE",
+              help="A liblouis table instead of --braille-grade (e.g. de-g2.ctb, fr-bfu-g2.ctb).")
 @click.option("--text-size", "--size", "text_size", type=POSITIVE, default=6.0, show_default=True,
               help="Capital height of --text, mm.")
 @click.option("--at", callback=pair, default="0,0", show_default=True, metavar="U,V",
@@ -164,7 +176,7 @@ def main():
 @progress_option
 @friendly
 @click.pass_context
-def build(ctx, gcode, placement, stroke_files, text, text_size, at, font, letter_spacing, scale, image_width,
+def build(ctx, gcode, placement, stroke_files, text, braille, braille_grade, braille_table, text_size, at, font, letter_spacing, scale, image_width,
           curve_tolerance, mirror, skip_unsupported, outdir, name, spacing, line_width, layer_height, ref_angle, no_stream,
           write_fallback, preview, preview_3d, dwell, extra, tolerance, geometric, stop_kind, e_steps,
           stop_e_steps, printer, firmware):
@@ -204,8 +216,13 @@ def build(ctx, gcode, placement, stroke_files, text, text_size, at, font, letter
     if text:
         strokes += text_strokes(text, text_size, spacing=letter_spacing, u0=at[0], v0=at[1],
                                 mirror=mirror, font=font)
+    if braille:
+        from ..bulge.braille import braille_strokes
+        strokes += braille_strokes(braille.replace("\\n", "\n"), at[0], at[1], braille_grade,
+                                   braille_table)
     if not strokes:
-        raise click.UsageError("nothing to draw: give --strokes FILE, --text TEXT or --placement FILE")
+        raise click.UsageError("nothing to draw: give --strokes FILE, --text TEXT, --braille TEXT "
+                               "or --placement FILE")
     settings = _settings(dwell, extra, tolerance, geometric)
     stops = _stops(stop_kind, e_steps, stop_e_steps, printer, firmware, gcode)
     t0 = time.perf_counter()
@@ -218,7 +235,7 @@ def build(ctx, gcode, placement, stroke_files, text, text_size, at, font, letter
     out = api.build(gcode, strokes, outdir, name=name, spacing=spacing, line_width=line_width,
                     layer_height=layer_height, ref_angle_deg=ref_angle, settings=settings,
                     stream=not no_stream, write_fallback=write_fallback, stops=stops,
-                    _on_map=on_map)
+                    _on_map=on_map, _check_walls=_braille_check(strokes, settings, spacing, line_width))
     click.echo(out.stats.text(per_layer=False))
     for note in out.result.notes:
         click.echo(f"note: {note}")
@@ -276,9 +293,11 @@ def post_process(placement, arena, keep, gcode):
     src = Path(gcode)
     tmp = Path(tempfile.mkdtemp(prefix=".bulgekit-", dir=src.parent))
     try:
+        lw = b.get("line_width", DEFAULT_LINE_WIDTH)
         out = api.build(src, pl.strokes, tmp, name="pp", spacing=b.get("spacing"),
-                        line_width=b.get("line_width", DEFAULT_LINE_WIDTH), settings=settings, arena=arena,
-                        write_fallback=bool(b.get("fallback")), stops=stops)
+                        line_width=lw, settings=settings, arena=arena,
+                        write_fallback=bool(b.get("fallback")), stops=stops,
+                        _check_walls=_braille_check(pl.strokes, settings, b.get("spacing"), lw))
         result = out.fallback_path if b.get("fallback") else out.gcode_path
         if keep:
             Path(keep).mkdir(parents=True, exist_ok=True)

@@ -148,8 +148,10 @@ def test_scan_refuses_as_the_checks_do(case, tmp_path, monkeypatch):
 
 def _build_hashes(src, out):
     import hashlib
+    from test_build_identical import _without_printer_line      # (the reference's hashes leave it out)
     api.build(src, text_strokes("HI", 6.0, u0=5, v0=3), out, write_fallback=True)
-    return {p.name.split(".", 1)[1]: hashlib.sha256(p.read_bytes()).hexdigest() for p in sorted(out.iterdir())}
+    return {p.name.split(".", 1)[1]: hashlib.sha256(_without_printer_line(p.read_bytes())).hexdigest()
+            for p in sorted(out.iterdir())}
 
 
 def test_a_file_the_scanner_leaves_to_python_builds_as_without_the_one_scan(tmp_path, monkeypatch):
