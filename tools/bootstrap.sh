@@ -40,6 +40,10 @@ missing_now() {  # prints what this checkout's role (demo, or build and tests) s
   local modules="numpy, click, svgelements, HersheyFonts, PIL, matplotlib, serial, trimesh, rtree, tqdm, shapely, skimage, aiohttp"
   [ $role = demo ] || modules+=", pytest, playwright"
   python3 -c "import $modules" 2>/dev/null || missing+=("python: the host package's dependencies")
+  # the test extras' setuptools builds wheels itself (host/tests/test_without_compiler.py)
+  [ $role = demo ] || python3 -c "from importlib.metadata import version
+raise SystemExit(tuple(int(x) for x in version('setuptools').split('.')[:2]) < (70, 1))" 2>/dev/null ||
+    missing+=("python: setuptools>=70.1")
   if [ $role = test ]; then
     python3 -c "import os, sysconfig; assert os.path.isfile(os.path.join(sysconfig.get_paths()['include'], 'Python.h'))" \
       2>/dev/null || missing+=("python3-dev")

@@ -68,7 +68,7 @@ if [ $role = test ]; then
   # PlatformIO pins SCons (tool-scons ~4.41101.0 = SCons 4.11.1 for PlatformIO 6.2.0);
   # tools/pio_offline.py checks the pair and installs SCons as PlatformIO's package.
   PIP_PACKAGES=("platformio==6.2.0" "scons==4.11.1")
-  HOST="host[test]"   # + pytest, playwright, and a setuptools that builds wheels (test_wheel.py)
+  HOST="host[test]"   # + pytest, playwright, and a setuptools that builds wheels (test_without_compiler.py)
   # npm fetches three.js for the studio (host/web/build.py); Debian's package unless one is there
   command -v npm >/dev/null || APT_PACKAGES+=(npm)
 fi
