@@ -59,7 +59,7 @@ if [ -n "$missing" ]; then
   # here rather than send them to another target first. BK_NO_INSTALL=1 only reports it.
   echo "bootstrap: missing: $missing" >&2
   if [ "${BK_NO_INSTALL:-0}" = 1 ]; then
-    if [ $role = demo ]; then how="--role demo' (pip"; else how="' (apt-get + pip + npm"; fi
+    if [ $role = demo ]; then how=" --role demo' (pip"; else how="' (apt-get + pip + npm"; fi
     echo "bootstrap: BK_NO_INSTALL=1: run 'bash tools/install-deps.sh$how) yourself" >&2
     exit 1
   fi
