@@ -135,7 +135,7 @@ if [ -f host/pyproject.toml ]; then
   "$PY" -m pip install -q -e "$HOST"
 fi
 case $home in venv*)
-  echo "install-deps: done; the make targets run $VENV/bin's python3, pio and bulgekit (tools/env.sh)."
+  echo "install-deps: done; the make targets run $VENV/bin's python3$([ $role = test ] && echo ", pio") and bulgekit (tools/env.sh)."
   echo "install-deps: to run bulgekit yourself: $VENV/bin/bulgekit --help, or 'source $VENV/bin/activate' first" ;;
 *) echo "install-deps: done" ;;
 esac
