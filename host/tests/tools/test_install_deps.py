@@ -132,9 +132,9 @@ TOOLCHAIN_APT = {"gcc", "g++", "make", "pkg-config", "gcc-avr", "avr-libc", "bin
 TOOLCHAIN_PIP = "platformio==6.2.0 scons==4.11.1 -e host[test]"
 
 
-def plan(root, role, path):
+def plan(root, role, path, pythonpath=None):
     args = [] if role is None else ["--role", role]
-    r = run(["/bin/bash", "tools/install-deps.sh", *args, "--plan"], root, path)
+    r = run(["/bin/bash", "tools/install-deps.sh", *args, "--plan"], root, path, pythonpath)
     assert r.returncode == 0, r.stderr
     fields = dict(line.split(":", 1) for line in r.stdout.splitlines())
     return fields["role"].strip(), set(fields["apt"].split()), fields["pip"].strip(), fields["npm"].strip()
@@ -158,9 +158,9 @@ def test_the_demo_role_plans_the_host_package_alone(checkout, tmp_path):
     assert plan(checkout, "test", str(tools))[1:] == (apt, pip, npm)
 
 
-def test_a_python_that_takes_packages_needs_no_apt_for_the_demo(checkout, tmp_path):
+def test_a_python_that_takes_packages_needs_no_apt_for_the_demo(checkout, tmp_path, with_pip):
     py = make_python(tmp_path / "pyenv", externally_managed=False)
-    _, apt, pip, _ = plan(checkout, "demo", f"{py.parent}:/usr/bin:/bin")
+    _, apt, pip, _ = plan(checkout, "demo", f"{py.parent}:/usr/bin:/bin", with_pip)
     assert apt == set() and pip == "-e host"
 
 
