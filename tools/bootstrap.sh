@@ -40,7 +40,7 @@ missing_now() {  # prints what this checkout's role (demo, or build and tests) s
   local modules="numpy, click, svgelements, HersheyFonts, PIL, matplotlib, serial, trimesh, rtree, tqdm, shapely, skimage, aiohttp"
   [ $role = demo ] || modules+=", pytest, playwright"
   python3 -c "import $modules" 2>/dev/null || missing+=("python: the host package's dependencies")
-  # the test extras' setuptools builds wheels itself (host/tests/test_without_compiler.py)
+  # the test extras' setuptools builds wheels itself (host/tests/tools/test_without_compiler.py)
   [ $role = demo ] || python3 -c "from importlib.metadata import version
 raise SystemExit(tuple(int(x) for x in version('setuptools').split('.')[:2]) < (70, 1))" 2>/dev/null ||
     missing+=("python: setuptools>=70.1")

@@ -64,6 +64,7 @@ if [ $role = test ]; then
                 gcc-arm-none-eabi libnewlib-arm-none-eabi qemu-system-arm  # the Cortex-M test targets
                 python3-dev     # headers for the host package's compiled helpers (host/setup.py)
                 prusa-slicer    # the post-processing test runs the real PrusaSlicer CLI
+                python3-louis liblouis-data  # braille (liblouis; bulge/braille.py loads Debian's binding)
                 chromium)       # the studio's browser tests (driven by Playwright from PyPI)
   # PlatformIO pins SCons (tool-scons ~4.41101.0 = SCons 4.11.1 for PlatformIO 6.2.0);
   # tools/pio_offline.py checks the pair and installs SCons as PlatformIO's package.

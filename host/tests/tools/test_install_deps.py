@@ -128,7 +128,8 @@ def test_once_there_the_venv_is_what_make_runs(checkout, tmp_path, with_pip):
 # (Debian's), and from PyPI PlatformIO, SCons and the test extras (pytest, Playwright).
 TOOLCHAIN_APT = {"gcc", "g++", "make", "pkg-config", "gcc-avr", "avr-libc", "binutils-avr", "simavr",
                  "libsimavr-dev", "libelf-dev", "clang", "libclang-rt-14-dev", "gcc-arm-none-eabi",
-                 "libnewlib-arm-none-eabi", "qemu-system-arm", "python3-dev", "prusa-slicer", "chromium", "npm"}
+                 "libnewlib-arm-none-eabi", "qemu-system-arm", "python3-dev", "prusa-slicer", "python3-louis",
+                 "liblouis-data", "chromium", "npm"}
 TOOLCHAIN_PIP = "platformio==6.2.0 scons==4.11.1 -e host[test]"
 
 
