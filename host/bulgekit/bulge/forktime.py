@@ -53,22 +53,24 @@ def is_annotated(path, head: int = 1 << 20) -> bool:
     `mcodes` put the upload): only such files take the fork's path."""
     with open(path, "rb") as f:
         data = f.read(head)
-    for i in _line_starts(data, (b"M721", b"m721")):
+    for i in _line_starts(data):
         mt = _OURS.match(data, i)
         if mt and mt.group(1) == b"1":
             return True
     return False
 
 
-def _line_starts(data, words) -> list[int]:
-    """Starts of the lines where one of `words` stands (found by bytes' own search)."""
-    out = set()
-    for w in words:
-        i = data.find(w)
-        while i >= 0:
-            out.add(data.rfind(b"\n", 0, i) + 1)
-            i = data.find(w, i + 1)
-    return sorted(out)
+_M72 = re.compile(rb"72[0-2]")   # a literal's search (quicker than [Mm] or bytes.find); _OURS decides
+
+
+def _line_starts(data, pattern=_M72) -> list[int]:
+    """Starts of the lines where `pattern` stands."""
+    out = []
+    for mt in pattern.finditer(data):
+        s = data.rfind(b"\n", 0, mt.start()) + 1
+        if not out or out[-1] != s:
+            out.append(s)
+    return out
 
 
 @dataclass
@@ -84,7 +86,7 @@ def read_marks(data) -> Marks:
     out = Marks()
     lists = (out.m720, out.m721, out.m722)
     at, line = 0, 1
-    for s in _line_starts(data, (b"M72", b"m72")):
+    for s in _line_starts(data):
         mt = _OURS.match(data, s)
         if not mt:
             continue
@@ -159,10 +161,12 @@ class _GatedChunks:
     def __iter__(self):
         for a in self.c:
             if len(a):
-                a = a.copy()
-                outer = self.p.outer_at(a["line_no"])
                 fl = a["flags"]
-                a["flags"] = np.where(outer, fl | movescan.OUTER, fl & (0xFF ^ movescan.OUTER))
+                want = np.where(self.p.outer_at(a["line_no"]), fl | movescan.OUTER,
+                                fl & (0xFF ^ movescan.OUTER))
+                if not np.array_equal(want, fl):      # (the annotator's markers: as the comments)
+                    a = a.copy()
+                    a["flags"] = want
                 if self.first_line is None:
                     self.first_line = int(a["line_no"][0])
                 self.last_line = int(a["line_no"][-1])
