@@ -34,7 +34,7 @@ from . import mapformat
 from .fallback import (MODE_OFF, STOP_G4, Action, RefPlanner, RewriteResult, Settings,
                        StockStops, _rewrite_records, rewrite)
 from ..errors import BulgekitError
-from ..gcode import estimate as es, movescan, split_code
+from ..gcode import check_file_ends, estimate as es, movescan, refuse_cut_off, split_code
 from ..machine import PrinterModel
 
 DWELL_LEAD_S = 0.0005          # BK_DWELL_LEAD: the first step after a hold (install-marlin.py)
@@ -199,8 +199,11 @@ def estimate_annotated(path, machine: es.Machine, model: PrinterModel, blocks: b
     doc). machine: the estimator's settings (es.Machine.from_model(model)); model: the printer,
     for its MINIMAL_STEP_RATE."""
     path = os.fspath(path)
+    last = check_file_ends(path, path)          # the checks estimate_file makes, on the file given
     with open(path, "rb") as f:
         data = f.read()
+    if last is not None:
+        refuse_cut_off(last, data.count(b"\n") + 1, path)
     marks = read_marks(data)
     refused: list[str] = []                     # uploads the firmware refuses: the map stays
     bmap = mapformat.read_upload(marks.m721, path, refused)
@@ -248,7 +251,10 @@ def estimate_annotated(path, machine: es.Machine, model: PrinterModel, blocks: b
                 stops.clear()
                 res = RewriteResult()
         if done:
-            r = es.estimate_file(out, machine, scanned=scanned, blocks=blocks)
+            try:
+                r = es.estimate_file(out, machine, scanned=scanned, blocks=blocks)
+            except es.EstimateError as e:      # (its lines numbered as the split file has them)
+                raise es.EstimateError(str(e).replace(out, f"{path} (split as the firmware splits it)")) from None
         else:
             with open(path, encoding="utf-8", errors="replace") as f:
                 r = es.estimate_lines(rewrite(f, bmap, settings, path, res, cfg, planner, on_move),

@@ -178,3 +178,11 @@ def test_cli_estimate_of_an_annotated_file(tmp_path):
     assert plain.exit_code == 0 and "stops" not in plain.output
     t = lambda o: float(o.split(" s; ")[0].rsplit("(", 1)[1])
     assert t(r.output) - t(plain.output) == pytest.approx(3 * per_stop(100), abs=0.06)
+
+
+def test_a_cut_off_annotated_file_is_refused(tmp_path):
+    from bulgekit.gcode import GcodeError
+    src, out, mp = annotated(tmp_path, wall(), [points(0.3, [115])])
+    out.write_bytes(out.read_bytes() + b"G1 X2 Y3")
+    with pytest.raises(GcodeError, match="does not end with a line end"):
+        added(src, out)
