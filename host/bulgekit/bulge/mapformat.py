@@ -578,14 +578,14 @@ def read_upload(lines: Iterable[tuple[int, str]], source: str = "<gcode>",
                 if up is None:
                     raise MapFormatError(f"{where}: M721 E without a begin")
                 size, crc, append, data, got = up
-                up = None
                 end = 0
                 for a, b in sorted(got):
                     if a > end:
                         break
                     end = max(end, b)
-                if end < size:
+                if end < size:                  # the upload stays open for the missing chunks
                     raise MapFormatError(f"{where}: M721 E after {end} of {size} bytes")
+                up = None
                 if crc32(bytes(data)) != crc:
                     raise MapFormatError(f"{where}: M721 CRC {crc32(bytes(data))} != C{crc}")
                 if not append:

@@ -161,6 +161,11 @@ def test_read_upload_takes_the_lines_the_annotator_and_mcodes_write():
     refused = []
     assert mapformat.read_upload([(1, "M721 S20 C1"), (2, "M721 O0 D!!")], "f", refused) is None
     assert refused == ["f:2: malformed M721 line 'M721 O0 D!!'"]
+    # a commit before the last chunk: the upload stays open, as in the firmware
+    up = mapformat.upload_lines(mp, chunk_bytes=10)
+    refused = []
+    got = mapformat.read_upload([(i, l) for i, l in enumerate(up[:2] + [up[-1]] + up[2:], 1)], "f", refused)
+    assert got.layers == mapformat.decode_map(mp).layers and "M721 E after 10 of" in refused[0]
 
 
 def mapformat_code(line):
