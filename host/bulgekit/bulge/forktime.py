@@ -208,8 +208,10 @@ def estimate_annotated(path, machine: es.Machine, model: PrinterModel, blocks: b
     refused: list[str] = []                     # uploads the firmware refuses: the map stays
     bmap = mapformat.read_upload(marks.m721, path, refused)
     timeline = settings_timeline(marks.m720, path)
-    lines = np.array([n for n, _ in marks.m722], np.int64)
-    states = np.array([_marker(c) for _, c in marks.m722], bool)
+    m722 = [(n, _marker(c)) for n, c in marks.m722]
+    m722 = [(n, on) for n, on in m722 if on is not None]
+    lines = np.array([n for n, _ in m722], np.int64)
+    states = np.array([on for _, on in m722], bool)
     feats = _features(data) if bmap is not None else None
     del data
     notes = [f"the firmware refuses {r}" for r in refused]
@@ -225,11 +227,11 @@ def estimate_annotated(path, machine: es.Machine, model: PrinterModel, blocks: b
     planner = _GatedPlanner(bmap, settings, lines, states)
     stops: list[tuple[int, int]] = []           # (line, ms) of each dwell the core queues
 
-    last = [0]                                  # the last move's line
+    last_move = [0]                             # the last move's line
 
     def on_move(m, acts):
         stops.extend((m.line_no, a.ms) for a in acts if a.kind == "dwell")
-        last[0] = max(last[0], m.line_no)
+        last_move[0] = max(last_move[0], m.line_no)
     res = RewriteResult()
     cfg = StockStops(stop=STOP_G4, printer=model)
     with tempfile.TemporaryDirectory(prefix="bulgekit-forktime-") as tmp:
@@ -259,17 +261,19 @@ def estimate_annotated(path, machine: es.Machine, model: PrinterModel, blocks: b
             with open(path, encoding="utf-8", errors="replace") as f:
                 r = es.estimate_lines(rewrite(f, bmap, settings, path, res, cfg, planner, on_move),
                                       machine, source=path, blocks=blocks)
-            span = (first, last[0])
+            span = (first, last_move[0])
     _check_one_setting(timeline, span, first, path)
     # the stepper at each stop: the hold is at least the lead, and the block after it starts
     # 1 / MINIMAL_STEP_RATE sooner than its trapezoid (see the module's doc)
-    floor = model.min_step_rate
-    start = -len(stops) / floor if floor > 0 else 0.0
-    hold = sum(max(ms / 1000, DWELL_LEAD_S) - ms / 1000 for _, ms in stops)
+    sooner = 1 / model.min_step_rate if model.min_step_rate > 0 else 0.0
+    start = hold = 0.0
     by = dict(r.by_feature)
     for line, ms in stops:
+        h = max(ms / 1000, DWELL_LEAD_S) - ms / 1000
+        start -= sooner
+        hold += h
         f = feats(line)
-        by[f] = by.get(f, 0.0) + max(ms / 1000, DWELL_LEAD_S) - ms / 1000 - (1 / floor if floor > 0 else 0.0)
+        by[f] = by.get(f, 0.0) + h - sooner
     r = replace(r, total_s=r.total_s + start + hold, moves_s=r.moves_s + start,
                 dwell_s=r.dwell_s + hold, by_feature=by)
     if res.unreached:
@@ -279,11 +283,19 @@ def estimate_annotated(path, machine: es.Machine, model: PrinterModel, blocks: b
                         extra_mm=res.stats.extra_applied if res.stats else 0.0, notes=notes)
 
 
-def _marker(code: str) -> bool:
-    """M722 S1 (True) or S0; anything else the firmware refuses and leaves the marker as it was
-    (taken as S0 here: the annotator writes only the two)."""
-    parts = code.upper().split()
-    return "S1" in parts[1:]
+def _marker(code: str) -> bool | None:
+    """M722 S1 (True) or S0 (False); None for what the firmware refuses, which leaves the marker
+    as it was (no S0/S1, another letter)."""
+    words = code.upper().split()
+    if words and words[0][:1] == "N" and words[0][1:].isdigit():
+        words = words[1:]
+    if len(words) != 2 or words[1][:1] != "S":
+        return None
+    try:
+        v = float(words[1][1:])
+    except ValueError:
+        return None
+    return {1.0: True, 0.0: False}.get(v)
 
 
 _TYPE = re.compile(rb";[ \t]*TYPE:([^\r\n;]*)")
