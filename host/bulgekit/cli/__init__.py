@@ -489,3 +489,50 @@ litho.register(main)
 estimate.register(main)
 printer.register(main)
 studio.register(main)
+
+
+@main.command(short_help="The paper's calibration prints as one part: dwell series and extra-E stripes.")
+@outdir_option()
+@click.option("--name", default="calibrate", show_default=True, help="Base name of the outputs.")
+@click.option("--stop", "stop_kind", type=click.Choice(["move", "g4"]), default="move", show_default=True,
+              help="Stock file: each stop as an extruder-only move or as G4 P<ms>.")
+@click.option("--layer-height", type=Num(0.05, 0.6), default=0.2, show_default=True, help="mm.")
+@click.option("--line-width", type=Num(0.2, 1.2), default=0.45, show_default=True, help="Wall line width, mm.")
+@click.option("--temp", type=click.IntRange(150, 320), default=210, show_default=True, help="Nozzle, °C.")
+@click.option("--bed-temp", type=click.IntRange(0, 130), default=60, show_default=True, help="Bed, °C.")
+@click.option("--bed", callback=pair, default="180,180", show_default=True, metavar="X,Y",
+              help="Bed size, mm: the piece goes in its middle.")
+@printer_options
+@friendly
+def calibrate(outdir, name, stop_kind, layer_height, line_width, temp, bed_temp, bed, printer, firmware):
+    """Print this to choose the dwell and the extra filament for your printer and filament: one
+    box, 140 x 20 x 41 mm, whose front face carries the over-extrusion paper's two tests, each
+    value written under it in raised digits.
+
+    \b
+      A (bottom): single bumps at dwells of 0, 10, 20, 50, 100, 150, 200, 300 and 500 ms
+      B (top):    bands at extra filament 0, 0.05, 0.1, 0.2 and 0.5 mm: 3 lines along the
+                  layers and 10 across them, at 100 ms stops
+
+    \b
+    Writes to OUTDIR/:
+      NAME.bulge.gcode   for bulgekit firmware (M720 P510: each dwell a map weight; M720 E per band)
+      NAME.stock.gcode   for stock firmware, the stops written in for the printer model (--printer)
+      NAME.bkm           the map
+      NAME.png           the front face: what to look for
+
+    Then: bulgekit firmware `M720 P<dwell> E<extra>` and `M500`; stock firmware: --dwell and
+    --extra of build (or dwell and extra in a placement's [bulges])."""
+    from ..bulge import calibrate as cal
+    pm = printer_model(printer, firmware)
+    o = cal.CalibrationOptions(printer=pm, layer_height=layer_height, line_width=line_width,
+                               temp=temp, bed_temp=bed_temp, bed=tuple(bed))
+    r = cal.make(o, outdir, name, stop_kind)
+    click.echo(f"printer: {pm.describe()}")
+    click.echo(f"{len(r.layout.strokes)} strokes, {r.stops_stock} stops in {r.layout.height:g} mm "
+               f"({int(round(r.layout.height / layer_height))} layers)")
+    click.echo(f"stock file: {r.stock_summary}")
+    for k in ("bulge", "stock", "map", "png"):
+        click.echo(f"wrote {r.paths[k]}")
+    click.echo(f"look at {r.paths['png'].name}, print, then: M720 P<dwell> E<extra> and M500 (bulgekit "
+               "firmware), or --dwell/--extra (stock firmware)")
