@@ -246,7 +246,7 @@ def test_scanner_counts_the_line_ends_it_consumes():
         if trial % 3 == 0:
             data += b"G1 X2"                                   # no line end at the end
         sc = movescan._scan.Scanner(sorted(gcode.OUTER_ROLES), sorted(gcode._S3D_ROLES),
-                                    movescan._classify, gcode.ARC_CHORD_MM)
+                                    movescan._classify)
         buf, pos = b"", 0
         while True:
             step = rng.randint(0, 9)
