@@ -307,6 +307,8 @@ def annotate(gcode, map_file, output, no_stream, arena, allow_unreached, dwell, 
                f"{res.initial_records} layers uploaded at the start"
                + (f", {len(res.appends)} appends while printing" if res.appends else "")
                + f" ({dt:.2f} s)")
+    if res.arcs.arcs:
+        click.echo(res.arcs.text())
 
 
 @main.command(short_help="Rewrite for stock firmware: stops as E-only moves (or G4) + extra E.")
@@ -336,6 +338,8 @@ def fallback(gcode, map_file, output, allow_unreached, dwell, extra, tolerance, 
     click.echo(f"wrote {output}: {st.points_fired} stops on {res.moves_split} lines, "
                f"{st.dwell_ms_total / 1000:.1f} s dwell, {st.extra_applied:.2f} mm extra filament")
     click.echo(res.stock.summary())
+    if res.stock.arcs.arcs:
+        click.echo(res.stock.arcs.text())
 
 
 @main.command(short_help="M720 settings + M721 upload of a map, for any host.")
