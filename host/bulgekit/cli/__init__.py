@@ -275,7 +275,8 @@ def post_process(placement, arena, keep, gcode):
         shutil.rmtree(tmp, ignore_errors=True)
     s = out.stats
     click.echo(f"bulgekit: {s.points} points on {len(s.layers)} layers "
-               f"{'rewritten for stock firmware' if b.get('fallback') else 'annotated'} into {src}")
+               f"{'rewritten for stock firmware' if b.get('fallback') else 'annotated'} into {src}"
+               + (f" ({s.arcs.arcs} G2/G3 arcs through them as G1 chords)" if s.arcs and s.arcs.arcs else ""))
 
 
 @main.command(short_help="Add M720/M721/M722 for bulgekit firmware (moves untouched).")

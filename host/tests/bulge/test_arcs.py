@@ -129,6 +129,7 @@ def test_build_annotate_fallback_and_post_process_write_the_same_chords(fitted, 
         q.write_bytes(p.read_bytes())
         r = run("post-process", "--placement", place, q)
         assert r.exit_code == 0, r.output
+        assert re.search(r"\(\d+ G2/G3 arcs through them as G1 chords\)", r.output)
         assert q.read_text() == (stock if fb else ann)
 
 
