@@ -2,8 +2,9 @@
 
 The parser follows Marlin's reading of G0/G1/G2/G3/G92/G90/G91/M82/M83:
 G90/G91 set every axis including E, M82/M83 then override E alone, G92 sets
-only the axes it names.  Arcs are linearised into chords (flagged on the
-moves) so walls printed with arc fitting still have a toolpath.
+only the axes it names.  Arcs are read as the chords Marlin 2.1 cuts them into
+(arc_segments; flagged on the moves), so walls printed with arc fitting have a
+toolpath, and the planner runs see what the printer does.
 
 Feature tags tell whether a move belongs to the outer wall.  Recognised:
   PrusaSlicer/SuperSlicer/Slic3r PE  ;TYPE:External perimeter  ;TYPE:Overhang perimeter
