@@ -186,6 +186,7 @@ def _build(gcode: Path, strokes, outdir, name, geometric, spacing, line_width, l
             if beside is not None:
                 beside.close()                 # (before a failed build takes its files back)
         st.stock = stock
+        st.arcs = ann.arcs                     # (as written: their chords and how near the arcs)
         spath.write_text(st.text() + "\n", encoding="utf-8")
     except BaseException:
         for p in written:

@@ -309,7 +309,8 @@ def post_process(placement, arena, keep, gcode):
         shutil.rmtree(tmp, ignore_errors=True)
     s = out.stats
     click.echo(f"bulgekit: {s.points} points on {len(s.layers)} layers "
-               f"{'rewritten for stock firmware' if b.get('fallback') else 'annotated'} into {src}")
+               f"{'rewritten for stock firmware' if b.get('fallback') else 'annotated'} into {src}"
+               + (f" ({s.arcs.arcs} G2/G3 arcs through them as G1 chords)" if s.arcs and s.arcs.arcs else ""))
 
 
 @main.command(short_help="Add M720/M721/M722 for bulgekit firmware (moves untouched).")
@@ -341,6 +342,8 @@ def annotate(gcode, map_file, output, no_stream, arena, allow_unreached, dwell, 
                f"{res.initial_records} layers uploaded at the start"
                + (f", {len(res.appends)} appends while printing" if res.appends else "")
                + f" ({dt:.2f} s)")
+    if res.arcs.arcs:
+        click.echo(res.arcs.text())
 
 
 @main.command(short_help="Rewrite for stock firmware: stops as E-only moves (or G4) + extra E.")
@@ -370,6 +373,8 @@ def fallback(gcode, map_file, output, allow_unreached, dwell, extra, tolerance, 
     click.echo(f"wrote {output}: {st.points_fired} stops on {res.moves_split} lines, "
                f"{st.dwell_ms_total / 1000:.1f} s dwell, {st.extra_applied:.2f} mm extra filament")
     click.echo(res.stock.summary())
+    if res.stock.arcs.arcs:
+        click.echo(res.stock.arcs.text())
 
 
 @main.command(short_help="M720 settings + M721 upload of a map, for any host.")

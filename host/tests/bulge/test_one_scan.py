@@ -70,6 +70,7 @@ def test_build_opens_the_file_three_times_and_scans_it_once(tmp_path, monkeypatc
             line_ends = property(lambda self: self._s.line_ends)
             top = property(lambda self: self._s.top)
             numbers = property(lambda self: self._s.numbers)
+            arcs = property(lambda self: self._s.arcs)
 
         class Proxy:
             Scanner = Counting
