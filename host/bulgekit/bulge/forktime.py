@@ -124,11 +124,14 @@ def settings_timeline(m720, source: str) -> list[tuple[int, Settings]]:
 
 class _GatedPlanner(RefPlanner):
     """RefPlanner with the fork's marker: a move is in the outer wall when the last M722 before
-    its line said S1 (not where the slicer's comments say)."""
+    its line said S1 (not where the slicer's comments say); and with the dwell and extra of the
+    last M720 before its line (`bulgekit calibrate` changes the extra E between bands)."""
 
-    def __init__(self, bmap, settings, lines: np.ndarray, states: np.ndarray):
+    def __init__(self, bmap, settings, lines: np.ndarray, states: np.ndarray, timeline=()):
         super().__init__(bmap, settings)
         self.m722_lines, self.m722_states = lines, states
+        self.m720_lines = [n for n, _ in timeline]
+        self.m720 = [st for _, st in timeline]
 
     def outer_at(self, line_no) -> np.ndarray:
         if not len(self.m722_lines):
@@ -142,6 +145,11 @@ class _GatedPlanner(RefPlanner):
             return [Action("line", m.x1, m.y1, m.z1, m.e)]
         if outer is None:
             outer = bool(self.outer_at(m.line_no))
+        if self.m720_lines:
+            k = bisect.bisect_right(self.m720_lines, m.line_no) - 1
+            now = self.m720[k] if k >= 0 else POWER_ON
+            if (now.dwell_ms, now.extra_e) != (self.s.dwell_ms, self.s.extra_e):
+                self.s = replace(self.s, dwell_ms=now.dwell_ms, extra_e=now.extra_e)
         return super().plan(m, outer)
 
 
@@ -224,7 +232,7 @@ def estimate_annotated(path, machine: es.Machine, model: PrinterModel, blocks: b
                      "M720 S0 (bulges off) at the first extrusion: the firmware stops nowhere")
         return ForkEstimate(es.estimate_file(path, machine, scanned=scanned, blocks=blocks), settings,
                             bmap, notes=notes)
-    planner = _GatedPlanner(bmap, settings, lines, states)
+    planner = _GatedPlanner(bmap, settings, lines, states, timeline)
     stops: list[tuple[int, int]] = []           # (line, ms) of each dwell the core queues
 
     last_move = [0]                             # the last move's line
@@ -249,7 +257,7 @@ def estimate_annotated(path, machine: es.Machine, model: PrinterModel, blocks: b
                 movescan.run(path, fast, fast=True)
                 done = True
             except movescan.Unsupported:
-                planner = _GatedPlanner(bmap, settings, lines, states)
+                planner = _GatedPlanner(bmap, settings, lines, states, timeline)
                 stops.clear()
                 res = RewriteResult()
         if done:
@@ -331,8 +339,9 @@ def _first_extrusion(path) -> int | None:
 
 
 def _check_one_setting(timeline, span, first, source):
-    """An M720 that changes the settings between the first extrusion and the last move: the
-    stops after it are not modelled (refused rather than timed wrongly)."""
+    """An M720 that changes the mode or the tolerance between the first extrusion and the last
+    move: the stops after it are not modelled (refused rather than timed wrongly). A new dwell
+    or extra is (the planner takes it at its line)."""
     if first is None or span is None:
         return
     last = span[1]
@@ -340,7 +349,7 @@ def _check_one_setting(timeline, span, first, source):
     for no, s in timeline[k + 1:]:
         if last is not None and no > last:
             break
-        if s != timeline[k][1]:
-            raise ForkTimeError(f"{source}:{no}: M720 changes the bulge settings during the print "
-                                f"({timeline[k][1].m720()} -> {s.m720()}): the estimator models "
-                                "one setting per file")
+        was = timeline[k][1]
+        if (s.mode, s.tolerance) != (was.mode, was.tolerance):
+            raise ForkTimeError(f"{source}:{no}: M720 changes the bulge mode or tolerance during the "
+                                f"print ({was.m720()} -> {s.m720()}): the estimator models one per file")

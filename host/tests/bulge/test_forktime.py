@@ -128,10 +128,19 @@ def test_mode_off_and_refused_uploads(tmp_path):
     assert d == 0 and any("refuses" in n and "CRC" in n for n in fe.notes)
 
 
-def test_settings_changed_mid_print_are_refused(tmp_path):
-    text = wall(n=4) + "M720 P50\n" + wall(n=4).split("\n", 3)[3]
-    src, out, mp = annotated(tmp_path, text, [points(0.3, [115])])
-    with pytest.raises(forktime.ForkTimeError, match="M720 changes the bulge settings"):
+def test_a_new_dwell_mid_print_is_taken_at_its_line(tmp_path):
+    """`bulgekit calibrate` changes M720 E between bands: a new dwell or extra is modelled from its
+    line on (the stops after M720 P50 are 50 ms), a new mode or tolerance is refused."""
+    two = wall(((0.3, "External perimeter"), (0.6, "External perimeter")), n=4)
+    cut = two.index("G1 Z0.6")
+    text = two[:cut] + "M720 P50\n" + two[cut:]
+    src, out, mp = annotated(tmp_path, text, [points(0.3, [115]), points(0.6, [115])])
+    d, fe = added(src, out)
+    assert fe.stops == 2 and fe.dwell_s == pytest.approx(0.150)
+    assert d == pytest.approx(per_stop(100) + per_stop(50), abs=1e-3)
+    text = two[:cut] + "M720 T0.4\n" + two[cut:]
+    src, out, mp = annotated(tmp_path, text, [points(0.3, [115]), points(0.6, [115])])
+    with pytest.raises(forktime.ForkTimeError, match="M720 changes the bulge mode or tolerance"):
         added(src, out)
 
 
