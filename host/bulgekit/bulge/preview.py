@@ -60,7 +60,7 @@ def wall_marks(model, max_layers: int = 300) -> dict:
     k-th layer's over the bands up to the next one drawn), and "faces", (u, v, number) labels:
     per run of layers whose faces stay put (the same count, middles within 1 mm), each face's
     number near the run's top, on each piece of it between 0 and the wall's length (face 1
-    holds u = 0, so it shows at both ends)."""
+    holds u = 0, so it shows at both ends); "runs": those runs, (v0, v1, faces of their first layer)."""
     walls = model.walls
     step = max(1, math.ceil(len(walls) / max_layers))
     picked = list(range(0, len(walls), step))
@@ -86,7 +86,7 @@ def wall_marks(model, max_layers: int = 300) -> dict:
                 pieces = [(0.0, f.u1), (f.u0 + L, L)]
             labels += [((a + b) / 2, v0 + 0.85 * (v1 - v0), f.number) for a, b in pieces
                        if b - a > 1e-6]
-    return {"corners": corners, "faces": labels}
+    return {"corners": corners, "faces": labels, "runs": [(a, b, fs) for a, b, fs, _ in runs]}
 
 
 def preview_unrolled(points, wall_length: float, height: float, path, *, title: str | None = None,
