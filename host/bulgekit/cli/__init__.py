@@ -119,7 +119,9 @@ def main():
 
     Strokes are drawn on the unrolled outer wall: u = mm along the wall,
     counter-clockwise (left to right seen from outside) from the front (-Y) of
-    each layer; v = mm above the bed. Run `bulgekit demo` for a worked example.
+    each layer; v = mm above the bed. --face N puts a drawing on face N of the
+    wall (its stretches between corners, 1 holding u = 0; the preview numbers
+    them). Run `bulgekit demo` for a worked example.
     """
 
 

@@ -236,3 +236,20 @@ def test_preview_marks_corners_and_faces(models):
     # one run of layers: faces 1 (at both ends: it holds u = 0), 2, 3, 4
     assert sorted(n for _, _, n in marks["faces"]) == [1, 1, 2, 3, 4]
     assert preview.wall_marks(models["prusa_cyl.gcode"])["corners"] == []
+
+
+def test_post_process_places_on_a_face_and_warns(tmp_path):
+    import shutil
+    g = tmp_path / "box.gcode"
+    shutil.copy(DATA / "prusa_box.gcode", g)
+    p = tmp_path / "p.toml"
+    p.write_text('[[text]]\ntext = "BOX"\nsize = 5\nat = [0, 5]\nface = 2\n\n'
+                 '[[text]]\ntext = "HI"\nsize = 5\nat = [12, 0.1]\n')
+    r = CliRunner().invoke(main, ["post-process", "--placement", str(p), str(g)])
+    assert r.exit_code == 0, r.output
+    assert r.stderr.splitlines() == [
+        f"bulgekit: warning: {p}: text[1]: the text 'HI' crosses the corner between faces 1 and 2 at u 14.8 mm "
+        "(z 0.30-5.10 mm): it bends round it (face = N puts it on one face)",
+        f"bulgekit: warning: {p}: text[1]: the text 'HI' is on the first layer (z 0.30 mm): bumps there are "
+        "pressed flat on the bed; start it 1 mm up or more (V of at = [U, V])"]
+    assert "M721" in g.read_text()
