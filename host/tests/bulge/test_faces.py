@@ -253,3 +253,14 @@ def test_post_process_places_on_a_face_and_warns(tmp_path):
         f"bulgekit: warning: {p}: text[1]: the text 'HI' is on the first layer (z 0.30 mm): bumps there are "
         "pressed flat on the bed; start it 1 mm up or more (V of at = [U, V])"]
     assert "M721" in g.read_text()
+
+
+def test_preview_cli_takes_a_face(tmp_path):
+    box = str(DATA / "prusa_box.gcode")
+    r = CliRunner().invoke(main, ["preview", box, "--text", "HELLO", "--face", "3", "-o", str(tmp_path / "p.png")])
+    assert r.exit_code == 0 and r.stderr == "" and (tmp_path / "p.png").is_file(), r.output
+    r = CliRunner().invoke(main, ["preview", box, "--text", "HELLO", "--at", "5,3", "-o", str(tmp_path / "q.png")])
+    assert "warning: the text 'HELLO' crosses the corner between faces 1 and 2" in r.stderr
+    r = CliRunner().invoke(main, ["preview", "--text", "HI", "--face", "2", "--wall-length", "50", "--height", "10",
+                                  "-o", str(tmp_path / "x.png")])
+    assert r.exit_code == 2 and "--face and --align need GCODE" in r.output
