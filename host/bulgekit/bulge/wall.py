@@ -22,6 +22,7 @@ the grid of layer heights, the same windows the firmware matches moves in.
 from __future__ import annotations
 
 import functools
+import hashlib
 import math
 from dataclasses import dataclass, field
 from typing import Iterable
@@ -74,12 +75,42 @@ def corner_positions(xy: np.ndarray, s: np.ndarray, closed: bool = True) -> np.n
     wall, not of its segments, so a sliced polygon of many tiny segments, arcs cut into chords or
     a corner rounded to 1 mm or less read as the wall they make. The corner is the middle of the
     positions (every CORNER_STEP_MM) that see it so; a closed wall is a loop of length s[-1]."""
-    xy = np.asarray(xy, dtype=float)
-    s = np.asarray(s, dtype=float)
+    xy = np.ascontiguousarray(xy, dtype=float)
+    s = np.ascontiguousarray(s, dtype=float)
+    # (many layers are the same polygon: a prism's, a stacked file's; looked up by their bytes)
+    key = (hashlib.blake2b(xy.tobytes() + s.tobytes(), digest_size=16).digest(), closed)
+    got = _corner_memo.get(key)
+    if got is None:
+        got = _corner_positions(xy, s, closed)
+        if len(_corner_memo) >= 256:
+            _corner_memo.clear()
+        _corner_memo[key] = got
+    return got.copy()
+
+
+_corner_memo: dict = {}
+
+
+def _corner_positions(xy: np.ndarray, s: np.ndarray, closed: bool) -> np.ndarray:
     w, run = CORNER_SPAN_MM / 2, STRAIGHT_MM
     L = float(s[-1]) if len(s) else 0.0
     if len(xy) < 3 or not L > (2 * (w + run) if closed else 0.0):
         return np.zeros(0)
+    # the chords' directions differ by no more than the wall turns at its vertices between them,
+    # which lie within w + run of the position: a wall that turns less than CORNER_TURN_DEG over
+    # any such stretch has no corner (a round wall's vertices: no chords needed)
+    d = np.diff(xy, axis=0)
+    seg = np.flatnonzero(np.hypot(d[:, 0], d[:, 1]) > 1e-9)      # segments with a direction
+    if len(seg) > 1:
+        h = np.arctan2(d[seg, 1], d[seg, 0])
+        # the turn into each segment, at its start (a loop: the first one's from the last)
+        turns = np.abs(np.angle(np.exp(1j * np.diff(np.concatenate([h[-1:], h]) if closed else h))))
+        at = s[seg] if closed else s[seg[1:]]
+        at3 = np.concatenate([at - L, at, at + L]) if closed else at
+        cum = np.concatenate([[0.0], np.cumsum(np.tile(turns, 3) if closed else turns)])
+        lo = np.searchsorted(at3, at3 - 2 * (w + run), "left")
+        if float((cum[1:] - cum[lo]).max()) < math.radians(CORNER_TURN_DEG):
+            return np.zeros(0)
     n = max(1, math.ceil(L / CORNER_STEP_MM))
     q = np.arange(n + (0 if closed else 1)) * (L / n)
 
