@@ -19,7 +19,7 @@ from typing import Sequence
 
 import numpy as np
 
-from . import mapformat
+from . import faces, mapformat
 from ..errors import BulgekitError
 from .strokes import Picture, Stroke
 from .wall import WallModel
@@ -60,6 +60,10 @@ class BuildResult:
     # the map, and their points
     too_many: list[tuple[float, int]] = field(default_factory=list)
     over_points: list[BulgePoint] = field(default_factory=list)
+    # the strokes as placed (a drawing asked for on a face moved there: faces.place), and the
+    # warnings about them (crossing a corner, on the first layer: faces.warnings)
+    strokes: list[Stroke] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
 
     @property
     def bulge_map(self) -> mapformat.BulgeMap:
@@ -252,6 +256,7 @@ def build(strokes: Sequence[Stroke], model: WallModel, spacing: float | None = N
             raise BuildError(f"line width {line_width} mm must be a positive number "
                              "(the point spacing defaults to twice it)")
         spacing = 2 * line_width
+    strokes = faces.place(strokes, model)
     per_layer = sample_strokes(strokes, model, spacing)
     notes = list(model.notes) + _wrap_note(per_layer, model)
     points: list[BulgePoint] = []
@@ -293,7 +298,7 @@ def build(strokes: Sequence[Stroke], model: WallModel, spacing: float | None = N
     bm = mapformat.decode_map(data)
     sizes = [len(mapformat.encode_record(l, bm.has_weights)) for l in bm.layers]
     res = BuildResult(model, points, layers, wts, data, quantum_um, spacing, sizes, notes,
-                      too_many, over_points)
+                      too_many, over_points, list(strokes), faces.warnings(strokes, model))
     return res
 
 

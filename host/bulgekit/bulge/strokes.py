@@ -179,6 +179,12 @@ class Drawing:
     mm: bool                  # whether it is a length
     corner: str               # the point --at U,V (at = [U, V]) sets: "its baseline start"
     entry: str = ""           # "p.toml: text[0]: ": from a placement file's entry
+    # on a face of the wall (bulge/faces.py): its number (None: at u as drawn), how it is
+    # aligned there and the U of --at U,V, an offset from that place; aligned once placed
+    face: int | None = None
+    align: str = "center"
+    offset_u: float = 0.0
+    aligned: bool = False
 
     def placed(self, entry: str) -> "Drawing":
         """The same drawing asked for by a placement file's entry ("p.toml: text[0]")."""
@@ -217,6 +223,38 @@ class Drawing:
 def drawn(strokes: list[Stroke], drawing: Drawing) -> list[Stroke]:
     """The strokes, each knowing the drawing they make up."""
     return [replace(st, drawing=drawing) for st in strokes]
+
+
+def on_face(strokes: list[Stroke], face: int | None, align: str | None = None,
+            offset_u: float = 0.0) -> list[Stroke]:
+    """The strokes of one drawing (made at --at U,V), to be placed on a face of the wall: its
+    number (1 from u = 0 along u), align left, center (the default) or right, U (offset_u) an
+    offset from that place. bulge/faces.py places them once the walls are known. No face and no
+    align: the strokes as they are. Strokes of no drawing become one ("the strokes")."""
+    if face is None and align is None:
+        return strokes
+    if face is None:
+        raise InputError("align needs a face (--face N, face = N)")
+    if isinstance(face, bool) or not isinstance(face, int) or face < 1:
+        raise InputError(f"face must be a whole number from 1, got {face!r}")
+    align = align or "center"
+    if align not in ALIGNS:
+        raise InputError(f"align must be one of {', '.join(ALIGNS)}, got {align!r}")
+    made: dict = {}
+    out = []
+    for st in strokes:
+        d = st.drawing
+        key = id(d)
+        if key not in made:
+            base = d if d is not None else Drawing(f"the strokes{' ' + st.source if st.source else ''}",
+                                                   1.0, "--scale", "scale", "scale", False,
+                                                   "their origin")
+            made[key] = replace(base, face=face, align=align, offset_u=float(offset_u), aligned=False)
+        out.append(replace(st, drawing=made[key]))
+    return out
+
+
+ALIGNS = ("left", "center", "right")
 
 
 # --------------------------------------------------------------------------

@@ -8,8 +8,8 @@ from pathlib import Path
 
 import click
 
-from ._util import (FINITE, POSITIVE, Num, friendly, outdir_option, pair, printer_model, printer_options,
-                    progress_option, show_warning)
+from ._util import (AT_HELP, FINITE, POSITIVE, Num, at_for, face_options, friendly, outdir_option, pair,
+                    printer_model, printer_options, progress_option, show_warning)
 from .. import __version__
 from ..bulge import mapformat
 from ..bulge.fallback import (DEFAULT_DWELL_MS, DEFAULT_E_STEPS, DEFAULT_EXTRA_E_MM, DEFAULT_TOLERANCE_MM,
@@ -125,7 +125,9 @@ def main():
 
     Strokes are drawn on the unrolled outer wall: u = mm along the wall,
     counter-clockwise (left to right seen from outside) from the front (-Y) of
-    each layer; v = mm above the bed. Run `bulgekit demo` for a worked example.
+    each layer; v = mm above the bed. --face N puts a drawing on face N of the
+    wall (its stretches between corners, 1 holding u = 0; the preview numbers
+    them). Run `bulgekit demo` for a worked example.
     """
     import warnings
     warnings.showwarning = show_warning
@@ -147,9 +149,11 @@ def main():
               help="A liblouis table instead of --braille-grade (e.g. de-g2.ctb, fr-bfu-g2.ctb).")
 @click.option("--text-size", "--size", "text_size", type=POSITIVE, default=6.0, show_default=True,
               help="Capital height of --text, mm.")
-@click.option("--at", callback=pair, default="0,0", show_default=True, metavar="U,V",
+@click.option("--at", callback=pair, metavar="U,V",
               help="U,V mm: where input goes (--text baseline start; stroke files shifted by it, "
-                   "an SVG page's / image's lower-left corner), as in `strokes` and `preview`.")
+                   "an SVG page's / image's lower-left corner), as in `strokes` and `preview`; "
+                   "with --face, U is an offset from the aligned place. " + AT_HELP)
+@face_options
 @click.option("--font", default="futural", show_default=True, help="Hershey font of --text (as in `strokes`).")
 @click.option("--letter-spacing", type=FINITE, default=0.0, show_default=True,
               help="Extra mm between letters of --text.")
@@ -176,8 +180,9 @@ def main():
 @progress_option
 @friendly
 @click.pass_context
-def build(ctx, gcode, placement, stroke_files, text, braille, braille_grade, braille_table, text_size, at, font, letter_spacing, scale, image_width,
-          curve_tolerance, mirror, skip_unsupported, outdir, name, spacing, line_width, layer_height, ref_angle, no_stream,
+def build(ctx, gcode, placement, stroke_files, text, braille, braille_grade, braille_table, text_size, at, face,
+          align, font, letter_spacing, scale, image_width, curve_tolerance, mirror, skip_unsupported, outdir,
+          name, spacing, line_width, layer_height, ref_angle, no_stream,
           write_fallback, preview, preview_3d, dwell, extra, tolerance, geometric, stop_kind, e_steps,
           stop_e_steps, printer, firmware):
     """Place strokes on GCODE's outer wall: map + annotated G-code + stats."""
@@ -190,7 +195,7 @@ def build(ctx, gcode, placement, stroke_files, text, braille, braille_grade, bra
     if drawn is not None:
         ctx.call_on_close(drawn.close)
     from ..bulge import api
-    from ..bulge.strokes import text_strokes
+    from ..bulge.strokes import on_face, text_strokes
     strokes = []
     if placement:
         from ..bulge.placement import load_placement
@@ -211,15 +216,21 @@ def build(ctx, gcode, placement, stroke_files, text, braille, braille_grade, bra
         printer = printer if given("printer") else pl.printer
         firmware = firmware if given("firmware") else b.get("firmware", firmware)
     for f in stroke_files:
-        strokes += api.load_strokes(f, image_width_mm=image_width, offset=at, scale=scale,
-                                    curve_tolerance_mm=curve_tolerance, skip_unsupported=skip_unsupported)
+        a = at_for(at, f)
+        strokes += on_face(api.load_strokes(f, image_width_mm=image_width, offset=a, scale=scale,
+                                            curve_tolerance_mm=curve_tolerance,
+                                            skip_unsupported=skip_unsupported), face, align, a[0])
     if text:
-        strokes += text_strokes(text, text_size, spacing=letter_spacing, u0=at[0], v0=at[1],
-                                mirror=mirror, font=font)
+        a = at_for(at)
+        strokes += on_face(text_strokes(text, text_size, spacing=letter_spacing, u0=a[0], v0=a[1],
+                                        mirror=mirror, font=font), face, align, a[0])
     if braille:
-        from ..bulge.braille import braille_strokes
-        strokes += braille_strokes(braille.replace("\\n", "\n"), at[0], at[1], braille_grade,
-                                   braille_table)
+        from ..bulge.braille import DOT_BASE, braille_strokes
+        a = at_for(at)
+        if at is None:                      # the dots' domes clear of the first layers too
+            a = (a[0], a[1] + DOT_BASE / 2)
+        strokes += on_face(braille_strokes(braille.replace("\\n", "\n"), a[0], a[1], braille_grade,
+                                           braille_table), face, align, a[0])
     if not strokes:
         raise click.UsageError("nothing to draw: give --strokes FILE, --text TEXT, --braille TEXT "
                                "or --placement FILE")
@@ -239,6 +250,8 @@ def build(ctx, gcode, placement, stroke_files, text, braille, braille_grade, bra
     click.echo(out.stats.text(per_layer=False))
     for note in out.result.notes:
         click.echo(f"note: {note}")
+    for w in out.result.warnings:
+        click.echo(f"warning: {w}", err=True)
     if out.annotate.appends:
         click.echo(f"streaming: {out.annotate.initial_records} layers at the start, "
                    f"{len(out.annotate.appends)} appends while printing")
@@ -307,6 +320,8 @@ def post_process(placement, arena, keep, gcode):
         os.replace(result, src)                     # atomic on one file system: all or nothing
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
+    for w in out.result.warnings:
+        click.echo(f"bulgekit: warning: {w}", err=True)
     s = out.stats
     click.echo(f"bulgekit: {s.points} points on {len(s.layers)} layers "
                f"{'rewritten for stock firmware' if b.get('fallback') else 'annotated'} into {src}"
