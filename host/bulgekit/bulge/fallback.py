@@ -35,7 +35,7 @@ from typing import Iterable, Iterator
 
 import numpy as np
 
-from . import mapformat
+from . import klipper_stop, mapformat
 from ..gcode import movescan
 from ..gcode import GcodeState, Line, Move, parse_lines
 from ..errors import BulgekitError, output_part
@@ -840,6 +840,7 @@ class StockStops:
     stop: str = STOP_MOVE
     e_steps: float = DEFAULT_E_STEPS
     stop_e_steps: int | None = None
+    printer: object = None     # bulgekit.machine.PrinterModel; firmware "klipper": Klipper's form
 
     def __post_init__(self):
         if self.stop not in (STOP_MOVE, STOP_G4):
@@ -848,6 +849,12 @@ class StockStops:
             raise ValueError(f"E steps {self.e_steps} outside 1..10000 steps/mm")
         if self.stop_e_steps is not None and not MIN_STEPS_PER_SEGMENT <= self.stop_e_steps <= 10000:
             raise ValueError(f"stop E steps {self.stop_e_steps} outside {MIN_STEPS_PER_SEGMENT}..10000")
+
+    @property
+    def klipper(self) -> bool:
+        """Stops as E-only moves planned the way Klipper plans them (klipper_stop)."""
+        return (self.stop == STOP_MOVE and self.printer is not None
+                and getattr(self.printer, "firmware", None) == "klipper")
 
 
 def still_s(n: int, rate: int, spm: float | None = None, k: float = XY_STEPS) -> float:
@@ -874,6 +881,7 @@ class StopMove:
     start: float = 0.0         # of that, s until the next move's first step (next_start_s)
     nearest: bool = False      # the dwell could not be made exactly (counted in the stats)
     why: str = ""              # a move stop written as G4: "extra" (under 6 steps), "long"
+    klipper: klipper_stop.KlipperStop | None = None   # Klipper's form: E (mm) and speed
 
     def feed(self, spm: float) -> float:
         """mm/min whose block rate, ceil(n x feed / length), is `rate`: the middle of the feeds
@@ -1003,6 +1011,68 @@ class StopWriter:
         self.stop_e_mm = 0.0                   # E laid during stops
         self.unpaid_e_mm = 0.0                 # of that, not taken from a following piece
         self.autoretract = 0                   # stops of MIN_AUTORETRACT or more (see there)
+        # Klipper's form (stops.klipper): its numbers, the toolhead's accel as the file sets it,
+        # the last X/Y move (end x, y and unit direction) and E moved past the cross-section limit
+        self.kp = klipper_stop.KlipperParams.from_model(stops.printer) if stops.klipper else None
+        self.accel = self.kp.accel if self.kp else None
+        self.prev = None
+        self.spill_e_mm = 0.0                  # E moved on to a later piece (cross-section limit)
+        self.capped_e_mm = 0.0                 # of that, E no later piece of its line could take
+        self.guessed = 0                       # Klipper stops with a neighbour's direction unknown
+
+    _ACCEL_RX = re.compile(r"^\s*(?:M204\b(?P<m>[^;]*)|SET_VELOCITY_LIMIT\b(?P<s>[^;]*))", re.I)
+
+    def note_accel(self, raw: str) -> None:
+        """Klipper's M204 (S, else the smaller of P and T: toolhead.py cmd_M204) and
+        SET_VELOCITY_LIMIT ACCEL= set the toolhead's max_accel, which the stop's head terms use
+        (max_extrude_only_accel stays what the config made it)."""
+        mt = self._ACCEL_RX.match(raw)
+        if not mt or self.kp is None:
+            return
+        if mt.group("m") is not None:
+            w = {k.upper(): float(v) for k, v in
+                 re.findall(r"([SPTspt])\s*([-+]?(?:\d+\.?\d*|\.\d+))", mt.group("m"))}
+            acc = w.get("S")
+            if acc is None and "P" in w and "T" in w:
+                acc = min(w["P"], w["T"])
+        else:
+            v = re.search(r"\bACCEL\s*=\s*([-+]?(?:\d+\.?\d*|\.\d+))", mt.group("s"), re.I)
+            acc = float(v.group(1)) if v else None
+        if acc is not None and acc > 0:
+            self.accel = acc
+
+    def note_move(self, m: Move) -> None:
+        """The last move with X/Y motion (the one a stop at its end decelerates on)."""
+        dx, dy = m.x1 - m.x0, m.y1 - m.y0
+        ln = math.hypot(dx, dy)
+        if ln > 1e-9:
+            self.prev = (m.x1, m.y1, dx / ln, dy / ln)
+        elif m.z1 != m.z0:
+            self.prev = None
+
+    def edge_in(self, at, u) -> float:
+        """tail_s of a stop at `at` reached along u (None: not known, the mean)."""
+        if u is None:
+            self.guessed += 1
+            return klipper_stop.mean_edge_s(self.kp, self.accel)
+        return klipper_stop.tail_s(self.kp, at[0], at[1], u[0], u[1], self.accel)
+
+    def edge_out(self, at, u) -> float:
+        if u is None:
+            self.guessed += 1
+            return klipper_stop.mean_edge_s(self.kp, self.accel)
+        return klipper_stop.lead_s(self.kp, at[0], at[1], u[0], u[1], self.accel)
+
+    def plan_klipper(self, a: Action, tail: float, lead: float) -> StopMove:
+        """Klipper's form of the stop (klipper_stop.plan): the extra owed here, less what
+        stops before it laid already, in one E-only move timed so that the head stands the
+        dwell; G4 when nothing is owed."""
+        ks = klipper_stop.plan(self.kp, a.ms, a.extra - self.debt, tail, lead, self.accel)
+        if ks is None:
+            return StopMove(a.ms, STOP_G4, still=a.ms / 1000, why="extra")
+        still = ks.still
+        return StopMove(a.ms, STOP_MOVE, still=still, start=lead, klipper=ks,
+                        nearest=abs(still - a.ms / 1000) * 1000 > NEAREST_MS)
 
     def spm_at(self, line_no: int) -> float:
         k = bisect.bisect_left(self.m92, (line_no,))
@@ -1035,7 +1105,7 @@ class StopWriter:
         self.nearest += stop.nearest
         self.stop_e_mm += laid
         self.debt += laid
-        self.autoretract += laid >= MIN_AUTORETRACT - 1e-9
+        self.autoretract += laid >= MIN_AUTORETRACT - 1e-9 and self.kp is None
 
     def drop(self) -> None:
         """The planner dropped the extra owed: E a stop laid stays laid."""
@@ -1056,8 +1126,13 @@ class StopWriter:
     def summary(self) -> str:
         if self.cfg.stop == STOP_G4:
             return f"stops as G4 P<ms>: {self.g4} ({self.g4_s:.1f} s dwell)"
-        out = (f"stops as E-only moves: {self.moves} ({self.still_s:.1f} s head still, "
-               f"{self.stop_e_mm:.3f} mm E in them)")
+        out = (f"stops as E-only moves{' (Klipper)' if self.kp else ''}: {self.moves} "
+               f"({self.still_s:.1f} s head still, {self.stop_e_mm:.3f} mm E in them)")
+        if self.kp is not None and self.spill_e_mm > 1e-9:
+            out += (f"; {self.spill_e_mm:.3f} mm extra moved on to later pieces (Klipper's "
+                    f"max_extrude_cross_section)")
+            if self.capped_e_mm > 1e-9:
+                out += f", {self.capped_e_mm:.3f} mm of it left out"
         if self.g4_why.get("extra"):
             out += f"; {self.g4_why['extra']} as G4 (extra under {MIN_STEPS_PER_SEGMENT} E steps)"
         if self.g4_why.get("long"):
@@ -1102,29 +1177,83 @@ def rewrite(lines: Iterable[str], bmap: mapformat.BulgeMap, settings: Settings,
     res = result if result is not None else RewriteResult()
     sw = res.stock = StopWriter(stops)
     yield _header(bmap, settings, stops)
-    for ln in parse_lines(lines, source, st):
-        res.lines_in += 1
-        raw = ln.raw if ln.raw.endswith("\n") else ln.raw.rstrip("\r") + "\n"
-        if not ln.moves:
-            if ln.cmd == "M92":
-                sw.note_m92(ln.line_no, ln.raw)
-            yield raw
-            continue
-        per_move = [(m, planner.plan(m)) for m in ln.moves]
-        if on_move is not None:
-            for m, acts in per_move:
-                on_move(m, acts)
-        if all(_unchanged(m, a) for m, a in per_move):
-            if any(a.dropped for _, acts in per_move for a in acts):
-                sw.drop()
-            yield raw
-            continue
-        res.moves_split += 1
-        yield from _emit(ln, per_move, st, sw)
+    if sw.kp is not None:
+        yield from _rewrite_klipper(lines, source, st, planner, res, sw, on_move)
+    else:
+        for ln in parse_lines(lines, source, st):
+            res.lines_in += 1
+            raw = ln.raw if ln.raw.endswith("\n") else ln.raw.rstrip("\r") + "\n"
+            if not ln.moves:
+                if ln.cmd == "M92":
+                    sw.note_m92(ln.line_no, ln.raw)
+                yield raw
+                continue
+            per_move = [(m, planner.plan(m)) for m in ln.moves]
+            if on_move is not None:
+                for m, acts in per_move:
+                    on_move(m, acts)
+            if all(_unchanged(m, a) for m, a in per_move):
+                if any(a.dropped for _, acts in per_move for a in acts):
+                    sw.drop()
+                yield raw
+                continue
+            res.moves_split += 1
+            yield from _emit(ln, per_move, st, sw)
     res.stops = planner.stops
     res.stats = planner.stats
     res.planner = planner
     res.unreached = unreached_message(planner, source)
+
+
+def _rewrite_klipper(lines, source, st, planner, res, sw: StopWriter, on_move) -> Iterator[str]:
+    """rewrite()'s loop for Klipper's form: the same lines, and (a) the toolhead's accel as the
+    file's M204 / SET_VELOCITY_LIMIT set it, (b) the last X/Y move seen (a stop at the next
+    move's start decelerated on it), (c) a stop at the end of a line held until the next move
+    with motion shows where the head goes on (_KlipperPending)."""
+    pend, held = None, []
+    for ln in parse_lines(lines, source, st):
+        res.lines_in += 1
+        raw = ln.raw if ln.raw.endswith("\n") else ln.raw.rstrip("\r") + "\n"
+        if not ln.moves:
+            sw.note_accel(ln.raw)
+            outs = [raw]
+        else:
+            if pend is not None:
+                kin = next((m for m in ln.moves if (m.x0, m.y0, m.z0) != (m.x1, m.y1, m.z1)), None)
+                if kin is not None:
+                    at = pend.at
+                    same = abs(kin.x0 - at[0]) < 1e-6 and abs(kin.y0 - at[1]) < 1e-6
+                    held[0] = pend.resolve(_unit_xy(kin) if same else None)
+                    yield from held
+                    pend, held = None, []
+            per_move = [(m, planner.plan(m)) for m in ln.moves]
+            if on_move is not None:
+                for m, acts in per_move:
+                    on_move(m, acts)
+            if all(_unchanged(m, a) for m, a in per_move):
+                if any(a.dropped for _, acts in per_move for a in acts):
+                    sw.drop()
+                for m, _ in per_move:
+                    sw.note_move(m)
+                outs = [raw]
+            else:
+                res.moves_split += 1
+                outs = list(_emit(ln, per_move, st, sw))
+        for o in outs:
+            if isinstance(o, _KlipperPending):
+                if pend is not None:           # (a line ends with one stop at most)
+                    held[0] = pend.resolve(None)
+                    yield from held
+                    held = []
+                pend = o
+                held.append(o)
+            elif pend is not None:
+                held.append(o)
+            else:
+                yield o
+    if pend is not None:
+        held[0] = pend.resolve(None)
+        yield from held
 
 
 def _unchanged(m: Move, actions: list[Action]) -> bool:
@@ -1151,8 +1280,45 @@ def _lead_steps(m: Move, at: tuple, nxt: Action | None, spm: float, stop_n: int)
     return XY_STEPS * max(dx, dy) / length if length > 1e-9 else XY_STEPS
 
 
+def _unit_xy(m: Move) -> tuple[float, float] | None:
+    dx, dy = m.x1 - m.x0, m.y1 - m.y0
+    ln = math.hypot(dx, dy)
+    return (dx / ln, dy / ln) if ln > 1e-9 else None
+
+
+class _KlipperPending:
+    """A Klipper stop at the end of a line: its E is fixed, its speed waits for the direction
+    of the next move (the lead term, klipper_stop.lead_s). rewrite() holds the output after it
+    until that move's line comes (resolve), or the file ends (resolve(None): the mean)."""
+
+    def __init__(self, sw: StopWriter, stop: StopMove, at, before: list[str], word: str):
+        self.sw, self.stop, self.at, self.before, self.word = sw, stop, at, before, word
+
+    def resolve(self, u) -> str:
+        sw, stop = self.sw, self.stop
+        lead = sw.edge_out(self.at, u)
+        ks = klipper_stop.retime(sw.kp, stop.klipper, lead, sw.accel)
+        sw.still_s += ks.still - stop.still
+        sw.run_s += (ks.still - lead) - (stop.still - stop.start)
+        near = abs(ks.still - stop.ms / 1000) * 1000 > NEAREST_MS
+        sw.nearest += near - stop.nearest
+        stop.klipper, stop.still, stop.start, stop.nearest = ks, ks.still, lead, near
+        return "".join(b + "\n" for b in self.before) + f"G1 {self.word} F{ks.speed * 60:.3f}\n"
+
+
+def _klipper_e(e_pos: float, d: float, abs_e: bool) -> tuple[str, float]:
+    """(E word, filament laid) of a Klipper stop laying d mm from host E e_pos: Klipper keeps E
+    in double, so no step rounding to aim at (stop_e_lines' care is Marlin's)."""
+    if abs_e:
+        txt = _fmt(e_pos + d)
+        return f"E{txt}", float(txt) - e_pos
+    txt = _fmt(d)
+    return f"E{txt}", float(txt)
+
+
 def _emit(ln: Line, per_move, st: GcodeState, sw: StopWriter) -> Iterator[str]:
-    """G-code for one source line whose moves were split or got extra E."""
+    """G-code for one source line whose moves were split or got extra E. With a Klipper stop
+    at the end of the line it also yields a _KlipperPending (rewrite() resolves it)."""
     w = ln.words or {}
     comment = ""
     i = ln.raw.find(";")
@@ -1167,12 +1333,46 @@ def _emit(ln: Line, per_move, st: GcodeState, sw: StopWriter) -> Iterator[str]:
     e_out = m0.e_start             # E as written (absolute mode)
     added = 0.0
     feed = None                    # a stop move changed the feed: the feed to give back
+    spill = 0.0                    # Klipper: extra E over the cross-section limit, for the next piece
+    wx, wy = cx, cy                # Klipper: the position as written (a stop's place on the step grid)
     for m, acts in per_move:
         e_host = m.e_start
         acc = 0.0                  # filament written for this move so far
         for i, a in enumerate(acts):
             if a.dropped:
                 sw.drop()
+            if a.kind == "dwell" and sw.kp is not None:
+                if a.ms == 0:
+                    continue               # a weight-0 point: nothing to hold
+                nxt = acts[i + 1] if i + 1 < len(acts) else None
+                prev = acts[i - 1] if i and acts[i - 1].kind == "line" else None
+                at = (wx, wy)          # as written: the stop's offset from a half step decides
+                u_m = _unit_xy(m)
+                if prev is not None:
+                    u_in = u_m
+                else:                  # the stop is at this move's start: the move before's end
+                    p = sw.prev
+                    u_in = p[2:] if p and abs(p[0] - at[0]) < 1e-6 and abs(p[1] - at[1]) < 1e-6 else None
+                tail = sw.edge_in(at, u_in)
+                later = nxt is None or nxt.kind != "line"
+                if later:              # the next move is another line's: the mean until known
+                    lead = klipper_stop.mean_edge_s(sw.kp, sw.accel)
+                else:
+                    lead = sw.edge_out(at, u_m)
+                stop = sw.plan_klipper(a, tail, lead)
+                if stop.kind == STOP_G4:
+                    sw.count(stop)
+                    yield f"G4 P{a.ms}\n"
+                    continue
+                word, laid = _klipper_e(e_host + acc + added, stop.klipper.e_mm, abs_e)
+                sw.count(stop, laid)
+                acc += laid
+                feed = m.f
+                if later:
+                    yield _KlipperPending(sw, stop, at, [], word)
+                else:
+                    yield f"G1 {word} F{stop.klipper.speed * 60:.3f}\n"
+                continue
             if a.kind == "dwell":
                 spm = sw.spm_at(ln.line_no)
                 nxt = acts[i + 1] if i + 1 < len(acts) else None
@@ -1204,18 +1404,33 @@ def _emit(ln: Line, per_move, st: GcodeState, sw: StopWriter) -> Iterator[str]:
             if abs_xyz:
                 if tx != cx or "X" in w or a.t < 1.0:
                     parts.append(f"X{_fmt(tx, 4 if a.t < 1 else 5)}")
+                    wx = float(parts[-1][1:])
                 if ty != cy or "Y" in w or a.t < 1.0:
                     parts.append(f"Y{_fmt(ty, 4 if a.t < 1 else 5)}")
+                    wy = float(parts[-1][1:])
                 if tz != cz or (first and "Z" in w):
                     parts.append(f"Z{_fmt(tz, 4 if a.t < 1 else 5)}")
             else:
                 if tx != cx:
                     parts.append(f"X{_fmt(tx - cx, 4)}")
+                    wx += float(parts[-1][1:])
                 if ty != cy:
                     parts.append(f"Y{_fmt(ty - cy, 4)}")
+                    wy += float(parts[-1][1:])
                 if tz != cz:
                     parts.append(f"Z{_fmt(tz - cz, 4)}")
             piece_e = a.e - sw.pay(a)     # E a stop laid comes off the extra this piece carries
+            if sw.kp is not None and (a.extra > 0 or spill > 0):
+                # Klipper refuses a move over max_extrude_cross_section (extruder.py check_move):
+                # extra above the limit goes on to the next piece of the line
+                piece_e += spill
+                spill = 0.0
+                lim = sw.kp.piece_e_limit(math.dist((cx, cy, cz), (tx, ty, tz))) * 0.999
+                own = max(a.e - a.extra, 0.0)
+                if piece_e > max(lim, own):
+                    spill = piece_e - max(lim, own)
+                    piece_e -= spill
+                    sw.spill_e_mm += spill
             acc += piece_e
             if abs_e:
                 e_out = e_host + acc + added
@@ -1232,6 +1447,10 @@ def _emit(ln: Line, per_move, st: GcodeState, sw: StopWriter) -> Iterator[str]:
             yield " ".join(parts) + "\n"
         extra_here = acc - m.e
         added += extra_here
+        if sw.kp is not None:
+            sw.note_move(m)
+    if spill > 0:
+        sw.capped_e_mm += spill        # no piece left in the line to take it
     if feed is not None:
         yield f"G1 F{_fmt(per_move[-1][0].f, 3)}\n"   # the stop's feed must not carry on
     if abs_e and abs(added) > 1e-9:
@@ -1243,7 +1462,9 @@ def _emit(ln: Line, per_move, st: GcodeState, sw: StopWriter) -> Iterator[str]:
 
 def _header(bmap: mapformat.BulgeMap, settings: Settings, stops: StockStops) -> str:
     how = ""
-    if stops.stop == STOP_MOVE:
+    if stops.klipper:
+        how = f", stops as E-only moves for Klipper ({stops.printer.describe()})"
+    elif stops.stop == STOP_MOVE:
         how = (f", stops as E-only moves at {_fmt(stops.e_steps, 3)} E steps/mm"
                " (or as M92 E in the file sets)"
                + (f", {stops.stop_e_steps} E steps each" if stops.stop_e_steps else ""))
@@ -1340,7 +1561,7 @@ def rewrite_file(src, dst, bmap: mapformat.BulgeMap, settings: Settings,
     import os
     from ..gcode import check_not_processed, open_checked
     res = RewriteResult()
-    byte_path = movescan.available()
+    byte_path = movescan.available() and not stops.klipper    # Klipper's form: the text path
 
     def plain(data, source):                  # run with open_checked's checks, on the bytes
         nonlocal byte_path

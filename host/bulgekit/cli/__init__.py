@@ -42,6 +42,11 @@ def _settings_options(fn):
 
 def _stock_options(fn):
     """How a stock file writes its stops (docs/host.md, "Stops on stock firmware")."""
+    fn = click.option("--printer", "printer_spec", metavar="PRESET|FILE",
+                      help="Stock file: the printer it is for, a preset (e.g. klipper-corexy) or a "
+                           "file (an M503 reply, a Klipper printer.cfg, a profile TOML). A Klipper "
+                           "printer gets stops planned as Klipper plans them (--stop move) "
+                           "[default: Marlin's, by --e-steps].")(fn)
     fn = click.option("--stop-e-steps", type=click.IntRange(MIN_STEPS_PER_SEGMENT, 10000),
                       help="Stock file: E steps laid during each stop, taken from its extra filament "
                            "(the rest goes on the next piece) [the fewest that make a move: "
@@ -56,9 +61,16 @@ def _stock_options(fn):
     return fn
 
 
-def _stops(stop_kind, e_steps, stop_e_steps) -> StockStops:
+def _stops(stop_kind, e_steps, stop_e_steps, printer_spec=None) -> StockStops:
+    model = None
+    if printer_spec is not None:
+        from .. import machine
+        try:
+            model = machine.resolve(printer_spec)
+        except machine.ProfileError as e:
+            raise click.BadParameter(str(e), param_hint="'--printer'") from None
     try:
-        return StockStops(stop_kind, e_steps, stop_e_steps)
+        return StockStops(stop_kind, e_steps, stop_e_steps, model)
     except ValueError as e:        # values from a placement file's [bulges]
         raise click.BadParameter(str(e), param_hint="'--stop', '--e-steps' or '--stop-e-steps'") from None
 
@@ -155,7 +167,7 @@ def main():
 def build(ctx, gcode, placement, stroke_files, text, text_size, at, font, letter_spacing, scale, image_width,
           curve_tolerance, mirror, outdir, name, spacing, line_width, layer_height, ref_angle, no_stream,
           write_fallback, preview, preview_3d, dwell, extra, tolerance, geometric, stop_kind, e_steps,
-          stop_e_steps):
+          stop_e_steps, printer_spec):
     """Place strokes on GCODE's outer wall: map + annotated G-code + stats."""
     from .. import parallel
     from ..bulge import preview as pv
@@ -193,7 +205,7 @@ def build(ctx, gcode, placement, stroke_files, text, text_size, at, font, letter
     if not strokes:
         raise click.UsageError("nothing to draw: give --strokes FILE, --text TEXT or --placement FILE")
     settings = _settings(dwell, extra, tolerance, geometric)
-    stops = _stops(stop_kind, e_steps, stop_e_steps)
+    stops = _stops(stop_kind, e_steps, stop_e_steps, printer_spec)
     t0 = time.perf_counter()
     stem = name or Path(gcode).stem
     on_map = None
@@ -319,7 +331,7 @@ def annotate(gcode, map_file, output, no_stream, arena, allow_unreached, dwell, 
 @progress_option
 @friendly
 def fallback(gcode, map_file, output, allow_unreached, dwell, extra, tolerance, geometric, stop_kind,
-             e_steps, stop_e_steps):
+             e_steps, stop_e_steps, printer_spec):
     """Rewrite GCODE for stock firmware: split at each point, stop there (an extruder-only
     move of whole E steps timed to the dwell, or G4 P<ms> with --stop g4), extra E on the
     next piece, G92 E.
@@ -329,7 +341,7 @@ def fallback(gcode, map_file, output, allow_unreached, dwell, extra, tolerance, 
     from ..bulge import api
     settings = _settings(dwell, extra, tolerance, geometric)
     res = api.fallback_gcode(gcode, _read_map(map_file), output, settings, allow_unreached=allow_unreached,
-                             stops=_stops(stop_kind, e_steps, stop_e_steps))
+                             stops=_stops(stop_kind, e_steps, stop_e_steps, printer_spec))
     if res.unreached:
         click.echo(f"WARNING: {res.unreached}", err=True)
     st = res.stats
