@@ -1063,11 +1063,13 @@ class StopWriter:
             return klipper_stop.mean_edge_s(self.kp, self.accel)
         return klipper_stop.lead_s(self.kp, at[0], at[1], u[0], u[1], self.accel)
 
-    def plan_klipper(self, a: Action, tail: float, lead: float) -> StopMove:
+    def plan_klipper(self, a: Action, tail: float, lead: float, later: bool = False) -> StopMove:
         """Klipper's form of the stop (klipper_stop.plan): the extra owed here, less what
         stops before it laid already, in one E-only move timed so that the head stands the
-        dwell; G4 when nothing is owed."""
-        ks = klipper_stop.plan(self.kp, a.ms, a.extra - self.debt, tail, lead, self.accel)
+        dwell; G4 when nothing is owed. later: the lead is known only later (the E is chosen
+        for the longest lead)."""
+        ks = klipper_stop.plan(self.kp, a.ms, a.extra - self.debt, tail, lead, self.accel,
+                               klipper_stop.max_edge_s(self.kp, self.accel) if later else None)
         if ks is None:
             return StopMove(a.ms, STOP_G4, still=a.ms / 1000, why="extra")
         still = ks.still
@@ -1359,7 +1361,7 @@ def _emit(ln: Line, per_move, st: GcodeState, sw: StopWriter) -> Iterator[str]:
                     lead = klipper_stop.mean_edge_s(sw.kp, sw.accel)
                 else:
                     lead = sw.edge_out(at, u_m)
-                stop = sw.plan_klipper(a, tail, lead)
+                stop = sw.plan_klipper(a, tail, lead, later)
                 if stop.kind == STOP_G4:
                     sw.count(stop)
                     yield f"G4 P{a.ms}\n"

@@ -123,6 +123,13 @@ def mean_edge_s(p: KlipperParams, accel: float | None = None) -> float:
     return 2.0 / 3.0 * math.sqrt(2.0 / (a * p.x_steps))
 
 
+def max_edge_s(p: KlipperParams, accel: float | None = None) -> float:
+    """The longest tail_s or lead_s of an X/Y move: a whole step of a motor making k / sqrt 2
+    steps per mm of path (a 45 degree move on a cartesian; corexy's motors make at least k)."""
+    a = p.accel if accel is None else accel
+    return math.sqrt(2.0 * math.sqrt(2.0) / (a * min(p.x_steps, p.y_steps)))
+
+
 def cruise_v(p: KlipperParams, d: float, v: float, accel: float | None = None) -> float:
     """The cruise speed Klipper gives an E-only move of d mm at v mm/s (see the module doc)."""
     mcr = (p.accel if accel is None else accel) * (1.0 - p.min_cruise_ratio)
@@ -184,12 +191,14 @@ class KlipperStop:
 
 
 def plan(p: KlipperParams, ms: int, owed_mm: float, tail: float, lead: float,
-         accel: float | None = None) -> KlipperStop | None:
+         accel: float | None = None, lead_max: float | None = None) -> KlipperStop | None:
     """The E-only move for a stop of `ms` whose head stands tail + move + lead: it lays the extra
     owed there (or the most its time allows, E_MARGIN of it), at the speed that makes its time
-    the dwell less tail and lead. None: no E owed to lay (write G4)."""
+    the dwell less tail and lead. lead_max: the lead is not known yet (retime sets it later):
+    the E is chosen for the shortest time it may leave. None: no E owed to lay (write G4)."""
     t = ms / 1000.0 - tail - lead
-    d = min(owed_mm, E_MARGIN * max_e_for(p, max(t, 0.0), accel))
+    t_e = t if lead_max is None else ms / 1000.0 - tail - max(lead, lead_max)
+    d = min(owed_mm, E_MARGIN * max_e_for(p, max(t_e, 0.0), accel))
     d = math.floor(d * 1e5) / 1e5                 # as written: 5 decimals, never above the owed
     if d < MIN_STOP_E_MM:
         d = MIN_STOP_E_MM
