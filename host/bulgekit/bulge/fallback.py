@@ -1017,7 +1017,8 @@ class StopWriter:
         self.accel = self.kp.accel if self.kp else None
         self.prev = None
         self.spill_e_mm = 0.0                  # E moved on to a later piece (cross-section limit)
-        self.capped_e_mm = 0.0                 # of that, E no later piece of its line could take
+        self.capped_e_mm = 0.0                 # of that, E no later piece of its wall could take
+        self.spill = 0.0                       # E owed to the next extruding piece
         self.guessed = 0                       # Klipper stops with a neighbour's direction unknown
 
     _ACCEL_RX = re.compile(r"^\s*(?:M204\b(?P<m>[^;]*)|SET_VELOCITY_LIMIT\b(?P<s>[^;]*))", re.I)
@@ -1040,6 +1041,10 @@ class StopWriter:
             acc = float(v.group(1)) if v else None
         if acc is not None and acc > 0:
             self.accel = acc
+
+    def lose_spill(self) -> None:
+        self.capped_e_mm += self.spill
+        self.spill = 0.0
 
     def note_move(self, m: Move) -> None:
         """The last move with X/Y motion (the one a stop at its end decelerates on)."""
@@ -1232,7 +1237,13 @@ def _rewrite_klipper(lines, source, st, planner, res, sw: StopWriter, on_move) -
             if on_move is not None:
                 for m, acts in per_move:
                     on_move(m, acts)
-            if all(_unchanged(m, a) for m, a in per_move):
+            unchanged = all(_unchanged(m, a) for m, a in per_move)
+            if unchanged and sw.spill > 0:     # extra owed past the cross-section limit
+                if any(m.e > 0 and (m.x0, m.y0) != (m.x1, m.y1) for m in ln.moves):
+                    unchanged = False          # this line's extruding move takes it (_emit)
+                elif any((m.x0, m.y0) != (m.x1, m.y1) for m in ln.moves):
+                    sw.lose_spill()            # a travel first: the wall ended
+            if unchanged:
                 if any(a.dropped for _, acts in per_move for a in acts):
                     sw.drop()
                 for m, _ in per_move:
@@ -1256,6 +1267,7 @@ def _rewrite_klipper(lines, source, st, planner, res, sw: StopWriter, on_move) -
     if pend is not None:
         held[0] = pend.resolve(None)
         yield from held
+    sw.lose_spill()
 
 
 def _unchanged(m: Move, actions: list[Action]) -> bool:
@@ -1335,7 +1347,6 @@ def _emit(ln: Line, per_move, st: GcodeState, sw: StopWriter) -> Iterator[str]:
     e_out = m0.e_start             # E as written (absolute mode)
     added = 0.0
     feed = None                    # a stop move changed the feed: the feed to give back
-    spill = 0.0                    # Klipper: extra E over the cross-section limit, for the next piece
     wx, wy = cx, cy                # Klipper: the position as written (a stop's place on the step grid)
     for m, acts in per_move:
         e_host = m.e_start
@@ -1422,17 +1433,20 @@ def _emit(ln: Line, per_move, st: GcodeState, sw: StopWriter) -> Iterator[str]:
                 if tz != cz:
                     parts.append(f"Z{_fmt(tz - cz, 4)}")
             piece_e = a.e - sw.pay(a)     # E a stop laid comes off the extra this piece carries
-            if sw.kp is not None and (a.extra > 0 or spill > 0):
+            if sw.kp is not None and (a.extra > 0 or sw.spill > 0):
                 # Klipper refuses a move over max_extrude_cross_section (extruder.py check_move):
-                # extra above the limit goes on to the next piece of the line
-                piece_e += spill
-                spill = 0.0
-                lim = sw.kp.piece_e_limit(math.dist((cx, cy, cz), (tx, ty, tz))) * 0.999
-                own = max(a.e - a.extra, 0.0)
-                if piece_e > max(lim, own):
-                    spill = piece_e - max(lim, own)
-                    piece_e -= spill
-                    sw.spill_e_mm += spill
+                # extra above the limit goes on to the next extruding pieces (StopWriter.spill)
+                if a.e > 0 and (tx, ty) != (cx, cy):
+                    carried, sw.spill = sw.spill, 0.0
+                    piece_e += carried
+                    lim = sw.kp.piece_e_limit(math.dist((cx, cy, cz), (tx, ty, tz))) * 0.999
+                    own = max(a.e - a.extra, 0.0)
+                    if piece_e > max(lim, own):
+                        sw.spill = piece_e - max(lim, own)
+                        piece_e -= sw.spill
+                        sw.spill_e_mm += max(0.0, sw.spill - carried)
+                elif (tx, ty) != (cx, cy):
+                    sw.lose_spill()            # a travel: the wall ended (as the planner's extra)
             acc += piece_e
             if abs_e:
                 e_out = e_host + acc + added
@@ -1451,8 +1465,6 @@ def _emit(ln: Line, per_move, st: GcodeState, sw: StopWriter) -> Iterator[str]:
         added += extra_here
         if sw.kp is not None:
             sw.note_move(m)
-    if spill > 0:
-        sw.capped_e_mm += spill        # no piece left in the line to take it
     if feed is not None:
         yield f"G1 F{_fmt(per_move[-1][0].f, 3)}\n"   # the stop's feed must not carry on
     if abs_e and abs(added) > 1e-9:
