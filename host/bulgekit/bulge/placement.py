@@ -10,6 +10,12 @@ post-processing step (`bulgekit post-process`) or `bulgekit build --placement` r
     mirror = false
     rotate = 0                   # degrees, counter-clockwise about `at`
 
+    [[braille]]                  # any number of these: text in braille, the standard's spacing
+    text = "HELLO"
+    at = [5, 3]                  # u, v mm: the first cell's bottom dots
+    grade = 1                    # 1 or 2 (Unified English Braille), or:
+    table = "de-g2.ctb"          # any liblouis table by name
+
     [[strokes]]                  # SVG, JSON stroke list or an image; path relative to this file
     file = "wave.json"
     at = [0, 0]
@@ -27,7 +33,10 @@ post-processing step (`bulgekit post-process`) or `bulgekit build --placement` r
     line_width = 0.45
     fallback = false             # write stock-firmware G-code (stops + extra E) instead of M720-M722
     stop = "move"                # stock stops: "move" (E-only moves, exact) or "g4" (G4 P<ms>)
-    e_steps = 93                 # the printer's E steps/mm (an M92 E in the G-code wins)
+    printer = "ender3"           # the printer model: a preset, or a file (an M503 reply, a Klipper
+                                 # printer.cfg, a profile TOML) relative to this file
+    firmware = "marlin"          # marlin, klipper, prusa or reprap [the printer model's]
+    e_steps = 93                 # the printer's E steps/mm (an M92 E in the G-code wins) [the model's]
     stop_e_steps = 6             # E steps laid during each stop (default: the fewest that make a move)
 
 Unknown tables or keys, wrong types and missing files are errors that name the file and key.
@@ -46,11 +55,13 @@ from .strokes import Stroke
 
 _TEXT_KEYS = {"text": str, "at": list, "size": (int, float), "font": str, "letter_spacing": (int, float),
               "mirror": bool, "rotate": (int, float)}
+_BRAILLE_KEYS = {"text": str, "at": list, "grade": int, "table": str}
 _STROKE_KEYS = {"file": str, "at": list, "scale": (int, float), "image_width": (int, float),
                 "curve_tolerance": (int, float), "rotate": (int, float)}
 _BULGE_KEYS = {"dwell": int, "extra": (int, float), "tolerance": (int, float), "geometric": bool,
                "spacing": (int, float), "line_width": (int, float), "fallback": bool,
-               "stop": str, "e_steps": (int, float), "stop_e_steps": int}
+               "stop": str, "e_steps": (int, float), "stop_e_steps": int, "printer": str,
+               "firmware": str}
 
 
 class PlacementError(InputError):
@@ -67,6 +78,21 @@ class Placement:
     strokes: list[Stroke]
     bulges: dict = field(default_factory=dict)
     entries: list[str] = field(default_factory=list)   # "text[0]", "strokes[0]" ...: those that drew, in order
+
+    @property
+    def printer(self) -> str | None:
+        """[bulges] printer: a preset's name, or its file's path taken from this file's folder."""
+        v = self.bulges.get("printer")
+        if v is None:
+            return None
+        from ..machine import PRESETS
+        if v in PRESETS:
+            return v
+        f = Path(v) if Path(v).is_absolute() else self.path.parent / v
+        if not f.is_file():
+            raise PlacementFileMissing(f"{self.path}: bulges.printer: {v} is neither a preset "
+                                       f"({', '.join(PRESETS)}) nor a file")
+        return str(f)
 
 
 def _check(table: dict, keys: dict, where: str, src: Path) -> None:
@@ -109,8 +135,8 @@ def load_placement(path) -> Placement:
     except tomllib.TOMLDecodeError as e:
         raise PlacementError(f"{src}: not valid TOML: {e}") from None
     for k in doc:
-        if k not in ("text", "strokes", "bulges"):
-            raise PlacementError(f"{src}: unknown table {k!r} (known: text, strokes, bulges)")
+        if k not in ("text", "braille", "strokes", "bulges"):
+            raise PlacementError(f"{src}: unknown table {k!r} (known: text, braille, strokes, bulges)")
     strokes: list[Stroke] = []
     entries: list[str] = []
     for i, t in enumerate(_tables(doc, "text", src)):
@@ -125,6 +151,19 @@ def load_placement(path) -> Placement:
         except InputError as e:
             raise PlacementError(f"{src}: {where}: {e}") from None
         strokes += _tagged(_rotated(made, t.get("rotate", 0), (u, v)), where, src)
+        entries.append(where)
+    for i, t in enumerate(_tables(doc, "braille", src)):
+        where = f"braille[{i}]"
+        _check(t, _BRAILLE_KEYS, where, src)
+        if "text" not in t:
+            raise PlacementError(f"{src}: {where}: 'text' is missing")
+        u, v = _at(t, where, src)
+        from .braille import braille_strokes
+        try:
+            made = braille_strokes(t["text"], u, v, t.get("grade"), t.get("table"))
+        except InputError as e:
+            raise PlacementError(f"{src}: {where}: {e}") from None
+        strokes += _tagged(made, where, src)
         entries.append(where)
     for i, t in enumerate(_tables(doc, "strokes", src)):
         where = f"strokes[{i}]"
@@ -151,7 +190,7 @@ def load_placement(path) -> Placement:
         raise PlacementError(f"{src}: 'bulges' must be a table ([bulges])")
     _check(bulges, _BULGE_KEYS, "bulges", src)
     if not strokes:
-        raise PlacementError(f"{src}: nothing to draw: add a [[text]] or [[strokes]] table")
+        raise PlacementError(f"{src}: nothing to draw: add a [[text]], [[braille]] or [[strokes]] table")
     return Placement(src, strokes, dict(bulges), entries)
 
 

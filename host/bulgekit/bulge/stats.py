@@ -12,8 +12,8 @@ from dataclasses import dataclass, field
 
 from . import mapformat
 from ..gcode import movescan
-from .fallback import RefPlanner, Settings, plan_records
-from ..gcode import open_checked
+from .fallback import ArcCount, ArcLines, RefPlanner, Settings, plan_records
+from ..gcode import ARC_CHORD_DEVIATION_MM, open_checked
 
 ARENA_BYTES = mapformat.ARENA_BYTES
 
@@ -40,6 +40,7 @@ class Stats:
     decel_s: float | None = None   # stop/start cost at the moves' feedrates
     slicer_time_s: float | None = None
     stock: object | None = None    # fallback.StopWriter of the stock file, when one was written
+    arcs: ArcCount | None = None   # G2/G3 through points, written as G1 chords (from the G-code run)
 
     @property
     def added_s(self) -> float:
@@ -64,6 +65,8 @@ class Stats:
                            f"of any {'outer-wall' if s.mode == 1 else 'extruding'} move: {show}{more}")
             if self.extra_dropped_mm > 1e-9:
                 out.append(f"extra filament lost to stops at a wall's end: {self.extra_dropped_mm:.3f} mm")
+            if self.arcs is not None and self.arcs.arcs:
+                out.append(f"arcs: {self.arcs_text()}")
         out.append(f"extra filament: {self.extra_e_mm:.2f} mm")
         t = f"added time: {_hms(self.dwell_s)} dwell"
         if self.decel_s is not None:
@@ -91,6 +94,17 @@ class Stats:
             for i in range(0, len(row), 8):
                 out.append("  " + "  ".join(row[i:i + 8]))
         return "\n".join(out)
+
+
+    def arcs_text(self) -> str:
+        """The arcs written as chords: as counted where they were written (ArcCount.text), or
+        their number and the farthest Marlin's segments can lie from an arc."""
+        if self.arcs.chords:
+            return self.arcs.text()
+        n = self.arcs.arcs
+        return (f"{n} G2/G3 arc{'s' if n != 1 else ''} through map points written as G1 chords, "
+                f"Marlin's own segments (at most 1 mm; within {ARC_CHORD_DEVIATION_MM:.3f} mm "
+                "of the arc)")
 
 
 def _hms(sec: float) -> str:
@@ -154,8 +168,10 @@ class StopTimer:
         self.planner, self.accel = planner, accel_mm_s2
         self.seen = 0
         self.decel_s = 0.0
+        self.arcs = ArcLines(planner)          # the arcs the outputs write as chords
 
     def __call__(self, m, actions) -> None:
+        self.arcs(m, actions)
         k = len(self.planner.stops) - self.seen      # stops this move made
         self.seen = len(self.planner.stops)
         if k:
@@ -199,5 +215,6 @@ def print_stats(gcode_path, map_bytes: bytes, settings: Settings, arena: int = A
     st.dwell_s = dwell_ms / 1000
     st.extra_e_mm = planner.stats.extra_applied
     st.decel_s = decel
+    st.arcs = ArcCount(len(planned.arcs.lines))
     st.slicer_time_s = slicer_time(ends)
     return st

@@ -35,10 +35,15 @@ class Stroke:
     source: str = ""
     # the text, drawing or picture it is part of (Drawing), for messages about the whole
     drawing: "Drawing | None" = field(default=None, compare=False, repr=False)
+    # a dot with height (a braille dot): the layers within this many mm of its v each get a point,
+    # weighted by a dome, weight x sqrt(1 - (dv / dome)^2) at the layer's middle (mapbuild)
+    dome: float = 0.0
 
     def __post_init__(self):
         if not self.points:
             raise InputError(f"{self.source or 'stroke'}: stroke has no points")
+        if self.dome and (len(self.points) != 1 or not (math.isfinite(self.dome) and self.dome > 0)):
+            raise InputError(f"{self.source or 'stroke'}: a dome is one point with a radius > 0")
         if not (isinstance(self.weight, int) and 0 <= self.weight <= 255):
             raise InputError(f"{self.source or 'stroke'}: weight {self.weight!r} is not an integer 0..255")
         for k, (u, v) in enumerate(self.points):
@@ -459,6 +464,7 @@ def load_svg(path: str, *, offset: tuple[float, float] = (0.0, 0.0), scale: floa
         page_h_mm = None
 
     raw: list[tuple[list[tuple[float, float]], int, str]] = []  # points in page mm, y down
+    filled: list[str] = []        # shapes with a fill given: drawn as their outlines
 
     def where(el, tag):
         line = el.values.get(_LINE_ATTR)
@@ -473,7 +479,7 @@ def load_svg(path: str, *, offset: tuple[float, float] = (0.0, 0.0), scale: floa
         tag = el.values.get("tag", type(el).__name__.lower())
         if isinstance(el, (se.Text, se.Image)) or tag in ("text", "image"):
             msg = (f"{where(el, tag)}: <{tag}> cannot be drawn with bulges; convert it to paths "
-                   f"(or use `bulgekit strokes --text` for lettering)")
+                   f"(for lettering: --text, or a [[text]] table in a placement file)")
             if not skip_unsupported:
                 raise InputError(msg)
             warnings.warn(msg + " — skipped", stacklevel=2)
@@ -481,6 +487,8 @@ def load_svg(path: str, *, offset: tuple[float, float] = (0.0, 0.0), scale: floa
         if not isinstance(el, se.Shape):
             continue
         loc = where(el, tag)
+        if _filled(el, tag):
+            filled.append(loc)
         w = _weight(el.values[_WEIGHT_ATTR], loc) if el.values.get(_WEIGHT_ATTR) is not None else weight
         if tag == "path":
             problem = _check_path_data(el.values.get("d", ""))
@@ -533,6 +541,11 @@ def load_svg(path: str, *, offset: tuple[float, float] = (0.0, 0.0), scale: floa
         for pc in pieces:
             raw.append((_dedupe(pc), w, loc))
 
+    if filled:
+        # bulges follow strokes: a filled area is drawn as its outline. Said, not hidden.
+        warnings.warn(f"{path}: {len(filled)} filled shape(s) drawn as their outlines only (the "
+                      f"first: {filled[0]}); for a filled area hatch it with strokes, or give a "
+                      "picture (an image becomes dots)", stacklevel=2)
     if not raw:
         raise InputError(f"{path}: no usable strokes (no paths, lines, polylines, polygons, rects, "
                          f"circles or ellipses outside <defs>)")
@@ -542,6 +555,14 @@ def load_svg(path: str, *, offset: tuple[float, float] = (0.0, 0.0), scale: floa
     return drawn(transform(strokes, offset=offset, scale=scale, mirror_u=mirror),
                  Drawing(f"{path}: the drawing", scale, "--scale", "scale", "scale", False,
                          "its page's lower-left corner"))
+
+
+def _filled(el, tag: str) -> bool:
+    """A shape whose fill was given (on it, or inherited: a fill other than SVG's default black,
+    which a drawing of strokes leaves unset) and not none: its area would be filled on paper."""
+    fill = str(el.values.get("fill", "none")).strip().lower()
+    given = "fill" in (el.values.get("attributes") or {}) or fill != "black"
+    return given and fill not in ("none", "transparent", "") and tag not in ("line", "polyline")
 
 
 # --------------------------------------------------------------------------

@@ -10,6 +10,13 @@ import click
 from ..errors import BulgekitError, MissingInputError
 
 
+class MissingInput(click.ClickException):
+    """An input file named inside another (a placement file's drawing) that is not there: exit
+    status 2 as a usage error, but one `Error:` line, without click's Usage lines (the command
+    line itself was right)."""
+    exit_code = 2
+
+
 def friendly(fn):
     """Turn expected failures into one-line messages (exit status 1): our own
     errors (they name the file and line, stroke or layer), map-format errors,
@@ -20,7 +27,7 @@ def friendly(fn):
         try:
             return fn(*a, **kw)
         except MissingInputError as e:
-            raise click.UsageError(str(e), click.get_current_context(silent=True)) from None
+            raise MissingInput(str(e)) from None
         except BulgekitError as e:
             raise click.ClickException(str(e)) from None
         except ValueError as e:  # mapformat.MapFormatError and friends
@@ -117,3 +124,40 @@ def outdir_option(*old_spellings):
     return click.option("-o", "--outdir", *old_spellings, "outdir", cls=_OldSpellings,
                         old_spellings=old_spellings, type=click.Path(file_okay=False),
                         default=OUTDIR_DEFAULT, show_default=True, help="Output folder.")
+
+
+def printer_options(fn):
+    """--printer and --firmware: the printer model every writer and the estimator read
+    (bulgekit.machine; docs/host.md, "The printer model")."""
+    from ..machine import FIRMWARES, PRESETS
+    fn = click.option("--firmware", type=click.Choice(FIRMWARES),
+                      help="The printer's firmware, which sets the form of a stock file's stops "
+                           "[the printer model's].")(fn)
+    fn = click.option("--printer", "printer", metavar="PRESET|FILE",
+                      help="The printer: a preset (" + ", ".join(PRESETS) + ") or a file: a saved "
+                           "M503 reply, a Klipper printer.cfg or a profile TOML (bulgekit printer "
+                           "read). The G-code's own M92/M201/M203/M204/M205/M900 then apply. "
+                           "[marlin: Marlin's defaults, E 93]")(fn)
+    return fn
+
+
+def printer_model(printer: str | None, firmware: str | None, gcode=None, e_steps: float | None = None):
+    """The model a command works for: --printer (or the default), --firmware, then the file's own
+    settings before its first extrusion (gcode: a path), then --e-steps when given."""
+    from dataclasses import replace
+
+    from ..machine import resolve, with_gcode
+    m = resolve(printer, firmware)
+    if gcode is not None:
+        with open(gcode, "rb") as f:
+            head = f.read(1 << 20).split(b"\n")[:-1]
+        m = with_gcode(m, head, str(gcode))
+    if e_steps is not None:
+        m = replace(m, steps_per_mm=m.steps_per_mm.with_(E=e_steps))
+    return m
+
+
+def show_warning(message, category, filename, lineno, file=None, line=None):
+    """Python warnings (bulgekit's: a filled SVG shape drawn as its outline, a skipped <text>) as
+    one `WARNING:` line on stderr, without the source line Python shows."""
+    click.echo(f"WARNING: {message}", err=True)

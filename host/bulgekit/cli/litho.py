@@ -10,7 +10,7 @@ import signal
 
 import click
 
-from ._util import NONNEG, POSITIVE, friendly, outdir_option, progress_option
+from ._util import NONNEG, POSITIVE, friendly, outdir_option, printer_model, printer_options, progress_option
 
 
 def _bed(ctx, param, value):
@@ -88,15 +88,17 @@ def register(main):
                        "--light-gaps mid-line): where the picture changes faster than the head can "
                        "follow at a steady extruder rate, the walls (half to one and a half line "
                        "widths) take the difference. The thickness is the same; 0: off.")
-    @click.option("--accel", type=POSITIVE, default=3000.0, show_default=True,
-                  help="The printer's print acceleration, mm/s² (M204 P; Marlin's default 3000). "
+    @click.option("--accel", type=POSITIVE, default=None,
+                  help="The printer's print acceleration, mm/s² (M204 P) [the printer model's; "
+                       "Marlin's default 3000]. "
                        "Printed times assume it; below 3000 the mid-line's default flow is lower "
                        "(see --infill-flow) and --rate-accel is held to it. The file does not set it.")
     @click.option("--block-rate", type=NONNEG, default=120.0, show_default=True,
                   help="Moves per second the printer's board plans: no piece is shorter than its "
                        "speed / this (samples merge). 120 suits an 8-bit ATmega2560 streaming from "
                        "the host; a 32-bit board: 2000; 0: off (pieces still at least 0.075 mm).")
-    @click.option("--filament", type=POSITIVE, default=1.75, show_default=True, help="Filament diameter, mm.")
+    @click.option("--filament", type=POSITIVE, default=None,
+                  help="Filament diameter, mm [the printer model's: 1.75].")
     @click.option("--wall-speed", type=POSITIVE, default=40.0, show_default=True, help="Walls, mm/s.")
     @click.option("--infill-flow", type=POSITIVE, default=None,
                   help="The mid-line's constant volumetric rate, mm^3/s (head speed = flow / (W * H)). "
@@ -127,9 +129,10 @@ def register(main):
     @click.option("--end-gcode", type=click.Path(exists=True, dir_okay=False), default=None,
                   help="File replacing the default end G-code.")
     @click.option("--no-purge", is_flag=True, help="No purge line before the part.")
+    @printer_options
     @progress_option
     @friendly
-    def litho(image, calibration, shape, outdir, name, no_purge, **kw):
+    def litho(image, calibration, shape, outdir, name, no_purge, printer, firmware, **kw):
         """Make a lithophane from IMAGE (any picture Pillow reads; sRGB, taken as its luminance),
         or with --calibration a step wedge to measure the filament's --attenuation.
 
@@ -167,7 +170,10 @@ def register(main):
                     why = "its size and border are fixed" if p in ("width", "height", "frame") else "no picture"
                     raise click.UsageError(f"--{p} does not apply to --calibration ({why})")
         kw["bed"] = tuple(kw["bed"])
-        opts = lt.LithoOptions(shape=shape, purge=not no_purge, **kw)
+        pm = printer_model(printer, firmware)
+        kw["accel"] = pm.accel if kw["accel"] is None else kw["accel"]
+        kw["filament"] = pm.filament_diameter if kw["filament"] is None else kw["filament"]
+        opts = lt.LithoOptions(shape=shape, purge=not no_purge, printer=pm, **kw)
 
         def show(done, total):
             if progress.enabled():

@@ -64,8 +64,8 @@ The planner empties (the machine stops) at G4, G28, M400 and the heating waits M
 moves before brake to a stop and the ones after start from rest (the drain's cost), the dwell
 itself is added; the time the host takes to fill the queue again is not modelled. Not
 modelled either: Marlin's slow-down when the buffer runs low (a host that keeps it full: SD
-card, or a fast enough serial line), LIN_ADVANCE, S-curve acceleration, arcs' exact segment
-count (G2/G3 are cut into pieces of at most 1 mm, as MAX_ARC_SEGMENT_MM).
+card, or a fast enough serial line), LIN_ADVANCE, S-curve acceleration. G2/G3 are cut into Marlin
+2.1's own segments (gcode.arc_segments: at most 1 mm, at least 72 to a turn).
 """
 from __future__ import annotations
 
@@ -75,12 +75,14 @@ import functools
 import math
 import operator
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from ..errors import BulgekitError
-from . import GcodeError, check_file_ends, command_of, parse_words, refuse_cut_off, split_code
+from ..machine import DEFAULT as _PM, PrinterModel
+from . import (GcodeError, arc_geometry, arc_point, check_file_ends, command_of, parse_words,
+               refuse_cut_off, split_code)
 
 PLAN_VERSION = 1       # the compiled planner's VERSION this code calls (_plan.c's module init)
 
@@ -97,9 +99,6 @@ _plan = _compiled_planner()
 AXES = "XYZE"
 
 
-MINIMAL_STEP_RATE = 120          # steps/s: Marlin's floor for a block's first and last step rate
-
-
 class EstimateError(BulgekitError):
     """A G-code line the estimator cannot plan (the message names file and line)."""
 
@@ -110,20 +109,36 @@ def _axes(x, y, z, e):
 
 @dataclass
 class Machine:
-    """Planner settings. Defaults: Marlin 2.1.2.x's Configuration.h (RAMPS example config)."""
-    accel: float = 3000.0             # M204 P, printing moves, mm/s^2
-    travel_accel: float = 3000.0      # M204 T
-    retract_accel: float = 3000.0     # M204 R, moves of E alone
-    max_accel: dict = field(default_factory=lambda: _axes(3000, 3000, 100, 10000))   # M201
-    max_feedrate: dict = field(default_factory=lambda: _axes(300, 300, 5, 25))       # M203, mm/s
-    steps_per_mm: dict = field(default_factory=lambda: _axes(80, 80, 400, 500))      # M92
-    junction_deviation: float = 0.013  # M205 J, mm
+    """Planner settings, as the estimator plans with them: a printer model's (from_model); the
+    defaults are the default model's (machine.DEFAULT: Marlin 2.1.2.x's Configuration.h, E 93)."""
+    accel: float = _PM.accel                  # M204 P, printing moves, mm/s^2
+    travel_accel: float = _PM.travel_accel    # M204 T
+    retract_accel: float = _PM.retract_accel  # M204 R, moves of E alone
+    max_accel: dict = field(default_factory=_PM.max_accel.as_dict)        # M201
+    max_feedrate: dict = field(default_factory=_PM.max_feedrate.as_dict)  # M203, mm/s
+    steps_per_mm: dict = field(default_factory=_PM.steps_per_mm.as_dict)  # M92
+    junction_deviation: float = _PM.junction_deviation  # M205 J, mm
     jerk: dict | None = None          # classic jerk (M205 X Y Z E, mm/s) instead of JD
     jd_small_segments: bool = True    # JD_HANDLE_SMALL_SEGMENTS
     min_planner_speed: float = 0.05   # MINIMUM_PLANNER_SPEED, mm/s
-    min_segment_steps: int = 6        # MIN_STEPS_PER_SEGMENT
-    lookahead: int | None = 16        # BLOCK_BUFFER_SIZE; None: the whole file
+    min_segment_steps: int = _PM.min_segment_steps  # MIN_STEPS_PER_SEGMENT
+    lookahead: int | None = _PM.lookahead  # BLOCK_BUFFER_SIZE; None: the whole file
+    min_step_rate: float = _PM.min_step_rate  # MINIMAL_STEP_RATE, steps/s (0: none, Klipper)
     honour_file_limits: bool = False  # apply the file's M201/M203/M204/M205
+
+    @classmethod
+    def from_model(cls, pm: PrinterModel, **kw) -> "Machine":
+        """The estimator's settings for a printer model (kw: any field changed). A Klipper model
+        plans with its whole look-ahead, no step-rate floor and no segment minimum, and its
+        corners at the junction deviation its square corner velocity stands for."""
+        m = cls(accel=pm.accel, travel_accel=pm.travel_accel, retract_accel=pm.retract_accel,
+                max_accel=pm.max_accel.as_dict(), max_feedrate=pm.max_feedrate.as_dict(),
+                steps_per_mm=pm.steps_per_mm.as_dict(),
+                junction_deviation=pm.junction_deviation if pm.jerk is None else _PM.junction_deviation,
+                jerk=None if pm.jerk is None else pm.jerk.as_dict(),
+                min_segment_steps=pm.min_segment_steps, lookahead=pm.lookahead or None,
+                min_step_rate=pm.min_step_rate)
+        return replace(m, **kw) if kw else m
 
 
 @dataclass
@@ -436,8 +451,6 @@ class _Parser:
         self.e_at = _lround(self.pos[3] * spm["E"])
 
     def arc(self, n, cw, w):
-        if "R" in w:
-            self.err(n, "G2/G3 with R is not supported by the estimator (use I/J)")
         x0, y0 = self.pos[0], self.pos[1]
         if w.get("F"):
             self.f = w["F"] / 60
@@ -446,23 +459,17 @@ class _Parser:
         y1 = (y0 + w["Y"] if self.rel[1] else w["Y"]) if w.get("Y") is not None else y0
         z1 = (self.pos[2] + w["Z"] if self.rel[2] else w["Z"]) if w.get("Z") is not None else self.pos[2]
         e1 = (self.pos[3] + w["E"] if self.rel[3] else w["E"]) if w.get("E") is not None else self.pos[3]
-        cx, cy = x0 + (w.get("I") or 0.0), y0 + (w.get("J") or 0.0)
-        r = math.hypot(x0 - cx, y0 - cy)
-        a0, a1 = math.atan2(y0 - cy, x0 - cx), math.atan2(y1 - cy, x1 - cx)
-        sweep = a1 - a0
-        if cw and sweep >= 0:
-            sweep -= 2 * math.pi
-        elif not cw and sweep <= 0:
-            sweep += 2 * math.pi
-        segs = max(1, math.ceil(abs(sweep) * r / 1.0))      # MAX_ARC_SEGMENT_MM 1
+        try:                                    # Marlin's segments, as every reader cuts them
+            cx, cy, r, a0, sweep, segs = arc_geometry(x0, y0, x1, y1, w, cw, f"{self.src}:{n}")
+        except GcodeError as e:
+            raise EstimateError(str(e)) from None
         z0, e0 = self.pos[2], self.pos[3]
         px, py = x0, y0
         for k in range(1, segs + 1):
-            t = k / segs
             if k == segs:
                 nx, ny = x1, y1
             else:
-                nx, ny = cx + r * math.cos(a0 + sweep * t), cy + r * math.sin(a0 + sweep * t)
+                nx, ny = arc_point(cx, cy, r, a0, sweep, k / segs)
             self.emit(n, [nx - px, ny - py, (z1 - z0) / segs, (e1 - e0) / segs])
             px, py = nx, ny
         self.pos = [x1, y1, z1, e1]
@@ -795,7 +802,7 @@ class _Planner:
         t, sp = _plan_run(run, self.m, self.keep)
         if self.e_only:
             sel, n_e, spm_e, vn = (np.concatenate(c) for c in zip(*self.e_only))
-            k, tc = _slow_e_only(vn, sel, n_e, spm_e)
+            k, tc = _slow_e_only(vn, sel, n_e, spm_e, self.m.min_step_rate)
             if sp[3] is not None:
                 sp[3][k], sp[4][k], sp[5][k] = 0.0, tc, 0.0
             t[k] = (0.0 + tc) + 0.0                      # t_accel + t_cruise + t_decel
@@ -968,15 +975,16 @@ def _lround(v: float) -> int:
     return int(math.floor(v + 0.5)) if v >= 0 else -int(math.floor(-v + 0.5))
 
 
-def _slow_e_only(vn, sel, steps_e, spm_e):
+def _slow_e_only(vn, sel, steps_e, spm_e, floor):
     """Moves of E alone (indices sel, their nominal speed, whole steps and steps/mm) whose step rate is under
-    MINIMAL_STEP_RATE: 1/120 + (n - 1)/r s, all at their speed (see the module's doc); faster
+    the step-rate floor (Marlin's MINIMAL_STEP_RATE, 120): 1/120 + (n - 1)/r s, all at their
+    speed (see the module's doc); faster
     ones keep their trapezoid, which is n/r plus the ramp. -> (those moves, their cruise time)."""
     n = steps_e
     # Marlin's length of the block is its whole steps in mm: the rate is speed x steps/mm
     rate = np.ceil(vn * spm_e - 1e-9)
-    slow = (rate < MINIMAL_STEP_RATE) & (n >= 1)
-    return sel[slow], 1 / MINIMAL_STEP_RATE + (n[slow] - 1) / rate[slow]
+    slow = (rate < floor) & (n >= 1)
+    return sel[slow], 1 / floor + (n[slow] - 1) / rate[slow]
 
 
 def estimate_file(path, machine: Machine | None = None, scanned: bool | None = None,
@@ -1039,7 +1047,7 @@ def _estimate_scanned(path: str, m: Machine, source: str, blocks: bool = True) -
     plan = _Planner(m, source, blocks)
     if movescan._scan is None:
         raise movescan.Unsupported("bulgekit.gcode._scan is not built")
-    sc = movescan._scan.Scanner((), (), movescan._classify, 1.0, events=True)
+    sc = movescan._scan.Scanner((), (), movescan._classify, events=True)
     base, buf = 0, b""
 
     def text_at(off: int) -> str:

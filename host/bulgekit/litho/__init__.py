@@ -51,7 +51,9 @@ from pathlib import Path
 import numpy as np
 
 from . import tone
+from .. import machine
 from ..errors import BulgekitError
+from ..machine import PrinterModel
 
 SHAPES = ("planar", "cylinder")
 CURVES = tone.CURVES
@@ -125,6 +127,8 @@ class LithoOptions:
     start_gcode: str | None = None  # file replacing the default start G-code
     end_gcode: str | None = None
     purge: bool = True              # a purge line in the default start G-code
+    printer: PrinterModel = machine.DEFAULT   # the printer the estimate plans for (its accelerations
+                                    # at `accel`)
 
     @property
     def filament_area(self) -> float:
@@ -1405,6 +1409,7 @@ def _options_dict(o: LithoOptions) -> dict:
     d = asdict(o)
     d["infill_flow"] = o.flow                  # the rate used, also where the default chose it
     d["bed"] = list(o.bed)
+    d["printer"] = o.printer.describe()         # the model, as the stock file's header names it
     return d
 
 
@@ -1877,11 +1882,11 @@ class _Staged:
 
 
 def machine_for(o: LithoOptions):
-    """The estimate's machine: Marlin's RAMPS defaults (estimate.Machine) at the printer's
-    acceleration `accel` for printing, travel and retraction (its axes' M201 limits raised to it
-    where it is higher, so that what the user states is what is timed)."""
+    """The estimate's machine: the printer model's (o.printer; by default Marlin's defaults) at
+    the acceleration `accel` for printing, travel and retraction (its axes' M201 limits raised
+    to it where it is higher, so that what the user states is what is timed)."""
     from ..gcode import estimate
-    m = estimate.Machine()
+    m = estimate.Machine.from_model(o.printer)
     top = {k: max(v, o.accel) if k in ("X", "Y") else v for k, v in m.max_accel.items()}
     return replace(m, accel=o.accel, travel_accel=o.accel, retract_accel=o.accel, max_accel=top)
 

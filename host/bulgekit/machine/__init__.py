@@ -28,7 +28,7 @@ import re
 import tomllib
 from dataclasses import dataclass, field, replace
 
-from ..errors import BulgekitError
+from ..errors import BulgekitError, MissingInputError
 
 FIRMWARES = ("marlin", "klipper", "prusa", "reprap")
 KINEMATICS = ("cartesian", "corexy")   # (a Klipper stop's head terms: which motors step, when)
@@ -37,6 +37,10 @@ AXES = "XYZE"
 
 class ProfileError(BulgekitError):
     """A printer profile that cannot be used: names the file, line and setting."""
+
+
+class ProfileMissing(ProfileError, MissingInputError):
+    """--printer names neither a preset nor a file: a usage error (exit status 2)."""
 
 
 @dataclass(frozen=True)
@@ -137,12 +141,13 @@ class PrinterModel:
     def klipper_extrude_only(self) -> tuple[float, float]:
         """(velocity mm/s, accel mm/s^2) of a move of E alone in Klipper: max_extrude_only_*,
         whose defaults are [printer]'s max_velocity and max_accel times cross-section/filament
-        area (klippy/kinematics/extruder.py)."""
+        area (klippy/kinematics/extruder.py), fixed when Klipper reads its config: a file's M204 or
+        SET_VELOCITY_LIMIT (`accel` after with_gcode) changes the toolhead's max_accel, not these."""
         ratio = self.klipper_cross_section / self.filament_area
         v = self.max_extrude_only_velocity
         a = self.max_extrude_only_accel
         return (self.max_feedrate.x * ratio if v is None else v,
-                self.accel * ratio if a is None else a)
+                self.max_accel.x * ratio if a is None else a)
 
     def describe(self) -> str:
         """One line: what a file's header and the statistics name."""
@@ -227,7 +232,7 @@ def resolve(spec: str | None, firmware: str | None = None) -> PrinterModel:
     elif os.path.exists(spec):
         m = load(spec)
     else:
-        raise ProfileError(f"--printer {spec}: neither a file nor a preset (presets: {', '.join(PRESETS)})")
+        raise ProfileMissing(f"--printer {spec}: neither a file nor a preset (presets: {', '.join(PRESETS)})")
     if firmware is not None and firmware != m.firmware:
         m = _klipper_shape(replace(m, firmware=firmware)) if firmware == "klipper" else replace(m, firmware=firmware)
     return m
@@ -325,6 +330,11 @@ def _classic_jerk_reply(text: str) -> bool:
     return False
 
 
+def has_settings(text: str) -> bool:
+    """Whether the text holds an M92, M201, M203, M204, M205 or M900 line (an M503 reply's)."""
+    return any(mt.group(1).upper() != "M115" for mt in _M_LINE.finditer(text))
+
+
 def firmware_of_m115(reply: str) -> str | None:
     """The firmware kind in an M115 reply's FIRMWARE_NAME, or None."""
     mt = re.search(r"FIRMWARE_NAME:\s*([^\n]*)", reply, re.I)
@@ -350,16 +360,13 @@ def from_m503(text: str, base: PrinterModel = DEFAULT, source: str = "<M503>",
     m = replace(base, name=name, firmware=fw, source=f"M503 reply {source}")
     if _classic_jerk_reply(text) and m.jerk is None:
         m = replace(m, junction_deviation=None, jerk=Axes(10, 10, 0.3, 5))
-    seen = False
+    if not has_settings(text):
+        raise ProfileError(f"{source}: no M92/M201/M203/M204/M205/M900 line in the M503 reply")
     for mt in _M_LINE.finditer(text):
         cmd = mt.group(1).upper()
-        if cmd == "M115":
-            continue
-        line = text.count("\n", 0, mt.start()) + 1
-        m = apply_mcode(m, cmd, _words(mt.group(2)), f"{source}:{line}")
-        seen = True
-    if not seen:
-        raise ProfileError(f"{source}: no M92/M201/M203/M204/M205/M900 line in the M503 reply")
+        if cmd != "M115":
+            line = text.count("\n", 0, mt.start()) + 1
+            m = apply_mcode(m, cmd, _words(mt.group(2)), f"{source}:{line}")
     return m
 
 

@@ -99,7 +99,7 @@ def e_only_s(model, d, f):
     """Klipper's trapezoid for d mm of E alone at F f, rest to rest, from the documented limits."""
     area = math.pi * (model.filament_diameter / 2) ** 2
     ratio = 4 * model.nozzle_diameter ** 2 / area
-    v_max, a = model.max_feedrate.x * ratio, model.accel * ratio
+    v_max, a = model.max_feedrate.x * ratio, model.max_accel.x * ratio   # [printer], not M204
     assert model.accel * (1 - model.minimum_cruise_ratio) >= a     # the cruise ratio binds not
     v = min(f / 60, v_max, math.sqrt(a * d))         # the peak a triangle of d would reach
     t_acc = v / a

@@ -237,8 +237,8 @@ def test_slow_e_only_move_follows_the_minimum_rate_rule():
     # 1/120 + 8/96 s (the head stands still 1/120 s longer: the next block's first step)
     r = es.estimate_lines(["M83", "M92 E93", "G1 E0.0968 F61.5"], machine())
     assert r.total_s == pytest.approx(1 / 120 + 8 / 96, rel=1e-12)
-    # at 500 steps/mm (Machine's default) the same move is 48 steps at 513 steps/s: a trapezoid
-    r = es.estimate_lines(["M83", "G1 E0.0968 F61.5"], machine())
+    # at 500 steps/mm the same move is 48 steps at 513 steps/s: a trapezoid
+    r = es.estimate_lines(["M83", "M92 E500", "G1 E0.0968 F61.5"], machine())
     assert r.total_s == pytest.approx(trapezoid(0.0968, 61.5 / 60, 1000.0), rel=1e-9)
 
 
@@ -282,9 +282,13 @@ def test_cli_e_steps(tmp_path):
     # at 513 steps/s: trapezoids through collinear junctions, 0.0968 mm at 1.025 mm/s = 0.0944 s
     p = tmp_path / "a.gcode"
     p.write_text("M83\n" + "G1 E0.0968 F61.5\n" * 100)
-    r = CliRunner().invoke(main, ["estimate", str(p), "--e-steps", "93"])
-    assert r.exit_code == 0 and "(9.2 s; 100 moves" in r.output, r.output
-    r = CliRunner().invoke(main, ["estimate", str(p)])
+    r = CliRunner().invoke(main, ["estimate", str(p), "--e-steps", "500"])
     assert r.exit_code == 0 and "(9.4 s; 100 moves" in r.output, r.output
+    # the default is the printer model's (Marlin's defaults with E 93), as build's
+    r = CliRunner().invoke(main, ["estimate", str(p)])
+    assert r.exit_code == 0 and "(9.2 s; 100 moves" in r.output, r.output
+    assert "steps/mm 80/80/400/93" in r.output
+    r = CliRunner().invoke(main, ["estimate", str(p), "--printer", "prusa-mk3s"])
+    assert r.exit_code == 0 and "steps/mm 100/100/400/280" in r.output, r.output
     r = CliRunner().invoke(main, ["estimate", str(p), "--e-steps", "0"])
     assert r.exit_code == 2 and "--e-steps" in r.output

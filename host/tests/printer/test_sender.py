@@ -23,7 +23,7 @@ from bulgekit.printer.sender import (
 class FakeMarlin(threading.Thread):
     def __init__(self, fd, *, corrupt=(), corrupt_rate=0.0, seed=1, busy_cmds=("G28", "G4"), busy_count=3,
                  busy_delay=0.05, refuse=None, fatal=None, silent_after=None, banner=True, last_n=0,
-                 reboot_on=None, ask_old=None, arena=2048):
+                 reboot_on=None, ask_old=None, arena=2048, replies=None):
         super().__init__(daemon=True)
         self.fd = fd
         self.corrupt = set(corrupt)          # indexes of received lines (0-based) to damage
@@ -40,6 +40,7 @@ class FakeMarlin(threading.Thread):
         self.reboot_on = reboot_on
         self.ask_old = ask_old               # command after which it claims an older line was lost
         self.arena = arena                   # what M721's status line reports (None: stock firmware)
+        self.replies = replies or {}         # command -> lines it prints before its ok (M115, M503)
         self.executed = []
         self.received = 0
         self.damaged = 0
@@ -146,6 +147,8 @@ class FakeMarlin(threading.Thread):
         if cmd.startswith("M105"):
             self.say("ok T:210.0 /210.0 B:60.0 /60.0")
             return
+        for reply in self.replies.get(cmd.strip(), ()):
+            self.say(reply)
         if cmd.startswith("M720") and cmd.strip() == "M720":
             self.say("echo:  M720 S1 P100 E0.100 T0.250")
         if cmd.strip() == "M721":
@@ -460,3 +463,43 @@ def test_send_checks_the_printer_arena_before_an_annotated_file(pty_pair, tmp_pa
         else:
             assert (f"annotated for a 2048-byte map arena, but the printer's is 1024" in r.output
                     and "--arena 1024" in r.output)
+
+
+ENDER3_REPLIES = {
+    "M115": ["FIRMWARE_NAME:Marlin 2.1.2.7 (Dec  1 2026 10:00:00) SOURCE_CODE_URL:github.com/MarlinFirmware/Marlin "
+             "PROTOCOL_VERSION:1.0 MACHINE_TYPE:Ender-3 EXTRUDER_COUNT:1", "Cap:EEPROM:1"],
+    "M503": ["echo:; Steps per unit:", "echo:  M92 X80.00 Y80.00 Z400.00 E93.00",
+             "echo:  M203 X500.00 Y500.00 Z5.00 E25.00", "echo:  M201 X500.00 Y500.00 Z100.00 E5000.00",
+             "echo:  M204 P500.00 R500.00 T500.00", "echo:  M205 B20000.00 S0.00 T0.00 J0.08"],
+}
+
+
+def test_printer_read_saves_the_profile(pty_pair, tmp_path):
+    """`bulgekit printer read` asks M115 and M503 and writes a profile that --printer takes."""
+    from click.testing import CliRunner
+
+    from bulgekit import machine
+    from bulgekit.cli import main
+    name, start = pty_pair
+    p = start(replies=ENDER3_REPLIES)
+    out = tmp_path / "ender.toml"
+    r = CliRunner().invoke(main, ["printer", "read", "-p", name, "-o", str(out), "--boot-wait", "1"])
+    assert r.exit_code == 0, r.output
+    assert "M115" in p.executed and "M503" in p.executed
+    m = machine.load(str(out))
+    assert (m.firmware, m.accel, m.junction_deviation, m.max_accel.e) == ("marlin", 500, 0.08, 5000)
+    assert m.steps_per_mm == machine.Axes(80, 80, 400, 93)
+    r = CliRunner().invoke(main, ["printer", "show", str(out)])
+    assert r.exit_code == 0 and "accel 500" in r.output, r.output
+
+
+def test_printer_read_refuses_a_reply_without_settings(pty_pair, tmp_path):
+    from click.testing import CliRunner
+
+    from bulgekit.cli import main
+    name, start = pty_pair
+    start(replies={"M115": ENDER3_REPLIES["M115"]})
+    out = tmp_path / "x.toml"
+    r = CliRunner().invoke(main, ["printer", "read", "-p", name, "-o", str(out), "--boot-wait", "1"])
+    assert r.exit_code == 1 and "M503 printed no settings" in r.output, r.output
+    assert not out.exists()
