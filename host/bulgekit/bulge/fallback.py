@@ -1216,6 +1216,8 @@ def _rewrite_klipper(lines, source, st, planner, res, sw: StopWriter, on_move,
         else:
             if pend is not None:
                 kin = next((m for m in ln.moves if (m.x0, m.y0, m.z0) != (m.x1, m.y1, m.z1)), None)
+                for m in ln.moves[:ln.moves.index(kin) if kin is not None else len(ln.moves)]:
+                    pend.note_e_only(m)
                 if kin is not None:
                     at = pend.at
                     same = abs(kin.x0 - at[0]) < 1e-6 and abs(kin.y0 - at[1]) < 1e-6
@@ -1299,11 +1301,17 @@ class _KlipperPending:
 
     def __init__(self, sw: StopWriter, stop: StopMove, at, before: list[str], word: str):
         self.sw, self.stop, self.at, self.before, self.word = sw, stop, at, before, word
+        self.between = 0.0         # s of E-only moves the file makes before the next X/Y move
+
+    def note_e_only(self, m: Move) -> None:
+        """An E-only move (a retract, an unretract) after the stop: the head stands during it."""
+        if m.e and m.f > 0:
+            self.between += klipper_stop.e_move_s(self.sw.kp, abs(m.e), m.f / 60, self.sw.accel)
 
     def resolve(self, u) -> str:
         sw, stop = self.sw, self.stop
         lead = sw.edge_out(self.at, u)
-        ks = klipper_stop.retime(sw.kp, stop.klipper, lead, sw.accel)
+        ks = klipper_stop.retime(sw.kp, stop.klipper, lead, sw.accel, self.between)
         sw.still_s += ks.still - stop.still
         sw.run_s += (ks.still - lead) - (stop.still - stop.start)
         near = abs(ks.still - stop.ms / 1000) * 1000 > NEAREST_MS

@@ -184,10 +184,11 @@ class KlipperStop:
     move_s: float               # the move's planned time (e_move_s)
     tail: float
     lead: float
+    between: float = 0.0        # E-only moves after it, before the next X/Y move (a retract)
 
     @property
     def still(self) -> float:
-        return self.tail + self.move_s + self.lead
+        return self.tail + self.move_s + self.between + self.lead
 
 
 def plan(p: KlipperParams, ms: int, owed_mm: float, tail: float, lead: float,
@@ -209,9 +210,12 @@ def plan(p: KlipperParams, ms: int, owed_mm: float, tail: float, lead: float,
     return KlipperStop(ms, d, v, e_move_s(p, d, v, accel), tail, lead)
 
 
-def retime(p: KlipperParams, ks: KlipperStop, lead: float, accel: float | None = None) -> KlipperStop:
-    """The same stop's E with its lead known: the speed for the time left."""
-    t = ks.ms / 1000.0 - ks.tail - lead
+def retime(p: KlipperParams, ks: KlipperStop, lead: float, accel: float | None = None,
+           between: float = 0.0) -> KlipperStop:
+    """The same stop's E with its lead known, and the time of E-only moves (a retract) the file
+    makes between it and the next X/Y move, during which the head stands too: the speed for the
+    time left (the fastest the limits allow when none is left)."""
+    t = ks.ms / 1000.0 - ks.tail - lead - between
     v = speed_for(p, ks.e_mm, max(t, 0.0), accel)
     v = math.ceil(v * 60 * 1000) / 1000 / 60
-    return KlipperStop(ks.ms, ks.e_mm, v, e_move_s(p, ks.e_mm, v, accel), ks.tail, lead)
+    return KlipperStop(ks.ms, ks.e_mm, v, e_move_s(p, ks.e_mm, v, accel), ks.tail, lead, between)

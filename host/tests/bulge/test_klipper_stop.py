@@ -76,8 +76,12 @@ def _words(line):
     return {k: float(v) for k, v in re.findall(r"([XYZEF])([-+]?\d*\.?\d+)", line.split(";")[0])}
 
 
+STOP_RX = re.compile(r"^G1 E[\d.]+ F\d+\.\d{3}$")      # the writer's stop move
+
+
 def moves(lines):
-    """(kind, start, end, e, f) of each G1: 'xy' or 'e' (E alone), positions absolute."""
+    """(kind, start, end, e, f) of each G1: 'xy', 'e' (E alone) or 'stop' (the writer's E-only
+    stop move), positions absolute."""
     x = y = z = 0.0
     f = None
     out = []
@@ -90,7 +94,7 @@ def moves(lines):
         if (nx, ny, nz) != (x, y, z):
             out.append(("xy", (x, y, z), (nx, ny, nz), w.get("E", 0.0), f))
         elif "E" in w:
-            out.append(("e", (x, y, z), (x, y, z), w["E"], f))
+            out.append(("stop" if STOP_RX.match(ln) else "e", (x, y, z), (x, y, z), w["E"], f))
         x, y, z = nx, ny, nz
     return out
 
@@ -141,14 +145,16 @@ def stops_of(model, lines, accel=None):
     mv = moves(lines)
     out = []
     for i, (kind, p0, p1, e, f) in enumerate(mv):
-        if kind != "e":
+        if kind != "stop":
             continue
         before = next(m for m in reversed(mv[:i]) if m[0] == "xy")
-        after = next(m for m in mv[i + 1:] if m[0] == "xy")
+        j, after = next((j, m) for j, m in enumerate(mv) if j > i and m[0] == "xy")
         assert before[2] == p0 == after[1]
         tail = edge_s(model, p0, unit(before[1], before[2]), accel, -1)
         lead = edge_s(model, p0, unit(after[1], after[2]), accel, +1)
-        out.append((e, f, tail + e_only_s(model, e, f) + lead))
+        # E-only moves between (a retract): the head stands during them too
+        between = sum(e_only_s(model, abs(m[3]), m[4]) for m in mv[i + 1:j])
+        out.append((e, f, tail + e_only_s(model, e, f) + between + lead))
     return out
 
 
@@ -205,6 +211,17 @@ def test_the_files_accel_sets_the_head_terms(model):
         _, lines = written(model, 100, pre=pre)
         for _, _, still in stops_of(model, lines, acc):
             assert still == pytest.approx(0.1, abs=2e-5), pre
+
+
+def test_a_retract_after_a_stop_counts_in_its_time(model):
+    # a point at the wall's end; the slicer retracts, travels and unretracts: Klipper plans the
+    # retract as another move of E alone, during which the head still stands
+    text = WALL.format(pre="") + "G1 E-0.8 F2100\nG1 X130 Y130 F7800\nG1 E0.8 F2100\nG1 X140 Y130 E0.45 F1800\n"
+    out = "".join(rewrite(text.splitlines(keepends=True), bmap([(117.0, 120.0)]),
+                          Settings(dwell_ms=100), stops=StockStops(printer=model)))
+    lines = [l for l in out.splitlines() if l and not l.startswith("; bulgekit")]
+    (got,) = stops_of(model, lines)
+    assert got[2] == pytest.approx(0.1, abs=2e-5)
 
 
 def test_klipper_trapezoid_matches_the_module(model):
