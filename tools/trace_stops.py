@@ -42,6 +42,7 @@ PINS = {"X": ("F0", "F1"), "Y": ("F6", "F7"), "Z": ("L3", "L1"), "E": ("A4", "A6
 # Direction pin level for positive motion: Marlin writes INVERT_<A>_DIR for a
 # negative move; the sim configuration has INVERT_Y_DIR true, the others false.
 DIR_HIGH_POSITIVE = {"X": True, "Y": False, "Z": True, "E": True}
+COREXY = False   # --corexy: the X/Y pins drive the A (x + y) and B (x - y) motors of a CoreXY
 
 
 # ---- G-code ------------------------------------------------------------------------
@@ -234,7 +235,13 @@ class Run:
                 if not v:
                     continue
                 d = 1 if level[a] == DIR_HIGH_POSITIVE[a] else -1
-                count[a] += d
+                if COREXY and a in "XY":
+                    # an A or B step moves the head half a step along X and along Y:
+                    # X and Y are counted in half steps (STEPS doubled), x = a + b, y = a - b
+                    count["X"] += d
+                    count["Y"] += d if a == "X" else -d
+                else:
+                    count[a] += d
                 if self.first is None:
                     self.first = cyc
                 self.last = cyc
@@ -666,6 +673,8 @@ def main(argv=None):
     s.add_argument("--e-steps", type=float, help="the firmware's E steps/mm (default 500)")
     s.add_argument("--extra", type=float, help="extra filament per stop, mm")
     s.add_argument("--fallback", action="store_true", help="the G-code carries the extra E itself (G4 rewrite)")
+    s.add_argument("--corexy", action="store_true", help="CoreXY: the X/Y pins step the A and B "
+                   "motors (80 steps/mm each); positions and stops are read from them")
     s.add_argument("-v", "--verbose", action="store_true", help="one line per added stop")
     s.add_argument("--mesh", help="leveling mesh, 'x y z' lines (mm): stop layers and the final Z "
                    "are read with it, and no Z step may fall in a hold")
@@ -673,6 +682,10 @@ def main(argv=None):
     args = ap.parse_args(argv)
     if getattr(args, "e_steps", None):
         STEPS["E"] = args.e_steps
+    if getattr(args, "corexy", False):
+        global COREXY
+        COREXY = True
+        STEPS["X"] = STEPS["Y"] = 2 * 80.0
     return cut(args) if args.cmd == "cut" else stops(args)
 
 

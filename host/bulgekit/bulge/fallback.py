@@ -35,7 +35,7 @@ from typing import Iterable, Iterator
 
 import numpy as np
 
-from . import mapformat
+from . import klipper_stop, mapformat
 from ..gcode import movescan
 from ..gcode import (MAX_ARC_SEGMENT_MM, _WORD, GcodeState, Line, Move, arc_geometry, command_of,
                      parse_lines, parse_words, split_code)
@@ -832,6 +832,12 @@ class StockStops:
         if self.stop_e_steps is not None and not MIN_STEPS_PER_SEGMENT <= self.stop_e_steps <= 10000:
             raise ValueError(f"stop E steps {self.stop_e_steps} outside {MIN_STEPS_PER_SEGMENT}..10000")
 
+    @property
+    def klipper(self) -> bool:
+        """Stops as E-only moves planned the way Klipper plans them (klipper_stop)."""
+        return (self.stop == STOP_MOVE and self.printer is not None
+                and getattr(self.printer, "firmware", None) == "klipper")
+
 
 def still_s(n: int, rate: int, spm: float | None = None, k: float = XY_STEPS) -> float:
     """Seconds the head stands still for an E-only move of n steps at `rate` steps/s (the rule
@@ -857,6 +863,7 @@ class StopMove:
     start: float = 0.0         # of that, s until the next move's first step (next_start_s)
     nearest: bool = False      # the dwell could not be made exactly (counted in the stats)
     why: str = ""              # a move stop written as G4: "extra" (under 6 steps), "long"
+    klipper: klipper_stop.KlipperStop | None = None   # Klipper's form: E (mm) and speed
 
     def feed(self, spm: float) -> float:
         """mm/min whose block rate, ceil(n x feed / length), is `rate`: the middle of the feeds
@@ -987,6 +994,75 @@ class StopWriter:
         self.unpaid_e_mm = 0.0                 # of that, not taken from a following piece
         self.autoretract = 0                   # stops of MIN_AUTORETRACT or more (see there)
         self.arcs = ArcCount()                 # G2/G3 written as G1 chords (ArcLines)
+        # Klipper's form (stops.klipper): its numbers, the toolhead's accel as the file sets it,
+        # the last X/Y move (end x, y and unit direction) and E moved past the cross-section limit
+        self.kp = klipper_stop.KlipperParams.from_model(stops.printer) if stops.klipper else None
+        self.accel = self.kp.accel if self.kp else None
+        self.prev = None
+        self.spill_e_mm = 0.0                  # E moved on to a later piece (cross-section limit)
+        self.capped_e_mm = 0.0                 # of that, E no later piece of its wall could take
+        self.spill = 0.0                       # E owed to the next extruding piece
+        self.guessed = 0                       # Klipper stops with a neighbour's direction unknown
+
+    _ACCEL_RX = re.compile(r"^\s*(?:M204\b(?P<m>[^;]*)|SET_VELOCITY_LIMIT\b(?P<s>[^;]*))", re.I)
+
+    def note_accel(self, raw: str) -> None:
+        """Klipper's M204 (S, else the smaller of P and T: toolhead.py cmd_M204) and
+        SET_VELOCITY_LIMIT ACCEL= set the toolhead's max_accel, which the stop's head terms use
+        (max_extrude_only_accel stays what the config made it)."""
+        mt = self._ACCEL_RX.match(raw)
+        if not mt or self.kp is None:
+            return
+        if mt.group("m") is not None:
+            w = {k.upper(): float(v) for k, v in
+                 re.findall(r"([SPTspt])\s*([-+]?(?:\d+\.?\d*|\.\d+))", mt.group("m"))}
+            acc = w.get("S")
+            if acc is None and "P" in w and "T" in w:
+                acc = min(w["P"], w["T"])
+        else:
+            v = re.search(r"\bACCEL\s*=\s*([-+]?(?:\d+\.?\d*|\.\d+))", mt.group("s"), re.I)
+            acc = float(v.group(1)) if v else None
+        if acc is not None and acc > 0:
+            self.accel = acc
+
+    def lose_spill(self) -> None:
+        self.capped_e_mm += self.spill
+        self.spill = 0.0
+
+    def note_move(self, m: Move) -> None:
+        """The last move with X/Y motion (the one a stop at its end decelerates on)."""
+        dx, dy = m.x1 - m.x0, m.y1 - m.y0
+        ln = math.hypot(dx, dy)
+        if ln > 1e-9:
+            self.prev = (m.x1, m.y1, dx / ln, dy / ln)
+        elif m.z1 != m.z0:
+            self.prev = None
+
+    def edge_in(self, at, u) -> float:
+        """tail_s of a stop at `at` reached along u (None: not known, the mean)."""
+        if u is None:
+            self.guessed += 1
+            return klipper_stop.mean_edge_s(self.kp, self.accel)
+        return klipper_stop.tail_s(self.kp, at[0], at[1], u[0], u[1], self.accel)
+
+    def edge_out(self, at, u) -> float:
+        if u is None:
+            self.guessed += 1
+            return klipper_stop.mean_edge_s(self.kp, self.accel)
+        return klipper_stop.lead_s(self.kp, at[0], at[1], u[0], u[1], self.accel)
+
+    def plan_klipper(self, a: Action, tail: float, lead: float, later: bool = False) -> StopMove:
+        """Klipper's form of the stop (klipper_stop.plan): the extra owed here, less what
+        stops before it laid already, in one E-only move timed so that the head stands the
+        dwell; G4 when nothing is owed. later: the lead is known only later (the E is chosen
+        for the longest lead)."""
+        ks = klipper_stop.plan(self.kp, a.ms, a.extra - self.debt, tail, lead, self.accel,
+                               klipper_stop.max_edge_s(self.kp, self.accel) if later else None)
+        if ks is None:
+            return StopMove(a.ms, STOP_G4, still=a.ms / 1000, why="extra")
+        still = ks.still
+        return StopMove(a.ms, STOP_MOVE, still=still, start=lead, klipper=ks,
+                        nearest=abs(still - a.ms / 1000) * 1000 > NEAREST_MS)
 
     def spm_at(self, line_no: int) -> float:
         k = bisect.bisect_left(self.m92, (line_no,))
@@ -1019,7 +1095,7 @@ class StopWriter:
         self.nearest += stop.nearest
         self.stop_e_mm += laid
         self.debt += laid
-        self.autoretract += laid >= MIN_AUTORETRACT - 1e-9
+        self.autoretract += laid >= MIN_AUTORETRACT - 1e-9 and self.kp is None
 
     def drop(self) -> None:
         """The planner dropped the extra owed: E a stop laid stays laid."""
@@ -1040,8 +1116,13 @@ class StopWriter:
     def summary(self) -> str:
         if self.cfg.stop == STOP_G4:
             return f"stops as G4 P<ms>: {self.g4} ({self.g4_s:.1f} s dwell)"
-        out = (f"stops as E-only moves: {self.moves} ({self.still_s:.1f} s head still, "
-               f"{self.stop_e_mm:.3f} mm E in them)")
+        out = (f"stops as E-only moves{' (Klipper)' if self.kp else ''}: {self.moves} "
+               f"({self.still_s:.1f} s head still, {self.stop_e_mm:.3f} mm E in them)")
+        if self.kp is not None and self.spill_e_mm > 1e-9:
+            out += (f"; {self.spill_e_mm:.3f} mm extra moved on to later pieces (Klipper's "
+                    f"max_extrude_cross_section)")
+            if self.capped_e_mm > 1e-9:
+                out += f", {self.capped_e_mm:.3f} mm of it left out"
         if self.g4_why.get("extra"):
             out += f"; {self.g4_why['extra']} as G4 (extra under {MIN_STEPS_PER_SEGMENT} E steps)"
         if self.g4_why.get("long"):
@@ -1087,33 +1168,100 @@ def rewrite(lines: Iterable[str], bmap: mapformat.BulgeMap, settings: Settings,
     res = result if result is not None else RewriteResult()
     sw = res.stock = StopWriter(stops)
     yield _header(bmap, settings, stops)
-    for ln in parse_lines(lines, source, st):
-        res.lines_in += 1
-        raw = ln.raw if ln.raw.endswith("\n") else ln.raw.rstrip("\r") + "\n"
-        if not ln.moves:
-            if ln.cmd == "M92":
-                sw.note_m92(ln.line_no, ln.raw)
-            yield raw
-            continue
-        per_move = [(m, planner.plan(m)) for m in ln.moves]
-        for m, acts in per_move:
-            arcs(m, acts)
-            if on_move is not None:
-                on_move(m, acts)
-        unchanged = all(_unchanged(m, a) for m, a in per_move)
-        if unchanged and ln.line_no not in arcs.lines:
-            if any(a.dropped for _, acts in per_move for a in acts):
-                sw.drop()
-            yield raw
-            continue
-        res.moves_split += not unchanged
-        yield from _emit(ln, per_move, st, sw)
-    if sw.arcs.arcs:
-        yield f"; bulgekit fallback: {sw.arcs.text()}\n"
+    if sw.kp is not None:
+        yield from _rewrite_klipper(lines, source, st, planner, res, sw, on_move, arcs)
+    else:
+        for ln in parse_lines(lines, source, st):
+            res.lines_in += 1
+            raw = ln.raw if ln.raw.endswith("\n") else ln.raw.rstrip("\r") + "\n"
+            if not ln.moves:
+                if ln.cmd == "M92":
+                    sw.note_m92(ln.line_no, ln.raw)
+                yield raw
+                continue
+            per_move = [(m, planner.plan(m)) for m in ln.moves]
+            for m, acts in per_move:
+                arcs(m, acts)
+                if on_move is not None:
+                    on_move(m, acts)
+            unchanged = all(_unchanged(m, a) for m, a in per_move)
+            if unchanged and ln.line_no not in arcs.lines:
+                if any(a.dropped for _, acts in per_move for a in acts):
+                    sw.drop()
+                yield raw
+                continue
+            res.moves_split += not unchanged
+            yield from _emit(ln, per_move, st, sw)
+        if sw.arcs.arcs:
+            yield f"; bulgekit fallback: {sw.arcs.text()}\n"
     res.stops = planner.stops
     res.stats = planner.stats
     res.planner = planner
     res.unreached = unreached_message(planner, source)
+
+
+def _rewrite_klipper(lines, source, st, planner, res, sw: StopWriter, on_move,
+                     arcs: "ArcLines") -> Iterator[str]:
+    """rewrite()'s loop for Klipper's form: the same lines, and (a) the toolhead's accel as the
+    file's M204 / SET_VELOCITY_LIMIT set it, (b) the last X/Y move seen (a stop at the next
+    move's start decelerated on it), (c) a stop at the end of a line held until the next move
+    with motion shows where the head goes on (_KlipperPending)."""
+    pend, held = None, []
+    for ln in parse_lines(lines, source, st):
+        res.lines_in += 1
+        raw = ln.raw if ln.raw.endswith("\n") else ln.raw.rstrip("\r") + "\n"
+        if not ln.moves:
+            sw.note_accel(ln.raw)
+            outs = [raw]
+        else:
+            if pend is not None:
+                kin = next((m for m in ln.moves if (m.x0, m.y0, m.z0) != (m.x1, m.y1, m.z1)), None)
+                for m in ln.moves[:ln.moves.index(kin) if kin is not None else len(ln.moves)]:
+                    pend.note_e_only(m)
+                if kin is not None:
+                    at = pend.at
+                    same = abs(kin.x0 - at[0]) < 1e-6 and abs(kin.y0 - at[1]) < 1e-6
+                    held[0] = pend.resolve(_unit_xy(kin) if same else None)
+                    yield from held
+                    pend, held = None, []
+            per_move = [(m, planner.plan(m)) for m in ln.moves]
+            for m, acts in per_move:
+                arcs(m, acts)
+                if on_move is not None:
+                    on_move(m, acts)
+            unchanged = all(_unchanged(m, a) for m, a in per_move) and ln.line_no not in arcs.lines
+            if unchanged and sw.spill > 0:     # extra owed past the cross-section limit
+                if any(m.e > 0 and (m.x0, m.y0) != (m.x1, m.y1) for m in ln.moves):
+                    unchanged = False          # this line's extruding move takes it (_emit)
+                elif any((m.x0, m.y0) != (m.x1, m.y1) for m in ln.moves):
+                    sw.lose_spill()            # a travel first: the wall ended
+            if unchanged:
+                if any(a.dropped for _, acts in per_move for a in acts):
+                    sw.drop()
+                for m, _ in per_move:
+                    sw.note_move(m)
+                outs = [raw]
+            else:
+                res.moves_split += not all(_unchanged(m, a) for m, a in per_move)
+                outs = list(_emit(ln, per_move, st, sw))
+        for o in outs:
+            if isinstance(o, _KlipperPending):
+                if pend is not None:           # (a line ends with one stop at most)
+                    held[0] = pend.resolve(None)
+                    yield from held
+                    held = []
+                pend = o
+                held.append(o)
+            elif pend is not None:
+                held.append(o)
+            else:
+                yield o
+    if pend is not None:
+        held[0] = pend.resolve(None)
+        yield from held
+    sw.lose_spill()
+    if sw.arcs.arcs:
+        yield f"; bulgekit fallback: {sw.arcs.text()}\n"
 
 
 def _unchanged(m: Move, actions: list[Action]) -> bool:
@@ -1140,6 +1288,48 @@ def _lead_steps(m: Move, at: tuple, nxt: Action | None, spm: float, stop_n: int)
     return XY_STEPS * max(dx, dy) / length if length > 1e-9 else XY_STEPS
 
 
+def _unit_xy(m: Move) -> tuple[float, float] | None:
+    dx, dy = m.x1 - m.x0, m.y1 - m.y0
+    ln = math.hypot(dx, dy)
+    return (dx / ln, dy / ln) if ln > 1e-9 else None
+
+
+class _KlipperPending:
+    """A Klipper stop at the end of a line: its E is fixed, its speed waits for the direction
+    of the next move (the lead term, klipper_stop.lead_s). rewrite() holds the output after it
+    until that move's line comes (resolve), or the file ends (resolve(None): the mean)."""
+
+    def __init__(self, sw: StopWriter, stop: StopMove, at, before: list[str], word: str):
+        self.sw, self.stop, self.at, self.before, self.word = sw, stop, at, before, word
+        self.between = 0.0         # s of E-only moves the file makes before the next X/Y move
+
+    def note_e_only(self, m: Move) -> None:
+        """An E-only move (a retract, an unretract) after the stop: the head stands during it."""
+        if m.e and m.f > 0:
+            self.between += klipper_stop.e_move_s(self.sw.kp, abs(m.e), m.f / 60, self.sw.accel)
+
+    def resolve(self, u) -> str:
+        sw, stop = self.sw, self.stop
+        lead = sw.edge_out(self.at, u)
+        ks = klipper_stop.retime(sw.kp, stop.klipper, lead, sw.accel, self.between)
+        sw.still_s += ks.still - stop.still
+        sw.run_s += (ks.still - lead) - (stop.still - stop.start)
+        near = abs(ks.still - stop.ms / 1000) * 1000 > NEAREST_MS
+        sw.nearest += near - stop.nearest
+        stop.klipper, stop.still, stop.start, stop.nearest = ks, ks.still, lead, near
+        return "".join(b + "\n" for b in self.before) + f"G1 {self.word} F{ks.speed * 60:.3f}\n"
+
+
+def _klipper_e(e_pos: float, d: float, abs_e: bool) -> tuple[str, float]:
+    """(E word, filament laid) of a Klipper stop laying d mm from host E e_pos: Klipper keeps E
+    in double, so no step rounding to aim at (stop_e_lines' care is Marlin's)."""
+    if abs_e:
+        txt = _fmt(e_pos + d)
+        return f"E{txt}", float(txt) - e_pos
+    txt = _fmt(d)
+    return f"E{txt}", float(txt)
+
+
 def _emit(ln: Line, per_move, st: GcodeState, sw: StopWriter) -> Iterator[str]:
     """G-code for one source line whose moves were split or got extra E, or a G2/G3 written as its
     chords (ArcLines): a G1 for each chord, or for each piece of a chord split at a stop. A
@@ -1147,7 +1337,8 @@ def _emit(ln: Line, per_move, st: GcodeState, sw: StopWriter) -> Iterator[str]:
     ends on the arc's X, Y, Z and (M82) E as written; relative pieces (G91, M83) are each the
     rounded running total less what was written before, so they add up to the arc's words
     exactly (_Running). The arc's E goes in equal parts to its chords (Marlin's are of equal
-    length: equal angles, equal Z steps), as the parser reads it."""
+    length: equal angles, equal Z steps), as the parser reads it. With a
+    Klipper stop at the end of the line it also yields a _KlipperPending (rewrite() resolves it)."""
     w = ln.words or {}
     comment = ""
     i = ln.raw.find(";")
@@ -1167,12 +1358,45 @@ def _emit(ln: Line, per_move, st: GcodeState, sw: StopWriter) -> Iterator[str]:
         nd = {k: max(5, v) for k, v in _word_decimals(ln.raw).items()}
         run = {k: _Running(v) for k, v in nd.items()}
         sw.arcs.add(len(per_move), _arc_deviation(ln, per_move))
+    wx, wy = cx, cy                # Klipper: the position as written (a stop's place on the step grid)
     for m, acts in per_move:
         e_host = m.e_start
         acc = 0.0                  # filament written for this move so far
         for i, a in enumerate(acts):
             if a.dropped:
                 sw.drop()
+            if a.kind == "dwell" and sw.kp is not None:
+                if a.ms == 0:
+                    continue               # a weight-0 point: nothing to hold
+                nxt = acts[i + 1] if i + 1 < len(acts) else None
+                prev = acts[i - 1] if i and acts[i - 1].kind == "line" else None
+                at = (wx, wy)          # as written: the stop's offset from a half step decides
+                u_m = _unit_xy(m)
+                if prev is not None:
+                    u_in = u_m
+                else:                  # the stop is at this move's start: the move before's end
+                    p = sw.prev
+                    u_in = p[2:] if p and abs(p[0] - at[0]) < 1e-6 and abs(p[1] - at[1]) < 1e-6 else None
+                tail = sw.edge_in(at, u_in)
+                later = nxt is None or nxt.kind != "line"
+                if later:              # the next move is another line's: the mean until known
+                    lead = klipper_stop.mean_edge_s(sw.kp, sw.accel)
+                else:
+                    lead = sw.edge_out(at, u_m)
+                stop = sw.plan_klipper(a, tail, lead, later)
+                if stop.kind == STOP_G4:
+                    sw.count(stop)
+                    yield f"G4 P{a.ms}\n"
+                    continue
+                word, laid = _klipper_e(e_host + acc + added, stop.klipper.e_mm, abs_e)
+                sw.count(stop, laid)
+                acc += laid
+                feed = m.f
+                if later:
+                    yield _KlipperPending(sw, stop, at, [], word)
+                else:
+                    yield f"G1 {word} F{stop.klipper.speed * 60:.3f}\n"
+                continue
             if a.kind == "dwell":
                 spm = sw.spm_at(ln.line_no)
                 nxt = acts[i + 1] if i + 1 < len(acts) else None
@@ -1204,15 +1428,35 @@ def _emit(ln: Line, per_move, st: GcodeState, sw: StopWriter) -> Iterator[str]:
             if abs_xyz:
                 if tx != cx or "X" in w or a.t < 1.0:
                     parts.append(f"X{_fmt(tx, 4 if a.t < 1 else nd['X'])}")
+                    wx = float(parts[-1][1:])
                 if ty != cy or "Y" in w or a.t < 1.0:
                     parts.append(f"Y{_fmt(ty, 4 if a.t < 1 else nd['Y'])}")
+                    wy = float(parts[-1][1:])
                 if tz != cz or (first and "Z" in w):
                     parts.append(f"Z{_fmt(tz, 4 if a.t < 1 else nd['Z'])}")
             else:
                 for k, t, c in (("X", tx, cx), ("Y", ty, cy), ("Z", tz, cz)):
                     if t != c:
                         parts.append(f"{k}{_fmt(t - c, 4) if run is None else run[k].step(t - c)}")
+                        if k == "X":
+                            wx += float(parts[-1][1:])
+                        elif k == "Y":
+                            wy += float(parts[-1][1:])
             piece_e = a.e - sw.pay(a)     # E a stop laid comes off the extra this piece carries
+            if sw.kp is not None and (a.extra > 0 or sw.spill > 0):
+                # Klipper refuses a move over max_extrude_cross_section (extruder.py check_move):
+                # extra above the limit goes on to the next extruding pieces (StopWriter.spill)
+                if a.e > 0 and (tx, ty) != (cx, cy):
+                    carried, sw.spill = sw.spill, 0.0
+                    piece_e += carried
+                    lim = sw.kp.piece_e_limit(math.dist((cx, cy, cz), (tx, ty, tz))) * 0.999
+                    own = max(a.e - a.extra, 0.0)
+                    if piece_e > max(lim, own):
+                        sw.spill = piece_e - max(lim, own)
+                        piece_e -= sw.spill
+                        sw.spill_e_mm += max(0.0, sw.spill - carried)
+                elif (tx, ty) != (cx, cy):
+                    sw.lose_spill()            # a travel: the wall ended (as the planner's extra)
             acc += piece_e
             if abs_e:
                 e_out = e_host + acc + added
@@ -1229,6 +1473,8 @@ def _emit(ln: Line, per_move, st: GcodeState, sw: StopWriter) -> Iterator[str]:
             yield " ".join(parts) + "\n"
         extra_here = acc - m.e
         added += extra_here
+        if sw.kp is not None:
+            sw.note_move(m)
     if feed is not None:
         yield f"G1 F{_fmt(per_move[-1][0].f, 3)}\n"   # the stop's feed must not carry on
     if abs_e and abs(added) > 1e-9:
@@ -1319,7 +1565,9 @@ def arc_text(text: str, rows: np.ndarray, sw: StopWriter, source: str) -> str:
 
 def _header(bmap: mapformat.BulgeMap, settings: Settings, stops: StockStops) -> str:
     how = ""
-    if stops.stop == STOP_MOVE:
+    if stops.klipper:
+        how = ", stops as E-only moves planned as Klipper plans them"
+    elif stops.stop == STOP_MOVE:
         how = (f", stops as E-only moves at {_fmt(stops.e_steps, 3)} E steps/mm"
                " (or as M92 E in the file sets)"
                + (f", {stops.stop_e_steps} E steps each" if stops.stop_e_steps else ""))
@@ -1416,7 +1664,7 @@ def rewrite_file(src, dst, bmap: mapformat.BulgeMap, settings: Settings,
     import os
     from ..gcode import check_not_processed, open_checked
     res = RewriteResult()
-    byte_path = movescan.available()
+    byte_path = movescan.available() and not stops.klipper    # Klipper's form: the text path
 
     def plain(data, source):                  # run with open_checked's checks, on the bytes
         nonlocal byte_path

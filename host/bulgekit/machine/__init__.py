@@ -31,6 +31,7 @@ from dataclasses import dataclass, field, replace
 from ..errors import BulgekitError, MissingInputError
 
 FIRMWARES = ("marlin", "klipper", "prusa", "reprap")
+KINEMATICS = ("cartesian", "corexy")   # (a Klipper stop's head terms: which motors step, when)
 AXES = "XYZE"
 
 
@@ -86,10 +87,13 @@ class PrinterModel:
     max_extrude_cross_section: float | None = None
     nozzle_diameter: float = 0.4
     filament_diameter: float = 1.75
+    kinematics: str = "cartesian"                 # [printer] kinematics: which motors X/Y step
 
     def __post_init__(self):
         if self.firmware not in FIRMWARES:
             raise ValueError(f"firmware {self.firmware!r} must be one of {', '.join(FIRMWARES)}")
+        if self.kinematics not in KINEMATICS:
+            raise ValueError(f"kinematics {self.kinematics!r} must be one of {', '.join(KINEMATICS)}")
         if (self.junction_deviation is None) == (self.jerk is None):
             raise ValueError("give either a junction deviation or classic jerk, not both")
         for f in dataclasses.fields(self):
@@ -137,12 +141,13 @@ class PrinterModel:
     def klipper_extrude_only(self) -> tuple[float, float]:
         """(velocity mm/s, accel mm/s^2) of a move of E alone in Klipper: max_extrude_only_*,
         whose defaults are [printer]'s max_velocity and max_accel times cross-section/filament
-        area (klippy/kinematics/extruder.py)."""
+        area (klippy/kinematics/extruder.py), fixed when Klipper reads its config: a file's M204 or
+        SET_VELOCITY_LIMIT (`accel` after with_gcode) changes the toolhead's max_accel, not these."""
         ratio = self.klipper_cross_section / self.filament_area
         v = self.max_extrude_only_velocity
         a = self.max_extrude_only_accel
         return (self.max_feedrate.x * ratio if v is None else v,
-                self.accel * ratio if a is None else a)
+                self.max_accel.x * ratio if a is None else a)
 
     def describe(self) -> str:
         """One line: what a file's header and the statistics name."""
@@ -204,7 +209,7 @@ PRESETS: dict[str, PrinterModel] = {
         steps_per_mm=Axes(80, 80, 400, 3200 / 33.5), max_feedrate=Axes(300, 300, 25, 300),
         max_accel=Axes(3000, 3000, 30, 3000), accel=3000, travel_accel=3000, retract_accel=3000,
         junction_deviation=5.0 ** 2 * (math.sqrt(2) - 1) / 3000, lookahead=0, min_step_rate=0.0,
-        min_segment_steps=0),
+        min_segment_steps=0, kinematics="corexy"),
 }
 DEFAULT = MARLIN
 
@@ -489,6 +494,8 @@ def from_klipper_cfg(path: str) -> PrinterModel:
     spm = Axes(steps("stepper_x"), steps("stepper_y"), steps("stepper_z"), steps("extruder"))
     nozzle = get("extruder", "nozzle_diameter")
     fil = get("extruder", "filament_diameter")
+    kin = sections["printer"].get("kinematics", ("cartesian", ""))[0].strip().lower()
+    kin = kin if kin in KINEMATICS else "cartesian"     # others: the stop's head terms as cartesian
     mcr = opt("printer", "minimum_cruise_ratio")
     if mcr is None and "max_accel_to_decel" in sections["printer"]:
         mcr = max(0.0, 1.0 - get("printer", "max_accel_to_decel") / a)
@@ -506,7 +513,7 @@ def from_klipper_cfg(path: str) -> PrinterModel:
             max_extrude_only_velocity=opt("extruder", "max_extrude_only_velocity"),
             max_extrude_only_accel=opt("extruder", "max_extrude_only_accel"),
             max_extrude_cross_section=opt("extruder", "max_extrude_cross_section"),
-            nozzle_diameter=nozzle, filament_diameter=fil)
+            nozzle_diameter=nozzle, filament_diameter=fil, kinematics=kin)
     except ValueError as e:
         raise ProfileError(f"{path}: {e}") from None
 
