@@ -22,7 +22,9 @@ from bulgekit.gcode import estimate as es
 
 DATA = Path(__file__).parents[1] / "data"
 BEFORE = DATA / "estimate_before.json"
-FILES = sorted(DATA.glob("*.gcode")) + [Path(__file__).parents[3] / "examples" / "cylinder40x20.gcode"]
+# the files e382faa estimated (test files added since have no figures of that code)
+FILES = [DATA / n for n in ("cura_cyl.gcode", "prusa_cyl.gcode", "prusa_cyl_m83.gcode", "prusa_vase.gcode",
+                            "slic3r_cyl.gcode")] + [Path(__file__).parents[3] / "examples" / "cylinder40x20.gcode"]
 JERK = {"X": 10, "Y": 10, "Z": 0.3, "E": 5}
 # name: (Machine keywords, planning chunk (estimate.CHUNK) or None for the default)
 MACHINES = {
