@@ -1,8 +1,8 @@
 # bulgekit — the two commands a user needs:
-#   make demo    run the main job on the sample data shipped in the repo
+#   make demo    run the main job on the sample data shipped in the repo (needs only Python + PyPI)
 #   make test    run every test: C++ core on the host, a simulated ATmega2560 and Cortex-M3/M4F in QEMU, checks, pytest
-# Both install what is missing first (tools/install-deps.sh; BK_NO_INSTALL=1 only lists it).
-# Other targets: make deps (install system + Python packages now), make bench, make fuzz, make help
+# Both install what is missing first (tools/install-deps.sh, by role; BK_NO_INSTALL=1 only lists it).
+# Other targets: make deps (install everything make test needs, now), make bench, make fuzz, make help
 SHELL := /bin/bash
 ENV := source tools/env.sh &&
 
@@ -40,7 +40,9 @@ bench: bootstrap
 fuzz: bootstrap
 	bash tools/fuzz/run.sh $(FUZZ_SECONDS)
 
-demo: bootstrap
+# only the host package and its PyPI packages: no compiler, simulator, slicer or browser
+demo:
+	@bash tools/bootstrap.sh --role demo
 	$(ENV) bash tools/demo.sh
 
 clean:

@@ -47,9 +47,9 @@ def load(so: str | None):
 
 def scanner(mod, mode: str):
     if mode == "events":                      # as gcode/estimate.py makes it
-        return mod.Scanner((), (), movescan._classify, 1.0, events=True)
+        return mod.Scanner((), (), movescan._classify, events=True)
     return mod.Scanner(sorted(gcode.OUTER_ROLES), sorted(gcode._S3D_ROLES), movescan._classify,
-                       gcode.ARC_CHORD_MM, **MODES[mode])
+                       **MODES[mode])
 
 
 def scan(mod, mode: str, data: bytes, digest=None, clock=time.perf_counter) -> float:

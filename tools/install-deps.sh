@@ -1,15 +1,34 @@
 #!/usr/bin/env bash
-# Installs what bulgekit's build and tests need, from Debian's packages and PyPI
-# only. Idempotent: packages already present are not fetched again.
+# Installs what bulgekit needs, from Debian's packages and PyPI only, by role. Idempotent:
+# packages already present are not fetched again.
+#   --role demo   the host package and its PyPI dependencies only: what `make demo` and the
+#                 `bulgekit` command need. No compiler, simulator, slicer or browser; apt-get only
+#                 for Debian's python3-venv when a virtual environment must be made. The package's
+#                 C helpers are compiled when a C compiler happens to be there (else pure Python).
+#   --role test   (the default: `make deps`, `make test`, .ci/run) all of the above and what the
+#                 tests need: the compilers, the AVR simulator, QEMU, clang, PrusaSlicer, Chromium
+#                 and Playwright, PlatformIO and SCons, three.js for the studio from npm.
 # The Python packages go into the python3 on PATH when its pip may install there (pyenv, an
 # activated virtual environment). When it may not (Debian's own python3 is "externally managed",
 # PEP 668, or has no pip) they go into a virtual environment .venv in this checkout instead, never
 # into the system's Python; tools/env.sh puts .venv/bin first on PATH, so every make target runs
 # that venv's python3, pio and bulgekit.
 #   bash tools/install-deps.sh --where    only say where the Python packages go, install nothing
+#   bash tools/install-deps.sh --plan     only list what the role installs (present or not)
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 VENV=.venv
+role=test action=install
+while [ $# -gt 0 ]; do
+  case $1 in
+    --role) role=${2:-}; shift $(( $# > 1 ? 2 : 1 )) ;;
+    --role=*) role=${1#--role=}; shift ;;
+    --where|--plan) action=${1#--}; shift ;;
+    *) echo "install-deps: unknown argument '$1' (usage: install-deps.sh [--role demo|test] [--where|--plan])" >&2
+       exit 2 ;;
+  esac
+done
+case $role in demo|test) ;; *) echo "install-deps: --role is demo or test, not '$role'" >&2; exit 2 ;; esac
 
 # Prints "venv REASON" or "path PYTHON3". Once .venv exists it stays the place: make runs it.
 python_home() {
@@ -28,7 +47,7 @@ PY
   if [ -n "$why" ]; then echo "venv the python3 on PATH ($py) $why"; else echo "path $py"; fi
 }
 home=$(python_home)
-if [ "${1:-}" = --where ]; then
+if [ $action = where ]; then
   case $home in
     venv*) echo "install-deps: the Python packages go into $VENV: ${home#venv }" ;;
     *) echo "install-deps: the Python packages go into $("${home#path }" -c 'import sys; print(sys.executable)')" ;;
@@ -36,20 +55,35 @@ if [ "${1:-}" = --where ]; then
   exit 0
 fi
 
-APT_PACKAGES=(gcc g++ make pkg-config gcc-avr avr-libc binutils-avr simavr libsimavr-dev libelf-dev
-              clang libclang-rt-14-dev
-              gcc-arm-none-eabi libnewlib-arm-none-eabi qemu-system-arm  # the Cortex-M test targets
-              python3-dev     # headers for the host package's compiled G-code scanner (host/setup.py)
-              prusa-slicer    # the post-processing test runs the real PrusaSlicer CLI
-              chromium)       # the studio's browser tests (driven by Playwright from PyPI)
-# PlatformIO pins SCons (tool-scons ~4.41101.0 = SCons 4.11.1 for PlatformIO 6.2.0);
-# tools/pio_offline.py checks the pair and installs SCons as PlatformIO's package.
-PIP_PACKAGES=("platformio==6.2.0" "scons==4.11.1")
-
-# npm fetches three.js for the studio (host/web/build.py); Debian's package unless one is there
-command -v npm >/dev/null || APT_PACKAGES+=(npm)
+APT_PACKAGES=()   # the demo role: none, but python3-venv when a venv is to be made (below)
+PIP_PACKAGES=()
+HOST=host         # pip install -e "$HOST": the package and its dependencies from PyPI
+if [ $role = test ]; then
+  APT_PACKAGES=(gcc g++ make pkg-config gcc-avr avr-libc binutils-avr simavr libsimavr-dev libelf-dev
+                clang libclang-rt-14-dev
+                gcc-arm-none-eabi libnewlib-arm-none-eabi qemu-system-arm  # the Cortex-M test targets
+                python3-dev     # headers for the host package's compiled helpers (host/setup.py)
+                prusa-slicer    # the post-processing test runs the real PrusaSlicer CLI
+                python3-louis liblouis-data  # braille (liblouis; bulge/braille.py loads Debian's binding)
+                chromium)       # the studio's browser tests (driven by Playwright from PyPI)
+  # PlatformIO pins SCons (tool-scons ~4.41101.0 = SCons 4.11.1 for PlatformIO 6.2.0);
+  # tools/pio_offline.py checks the pair and installs SCons as PlatformIO's package.
+  PIP_PACKAGES=("platformio==6.2.0" "scons==4.11.1")
+  HOST="host[test]"   # + pytest, playwright, and a setuptools that builds wheels (test_without_compiler.py)
+  # npm fetches three.js for the studio (host/web/build.py); Debian's package unless one is there
+  command -v npm >/dev/null || APT_PACKAGES+=(npm)
+fi
 # `python3 -m venv` with pip in it needs Debian's python3-venv (ensurepip)
 case $home in venv*) APT_PACKAGES+=(python3-venv) ;; esac
+
+if [ $action = plan ]; then
+  echo "role: $role"
+  echo "apt: ${APT_PACKAGES[*]}"
+  echo "pip: ${PIP_PACKAGES[*]}${PIP_PACKAGES[*]:+ }-e $HOST"
+  if [ $role = test ]; then echo "npm: three.js for the studio (host/web/build.py)"; else echo "npm:"; fi
+  exit 0
+fi
+echo "install-deps: role $role$([ $role = demo ] && echo ": the host package alone ('make test' installs the rest)")"
 
 missing=()
 for p in "${APT_PACKAGES[@]}"; do
@@ -79,8 +113,7 @@ case $home in venv*)
   PY=$VENV/bin/python3 ;;
 esac
 
-need_pip=0
-"$PY" - "${PIP_PACKAGES[@]}" <<'PY' || need_pip=1
+if [ ${#PIP_PACKAGES[@]} -gt 0 ] && ! "$PY" - "${PIP_PACKAGES[@]}" <<'PY'
 import sys
 from importlib.metadata import version, PackageNotFoundError
 for spec in sys.argv[1:]:
@@ -91,17 +124,19 @@ for spec in sys.argv[1:]:
     except PackageNotFoundError:
         sys.exit(1)
 PY
-if [ $need_pip = 1 ]; then
+then
   echo "install-deps: pip install ${PIP_PACKAGES[*]}"
   "$PY" -m pip install -q "${PIP_PACKAGES[@]}"
 fi
 if [ -f host/pyproject.toml ]; then
-  "$PY" host/web/build.py       # the studio's front-end files, from npm (pinned by package-lock.json)
-  case $home in venv*) echo "install-deps: pip install -e 'host[test]' (numpy, matplotlib, trimesh, playwright...; minutes the first time)" ;; esac
-  "$PY" -m pip install -q -e "host[test]"
+  # the studio's front-end files, from npm (pinned by package-lock.json); the demo role leaves
+  # them to the package's build, which goes on without them when there is no npm
+  [ $role = demo ] || "$PY" host/web/build.py
+  case $home in venv*) echo "install-deps: pip install -e '$HOST' (numpy, matplotlib, trimesh$([ $role = test ] && echo ", playwright")...; minutes the first time)" ;; esac
+  "$PY" -m pip install -q -e "$HOST"
 fi
 case $home in venv*)
-  echo "install-deps: done; the make targets run $VENV/bin's python3, pio and bulgekit (tools/env.sh)."
+  echo "install-deps: done; the make targets run $VENV/bin's python3$([ $role = test ] && echo ", pio") and bulgekit (tools/env.sh)."
   echo "install-deps: to run bulgekit yourself: $VENV/bin/bulgekit --help, or 'source $VENV/bin/activate' first" ;;
 *) echo "install-deps: done" ;;
 esac

@@ -21,6 +21,7 @@ from contextlib import contextmanager
 _stream = None          # where to draw, when enabled
 _state = None           # the current pass: [label, total, start time, last draw time]
 _local = threading.local()   # .listener: fn(label, done, total) of this thread, or None
+RATE_AFTER_S = 1.0      # a pass's rate and time left are shown once it has run this long
 
 
 def listen(fn) -> None:
@@ -65,7 +66,8 @@ def phase(label: str, total_lines: int | None = None, path=None, unit: str = "li
         yield
         return
     total = total_lines if total_lines is not None else (count_lines(path) if path else 0)
-    _state = [label, max(total, 1), time.perf_counter(), 0.0, unit]
+    t0 = time.perf_counter()
+    _state = [label, max(total, 1), t0, t0, unit]         # the first line comes after 0.2 s
     if heard is not None:
         heard(label, 0, _state[1])
     try:
@@ -94,8 +96,12 @@ def tick(done: int) -> None:
         heard(label, min(done, total), total)
     if _stream is None:
         return
-    rate = done / max(now - t0, 1e-9)
-    left = max(total - done, 0) / rate if rate > 0 else 0.0
-    _stream.write(f"\r{label}: {min(100, 100 * done // total):3d} % ({done:,} of {total:,} {unit}), "
-                  f"{rate:,.0f} {unit}/s, {left:.0f} s left ")
+    pct = f"\r{label}: {min(100, 100 * done // total):3d} % ({done:,} of {total:,} {unit})"
+    if now - t0 < RATE_AFTER_S:
+        # a pass that jumps through records it already holds says nothing of the rate to come
+        _stream.write(pct + " " * 30)
+    else:
+        rate = done / (now - t0)
+        left = max(total - done, 0) / rate if rate > 0 else 0.0
+        _stream.write(f"{pct}, {rate:,.0f} {unit}/s, {left:.0f} s left ")
     _stream.flush()

@@ -5,6 +5,7 @@ bulgekit/studio/static/vendor/ with three.js's licence. Run by tools/install-dep
 setup.py's build step; --check only says whether they are there and current (exit 1 if not).
 Nothing is fetched while the studio runs."""
 import json
+import os
 import shutil
 import subprocess
 import sys
@@ -42,7 +43,9 @@ def main() -> int:
         print("web/build.py: npm is needed to fetch three.js for the studio "
               "(Debian: apt-get install npm)", file=sys.stderr)
         return 1
-    subprocess.run([npm, "ci", "--no-audit", "--no-fund", "--loglevel=error"], cwd=HERE, check=True)
+    # (no "new major version of npm" notice in the middle of `make demo`: it is not ours to act on)
+    subprocess.run([npm, "ci", "--no-audit", "--no-fund", "--no-update-notifier", "--loglevel=error"],
+                   cwd=HERE, check=True, env={**os.environ, "NPM_CONFIG_UPDATE_NOTIFIER": "false"})
     tmp = VENDOR.with_name("vendor.part")
     shutil.rmtree(tmp, ignore_errors=True)
     tmp.mkdir(parents=True)

@@ -3,8 +3,9 @@
 #
 # Install: copy this file into Cura's scripts folder (Help > Show Configuration Folder, then the
 # `scripts` folder inside it; create it if missing) and restart Cura. The bulgekit command must
-# be installed on the machine (`pip install bulgekit` from a checkout: `pip install -e host`);
-# give its full path below if Cura does not find it on the PATH.
+# be installed on the machine: from a bulgekit checkout, `pipx install ./host` (or `pip install
+# ./host` in a virtual environment; docs/host.md, "Install"); give its full path below if Cura
+# does not find it on the PATH (pipx puts it in ~/.local/bin).
 #
 # Cura hands the script the G-code as a list of layer texts. The script writes them to a
 # temporary file, runs `bulgekit post-process --placement FILE` on it (the same code as for

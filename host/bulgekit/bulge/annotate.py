@@ -1,6 +1,9 @@
 """Annotate sliced G-code for the bulgekit firmware.
 
-The host's moves are left exactly as the slicer wrote them.  Added:
+The host's moves are left exactly as the slicer wrote them, but for the G2/G3 arcs on which map
+points lie (fallback.ArcLines): those are written as G1 chords, Marlin's own segments
+(gcode.arc_segments), as the stock file writes them, since the firmware splits only G0/G1 moves.
+Added:
   * at the top: M720 (settings), M721 X, then the M721 upload of the map
     (all of it, or as many layer records as the arena takes);
   * M722 S1 / M722 S0 after each slicer feature comment that enters / leaves
@@ -35,8 +38,10 @@ import re
 from dataclasses import dataclass, field
 from operator import itemgetter
 
+import numpy as np
+
 from . import mapformat
-from .fallback import MODE_GEOMETRIC, MODE_MARKED, Settings
+from .fallback import MODE_GEOMETRIC, MODE_MARKED, ArcCount, Settings
 from ..gcode import check_complete, check_not_processed, feature_of_comment, is_outer
 from .. import progress
 from ..errors import BulgekitError, output_part
@@ -129,6 +134,7 @@ class AnnotateResult:
     outer_sections: int = 0
     features_seen: int = 0
     notes: list[str] = field(default_factory=list)
+    arcs: ArcCount = field(default_factory=ArcCount)      # G2/G3 written as G1 chords
 
 
 def _z_events(data: bytes):
@@ -177,16 +183,18 @@ def _z_events_rx(data: bytes):
 def annotate_bytes(data: bytes, map_bytes: bytes, settings: Settings,
                    arena: int = ARENA_BYTES, stream: bool = True, source: str = "<gcode>",
                    result: AnnotateResult | None = None) -> bytes:
-    return b"".join(_annotated(data, map_bytes, settings, arena, stream, source, result))
+    bm = mapformat.decode_map(map_bytes, source="map")
+    arcs = arc_lines(data, bm, settings, source)
+    return b"".join(_annotated(data, map_bytes, settings, arena, stream, source, result, bm, arcs))
 
 
 @_gc_paused
 def _annotated(data: bytes, map_bytes: bytes, settings: Settings, arena: int, stream: bool,
                source: str, result: AnnotateResult | None,
-               bm: mapformat.BulgeMap | None = None) -> list:
+               bm: mapformat.BulgeMap | None = None, arcs: list | None = None) -> list:
     """annotate_bytes' output as pieces: slices of data (memoryviews, not copies) with the
     inserted lines between them, to be joined or written one after the other. bm: map_bytes
-    decoded already."""
+    decoded already; arcs: the arcs to write as chords (arc_lines)."""
     res = result if result is not None else AnnotateResult()
     bm = bm if bm is not None else mapformat.decode_map(map_bytes, source="map")
     geometric = settings.mode == MODE_GEOMETRIC
@@ -195,6 +203,8 @@ def _annotated(data: bytes, map_bytes: bytes, settings: Settings, arena: int, st
     h = bm.layer_height_cmm
     header = bytes(map_bytes[:mapformat.HEADER_BYTES])
     eol = b"\r\n" if b"\r\n" in data[:4096] else b"\n"
+    inserts: list[tuple[int, int, bytes]] = []   # (offset, order, text)
+    skip = _arc_inserts(data, arcs, eol, source, res, inserts) if arcs else {}
 
     # ---- initial upload: the header (kept beside the arena by the firmware)
     # and as many records as the arena takes
@@ -215,8 +225,9 @@ def _annotated(data: bytes, map_bytes: bytes, settings: Settings, arena: int, st
            f"{len(header) + sum(map(len, recs))} bytes, arena {arena}"
            + ("" if k == len(recs) else f", {len(recs) - k} layers streamed") , settings.m720(),
            "M721 X"]
+    if res.arcs.arcs:
+        top.insert(1, f"; bulgekit: {res.arcs.text()}")
     top += mapformat.upload_lines(first, checked=True)
-    inserts: list[tuple[int, int, bytes]] = []   # (offset, order, text)
     inserts.append((0, 0, eol.join(t.encode() for t in top) + eol))
 
     # the feature lines and the layer changes from one pass over the data when both are wanted
@@ -311,39 +322,108 @@ def _annotated(data: bytes, map_bytes: bytes, settings: Settings, arena: int, st
     add = parts.append
     pos = lines = 0
     view = memoryview(data)
-    for off, _, txt in inserts:
+    for off, order, txt in inserts:
         add(view[pos:off])
         add(txt)
         lines += txt.count(b"\n")
         pos = off
+        if order == _ARC_ORDER:                 # in place of an arc's line
+            pos += skip[off]
+            lines -= 1
     res.lines_added += lines
     parts.append(view[pos:])
     return parts
 
 
+_ARC_ORDER = 4          # an arc's chords, in place of its line (after a marker at its start)
+
+
+def _arc_inserts(data, arcs: list, eol: bytes, source: str, res: AnnotateResult,
+                 inserts: list) -> dict[int, int]:
+    """The chords of each arc of arcs (arc_lines) as inserts in place of its line, as the stock
+    file writes them (fallback.arc_text); counted in res.arcs. Returns {offset: the line's
+    length} of the lines they replace."""
+    from .fallback import StockStops, StopWriter, arc_text
+    sw = StopWriter(StockStops())
+    sw.arcs = res.arcs
+    starts = None
+    skip = {}
+    for rows in arcs:
+        at = int(rows[0]["offset"])
+        if at < 0:                            # (the Python parser's records: no offsets)
+            if starts is None:
+                starts = np.concatenate(([0], np.flatnonzero(np.frombuffer(data, np.uint8) == 10) + 1))
+            at = int(starts[int(rows[0]["line_no"]) - 1])
+        end = data.find(b"\n", at)
+        end = len(data) if end < 0 else end + 1
+        text = arc_text(bytes(data[at:end]).decode("utf-8"), rows, sw, source)
+        inserts.append((at, _ARC_ORDER, text.replace("\n", eol.decode()).encode()))
+        skip[at] = end - at
+    return skip
+
+
+def arc_lines(gcode, bm: mapformat.BulgeMap, settings: Settings, source: str) -> list:
+    """The G2/G3 lines of a G-code file (a path, or its bytes) the annotated file writes as
+    chords, with their chord records (fallback.ArcLines.found): none for a file without arcs
+    (its scan counts them: build's one scan has, others scan the file first)."""
+    from ..gcode import movescan
+    kept = movescan.kept(gcode)
+    n = kept.arcs if kept is not None else movescan.run(gcode, _arc_count, source)
+    return _arc_run(gcode, bm, settings, source)[1] if n else []
+
+
+def _arc_count(chunks) -> int:
+    for _ in chunks:
+        pass
+    return chunks.arcs
+
+
+def _arc_run(gcode, bm: mapformat.BulgeMap, settings: Settings, source: str) -> tuple[str | None, list]:
+    """The reference planner over the file with every arc's chords planned as G0/G1 moves, as the
+    firmware sees the written file (fallback.ArcLines): the message naming the map points it
+    does not reach (or None), and the arcs to write as chords."""
+    from ..gcode import movescan
+    from .fallback import ArcLines, RefPlanner, plan_records, unreached_message
+
+    def run(chunks):
+        planner = RefPlanner(bm, settings)
+        arcs = ArcLines(planner)
+        plan_records(planner, chunks, arcs, on_chunk=arcs.collect)
+        return unreached_message(planner, source), arcs.found
+    # in marked mode the outer-wall moves, their followers and every arc chord (lean 2)
+    return movescan.run(gcode, run, source, lean=2 if settings.mode == MODE_MARKED else 0)
+
+
 def check_reach(gcode, map_bytes: bytes, settings: Settings, source: str) -> str | None:
     """Run the G-code (a path, or its bytes) through the reference planner: a message naming
-    the map points no move reaches (the map is for another file? arcs?), or None. G2/G3 arcs
-    count for nothing, as in the firmware (RefPlanner.bypass). Only the moves that can change
-    the planner's work go through its Python code (fallback.Skipper)."""
+    the map points no move reaches (the map is for another file?), or None. The G2/G3 arcs on
+    which points lie count as the chords annotate writes for them (arc_lines); the others for
+    nothing, as in the firmware. Only the moves that can change the planner's work go through
+    its Python code (fallback.Skipper)."""
     return _reach(gcode, map_bytes, settings, source)[0]
 
 
 def _reach(gcode, map_bytes: bytes, settings: Settings, source: str,
-           bm: mapformat.BulgeMap | None = None) -> tuple[str | None, int | None]:
-    """check_reach's message, and the lines the compiled scanner flagged on the way (None when
-    it did not read the file): none means check_not_processed would find nothing. bm:
-    map_bytes decoded already."""
+           bm: mapformat.BulgeMap | None = None) -> tuple[str | None, int | None, list]:
+    """check_reach's message, the lines the compiled scanner flagged on the way (None when
+    it did not read the file): none means check_not_processed would find nothing; and the arcs
+    to write as chords (arc_lines). bm: map_bytes decoded already."""
     from ..gcode import movescan
     from .fallback import RefPlanner, plan_records, unreached_message
     bm = bm if bm is not None else mapformat.decode_map(map_bytes, source="map")
 
     def run(chunks):
         planner = RefPlanner(bm, settings)
+        # (arcs as the firmware sees the slicer's file: not at all; a file with arcs is planned
+        # again below, its arcs as the chords written where points lie on them)
         plan_records(planner, chunks, arcs_bypass=True, lazy=True)
-        return unreached_message(planner, source), chunks.flagged
+        return unreached_message(planner, source), chunks.flagged, chunks.arcs
     # in marked mode the scanner gives only the records the lazy planning can plan
-    return movescan.run(gcode, run, source, lean=settings.mode == MODE_MARKED)
+    msg, flagged, n_arcs = movescan.run(gcode, run, source, lean=settings.mode == MODE_MARKED)
+    if not n_arcs:
+        return msg, flagged, []
+    msg, found = _arc_run(gcode, bm, settings, source)
+    return msg, flagged, found
 
 
 def annotate_file(src, dst, map_bytes: bytes, settings: Settings, arena: int = ARENA_BYTES,
@@ -353,10 +433,13 @@ def annotate_file(src, dst, map_bytes: bytes, settings: Settings, arena: int = A
     """Annotate src into dst.  With check (default) the file is also run
     through the reference planner, and map points no move reaches are an
     error unless allow_unreached (then the message is in result.notes).
-    decoded: map_bytes decoded already (the CLI's check of the map file)."""
+    decoded: map_bytes decoded already (the CLI's check of the map file). The arcs on which
+    points lie are written as chords (arc_lines): found by the check's planner run, or without
+    the check by a run of their own when the file has arcs."""
     from ..gcode import movescan
     kept = movescan.kept(src) is not None     # build's one scan checked it already
     msg = flagged = failed = None
+    arcs: list = []
     try:                                      # (decoded once for both passes)
         bm = decoded if decoded is not None else mapformat.decode_map(map_bytes, source="map")
         bad_map = None
@@ -394,10 +477,20 @@ def annotate_file(src, dst, map_bytes: bytes, settings: Settings, arena: int = A
                 try:
                     if bad_map is not None:
                         raise bad_map
-                    msg, flagged = (job.result() if job is not None and job.forked
-                                    else _reach(src if kept else data, map_bytes, settings, str(src), bm))
+                    msg, flagged, arcs = (job.result() if job is not None and job.forked
+                                          else _reach(src if kept else data, map_bytes, settings, str(src), bm))
                 except (BulgekitError, mapformat.MapFormatError) as e:
                     failed = e
+            elif bad_map is None and made is None:
+                arcs = arc_lines(src if kept else data, bm, settings, str(src))
+            if arcs and made is None and failed is None:
+                # the arcs on which points lie, as chords: made and written again (files with
+                # arcs only; the markers were made beside the check, which finds them)
+                res = AnnotateResult()
+                made, out = _attempt(_annotated, data, map_bytes, settings, arena, stream, str(src),
+                                     res, bm, arcs)
+                if made is None:
+                    wrote = _attempt(_write_file, tmp, out)[0]
             if not kept and flagged != 0:
                 check_not_processed(data, str(src))
             if bad_map is not None:

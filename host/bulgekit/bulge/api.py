@@ -29,16 +29,18 @@ _IMAGE_EXT = {".png", ".jpg", ".jpeg", ".bmp", ".gif", ".tif", ".tiff", ".webp"}
 
 def load_strokes(path, *, image_width_mm: float | None = None, offset=(0.0, 0.0),
                  scale: float = 1.0, pitch_mm: float = 1.5,
-                 curve_tolerance_mm: float = 0.05) -> list[Stroke]:
+                 curve_tolerance_mm: float = 0.05, skip_unsupported: bool = False) -> list[Stroke]:
     """Strokes from a .json stroke list, an .svg drawing or a grayscale image
-    (dots; needs image_width_mm)."""
+    (dots; needs image_width_mm). skip_unsupported: an SVG's <text>/<image> is warned about
+    and skipped instead of refused."""
     from . import strokes as st
     p = os.fspath(path)
     ext = Path(p).suffix.lower()
     if ext == ".json":
         return st.load_json(p, offset=offset, scale=scale)
     if ext == ".svg":
-        return st.load_svg(p, offset=offset, scale=scale, tolerance_mm=curve_tolerance_mm)
+        return st.load_svg(p, offset=offset, scale=scale, tolerance_mm=curve_tolerance_mm,
+                           skip_unsupported=skip_unsupported)
     if ext in _IMAGE_EXT:
         if not image_width_mm:
             raise InputError(f"{p}: an image needs a width on the wall (--image-width MM)")
@@ -100,10 +102,12 @@ def build(gcode, strokes: Sequence[Stroke], outdir, *, name: str | None = None,
           ref_angle_deg: float = -90.0, settings: Settings | None = None,
           stream: bool = True, arena: int = _annotate.ARENA_BYTES,
           write_fallback: bool = False, quantum_um: int = mapbuild.MAP_QUANTUM_UM,
-          stops: _fallback.StockStops = _fallback.StockStops(), _on_map=None) -> BuildOutput:
+          stops: _fallback.StockStops = _fallback.StockStops(), _on_map=None,
+          _check_walls=None) -> BuildOutput:
     """Strokes + sliced G-code -> <name>.bkm, <name>.bulge.gcode, <name>.stats.txt
     (and <name>.stock.gcode with write_fallback) in outdir. _on_map(result): called with the
-    map as soon as it is placed (the CLI starts the preview's drawing there)."""
+    map as soon as it is placed (the CLI starts the preview's drawing there). _check_walls(model):
+    called with the walls before anything is placed or written (it raises to refuse them)."""
     gcode = Path(gcode)
     from ..gcode import movescan
     # checked once and scanned once: every pass below works from this scan's move records, in
@@ -113,12 +117,12 @@ def build(gcode, strokes: Sequence[Stroke], outdir, *, name: str | None = None,
     with movescan.Scan(gcode, str(gcode), lean=marked).kept():
         return _build(gcode, strokes, outdir, name, geometric, spacing, line_width, layer_height,
                       ref_angle_deg, settings, stream, arena, write_fallback, quantum_um, stops,
-                      _on_map)
+                      _on_map, _check_walls)
 
 
 def _build(gcode: Path, strokes, outdir, name, geometric, spacing, line_width, layer_height,
            ref_angle_deg, settings, stream, arena, write_fallback, quantum_um, stops,
-           on_map) -> BuildOutput:
+           on_map, check_walls=None) -> BuildOutput:
     outdir = Path(outdir)
     name = name or gcode.stem
     if settings is None:
@@ -127,6 +131,8 @@ def _build(gcode: Path, strokes, outdir, name, geometric, spacing, line_width, l
         raise BulgekitError("geometric=True needs settings with mode 2 (M720 S2)")
     model = walls(gcode, geometric=settings.mode == MODE_GEOMETRIC, layer_height=layer_height,
                   ref_angle_deg=ref_angle_deg)
+    if check_walls is not None:
+        check_walls(model)
     res = build_map(model, strokes, spacing=spacing, line_width=line_width,
                     quantum_um=quantum_um)
     if not stream and res.overflow(arena):
@@ -180,6 +186,7 @@ def _build(gcode: Path, strokes, outdir, name, geometric, spacing, line_width, l
             if beside is not None:
                 beside.close()                 # (before a failed build takes its files back)
         st.stock = stock
+        st.arcs = ann.arcs                     # (as written: their chords and how near the arcs)
         spath.write_text(st.text() + "\n", encoding="utf-8")
     except BaseException:
         for p in written:

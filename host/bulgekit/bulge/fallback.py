@@ -37,7 +37,8 @@ import numpy as np
 
 from . import mapformat
 from ..gcode import movescan
-from ..gcode import GcodeState, Line, Move, parse_lines
+from ..gcode import (MAX_ARC_SEGMENT_MM, _WORD, GcodeState, Line, Move, arc_geometry, command_of,
+                     parse_lines, parse_words, split_code)
 from ..errors import BulgekitError, output_part
 from .. import machine
 from ..machine import PrinterModel
@@ -155,10 +156,6 @@ class RefPlanner:
         self.top_z: float | None = None   # highest z of an extruding XY move
         self._zs = [l.z_cmm for l in bmap.layers] if bmap else []
         self._sorted = all(a <= b for a, b in zip(self._zs, self._zs[1:]))
-        # extruding arc chords the firmware does not plan (bypass()), per end z
-        # in 0.01 mm: [(x0, y0, x1, y1, line)]
-        self.arcs: dict[int, list[tuple]] = {}
-        self._boxes = None
         self.deferred: set[int] = set()   # points whose feet lay beyond the last move's end
         self.last_end = None       # float bits of that move's x1, y1
 
@@ -253,29 +250,6 @@ class RefPlanner:
         tc = min(t, f32(1))
         ex, ey = ux - tc * fdx, uy - tc * fdy
         return t, ex * ex + ey * ey <= self.tol2
-
-    def bypass(self, m: Move) -> None:
-        """A chord of a G2/G3 arc as the bulgekit firmware sees it: not at all.
-        Marlin cuts arcs into segments that go straight to its planner, so
-        nothing on an arc is split and the core's state is untouched (the next
-        G1 starts where the arc ended). Extruding chords are kept to name the
-        arcs when points are missed."""
-        if not (m.e > 0) or self.map is None:
-            return
-        zc = round(m.z1 * 100)
-        # only chords that can come within the tolerance of a point of a layer
-        # near their z (a map's bounding box per layer): few, even in a long file
-        if self._boxes is None:
-            t, q = self.s.tolerance, self.q_um / 1000
-            self._boxes = [(l.z_cmm, min(x for x, _ in l.points) * q - t, min(y for _, y in l.points) * q - t,
-                            max(x for x, _ in l.points) * q + t, max(y for _, y in l.points) * q + t)
-                           for l in self.map.layers if l.points]
-        k = bisect.bisect_left(self._boxes, (zc - self.lh / 2,))
-        for z, bx0, by0, bx1, by1 in self._boxes[k:k + 2]:
-            if (abs(z - zc) * 2 <= self.lh and max(m.x0, m.x1) >= bx0 and min(m.x0, m.x1) <= bx1
-                    and max(m.y0, m.y1) >= by0 and min(m.y0, m.y1) <= by1):
-                self.arcs.setdefault(zc, []).append((m.x0, m.y0, m.x1, m.y1, m.line_no))
-                return
 
     def plan(self, m: Move, outer: bool | None = None) -> list[Action]:
         """Actions for one G0/G1 move (or one arc chord)."""
@@ -433,8 +407,10 @@ class Skipper:
     every extruding move. host/tests/gcode/test_movescan.py checks stops, extras and drops against
     planning every move.
 
-    With arcs_bypass, arc chords are the firmware's (RefPlanner.bypass: not planned at all):
-    select() leaves them out, and plan_records() hands the extruding ones to bypass."""
+    With arcs_bypass, arc chords are as the firmware sees them in a file that has them: not at
+    all (Marlin cuts arcs into segments past its planner hook, so nothing on an arc is split and
+    the core's state is untouched): select() leaves them out. (The annotated file writes the arcs
+    that would change anything as chords, fallback.ArcLines.)"""
 
     def __init__(self, planner: RefPlanner, arcs_bypass: bool = False):
         self.p = planner
@@ -551,7 +527,7 @@ def record_move(r, index: int, roles) -> Move:
     role, fl = int(r["role"]), int(r["flags"])
     return Move(index, int(r["line_no"]), float(r["x0"]), float(r["y0"]), float(r["z0"]),
                 float(r["x1"]), float(r["y1"]), float(r["z1"]), float(r["e"]), float(r["e_start"]),
-                float(r["f"]), bool(fl & movescan.OUTER), roles[role] if role >= 0 else None,
+                float(r["f"]), bool(fl & movescan.OUTER), roles[role] if 0 <= role < len(roles) else None,
                 bool(fl & movescan.ARC))
 
 
@@ -560,7 +536,7 @@ def record_moves(a, rows, done: int, roles) -> list[Move]:
     out = []
     for i, (x0, y0, z0, x1, y1, z1, e, e0, f, _, line, role, fl, _) in zip(rows.tolist(), a[rows].tolist()):
         out.append(Move(done + i, line, x0, y0, z0, x1, y1, z1, e, e0, f, bool(fl & movescan.OUTER),
-                        roles[role] if role >= 0 else None, bool(fl & movescan.ARC)))
+                        roles[role] if 0 <= role < len(roles) else None, bool(fl & movescan.ARC)))
     return out
 
 
@@ -569,6 +545,58 @@ def _clean(planner: RefPlanner) -> bool:
     A move planned then that is not itself picked by the Skipper (not near a point, no new
     window) changes nothing of the planner's state, its stops or its statistics."""
     return not planner.deferred and planner.carry == 0 and planner.stop_ms == 0
+
+
+class ArcLines:
+    """Which G2/G3 lines of a file the outputs write as G1 chords: an on_move hook of a planner run
+    that plans every arc's chords (Marlin's own segments, gcode.arc_segments) like G0/G1 moves.
+    The bulgekit firmware splits only G0/G1 moves (Marlin cuts an arc into segments past its
+    planner hook), so an arc that the run changes must reach it as its chords: one on which a
+    point stops, that takes or drops extra filament, or that a point's deferral or a stop in
+    progress crosses (the planner is not clean, _clean, before or after one of its chords). Then
+    the firmware's stops on the written file are this run's, point for point (every other arc
+    left the planner as it found it, as the firmware's bypass of it does). Arcs the run leaves
+    alone stay arcs. A move the Skipper does not plan changes nothing and finds the planner
+    clean, so the planned ones tell it all.
+
+    `lines`: those arcs' line numbers. As an on_chunk hook too (collect, with plan_records'
+    on_chunk), `found` gets each one's chord records (RECORD rows), in file order."""
+
+    def __init__(self, planner: RefPlanner):
+        self.planner = planner
+        self.lines: set[int] = set()
+        self.found: list[np.ndarray] = []
+        self._dirty = False               # the planner was not clean after the last planned move
+        self._new: list[int] = []         # lines found since the last collect
+
+    def __call__(self, m: Move, actions: list[Action]) -> None:
+        dirty = not _clean(self.planner)
+        if m.arc and (self._dirty or dirty or not _unchanged(m, actions)) and m.line_no not in self.lines:
+            self.lines.add(m.line_no)
+            self._new.append(m.line_no)
+        self._dirty = dirty
+
+    def collect(self, a: np.ndarray, done: int = 0, planned=None) -> None:
+        """on_chunk: the chord records of the lines found in the chunk a (a line's are all in
+        one chunk, movescan.Chunks)."""
+        if not self._new:
+            return
+        rows = a[np.isin(a["line_no"], self._new) & ((a["flags"] & movescan.ARC) != 0)]
+        starts, _ = movescan.runs(rows["line_no"])
+        self.found += np.split(rows, starts[1:])
+        self._new = []
+
+
+def _hooks(*hooks):
+    """One on_move hook that calls each of hooks (None: left out) in turn."""
+    hooks = [h for h in hooks if h is not None]
+    if len(hooks) == 1:
+        return hooks[0]
+
+    def each(m, actions):
+        for h in hooks:
+            h(m, actions)
+    return each
 
 
 def _plan_lazily(planner: RefPlanner, sk: Skipper, a, rows, done: int, roles) -> None:
@@ -658,8 +686,8 @@ def plan_records(planner: RefPlanner, chunks, on_move=None, arcs_bypass: bool = 
     """Run a file's moves (movescan chunks) through the planner, skipping the moves that cannot
     change what it does (Skipper). on_move(move, actions) is called for every planned move as it
     is planned; on_chunk(chunk, moves before it, {row: (move, actions)}) after each chunk.
-    arcs_bypass: arc chords go to planner.bypass, as the firmware sees them. lazy (no on_move,
-    no on_chunk: only the planner's stops, statistics and arcs count): the move after a picked
+    arcs_bypass: arc chords are not planned, as the firmware sees them (Skipper). lazy (no on_move,
+    no on_chunk: only the planner's stops and statistics count): the move after a picked
     one is planned only when something is owed to it (_plan_lazily), the same stops; by the
     compiled planner (_reach.c) when it is built and the planner is fresh (_native). Otherwise
     the moves are picked in C when it is built (_reach.pick) and planned here."""
@@ -667,13 +695,13 @@ def plan_records(planner: RefPlanner, chunks, on_move=None, arcs_bypass: bool = 
         raise ValueError("plan_records: lazy planning hands no moves to on_move or on_chunk")
     sk = Skipper(planner, arcs_bypass)
     lean = getattr(chunks, "tops", None) is not None
-    # a kept lean Scan's chunks (numbered) hold every arc chord too: what any run in marked
+    # lean chunks with every arc chord (a kept Scan's, run(..., lean=2)): what any run in marked
     # mode plans (every candidate is an outer-wall move, every follower of one is kept)
-    kept = getattr(chunks, "numbers", None) is not None
-    if lean and not (planner.s.mode == MODE_MARKED and (kept or (lazy and arcs_bypass))):
+    all_arcs = getattr(chunks, "all_arcs", True)
+    if lean and not (planner.s.mode == MODE_MARKED and (all_arcs or (lazy and arcs_bypass))):
         raise ValueError("plan_records: lean chunks hold what a lazy run in marked mode with "
                          "arcs bypassed plans, no more")
-    sk.own_top = not lean or kept             # (kept: every extruding arc chord, for a top with arcs)
+    sk.own_top = not lean or all_arcs         # (every extruding arc chord, for a top with arcs)
     native = _native(planner, sk, fresh=lazy)
     done = 0
     for a in chunks:
@@ -696,10 +724,6 @@ def plan_records(planner: RefPlanner, chunks, on_move=None, arcs_bypass: bool = 
                 on_move(m, acts)
         if on_chunk is not None:
             on_chunk(a, done, planned)
-        if arcs_bypass:
-            arcs = np.flatnonzero(sk.classes & movescan.ARC)       # (the chunk's, from select)
-            for m in record_moves(a, arcs[a["e"][arcs] > 0], done, chunks.roles):
-                planner.bypass(m)
         done += len(a)
     if lazy and native is not None:
         _adopt(planner, native)
@@ -753,55 +777,8 @@ def unreached_message(planner: RefPlanner, source: str) -> str | None:
     if part:
         out.append(f"{sum(n for _, n in part)} point(s) missed on {len(part)} other layer(s) "
                    f"(z {zl(z for z, _ in part)} mm)")
-    on_arcs = _on_arcs(planner, miss)
-    if on_arcs:
-        n, first = on_arcs
-        return ("; ".join(out) + f". {n} of them lie on G2/G3 arcs (the first on line {first}), "
-                "which the bulgekit firmware does not split at bulge points: turn off arc "
-                "fitting in the slicer (PrusaSlicer/Orca: arc fitting; or remove ArcWelder) and "
-                "slice again. Use --allow-unreached to write the file anyway.")
     return ("; ".join(out) + ". Is the map made for this G-code (same slice, same "
             "--geometric/tolerance)? Use --allow-unreached to write the file anyway.")
-
-
-def near_segments(px, py, segs, tol: float):
-    """Which points lie within tol of which segments, in float64: a (points x
-    segments) bool array. px, py: arrays of point coordinates (mm); segs: an
-    (n, 4+) array of x0, y0, x1, y1 rows. Each point is measured to the
-    segment's nearest point (a zero-length segment: its start)."""
-    x0, y0 = segs[:, 0], segs[:, 1]
-    dx, dy = segs[:, 2] - x0, segs[:, 3] - y0
-    l2 = dx * dx + dy * dy
-    ux = np.asarray(px, dtype=np.float64)[:, None] - x0[None, :]
-    uy = np.asarray(py, dtype=np.float64)[:, None] - y0[None, :]
-    t = np.clip(np.divide(ux * dx + uy * dy, l2, out=np.zeros_like(ux), where=l2 > 0), 0.0, 1.0)
-    return (ux - t * dx) ** 2 + (uy - t * dy) ** 2 <= tol * tol
-
-
-def _on_arcs(planner: RefPlanner, miss) -> tuple[int, int] | None:
-    """(how many of the missed points lie within the tolerance of an extruding
-    arc chord of their layer, the first such arc's line), or None."""
-    if not planner.arcs or not miss:
-        return None
-    q = planner.q_um / 1000
-    half = planner.lh / 2
-    by_layer: dict[int, list] = {}
-    for zc, px, py in miss:
-        by_layer.setdefault(zc, []).append((px * q, py * q))
-    n, first = 0, None
-    for zc, pts in by_layer.items():
-        chords = [c for z, cs in planner.arcs.items() if abs(z - zc) <= half for c in cs]
-        if not chords:
-            continue
-        c = np.array(chords, dtype=np.float64)
-        p = np.array(pts, dtype=np.float64)
-        near = near_segments(p[:, 0], p[:, 1], c, planner.s.tolerance)   # points x chords
-        hit = near.any(axis=1)
-        n += int(hit.sum())
-        if hit.any():
-            line = int(c[near.any(axis=0), 4].min())
-            first = line if first is None else min(first, line)
-    return (n, first) if n else None
 
 
 # --- stops for stock firmware -------------------------------------------------------------
@@ -1071,6 +1048,7 @@ class StopWriter:
         self.ramp_s = 0.0                      # braking into and starting from the stops, s, by
                                                # the model's stepper arithmetic (stopmodel.ramp_s)
         self.written: list[StopMove] = []      # every stop counted, in the file's order
+        self.arcs = ArcCount()                 # G2/G3 written as G1 chords (ArcLines)
 
     def spm_at(self, line_no: int) -> float:
         k = bisect.bisect_left(self.m92, (line_no,))
@@ -1171,6 +1149,7 @@ def rewrite(lines: Iterable[str], bmap: mapformat.BulgeMap, settings: Settings,
     """Yield the stock-firmware G-code (lines end with '\\n'). planner: a new one to run (else
     one is made); on_move(move, actions) is called for every move as it is planned."""
     planner = planner if planner is not None else RefPlanner(bmap, settings)
+    arcs = ArcLines(planner)
     st = GcodeState()
     res = result if result is not None else RewriteResult()
     sw = res.stock = StopWriter(stops)
@@ -1184,16 +1163,20 @@ def rewrite(lines: Iterable[str], bmap: mapformat.BulgeMap, settings: Settings,
             yield raw
             continue
         per_move = [(m, planner.plan(m)) for m in ln.moves]
-        if on_move is not None:
-            for m, acts in per_move:
+        for m, acts in per_move:
+            arcs(m, acts)
+            if on_move is not None:
                 on_move(m, acts)
-        if all(_unchanged(m, a) for m, a in per_move):
+        unchanged = all(_unchanged(m, a) for m, a in per_move)
+        if unchanged and ln.line_no not in arcs.lines:
             if any(a.dropped for _, acts in per_move for a in acts):
                 sw.drop()
             yield raw
             continue
-        res.moves_split += 1
+        res.moves_split += not unchanged
         yield from _emit(ln, per_move, st, sw)
+    if sw.arcs.arcs:
+        yield f"; bulgekit fallback: {sw.arcs.text()}\n"
     res.stops = planner.stops
     res.stats = planner.stats
     res.planner = planner
@@ -1258,7 +1241,13 @@ def _pieces(m: Move, at: tuple, nxt: Action | None, spm: float, stop_n: int, k: 
 
 
 def _emit(ln: Line, per_move, st: GcodeState, sw: StopWriter) -> Iterator[str]:
-    """G-code for one source line whose moves were split or got extra E."""
+    """G-code for one source line whose moves were split or got extra E, or a G2/G3 written as its
+    chords (ArcLines): a G1 for each chord, or for each piece of a chord split at a stop. A
+    chord's end is written with at least as many decimals as the arc's own word, so the last one
+    ends on the arc's X, Y, Z and (M82) E as written; relative pieces (G91, M83) are each the
+    rounded running total less what was written before, so they add up to the arc's words
+    exactly (_Running). The arc's E goes in equal parts to its chords (Marlin's are of equal
+    length: equal angles, equal Z steps), as the parser reads it."""
     w = ln.words or {}
     comment = ""
     i = ln.raw.find(";")
@@ -1273,6 +1262,11 @@ def _emit(ln: Line, per_move, st: GcodeState, sw: StopWriter) -> Iterator[str]:
     e_out = m0.e_start             # E as written (absolute mode)
     added = 0.0
     feed = None                    # a stop move changed the feed: the feed to give back
+    nd, run = _DIGITS, None        # decimals of a whole move's end; an arc's running totals
+    if m0.arc:
+        nd = {k: max(5, v) for k, v in _word_decimals(ln.raw).items()}
+        run = {k: _Running(v) for k, v in nd.items()}
+        sw.arcs.add(len(per_move), _arc_deviation(ln, per_move))
     for m, acts in per_move:
         e_host = m.e_start
         acc = 0.0                  # filament written for this move so far
@@ -1312,25 +1306,22 @@ def _emit(ln: Line, per_move, st: GcodeState, sw: StopWriter) -> Iterator[str]:
                 tx, ty, tz = a.x, a.y, a.z
             if abs_xyz:
                 if tx != cx or "X" in w or a.t < 1.0:
-                    parts.append(f"X{_fmt(tx, 4 if a.t < 1 else 5)}")
+                    parts.append(f"X{_fmt(tx, 4 if a.t < 1 else nd['X'])}")
                 if ty != cy or "Y" in w or a.t < 1.0:
-                    parts.append(f"Y{_fmt(ty, 4 if a.t < 1 else 5)}")
+                    parts.append(f"Y{_fmt(ty, 4 if a.t < 1 else nd['Y'])}")
                 if tz != cz or (first and "Z" in w):
-                    parts.append(f"Z{_fmt(tz, 4 if a.t < 1 else 5)}")
+                    parts.append(f"Z{_fmt(tz, 4 if a.t < 1 else nd['Z'])}")
             else:
-                if tx != cx:
-                    parts.append(f"X{_fmt(tx - cx, 4)}")
-                if ty != cy:
-                    parts.append(f"Y{_fmt(ty - cy, 4)}")
-                if tz != cz:
-                    parts.append(f"Z{_fmt(tz - cz, 4)}")
+                for k, t, c in (("X", tx, cx), ("Y", ty, cy), ("Z", tz, cz)):
+                    if t != c:
+                        parts.append(f"{k}{_fmt(t - c, 4) if run is None else run[k].step(t - c)}")
             piece_e = a.e - sw.pay(a)     # E a stop laid comes off the extra this piece carries
             acc += piece_e
             if abs_e:
                 e_out = e_host + acc + added
-                parts.append(f"E{_fmt(e_out)}")
+                parts.append(f"E{_fmt(e_out, nd['E'])}")
             else:
-                parts.append(f"E{_fmt(piece_e)}")
+                parts.append(f"E{_fmt(piece_e) if run is None else run['E'].step(piece_e)}")
             if first and "F" in w:
                 parts.append(f"F{_fmt(w['F'], 3)}")
             elif feed is not None:
@@ -1345,9 +1336,88 @@ def _emit(ln: Line, per_move, st: GcodeState, sw: StopWriter) -> Iterator[str]:
         yield f"G1 F{_fmt(per_move[-1][0].f, 3)}\n"   # the stop's feed must not carry on
     if abs_e and abs(added) > 1e-9:
         # put the host's E back where the original line left it
-        yield f"G92 E{_fmt(per_move[-1][0].e_start + per_move[-1][0].e)}\n"
+        yield f"G92 E{_fmt(per_move[-1][0].e_start + per_move[-1][0].e, nd['E'])}\n"
     if comment:
         yield comment + "\n"
+
+
+_DIGITS = dict.fromkeys("XYZE", 5)     # decimals of a move's end as _emit writes it
+
+
+def _word_decimals(raw: str) -> dict[str, int]:
+    """Decimals of the X, Y, Z and E words of a line as written (0 for a word it has not)."""
+    code, _ = split_code(raw)
+    out = dict.fromkeys("XYZE", 0)
+    for letter, val in _WORD.findall(code.upper()):
+        if letter in out:
+            out[letter] = len(val.partition(".")[2])
+    return out
+
+
+class _Running:
+    """Relative pieces of a total, written with nd decimals so that they add up to the rounded
+    total exactly: each is the running total rounded, less what was written before."""
+
+    def __init__(self, nd: int):
+        self.nd, self.scale = nd, 10 ** nd
+        self.total, self.wrote = 0.0, 0
+
+    def step(self, piece: float) -> str:
+        self.total += piece
+        units = round(self.total * self.scale)
+        d, self.wrote = units - self.wrote, units
+        q, r = divmod(abs(d), self.scale)
+        frac = f"{r:0{self.nd}d}".rstrip("0")
+        return ("-" if d < 0 else "") + str(q) + (f".{frac}" if frac else "")
+
+
+def _arc_deviation(ln: Line, per_move) -> float:
+    """The farthest (mm) an arc's chords lie from it: r (1 - cos(sweep / 2n)) for its n chords."""
+    m0, m1 = per_move[0][0], per_move[-1][0]
+    _, _, r, _, sweep, _ = arc_geometry(m0.x0, m0.y0, m1.x1, m1.y1, ln.words or {},
+                                        ln.cmd == "G2", f"line {ln.line_no}")
+    return r * (1 - math.cos(abs(sweep) / (2 * len(per_move))))
+
+
+@dataclass
+class ArcCount:
+    """G2/G3 lines an output writes as G1 chords (ArcLines): how many, their chords, and the
+    farthest a chord lies from its arc, mm."""
+    arcs: int = 0
+    chords: int = 0
+    deviation: float = 0.0
+
+    def add(self, chords: int, deviation: float) -> None:
+        self.arcs += 1
+        self.chords += chords
+        self.deviation = max(self.deviation, deviation)
+
+    def text(self) -> str:
+        return (f"{self.arcs} G2/G3 arc{'s' if self.arcs != 1 else ''} through map points written "
+                f"as {self.chords} G1 chords, Marlin's own segments (at most "
+                f"{_fmt(MAX_ARC_SEGMENT_MM, 2)} mm; within {self.deviation:.4f} mm of the arc)")
+
+
+def rewrite_line(text: str, line_no: int, per_move, abs_xyz: bool, abs_e: bool, sw: StopWriter,
+                 source: str) -> str:
+    """_emit for a line given as its text (ending in its line end) and the moves (with their
+    actions) that records gave: the stock file's byte path, and annotate's arcs (arc_text)."""
+    code, _ = split_code(text)
+    head = code.split(None, 1)
+    words = parse_words(head[1] if len(head) > 1 else "", f"{source}:{line_no}")
+    st = GcodeState()
+    st.abs_xyz, st.abs_e = abs_xyz, abs_e
+    return "".join(_emit(Line(line_no, text, command_of(head[0]), words, [], None), per_move, st, sw))
+
+
+def arc_text(text: str, rows: np.ndarray, sw: StopWriter, source: str) -> str:
+    """An arc's line (text) as its chords (its RECORD rows, ArcLines.found), for the annotated
+    file: what the stock file writes for it where no point stops on it."""
+    fl = int(rows[0]["flags"])
+    per_move = [(m, [Action("line", m.x1, m.y1, m.z1, m.e)])
+                for m in record_moves(rows, np.arange(len(rows)), 0, ())]
+    return rewrite_line(text, int(rows[0]["line_no"]), per_move, bool(fl & movescan.ABS_XYZ),
+                        bool(fl & movescan.ABS_E), sw, source)
 
 
 def _header(bmap: mapformat.BulgeMap, settings: Settings, stops: StockStops) -> str:
@@ -1391,8 +1461,8 @@ def _rewrite_records(src, out, chunks, bmap: mapformat.BulgeMap, settings: Setti
     are copied as bytes and only the moves that can change planned (Skipper; on_move sees
     those). Needs a file whose lines end in \n or \r\n and that is valid UTF-8 (rewrite_file
     checks)."""
-    from ..gcode import parse_words, split_code
     planner = planner if planner is not None else RefPlanner(bmap, settings)
+    arcs = ArcLines(planner)
     sw = res.stock = StopWriter(stops, m92)
     out.write(_header(bmap, settings, stops).encode())
     pos = 0                                   # bytes of src copied so far
@@ -1405,7 +1475,7 @@ def _rewrite_records(src, out, chunks, bmap: mapformat.BulgeMap, settings: Setti
             ln_no = int(lines[i])
             if ln_no in seen:
                 continue
-            if _unchanged(m, acts):
+            if _unchanged(m, acts) and ln_no not in arcs.lines:
                 if acts[0].dropped:
                     sw.drop()
                 continue
@@ -1416,24 +1486,20 @@ def _rewrite_records(src, out, chunks, bmap: mapformat.BulgeMap, settings: Setti
             _copy(src, out, start - pos)
             raw = src.readline()                  # the line, through its \n
             pos = start + len(raw)
-            text = raw.decode("utf-8")
-            code, _ = split_code(text)
-            head = code.split(None, 1)
-            words = parse_words(head[1] if len(head) > 1 else "", f"{source}:{ln_no}")
             per_move = []
             for i in idx:
                 m = record_move(a[i], done + int(i), chunks.roles)
                 per_move.append(planned.get(int(i)) or (m, [Action("line", m.x1, m.y1, m.z1, m.e)]))
-            st = GcodeState()
-            st.abs_xyz = bool(int(r0["flags"]) & movescan.ABS_XYZ)
-            st.abs_e = bool(int(r0["flags"]) & movescan.ABS_E)
-            res.moves_split += 1
-            out.write("".join(_emit(Line(ln_no, text, head[0].upper(), words, [], None),
-                                    per_move, st, sw)).encode())
-    plan_records(planner, chunks, on_move, on_chunk=emit_changed)
+            res.moves_split += not all(_unchanged(m, acts) for m, acts in per_move)
+            fl = int(r0["flags"])
+            out.write(rewrite_line(raw.decode("utf-8"), ln_no, per_move, bool(fl & movescan.ABS_XYZ),
+                                   bool(fl & movescan.ABS_E), sw, source).encode())
+    plan_records(planner, chunks, _hooks(arcs, on_move), on_chunk=emit_changed)
     last = _copy(src, out, None)
     if last and last != b"\n":
         out.write(b"\n")                         # as rewrite(): every line ends in a line end
+    if sw.arcs.arcs:
+        out.write(f"; bulgekit fallback: {sw.arcs.text()}\n".encode())
     res.lines_in = chunks.lines
     res.stops = planner.stops
     res.stats = planner.stats

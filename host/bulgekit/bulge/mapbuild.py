@@ -19,7 +19,7 @@ from typing import Sequence
 
 import numpy as np
 
-from . import mapformat
+from . import faces, mapformat
 from ..errors import BulgekitError
 from .strokes import Picture, Stroke
 from .wall import WallModel
@@ -60,6 +60,10 @@ class BuildResult:
     # the map, and their points
     too_many: list[tuple[float, int]] = field(default_factory=list)
     over_points: list[BulgePoint] = field(default_factory=list)
+    # the strokes as placed (a drawing asked for on a face moved there: faces.place), and the
+    # warnings about them (crossing a corner, on the first layer: faces.warnings)
+    strokes: list[Stroke] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
 
     @property
     def bulge_map(self) -> mapformat.BulgeMap:
@@ -113,7 +117,7 @@ def sample_strokes(strokes: Sequence[Stroke], model: WallModel, spacing: float
             raise BuildError(f"{name}: points must be finite (u, v) pairs")
         if not 0 <= st.weight <= 255:
             raise BuildError(f"{name}: weight {st.weight} outside 0..255")
-        vmin, vmax = float(arr[:, 1].min()), float(arr[:, 1].max())
+        vmin, vmax = float(arr[:, 1].min()) - st.dome, float(arr[:, 1].max()) + st.dome
         if vmin < lo - 1e-9 or vmax > hi + 1e-9:
             # said of the text, drawing or picture as asked for (a picture's dot: if not turned
             # since, its grid's place is the picture's)
@@ -123,6 +127,9 @@ def sample_strokes(strokes: Sequence[Stroke], model: WallModel, spacing: float
             raise BuildError(
                 f"{name}: stroke spans v {vmin:.2f}..{vmax:.2f} mm, outside the outer wall's "
                 f"height {lo:.2f}..{hi:.2f} mm")
+        if st.dome:
+            _dome_samples(st, name, model, out, runs)
+            continue
         smp = _stroke_samples(st, step)
         layer = model.layer_of_v(smp[:, 1])
         if (layer < 0).any():
@@ -157,6 +164,29 @@ def sample_strokes(strokes: Sequence[Stroke], model: WallModel, spacing: float
                 out.setdefault(li, []).append((float(u), st.weight, name))
     _check_extent(runs, model)
     return out
+
+
+DOME_MIN_WEIGHT = 26     # a dome's layer lighter than this (under a tenth of the dwell) gets no point
+
+
+def _dome_samples(st: Stroke, name: str, model: WallModel, out: dict, runs: dict) -> None:
+    """A dot with height: one point at its u on every layer whose bead's middle lies within
+    st.dome of its v, weighted by the dome's height there (the dwell grows toward the middle)."""
+    (u, v), = st.points
+    for li, wall in enumerate(model.walls):
+        dv = (wall.z - wall.height / 2) - v
+        if abs(dv) >= st.dome:
+            continue
+        w = int(round(st.weight * math.sqrt(1 - (dv / st.dome) ** 2)))
+        if w < DOME_MIN_WEIGHT:
+            continue
+        shift = wall.place_run(u, u)
+        if shift is None:
+            a, b = wall.u_covered()
+            raise BuildError(f"{name}: u {u:.2f} mm on layer z {wall.z:.2f} mm, where the outer wall "
+                             f"covers only u {a:.2f}..{b:.2f} mm; nothing is printed there to bulge.")
+        runs.setdefault(li, []).append((u - shift, u - shift, name))
+        out.setdefault(li, []).append((float(u - shift), w, name))
 
 
 def _check_extent(runs: dict[int, list[tuple[float, float, str]]], model: WallModel) -> None:
@@ -226,6 +256,7 @@ def build(strokes: Sequence[Stroke], model: WallModel, spacing: float | None = N
             raise BuildError(f"line width {line_width} mm must be a positive number "
                              "(the point spacing defaults to twice it)")
         spacing = 2 * line_width
+    strokes = faces.place(strokes, model)
     per_layer = sample_strokes(strokes, model, spacing)
     notes = list(model.notes) + _wrap_note(per_layer, model)
     points: list[BulgePoint] = []
@@ -267,7 +298,7 @@ def build(strokes: Sequence[Stroke], model: WallModel, spacing: float | None = N
     bm = mapformat.decode_map(data)
     sizes = [len(mapformat.encode_record(l, bm.has_weights)) for l in bm.layers]
     res = BuildResult(model, points, layers, wts, data, quantum_um, spacing, sizes, notes,
-                      too_many, over_points)
+                      too_many, over_points, list(strokes), faces.warnings(strokes, model))
     return res
 
 

@@ -19,6 +19,7 @@ Example::
 from __future__ import annotations
 
 import base64
+import binascii
 import math
 import zlib
 from dataclasses import dataclass, field
@@ -537,3 +538,73 @@ def upload_lines(
         if len(line) > LINE_MAX:
             raise MapFormatError(f"line of {len(line)} chars exceeds {LINE_MAX}: {line[:24]}...")
     return lines
+
+
+def read_upload(lines: Iterable[tuple[int, str]], source: str = "<gcode>",
+                refused: list | None = None) -> BulgeMap | None:
+    """The map a G-code file's M721 lines put in force, as the firmware's MapUpload takes them
+    (docs/mcodes.md, M721): (line number, code) pairs, the code without comment or checksum
+    (an N word may lead). A begin (S, C; A1: an append), its chunks (O, D) and the commit (E):
+    a full map replaces the one in force, an append's records go after it; X clears it.
+    Returns every layer the file uploads over the print, its appends included (what the
+    firmware holds layer by layer as it prints), or None when nothing was committed. A
+    malformed line, a CRC or structure failure, or a second, different map after the first:
+    MapFormatError naming the line; with `refused` (a list) the firmware's way instead: the
+    message goes there and the map in force stays as it was."""
+    m: BulgeMap | None = None
+    up = None                                   # (size, crc, append, bytearray, received ranges)
+    for no, code in lines:
+        where = f"{source}:{no}"
+        words = {}
+        for tok in code.split()[1:]:
+            if tok[:1].upper() == "N" and not words and tok[1:].isdigit():
+                continue
+            words[tok[:1].upper()] = tok[1:]
+        try:
+            if {"S", "C", "A"} & words.keys():
+                up = (int(words["S"]), int(words["C"]), words.get("A", "0") in ("", "1"),
+                      bytearray(int(words["S"])), [])
+            elif "O" in words:
+                if up is None:
+                    raise MapFormatError(f"{where}: M721 chunk without a begin")
+                off = int(words["O"])
+                d = words["D"].upper()
+                chunk = base64.b32decode(d + "=" * (-len(d) % 8))
+                if off + len(chunk) > len(up[3]):
+                    raise MapFormatError(f"{where}: M721 O{off}+{len(chunk)} > S{len(up[3])}")
+                up[3][off:off + len(chunk)] = chunk
+                up[4].append((off, off + len(chunk)))
+            elif "E" in words:
+                if up is None:
+                    raise MapFormatError(f"{where}: M721 E without a begin")
+                size, crc, append, data, got = up
+                end = 0
+                for a, b in sorted(got):
+                    if a > end:
+                        break
+                    end = max(end, b)
+                if end < size:                  # the upload stays open for the missing chunks
+                    raise MapFormatError(f"{where}: M721 E after {end} of {size} bytes")
+                up = None
+                if crc32(bytes(data)) != crc:
+                    raise MapFormatError(f"{where}: M721 CRC {crc32(bytes(data))} != C{crc}")
+                if not append:
+                    new = decode_map(bytes(data), source=where)
+                    if m is not None and m.layers and new.layers != m.layers[:len(new.layers)]:
+                        raise MapFormatError(f"{where}: a second map in one file (not modelled)")
+                    if m is None or not m.layers:
+                        m = new
+                elif m is None:
+                    raise MapFormatError(f"{where}: M721 A1 append without a map")
+                else:
+                    after = m.layers[-1].z_cmm if m.layers else -1
+                    m.layers += decode_records(bytes(data), m.has_weights, after, where)
+            # X (clear) and a bare M721 (status) change nothing the print's stops need: the
+            # annotator clears before its upload and after the print
+        except (KeyError, ValueError, binascii.Error) as e:
+            if not isinstance(e, MapFormatError):
+                e = MapFormatError(f"{where}: malformed M721 line {code.strip()!r}")
+            if refused is None:
+                raise e from None
+            refused.append(str(e))
+    return m

@@ -9,10 +9,18 @@ post-processing step (`bulgekit post-process`) or `bulgekit build --placement` r
     letter_spacing = 0.0
     mirror = false
     rotate = 0                   # degrees, counter-clockwise about `at`
+    face = 2                     # on face 2 of the wall (then at's u is an offset from there)
+    align = "center"             # "left", "center" (the default with a face) or "right"
+
+    [[braille]]                  # any number of these: text in braille, the standard's spacing
+    text = "HELLO"
+    at = [5, 3]                  # u, v mm: the first cell's bottom dots (face and align as in text)
+    grade = 1                    # 1 or 2 (Unified English Braille), or:
+    table = "de-g2.ctb"          # any liblouis table by name
 
     [[strokes]]                  # SVG, JSON stroke list or an image; path relative to this file
     file = "wave.json"
-    at = [0, 0]
+    at = [0, 1]                  # default [0, 1]: u 0, 1 mm above the bed ([0, 0] for .json)
     scale = 1.0
     image_width = 20             # images: width on the wall, mm
     curve_tolerance = 0.05
@@ -45,12 +53,13 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from ..errors import InputError, MissingInputError
-from .strokes import Stroke
+from .strokes import Stroke, on_face
 
 _TEXT_KEYS = {"text": str, "at": list, "size": (int, float), "font": str, "letter_spacing": (int, float),
-              "mirror": bool, "rotate": (int, float)}
+              "mirror": bool, "rotate": (int, float), "face": int, "align": str}
+_BRAILLE_KEYS = {"text": str, "at": list, "grade": int, "table": str, "face": int, "align": str}
 _STROKE_KEYS = {"file": str, "at": list, "scale": (int, float), "image_width": (int, float),
-                "curve_tolerance": (int, float), "rotate": (int, float)}
+                "curve_tolerance": (int, float), "rotate": (int, float), "face": int, "align": str}
 _BULGE_KEYS = {"dwell": int, "extra": (int, float), "tolerance": (int, float), "geometric": bool,
                "spacing": (int, float), "line_width": (int, float), "fallback": bool,
                "stop": str, "e_steps": (int, float), "stop_e_steps": int, "printer": str,
@@ -106,8 +115,9 @@ def _name(t) -> str:
     return names[t] if not isinstance(t, tuple) else "a number"
 
 
-def _at(table: dict, where: str, src: Path) -> tuple[float, float]:
-    at = table.get("at", [0, 0])
+def _at(table: dict, where: str, src: Path, file: str | None = None) -> tuple[float, float]:
+    """at = [u, v]; by default [0, 1], 1 mm above the bed (a .json stroke list: [0, 0], as it is)."""
+    at = table.get("at", [0, 0] if file is not None and file.lower().endswith(".json") else [0, 1])
     if len(at) != 2 or not all(isinstance(a, (int, float)) and not isinstance(a, bool)
                                and math.isfinite(a) for a in at):
         raise PlacementError(f"{src}: {where}.at: expected [u, v] in mm, got {at!r}")
@@ -128,8 +138,8 @@ def load_placement(path) -> Placement:
     except tomllib.TOMLDecodeError as e:
         raise PlacementError(f"{src}: not valid TOML: {e}") from None
     for k in doc:
-        if k not in ("text", "strokes", "bulges"):
-            raise PlacementError(f"{src}: unknown table {k!r} (known: text, strokes, bulges)")
+        if k not in ("text", "braille", "strokes", "bulges"):
+            raise PlacementError(f"{src}: unknown table {k!r} (known: text, braille, strokes, bulges)")
     strokes: list[Stroke] = []
     entries: list[str] = []
     for i, t in enumerate(_tables(doc, "text", src)):
@@ -143,7 +153,21 @@ def load_placement(path) -> Placement:
                                 u0=u, v0=v, mirror=t.get("mirror", False), font=t.get("font", "futural"))
         except InputError as e:
             raise PlacementError(f"{src}: {where}: {e}") from None
-        strokes += _tagged(_rotated(made, t.get("rotate", 0), (u, v)), where, src)
+        strokes += _tagged(_on_face(_rotated(made, t.get("rotate", 0), (u, v)), t, u, where, src),
+                           where, src)
+        entries.append(where)
+    for i, t in enumerate(_tables(doc, "braille", src)):
+        where = f"braille[{i}]"
+        _check(t, _BRAILLE_KEYS, where, src)
+        if "text" not in t:
+            raise PlacementError(f"{src}: {where}: 'text' is missing")
+        u, v = _at(t, where, src)
+        from .braille import braille_strokes
+        try:
+            made = braille_strokes(t["text"], u, v, t.get("grade"), t.get("table"))
+        except InputError as e:
+            raise PlacementError(f"{src}: {where}: {e}") from None
+        strokes += _tagged(_on_face(made, t, u, where, src), where, src)
         entries.append(where)
     for i, t in enumerate(_tables(doc, "strokes", src)):
         where = f"strokes[{i}]"
@@ -153,7 +177,7 @@ def load_placement(path) -> Placement:
         f = (src.parent / t["file"]) if not Path(t["file"]).is_absolute() else Path(t["file"])
         if not f.is_file():
             raise PlacementFileMissing(f"{src}: {where}.file: {f} not found")
-        at = _at(t, where, src)
+        at = _at(t, where, src, t["file"])
         if f.suffix.lower() in api._IMAGE_EXT and "image_width" not in t:
             raise PlacementError(f"{src}: {where}: {t['file']} is a picture: give image_width "
                                  "(its width on the wall, mm)")
@@ -163,14 +187,15 @@ def load_placement(path) -> Placement:
                                     curve_tolerance_mm=float(t.get("curve_tolerance", 0.05)))
         except InputError as e:
             raise PlacementError(f"{src}: {where}: {e}") from None
-        strokes += _tagged(_rotated(made, t.get("rotate", 0), at), where, src)
+        strokes += _tagged(_on_face(_rotated(made, t.get("rotate", 0), at), t, at[0], where, src),
+                           where, src)
         entries.append(where)
     bulges = doc.get("bulges", {})
     if not isinstance(bulges, dict):
         raise PlacementError(f"{src}: 'bulges' must be a table ([bulges])")
     _check(bulges, _BULGE_KEYS, "bulges", src)
     if not strokes:
-        raise PlacementError(f"{src}: nothing to draw: add a [[text]] or [[strokes]] table")
+        raise PlacementError(f"{src}: nothing to draw: add a [[text]], [[braille]] or [[strokes]] table")
     return Placement(src, strokes, dict(bulges), entries)
 
 
@@ -182,6 +207,14 @@ def _rotated(strokes: list[Stroke], degrees: float, about: tuple[float, float]) 
     u0, v0 = about
     return [replace(st, points=tuple((u0 + c * (u - u0) - s * (v - v0), v0 + s * (u - u0) + c * (v - v0))
                                      for u, v in st.points)) for st in strokes]
+
+
+def _on_face(strokes: list[Stroke], table: dict, u: float, where: str, src: Path) -> list[Stroke]:
+    """The entry's strokes to be placed on its face (strokes.on_face), if it names one."""
+    try:
+        return on_face(strokes, table.get("face"), table.get("align"), u)
+    except InputError as e:
+        raise PlacementError(f"{src}: {where}: {e}") from None
 
 
 def _tagged(strokes: list[Stroke], where: str, src: Path) -> list[Stroke]:

@@ -54,13 +54,50 @@ def _marker_area(weights: np.ndarray, full_area: float) -> np.ndarray:
     return np.maximum(weights / 255.0 * full_area, 2.0)
 
 
+def wall_marks(model, max_layers: int = 300) -> dict:
+    """The corners and faces of a wall model (wall.Wall.faces) for the unrolled view: "corners",
+    (u, v0, v1) lines, each layer's corners over its band (with more than max_layers layers, every
+    k-th layer's over the bands up to the next one drawn), and "faces", (u, v, number) labels:
+    per run of layers whose faces stay put (the same count, middles within 1 mm), each face's
+    number near the run's top, on each piece of it between 0 and the wall's length (face 1
+    holds u = 0, so it shows at both ends); "runs": those runs, (v0, v1, faces of their first layer)."""
+    walls = model.walls
+    step = max(1, math.ceil(len(walls) / max_layers))
+    picked = list(range(0, len(walls), step))
+    corners: list[tuple[float, float, float]] = []
+    runs: list[list] = []                       # [v0, v1, faces, length]
+    for j, i in enumerate(picked):
+        w = walls[i]
+        v0 = w.z - w.height
+        v1 = (walls[picked[j + 1]].z - walls[picked[j + 1]].height) if j + 1 < len(picked) else w.z
+        corners += [(float(c), v0, v1) for c in w.corners]
+        fs = w.faces
+        last = runs[-1] if runs else None
+        if (last is not None and len(last[2]) == len(fs)
+                and all(abs(a.middle - b.middle) <= 1.0 for a, b in zip(last[2], fs))):
+            last[1] = v1
+        else:
+            runs.append([v0, v1, fs, w.length if w.closed else 0.0])
+    labels = []
+    for v0, v1, fs, L in runs:
+        for f in fs:
+            pieces = [(f.u0, f.u1)]
+            if L and f.u0 < 0:
+                pieces = [(0.0, f.u1), (f.u0 + L, L)]
+            labels += [((a + b) / 2, v0 + 0.85 * (v1 - v0), f.number) for a, b in pieces
+                       if b - a > 1e-6]
+    return {"corners": corners, "faces": labels, "runs": [(a, b, fs) for a, b, fs, _ in runs]}
+
+
 def preview_unrolled(points, wall_length: float, height: float, path, *, title: str | None = None,
-                     layer_height: float | None = None, bump_mm: float = 1.2, dpi: int = 150) -> dict:
+                     layer_height: float | None = None, bump_mm: float = 1.2, dpi: int = 150,
+                     marks: dict | None = None) -> dict:
     """Draw the unrolled wall (u along the wall, v up) with the bumps.
 
     points: (u, v, weight) rows.  Bumps outside 0 <= u <= wall_length,
     0 <= v <= height are drawn as blue crosses and counted in the title, so
     a misplaced drawing shows.  bump_mm is the diameter drawn for weight 255.
+    marks: wall_marks(model): the corners are drawn as lines, the faces' numbers in circles.
     Returns {"inside": n, "outside": n}.
     """
     if not (wall_length > 0 and height > 0):
@@ -84,6 +121,9 @@ def preview_unrolled(points, wall_length: float, height: float, path, *, title: 
     # inside the wall's top-left corner, clear of both frame lines (bumps draw over it)
     ax.annotate("u = 0", xy=(0, height), xytext=(4, -4), textcoords="offset points", va="top",
                 ha="left", fontsize=8, color="#555555", zorder=2)
+
+    if marks:
+        _draw_marks(ax, marks)
 
     u, v, w = (pts[:, 0], pts[:, 1], pts[:, 2]) if len(pts) else (np.zeros(0),) * 3
     inside = (u >= 0) & (u <= wall_length) & (v >= 0) & (v <= height)
@@ -120,6 +160,17 @@ def preview_unrolled(points, wall_length: float, height: float, path, *, title: 
     fig.tight_layout()
     _save(fig, path)
     return {"inside": int(inside.sum()), "outside": n_out}
+
+
+def _draw_marks(ax, marks: dict) -> None:
+    """wall_marks' corners (lines) and face numbers (in circles) on the unrolled view."""
+    from matplotlib.collections import LineCollection
+    segs = [[(u, a), (u, b)] for u, a, b in marks.get("corners", ())]
+    if segs:
+        ax.add_collection(LineCollection(segs, colors="#2a7a3a", linewidths=1.0, zorder=1.5))
+    for u, v, n in marks.get("faces", ()):
+        ax.text(u, v, str(n), ha="center", va="center", fontsize=9, color="#2a7a3a", zorder=2,
+                bbox=dict(boxstyle="circle,pad=0.25", fc="white", ec="#2a7a3a", lw=0.8, alpha=0.8))
 
 
 def preview_3d(wall_paths: Sequence, bumps, path, *, title: str | None = None, elev: float = 22.0,
@@ -206,7 +257,7 @@ def unrolled_job(result, gcode_name: str) -> tuple[tuple, dict]:
     lo, hi = model.v_range
     rows = [(p.u, p.z - model.walls[p.layer].height / 2, p.weight) for p in result.points]
     return (rows, length, hi), dict(title=f"{gcode_name}: bulges on the unrolled outer wall",
-                                    layer_height=model.layer_height)
+                                    layer_height=model.layer_height, marks=wall_marks(model))
 
 
 def unrolled_png(rows, wall_length: float, height: float, **kw) -> bytes:

@@ -15,8 +15,8 @@ from . import mapformat
 from . import stopmodel
 from .. import machine
 from ..gcode import movescan
-from .fallback import RefPlanner, Settings, plan_records
-from ..gcode import open_checked
+from .fallback import ArcCount, ArcLines, RefPlanner, Settings, plan_records
+from ..gcode import ARC_CHORD_DEVIATION_MM, open_checked
 
 ARENA_BYTES = mapformat.ARENA_BYTES
 
@@ -43,6 +43,7 @@ class Stats:
     decel_s: float | None = None   # stop/start cost at the moves' feedrates
     slicer_time_s: float | None = None
     stock: object | None = None    # fallback.StopWriter of the stock file, when one was written
+    arcs: ArcCount | None = None   # G2/G3 through points, written as G1 chords (from the G-code run)
     printer: object | None = None  # the printer model decel_s was timed for (None: v/a, below)
     gaps: list = field(default_factory=list)  # with printer: each stop's (ms, path mm from the
                                               # stop before, or None), from StopTimer
@@ -84,6 +85,8 @@ class Stats:
                            f"of any {'outer-wall' if s.mode == 1 else 'extruding'} move: {show}{more}")
             if self.extra_dropped_mm > 1e-9:
                 out.append(f"extra filament lost to stops at a wall's end: {self.extra_dropped_mm:.3f} mm")
+            if self.arcs is not None and self.arcs.arcs:
+                out.append(f"arcs: {self.arcs_text()}")
         out.append(f"extra filament: {self.extra_e_mm:.2f} mm")
         t = f"added time: {_hms(self.dwell_s)} dwell"
         if self.decel_s is not None:
@@ -117,6 +120,17 @@ class Stats:
             for i in range(0, len(row), 8):
                 out.append("  " + "  ".join(row[i:i + 8]))
         return "\n".join(out)
+
+
+    def arcs_text(self) -> str:
+        """The arcs written as chords: as counted where they were written (ArcCount.text), or
+        their number and the farthest Marlin's segments can lie from an arc."""
+        if self.arcs.chords:
+            return self.arcs.text()
+        n = self.arcs.arcs
+        return (f"{n} G2/G3 arc{'s' if n != 1 else ''} through map points written as G1 chords, "
+                f"Marlin's own segments (at most 1 mm; within {ARC_CHORD_DEVIATION_MM:.3f} mm "
+                "of the arc)")
 
 
 def _hms(sec: float) -> str:
@@ -193,6 +207,7 @@ class StopTimer:
         self.printer = printer
         self.seen = 0
         self._decel_s = 0.0
+        self.arcs = ArcLines(planner)          # the arcs the outputs write as chords
         self.ramp_stops: list = []     # with a printer: (ms, stopmodel.RampStop) per stop
         self._last = None              # (move index, path mm since the chain began, mm at its last stop)
 
@@ -207,6 +222,7 @@ class StopTimer:
         return [(ms, r.gap) for ms, r in self.ramp_stops]
 
     def __call__(self, m, actions) -> None:
+        self.arcs(m, actions)
         k = len(self.planner.stops) - self.seen      # stops this move made
         self.seen = len(self.planner.stops)
         if self.printer is None:
@@ -283,5 +299,6 @@ def print_stats(gcode_path, map_bytes: bytes, settings: Settings, arena: int = A
     st.decel_s = decel
     st.printer = planned.printer
     st.gaps = planned.gaps if planned.printer is not None else []
+    st.arcs = ArcCount(len(planned.arcs.lines))
     st.slicer_time_s = slicer_time(ends)
     return st

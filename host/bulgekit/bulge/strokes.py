@@ -35,10 +35,15 @@ class Stroke:
     source: str = ""
     # the text, drawing or picture it is part of (Drawing), for messages about the whole
     drawing: "Drawing | None" = field(default=None, compare=False, repr=False)
+    # a dot with height (a braille dot): the layers within this many mm of its v each get a point,
+    # weighted by a dome, weight x sqrt(1 - (dv / dome)^2) at the layer's middle (mapbuild)
+    dome: float = 0.0
 
     def __post_init__(self):
         if not self.points:
             raise InputError(f"{self.source or 'stroke'}: stroke has no points")
+        if self.dome and (len(self.points) != 1 or not (math.isfinite(self.dome) and self.dome > 0)):
+            raise InputError(f"{self.source or 'stroke'}: a dome is one point with a radius > 0")
         if not (isinstance(self.weight, int) and 0 <= self.weight <= 255):
             raise InputError(f"{self.source or 'stroke'}: weight {self.weight!r} is not an integer 0..255")
         for k, (u, v) in enumerate(self.points):
@@ -174,6 +179,12 @@ class Drawing:
     mm: bool                  # whether it is a length
     corner: str               # the point --at U,V (at = [U, V]) sets: "its baseline start"
     entry: str = ""           # "p.toml: text[0]: ": from a placement file's entry
+    # on a face of the wall (bulge/faces.py): its number (None: at u as drawn), how it is
+    # aligned there and the U of --at U,V, an offset from that place; aligned once placed
+    face: int | None = None
+    align: str = "center"
+    offset_u: float = 0.0
+    aligned: bool = False
 
     def placed(self, entry: str) -> "Drawing":
         """The same drawing asked for by a placement file's entry ("p.toml: text[0]")."""
@@ -212,6 +223,38 @@ class Drawing:
 def drawn(strokes: list[Stroke], drawing: Drawing) -> list[Stroke]:
     """The strokes, each knowing the drawing they make up."""
     return [replace(st, drawing=drawing) for st in strokes]
+
+
+def on_face(strokes: list[Stroke], face: int | None, align: str | None = None,
+            offset_u: float = 0.0) -> list[Stroke]:
+    """The strokes of one drawing (made at --at U,V), to be placed on a face of the wall: its
+    number (1 from u = 0 along u), align left, center (the default) or right, U (offset_u) an
+    offset from that place. bulge/faces.py places them once the walls are known. No face and no
+    align: the strokes as they are. Strokes of no drawing become one ("the strokes")."""
+    if face is None and align is None:
+        return strokes
+    if face is None:
+        raise InputError("align needs a face (--face N, face = N)")
+    if isinstance(face, bool) or not isinstance(face, int) or face < 1:
+        raise InputError(f"face must be a whole number from 1, got {face!r}")
+    align = align or "center"
+    if align not in ALIGNS:
+        raise InputError(f"align must be one of {', '.join(ALIGNS)}, got {align!r}")
+    made: dict = {}
+    out = []
+    for st in strokes:
+        d = st.drawing
+        key = id(d)
+        if key not in made:
+            base = d if d is not None else Drawing(f"the strokes{' ' + st.source if st.source else ''}",
+                                                   1.0, "--scale", "scale", "scale", False,
+                                                   "their origin")
+            made[key] = replace(base, face=face, align=align, offset_u=float(offset_u), aligned=False)
+        out.append(replace(st, drawing=made[key]))
+    return out
+
+
+ALIGNS = ("left", "center", "right")
 
 
 # --------------------------------------------------------------------------
@@ -459,6 +502,7 @@ def load_svg(path: str, *, offset: tuple[float, float] = (0.0, 0.0), scale: floa
         page_h_mm = None
 
     raw: list[tuple[list[tuple[float, float]], int, str]] = []  # points in page mm, y down
+    filled: list[str] = []        # shapes with a fill given: drawn as their outlines
 
     def where(el, tag):
         line = el.values.get(_LINE_ATTR)
@@ -473,7 +517,7 @@ def load_svg(path: str, *, offset: tuple[float, float] = (0.0, 0.0), scale: floa
         tag = el.values.get("tag", type(el).__name__.lower())
         if isinstance(el, (se.Text, se.Image)) or tag in ("text", "image"):
             msg = (f"{where(el, tag)}: <{tag}> cannot be drawn with bulges; convert it to paths "
-                   f"(or use `bulgekit strokes --text` for lettering)")
+                   f"(for lettering: --text, or a [[text]] table in a placement file)")
             if not skip_unsupported:
                 raise InputError(msg)
             warnings.warn(msg + " — skipped", stacklevel=2)
@@ -481,6 +525,8 @@ def load_svg(path: str, *, offset: tuple[float, float] = (0.0, 0.0), scale: floa
         if not isinstance(el, se.Shape):
             continue
         loc = where(el, tag)
+        if _filled(el, tag):
+            filled.append(loc)
         w = _weight(el.values[_WEIGHT_ATTR], loc) if el.values.get(_WEIGHT_ATTR) is not None else weight
         if tag == "path":
             problem = _check_path_data(el.values.get("d", ""))
@@ -533,6 +579,11 @@ def load_svg(path: str, *, offset: tuple[float, float] = (0.0, 0.0), scale: floa
         for pc in pieces:
             raw.append((_dedupe(pc), w, loc))
 
+    if filled:
+        # bulges follow strokes: a filled area is drawn as its outline. Said, not hidden.
+        warnings.warn(f"{path}: {len(filled)} filled shape(s) drawn as their outlines only (the "
+                      f"first: {filled[0]}); for a filled area hatch it with strokes, or give a "
+                      "picture (an image becomes dots)", stacklevel=2)
     if not raw:
         raise InputError(f"{path}: no usable strokes (no paths, lines, polylines, polygons, rects, "
                          f"circles or ellipses outside <defs>)")
@@ -542,6 +593,14 @@ def load_svg(path: str, *, offset: tuple[float, float] = (0.0, 0.0), scale: floa
     return drawn(transform(strokes, offset=offset, scale=scale, mirror_u=mirror),
                  Drawing(f"{path}: the drawing", scale, "--scale", "scale", "scale", False,
                          "its page's lower-left corner"))
+
+
+def _filled(el, tag: str) -> bool:
+    """A shape whose fill was given (on it, or inherited: a fill other than SVG's default black,
+    which a drawing of strokes leaves unset) and not none: its area would be filled on paper."""
+    fill = str(el.values.get("fill", "none")).strip().lower()
+    given = "fill" in (el.values.get("attributes") or {}) or fill != "black"
+    return given and fill not in ("none", "transparent", "") and tag not in ("line", "polyline")
 
 
 # --------------------------------------------------------------------------

@@ -10,12 +10,19 @@ fixed direction instead of the slicer's seam keeps u = 0 at the same place
 on every layer, so a stroke lands where it was drawn whatever the seam or
 print direction of each layer.
 
+Corners and faces: a corner is where the wall turns by CORNER_TURN_DEG or more within
+CORNER_SPAN_MM of its length, between straight runs (turning less than STRAIGHT_TURN_DEG over
+STRAIGHT_MM) on both sides; a face is the stretch between two corners. A round wall has none,
+and is one face. Faces are numbered in the direction of u from face 1, the one holding u = 0
+(or starting there). See Wall.corners and Wall.faces.
+
 Spiral (vase) walls are cut into layer windows of one layer height around
 the grid of layer heights, the same windows the firmware matches moves in.
 """
 from __future__ import annotations
 
 import functools
+import hashlib
 import math
 from dataclasses import dataclass, field
 from typing import Iterable
@@ -32,6 +39,104 @@ _wall_rows = getattr(movescan._scan, "wall_rows", None)
 
 class WallError(BulgekitError):
     """The G-code has no usable outer wall."""
+
+
+CORNER_TURN_DEG = 30.0     # a corner turns the wall this much or more ...
+CORNER_SPAN_MM = 2.0       # ... within this length of it,
+STRAIGHT_MM = 2.0          # with a straight run this long on each side:
+STRAIGHT_TURN_DEG = 10.0   # turning less than this over it (a round wall has no corners)
+CORNER_STEP_MM = 0.1       # where corners are looked for: every this much along the wall
+
+
+@dataclass(frozen=True)
+class Face:
+    """A stretch of a wall between two corners: u0..u1 (mm, u0 < u1; face 1 may start below 0,
+    as it holds u = 0)."""
+    number: int
+    u0: float
+    u1: float
+
+    @property
+    def middle(self) -> float:
+        return (self.u0 + self.u1) / 2
+
+    @property
+    def length(self) -> float:
+        return self.u1 - self.u0
+
+
+def corner_positions(xy: np.ndarray, s: np.ndarray, closed: bool = True) -> np.ndarray:
+    """Arc lengths (print order, ascending) of the corners of the polyline xy whose vertices lie
+    at arc lengths s. A corner: the direction of the straight run of STRAIGHT_MM before a stretch
+    of CORNER_SPAN_MM and that of the run after it differ by CORNER_TURN_DEG or more, and each run
+    is straight: its halves differ by less than STRAIGHT_TURN_DEG and less than an eighth of that
+    turn (a round wall turns evenly, a quarter as much over a half-run as across the stretch:
+    never a corner, whatever its radius). Directions are those of chords between points of the
+    wall, not of its segments, so a sliced polygon of many tiny segments, arcs cut into chords or
+    a corner rounded to 1 mm or less read as the wall they make. The corner is the middle of the
+    positions (every CORNER_STEP_MM) that see it so; a closed wall is a loop of length s[-1]."""
+    xy = np.ascontiguousarray(xy, dtype=float)
+    s = np.ascontiguousarray(s, dtype=float)
+    # (many layers are the same polygon: a prism's, a stacked file's; looked up by their bytes)
+    key = (hashlib.blake2b(xy.tobytes() + s.tobytes(), digest_size=16).digest(), closed)
+    got = _corner_memo.get(key)
+    if got is None:
+        got = _corner_positions(xy, s, closed)
+        if len(_corner_memo) >= 256:
+            _corner_memo.clear()
+        _corner_memo[key] = got
+    return got.copy()
+
+
+_corner_memo: dict = {}
+
+
+def _corner_positions(xy: np.ndarray, s: np.ndarray, closed: bool) -> np.ndarray:
+    w, run = CORNER_SPAN_MM / 2, STRAIGHT_MM
+    L = float(s[-1]) if len(s) else 0.0
+    if len(xy) < 3 or not L > (2 * (w + run) if closed else 0.0):
+        return np.zeros(0)
+    # the chords' directions differ by no more than the wall turns at its vertices between them,
+    # which lie within w + run of the position: a wall that turns less than CORNER_TURN_DEG over
+    # any such stretch has no corner (a round wall's vertices: no chords needed)
+    d = np.diff(xy, axis=0)
+    seg = np.flatnonzero(np.hypot(d[:, 0], d[:, 1]) > 1e-9)      # segments with a direction
+    if len(seg) > 1:
+        h = np.arctan2(d[seg, 1], d[seg, 0])
+        # the turn into each segment, at its start (a loop: the first one's from the last)
+        turns = np.abs(np.angle(np.exp(1j * np.diff(np.concatenate([h[-1:], h]) if closed else h))))
+        at = s[seg] if closed else s[seg[1:]]
+        at3 = np.concatenate([at - L, at, at + L]) if closed else at
+        cum = np.concatenate([[0.0], np.cumsum(np.tile(turns, 3) if closed else turns)])
+        lo = np.searchsorted(at3, at3 - 2 * (w + run), "left")
+        if float((cum[1:] - cum[lo]).max()) < math.radians(CORNER_TURN_DEG):
+            return np.zeros(0)
+    n = max(1, math.ceil(L / CORNER_STEP_MM))
+    q = np.arange(n + (0 if closed else 1)) * (L / n)
+
+    def at(d):
+        p = q + d
+        p = np.mod(p, L) if closed else np.clip(p, 0.0, L)
+        return np.interp(p, s, xy[:, 0]) + 1j * np.interp(p, s, xy[:, 1])
+
+    a, m1, b = at(-w - run), at(-w - run / 2), at(-w)
+    c, m2, e = at(w), at(w + run / 2), at(w + run)
+    turn = np.abs(np.angle((e - c) * np.conj(b - a)))
+    bend = np.maximum(np.abs(np.angle((b - m1) * np.conj(m1 - a))),
+                      np.abs(np.angle((e - m2) * np.conj(m2 - c))))
+    ok = ((turn >= math.radians(CORNER_TURN_DEG)) & (bend < math.radians(STRAIGHT_TURN_DEG))
+          & (bend < turn / 8) & (np.abs(b - a) > run / 2) & (np.abs(e - c) > run / 2))
+    if not closed:                      # runs that leave an open chain are no runs
+        ok &= (q - w - run >= 0) & (q + w + run <= L)
+    idx = np.flatnonzero(ok)
+    if not len(idx):
+        return np.zeros(0)
+    # positions that see one corner lie together (a few steps of flicker allowed): its middle
+    groups = np.split(idx, np.flatnonzero(np.diff(idx) > 3) + 1)
+    if closed and len(groups) > 1 and groups[0][0] + n - groups[-1][-1] <= 3:
+        groups[0] = np.concatenate([groups.pop() - n, groups[0]])   # one round the start
+    mids = [(g[0] + g[-1]) / 2 * (L / n) for g in groups]
+    return np.sort(np.mod(mids, L) if closed else np.array(mids))
 
 
 @dataclass
@@ -82,6 +187,48 @@ class Wall:
             if umin - d >= a - 1e-6 and umax - d <= b + 1e-6:
                 return d
         return None
+
+    @functools.cached_property
+    def corners(self) -> np.ndarray:
+        """u of the wall's corners (corner_positions), ascending: in 0..length on a loop."""
+        return np.sort(np.asarray(self.u_of_s(corner_positions(self.xy, self.s, self.closed))
+                                  if self.closed else self._chain_u(corner_positions(
+                                      self.xy, self.s, False)), dtype=float))
+
+    def _chain_u(self, s):
+        s = np.asarray(s, dtype=float)
+        return s - self.s_ref if self.ccw else self.s_ref - s
+
+    @functools.cached_property
+    def faces(self) -> tuple[Face, ...]:
+        """The stretches between corners, numbered along u from face 1, which holds u = 0 (or
+        starts there). A loop without corners is one face, u -L/2..L/2 (its middle at u = 0);
+        an open chain's ends end its first and last faces."""
+        c = [float(x) for x in self.corners]
+        if not self.closed:
+            a, b = self.u_covered()
+            bounds = [a] + [x for x in c if a + 1e-6 < x < b - 1e-6] + [b]
+            spans = list(zip(bounds, bounds[1:]))
+            first = next((i for i, (x, y) in enumerate(spans) if x <= 0 < y), 0)
+            spans = spans[first:] + spans[:first]
+            return tuple(Face(i + 1, x, y) for i, (x, y) in enumerate(spans))
+        L = self.length
+        if not c:
+            return (Face(1, -L / 2, L / 2),)
+        if c[0] <= 1e-6 or c[0] >= L - 1e-6:                     # a corner at u = 0
+            c = sorted(x % L if x < L - 1e-6 else 0.0 for x in c)
+            ends = c + [c[0] + L]
+        else:
+            ends = [c[-1] - L] + c
+        return tuple(Face(i + 1, x, y) for i, (x, y) in enumerate(zip(ends, ends[1:])))
+
+    def face_of_u(self, u: float) -> Face:
+        """The face that holds u (taken round the loop)."""
+        fs = self.faces
+        if self.closed:
+            L = self.length
+            u = (u - fs[0].u0) % L + fs[0].u0
+        return next((f for f in fs if f.u0 <= u < f.u1), fs[-1])
 
     def u_of_s(self, s):
         L = self.length

@@ -8,8 +8,8 @@ from pathlib import Path
 
 import click
 
-from ._util import (FINITE, POSITIVE, Num, friendly, outdir_option, pair, printer_model, printer_options,
-                    progress_option)
+from ._util import (AT_HELP, FINITE, POSITIVE, Num, at_for, face_options, friendly, outdir_option, pair,
+                    printer_model, printer_options, progress_option, show_warning)
 from .. import __version__
 from ..bulge import mapformat
 from ..bulge.fallback import (DEFAULT_DWELL_MS, DEFAULT_E_STEPS, DEFAULT_EXTRA_E_MM, DEFAULT_TOLERANCE_MM,
@@ -72,6 +72,12 @@ def _stops(stop_kind, e_steps, stop_e_steps, printer=None, firmware=None, gcode=
         raise click.BadParameter(str(e), param_hint="'--stop', '--e-steps' or '--stop-e-steps'") from None
 
 
+def _braille_check(strokes, settings: Settings, spacing, line_width):
+    """The check that a print can make readable braille dots, when there is braille to place."""
+    from ..bulge.braille import wall_check
+    return wall_check(strokes, settings.dwell_ms, spacing, line_width)
+
+
 def _arena_option(fn):
     return click.option("--arena", type=click.IntRange(min=1), default=mapformat.ARENA_BYTES,
                         show_default=True,
@@ -119,8 +125,12 @@ def main():
 
     Strokes are drawn on the unrolled outer wall: u = mm along the wall,
     counter-clockwise (left to right seen from outside) from the front (-Y) of
-    each layer; v = mm above the bed. Run `bulgekit demo` for a worked example.
+    each layer; v = mm above the bed. --face N puts a drawing on face N of the
+    wall (its stretches between corners, 1 holding u = 0; the preview numbers
+    them). Run `bulgekit demo` for a worked example.
     """
+    import warnings
+    warnings.showwarning = show_warning
 
 
 @main.command(short_help="Strokes + sliced G-code -> map, annotated G-code, stats, preview.")
@@ -131,11 +141,19 @@ def main():
               help="TOML placement file (text, strokes, [bulges] settings; see examples/placement.toml), "
                    "as `post-process` reads it; options given here win over its [bulges].")
 @click.option("--text", help="Write this text on the wall (single-stroke font).")
+@click.option("--braille", help="Write this text in braille at --at (liblouis; the standard's "
+                                "spacing: dots 2.5 mm, cells 6 mm, lines 10 mm; \\n between lines).")
+@click.option("--braille-grade", type=click.IntRange(1, 2), default=1, show_default=True,
+              help="Braille grade of Unified English Braille (2: contracted).")
+@click.option("--braille-table", metavar="TABLE",
+              help="A liblouis table instead of --braille-grade (e.g. de-g2.ctb, fr-bfu-g2.ctb).")
 @click.option("--text-size", "--size", "text_size", type=POSITIVE, default=6.0, show_default=True,
               help="Capital height of --text, mm.")
-@click.option("--at", callback=pair, default="0,0", show_default=True, metavar="U,V",
+@click.option("--at", callback=pair, metavar="U,V",
               help="U,V mm: where input goes (--text baseline start; stroke files shifted by it, "
-                   "an SVG page's / image's lower-left corner), as in `strokes` and `preview`.")
+                   "an SVG page's / image's lower-left corner), as in `strokes` and `preview`; "
+                   "with --face, U is an offset from the aligned place. " + AT_HELP)
+@face_options
 @click.option("--font", default="futural", show_default=True, help="Hershey font of --text (as in `strokes`).")
 @click.option("--letter-spacing", type=FINITE, default=0.0, show_default=True,
               help="Extra mm between letters of --text.")
@@ -144,6 +162,7 @@ def main():
 @click.option("--curve-tolerance", type=POSITIVE, default=0.05, show_default=True,
               help="SVG curve flattening tolerance, mm (--tolerance is M720 T).")
 @click.option("--mirror", is_flag=True, help="Mirror --text (paint rollers).")
+@click.option("--skip-unsupported", is_flag=True, help="Warn about and skip SVG <text>/<image>.")
 @outdir_option()
 @click.option("--name", help="Output base name (default: the G-code's name).")
 @click.option("--spacing", type=POSITIVE, help="Distance (mm) between points along a layer [2 x line width].")
@@ -161,8 +180,9 @@ def main():
 @progress_option
 @friendly
 @click.pass_context
-def build(ctx, gcode, placement, stroke_files, text, text_size, at, font, letter_spacing, scale, image_width,
-          curve_tolerance, mirror, outdir, name, spacing, line_width, layer_height, ref_angle, no_stream,
+def build(ctx, gcode, placement, stroke_files, text, braille, braille_grade, braille_table, text_size, at, face,
+          align, font, letter_spacing, scale, image_width, curve_tolerance, mirror, skip_unsupported, outdir,
+          name, spacing, line_width, layer_height, ref_angle, no_stream,
           write_fallback, preview, preview_3d, dwell, extra, tolerance, geometric, stop_kind, e_steps,
           stop_e_steps, printer, firmware):
     """Place strokes on GCODE's outer wall: map + annotated G-code + stats."""
@@ -175,7 +195,7 @@ def build(ctx, gcode, placement, stroke_files, text, text_size, at, font, letter
     if drawn is not None:
         ctx.call_on_close(drawn.close)
     from ..bulge import api
-    from ..bulge.strokes import text_strokes
+    from ..bulge.strokes import on_face, text_strokes
     strokes = []
     if placement:
         from ..bulge.placement import load_placement
@@ -196,13 +216,24 @@ def build(ctx, gcode, placement, stroke_files, text, text_size, at, font, letter
         printer = printer if given("printer") else pl.printer
         firmware = firmware if given("firmware") else b.get("firmware", firmware)
     for f in stroke_files:
-        strokes += api.load_strokes(f, image_width_mm=image_width, offset=at, scale=scale,
-                                    curve_tolerance_mm=curve_tolerance)
+        a = at_for(at, f)
+        strokes += on_face(api.load_strokes(f, image_width_mm=image_width, offset=a, scale=scale,
+                                            curve_tolerance_mm=curve_tolerance,
+                                            skip_unsupported=skip_unsupported), face, align, a[0])
     if text:
-        strokes += text_strokes(text, text_size, spacing=letter_spacing, u0=at[0], v0=at[1],
-                                mirror=mirror, font=font)
+        a = at_for(at)
+        strokes += on_face(text_strokes(text, text_size, spacing=letter_spacing, u0=a[0], v0=a[1],
+                                        mirror=mirror, font=font), face, align, a[0])
+    if braille:
+        from ..bulge.braille import DOT_BASE, braille_strokes
+        a = at_for(at)
+        if at is None:                      # the dots' domes clear of the first layers too
+            a = (a[0], a[1] + DOT_BASE / 2)
+        strokes += on_face(braille_strokes(braille.replace("\\n", "\n"), a[0], a[1], braille_grade,
+                                           braille_table), face, align, a[0])
     if not strokes:
-        raise click.UsageError("nothing to draw: give --strokes FILE, --text TEXT or --placement FILE")
+        raise click.UsageError("nothing to draw: give --strokes FILE, --text TEXT, --braille TEXT "
+                               "or --placement FILE")
     settings = _settings(dwell, extra, tolerance, geometric)
     stops = _stops(stop_kind, e_steps, stop_e_steps, printer, firmware, gcode)
     t0 = time.perf_counter()
@@ -215,10 +246,12 @@ def build(ctx, gcode, placement, stroke_files, text, text_size, at, font, letter
     out = api.build(gcode, strokes, outdir, name=name, spacing=spacing, line_width=line_width,
                     layer_height=layer_height, ref_angle_deg=ref_angle, settings=settings,
                     stream=not no_stream, write_fallback=write_fallback, stops=stops,
-                    _on_map=on_map)
+                    _on_map=on_map, _check_walls=_braille_check(strokes, settings, spacing, line_width))
     click.echo(out.stats.text(per_layer=False))
     for note in out.result.notes:
         click.echo(f"note: {note}")
+    for w in out.result.warnings:
+        click.echo(f"warning: {w}", err=True)
     if out.annotate.appends:
         click.echo(f"streaming: {out.annotate.initial_records} layers at the start, "
                    f"{len(out.annotate.appends)} appends while printing")
@@ -273,9 +306,11 @@ def post_process(placement, arena, keep, gcode):
     src = Path(gcode)
     tmp = Path(tempfile.mkdtemp(prefix=".bulgekit-", dir=src.parent))
     try:
+        lw = b.get("line_width", DEFAULT_LINE_WIDTH)
         out = api.build(src, pl.strokes, tmp, name="pp", spacing=b.get("spacing"),
-                        line_width=b.get("line_width", DEFAULT_LINE_WIDTH), settings=settings, arena=arena,
-                        write_fallback=bool(b.get("fallback")), stops=stops)
+                        line_width=lw, settings=settings, arena=arena,
+                        write_fallback=bool(b.get("fallback")), stops=stops,
+                        _check_walls=_braille_check(pl.strokes, settings, b.get("spacing"), lw))
         result = out.fallback_path if b.get("fallback") else out.gcode_path
         if keep:
             Path(keep).mkdir(parents=True, exist_ok=True)
@@ -285,9 +320,12 @@ def post_process(placement, arena, keep, gcode):
         os.replace(result, src)                     # atomic on one file system: all or nothing
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
+    for w in out.result.warnings:
+        click.echo(f"bulgekit: warning: {w}", err=True)
     s = out.stats
     click.echo(f"bulgekit: {s.points} points on {len(s.layers)} layers "
-               f"{'rewritten for stock firmware' if b.get('fallback') else 'annotated'} into {src}")
+               f"{'rewritten for stock firmware' if b.get('fallback') else 'annotated'} into {src}"
+               + (f" ({s.arcs.arcs} G2/G3 arcs through them as G1 chords)" if s.arcs and s.arcs.arcs else ""))
 
 
 @main.command(short_help="Add M720/M721/M722 for bulgekit firmware (moves untouched).")
@@ -319,6 +357,8 @@ def annotate(gcode, map_file, output, no_stream, arena, allow_unreached, dwell, 
                f"{res.initial_records} layers uploaded at the start"
                + (f", {len(res.appends)} appends while printing" if res.appends else "")
                + f" ({dt:.2f} s)")
+    if res.arcs.arcs:
+        click.echo(res.arcs.text())
 
 
 @main.command(short_help="Rewrite for stock firmware: stops as E-only moves (or G4) + extra E.")
@@ -348,6 +388,8 @@ def fallback(gcode, map_file, output, allow_unreached, dwell, extra, tolerance, 
     click.echo(f"wrote {output}: {st.points_fired} stops on {res.moves_split} lines, "
                f"{st.dwell_ms_total / 1000:.1f} s dwell, {st.extra_applied:.2f} mm extra filament")
     click.echo(res.stock.summary())
+    if res.stock.arcs.arcs:
+        click.echo(res.stock.arcs.text())
 
 
 @main.command(short_help="M720 settings + M721 upload of a map, for any host.")
@@ -467,3 +509,50 @@ litho.register(main)
 estimate.register(main)
 printer.register(main)
 studio.register(main)
+
+
+@main.command(short_help="The paper's calibration prints as one part: dwell series and extra-E stripes.")
+@outdir_option()
+@click.option("--name", default="calibrate", show_default=True, help="Base name of the outputs.")
+@click.option("--stop", "stop_kind", type=click.Choice(["move", "g4"]), default="move", show_default=True,
+              help="Stock file: each stop as an extruder-only move or as G4 P<ms>.")
+@click.option("--layer-height", type=Num(0.05, 0.6), default=0.2, show_default=True, help="mm.")
+@click.option("--line-width", type=Num(0.2, 1.2), default=0.45, show_default=True, help="Wall line width, mm.")
+@click.option("--temp", type=click.IntRange(150, 320), default=210, show_default=True, help="Nozzle, °C.")
+@click.option("--bed-temp", type=click.IntRange(0, 130), default=60, show_default=True, help="Bed, °C.")
+@click.option("--bed", callback=pair, default="180,180", show_default=True, metavar="X,Y",
+              help="Bed size, mm: the piece goes in its middle.")
+@printer_options
+@friendly
+def calibrate(outdir, name, stop_kind, layer_height, line_width, temp, bed_temp, bed, printer, firmware):
+    """Print this to choose the dwell and the extra filament for your printer and filament: one
+    box, 140 x 20 x 41 mm, whose front face carries the over-extrusion paper's two tests, each
+    value written under it in raised digits.
+
+    \b
+      A (bottom): single bumps at dwells of 0, 10, 20, 50, 100, 150, 200, 300 and 500 ms
+      B (top):    bands at extra filament 0, 0.05, 0.1, 0.2 and 0.5 mm: 3 lines along the
+                  layers and 10 across them, at 100 ms stops
+
+    \b
+    Writes to OUTDIR/:
+      NAME.bulge.gcode   for bulgekit firmware (M720 P510: each dwell a map weight; M720 E per band)
+      NAME.stock.gcode   for stock firmware, the stops written in for the printer model (--printer)
+      NAME.bkm           the map
+      NAME.png           the front face: what to look for
+
+    Then: bulgekit firmware `M720 P<dwell> E<extra>` and `M500`; stock firmware: --dwell and
+    --extra of build (or dwell and extra in a placement's [bulges])."""
+    from ..bulge import calibrate as cal
+    pm = printer_model(printer, firmware)
+    o = cal.CalibrationOptions(printer=pm, layer_height=layer_height, line_width=line_width,
+                               temp=temp, bed_temp=bed_temp, bed=tuple(bed))
+    r = cal.make(o, outdir, name, stop_kind)
+    click.echo(f"printer: {pm.describe()}")
+    click.echo(f"{len(r.layout.strokes)} strokes, {r.stops_stock} stops in {r.layout.height:g} mm "
+               f"({int(round(r.layout.height / layer_height))} layers)")
+    click.echo(f"stock file: {r.stock_summary}")
+    for k in ("bulge", "stock", "map", "png"):
+        click.echo(f"wrote {r.paths[k]}")
+    click.echo(f"look at {r.paths['png'].name}, print, then: M720 P<dwell> E<extra> and M500 (bulgekit "
+               "firmware), or --dwell/--extra (stock firmware)")

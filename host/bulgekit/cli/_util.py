@@ -10,6 +10,13 @@ import click
 from ..errors import BulgekitError, MissingInputError
 
 
+class MissingInput(click.ClickException):
+    """An input file named inside another (a placement file's drawing) that is not there: exit
+    status 2 as a usage error, but one `Error:` line, without click's Usage lines (the command
+    line itself was right)."""
+    exit_code = 2
+
+
 def friendly(fn):
     """Turn expected failures into one-line messages (exit status 1): our own
     errors (they name the file and line, stroke or layer), map-format errors,
@@ -20,7 +27,7 @@ def friendly(fn):
         try:
             return fn(*a, **kw)
         except MissingInputError as e:
-            raise click.UsageError(str(e), click.get_current_context(silent=True)) from None
+            raise MissingInput(str(e)) from None
         except BulgekitError as e:
             raise click.ClickException(str(e)) from None
         except ValueError as e:  # mapformat.MapFormatError and friends
@@ -91,6 +98,34 @@ def pair(ctx, param, value):
     return (a, b)
 
 
+# where --at puts a drawing by default: u 0, 1 mm above the bed (above the first layers); a JSON
+# stroke list is already in wall mm (what `strokes -o` writes) and is not moved
+AT_DEFAULT = (0.0, 1.0)
+AT_HELP = "[0,1: 1 mm above the bed; a .json stroke list: 0,0, as it is]"
+
+
+def at_for(at, path=None) -> tuple[float, float]:
+    """--at as given, or its default for this input (a stroke file's path, or None: text)."""
+    if at is not None:
+        return at
+    return (0.0, 0.0) if path is not None and str(path).lower().endswith(".json") else AT_DEFAULT
+
+
+ALIGNS = ("left", "center", "right")     # strokes.ALIGNS (not imported: `annotate` loads no build module)
+
+
+def face_options(fn):
+    """--face N and --align (docs/host.md, "Faces and corners"): strokes.on_face."""
+    fn = click.option("--align", type=click.Choice(ALIGNS),
+                      help="With --face: the drawing's left end at the face's start, its middle at "
+                           "the face's middle, or its right end at the face's end [center].")(fn)
+    fn = click.option("--face", type=click.IntRange(min=1), metavar="N",
+                      help="Put the drawing on face N of the wall (faces: the stretches between "
+                           "corners, 1 holding u = 0, counted along u; see the preview), at the "
+                           "height of its middle; --at U,V's U is then an offset from there.")(fn)
+    return fn
+
+
 OUTDIR_DEFAULT = "bulgekit-out"
 
 
@@ -148,3 +183,9 @@ def printer_model(printer: str | None, firmware: str | None, gcode=None, e_steps
     if e_steps is not None:
         m = replace(m, steps_per_mm=m.steps_per_mm.with_(E=e_steps))
     return m
+
+
+def show_warning(message, category, filename, lineno, file=None, line=None):
+    """Python warnings (bulgekit's: a filled SVG shape drawn as its outline, a skipped <text>) as
+    one `WARNING:` line on stderr, without the source line Python shows."""
+    click.echo(f"WARNING: {message}", err=True)

@@ -48,6 +48,7 @@ def register(main):
         (--printer; Marlin's defaults: 300/300/5/25 mm/s, 3000/3000/100/10000 mm/s^2, JD 0.013);
         width mode (M723) as our firmware does it. Prints the total and the time per feature
         (;TYPE: comments)."""
+        from ..bulge import forktime
         from ..gcode import estimate as es
 
         pm = printer_model(printer, firmware, gcode, e_steps)
@@ -59,8 +60,17 @@ def register(main):
         if lookahead is not None:
             over["lookahead"] = lookahead or None
         m = es.Machine.from_model(pm, honour_file_limits=honour_file_limits, **over)
-        r = es.estimate_file(gcode, m, blocks=False)
+        fork = None
+        if forktime.is_annotated(gcode):          # a map upload: the fork's stops go in
+            fork = forktime.estimate_annotated(gcode, m, pm)
+            r = fork.result
+        else:
+            r = es.estimate_file(gcode, m, blocks=False)
         click.echo(f"printer: {pm.describe()}")
+        if fork is not None:
+            click.echo(fork.summary())
+            for note in fork.notes:
+                click.echo(f"note: {note}")
         click.echo(f"{gcode}: {r.summary()} ({r.total_s:.1f} s; {r.n_blocks} moves, "
                    f"dwell {r.dwell_s:.1f} s, filament {es.deposited_filament(r):.1f} mm)")
         width = max((len(k) for k in r.by_feature), default=0)

@@ -10,7 +10,7 @@ from pathlib import Path
 import click
 
 from ..bulge import mapformat as _mapformat
-from ._util import FINITE, NONNEG, POSITIVE, Num, friendly, pair
+from ._util import AT_HELP, FINITE, NONNEG, POSITIVE, Num, at_for, face_options, friendly, pair
 
 _IMAGE_EXT = {".png", ".jpg", ".jpeg", ".bmp", ".gif", ".tif", ".tiff", ".webp"}
 
@@ -23,8 +23,9 @@ def _stroke_options(fn):
         click.option("--font", default="futural", show_default=True, help="Hershey font of --text."),
         click.option("--letter-spacing", type=FINITE, default=0.0, show_default=True,
                      help="Extra mm between letters of --text."),
-        click.option("--at", callback=pair, default="0,0", show_default=True,
-                     help="U,V mm: where input goes (text baseline start, SVG/image lower-left)."),
+        click.option("--at", callback=pair,
+                     help="U,V mm: where input goes (text baseline start, SVG/image lower-left). "
+                          + AT_HELP),
         click.option("--scale", type=POSITIVE, default=1.0, show_default=True, help="Scale SVG/JSON input."),
         click.option("--mirror", is_flag=True, help="Mirror left-right (paint rollers)."),
         click.option("--curve-tolerance", "curve_tolerance", type=POSITIVE, default=0.05,
@@ -48,7 +49,9 @@ def collect_strokes(inputs, text, text_size, font, letter_spacing, at, scale, mi
     """Strokes from files (by extension) and --text, placed at `at`."""
     from ..bulge import strokes as st
     out = []
+    given = at
     for f in inputs:
+        at = at_for(given, f)
         ext = Path(f).suffix.lower()
         if ext == ".svg":
             out += st.load_svg(f, offset=at, scale=scale, tolerance_mm=curve_tolerance, dot_radius_mm=dot_radius,
@@ -64,6 +67,7 @@ def collect_strokes(inputs, text, text_size, font, letter_spacing, at, scale, mi
             raise st.InputError(f"{f}: unknown input type {ext or '(no extension)'!r}; "
                                 f"use .svg, .json or an image ({', '.join(sorted(_IMAGE_EXT))})")
     if text is not None:
+        at = at_for(given)
         out += st.text_strokes(text, text_size, spacing=letter_spacing, u0=at[0], v0=at[1], mirror=mirror,
                                font=font)
     return out
@@ -110,13 +114,15 @@ def register(group: click.Group) -> None:
     @click.option("--map", "map_file", type=click.Path(exists=True, dir_okay=False),
                   help="Show this bulge map (.bkm) instead of strokes (needs GCODE).")
     @_stroke_options
+    @face_options
     @click.option("--3d", "three_d", is_flag=True, help="3D view of the walls (needs GCODE).")
     @click.option("--wall-length", type=POSITIVE, help="Without GCODE: unrolled wall length, mm.")
     @click.option("--height", type=POSITIVE, help="Without GCODE: wall height, mm.")
     @click.option("--spacing", type=POSITIVE, help="Point spacing along strokes, mm [pipeline default / 1.0].")
     @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="PNG to write.")
     @friendly
-    def preview_cmd(gcode, inputs, map_file, three_d, wall_length, height, spacing, output, **kw):
+    def preview_cmd(gcode, inputs, map_file, three_d, wall_length, height, spacing, output, face, align,
+                    **kw):
         """Draw where the bulges go.
 
         \b
@@ -133,6 +139,11 @@ def register(group: click.Group) -> None:
             if not inputs and kw["text"] is None:
                 raise click.UsageError("give -s FILE and/or --text, or --map")
             strokes = collect_strokes(inputs, **kw)
+        if (face or align) and not (gcode and strokes):
+            raise click.UsageError("--face and --align need GCODE and strokes (the faces are the wall's)")
+        if strokes:
+            from ..bulge.strokes import on_face
+            strokes = on_face(strokes, face, align, at_for(kw["at"])[0])
         if not gcode:
             if three_d:
                 raise click.UsageError("--3d needs GCODE (the walls come from the sliced file)")
@@ -154,6 +165,8 @@ def register(group: click.Group) -> None:
             pts = [(p.x, p.y, p.z, p.u, p.layer, p.weight) for p in res.points]
             for note in res.notes:
                 click.echo(f"note: {note}")
+            for w in res.warnings:
+                click.echo(f"warning: {w}", err=True)
         if three_d:
             walls = [(w.z, w.xy) for w in model.walls]
             r = preview.preview_3d(walls, [(x, y, z, w) for x, y, z, _, _, w in pts], output,
@@ -164,7 +177,8 @@ def register(group: click.Group) -> None:
             length = max(w.length for w in model.walls)
             r = preview.preview_unrolled(rows, length, model.v_range[1], output,
                                          title=f"{Path(gcode).name}: unrolled outer wall",
-                                         layer_height=model.layer_height)
+                                         layer_height=model.layer_height,
+                                         marks=preview.wall_marks(model))
             click.echo(f"wrote {output}: {r['inside']} bulges")
 
     @group.command("send", short_help="Stream G-code / M-codes / a map to the printer.")

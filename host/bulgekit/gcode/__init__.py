@@ -2,8 +2,9 @@
 
 The parser follows Marlin's reading of G0/G1/G2/G3/G92/G90/G91/M82/M83:
 G90/G91 set every axis including E, M82/M83 then override E alone, G92 sets
-only the axes it names.  Arcs are linearised into chords (flagged on the
-moves) so walls printed with arc fitting still have a toolpath.
+only the axes it names.  Arcs are read as the chords Marlin 2.1 cuts them into
+(arc_segments; flagged on the moves), so walls printed with arc fitting have a
+toolpath, and the planner runs see what the printer does.
 
 Feature tags tell whether a move belongs to the outer wall.  Recognised:
   PrusaSlicer/SuperSlicer/Slic3r PE  ;TYPE:External perimeter  ;TYPE:Overhang perimeter
@@ -95,7 +96,18 @@ class Move:
 _WORD = re.compile(r"([A-Z])([^A-Z\s]*)")
 _NUM = re.compile(r"[-+]?(?:\d+\.?\d*|\.\d+)$")
 
-ARC_CHORD_MM = 0.5  # chord length used to linearise G2/G3 (Marlin uses 1 mm)
+# How Marlin 2.1.x cuts a G2/G3 into straight segments (plan_arc, gcode/motion/G2_G3.cpp), with
+# its Configuration_adv.h defaults (ARC_SEGMENTS_PER_SEC off): arc_segments. Every reader of arcs
+# takes its chords from here (the parser, so walls, planner runs and the stock file; the compiled
+# scanner's twin; the estimator), and the chords bulgekit writes in place of an arc are these.
+MAX_ARC_SEGMENT_MM = 1.0
+MIN_ARC_SEGMENT_MM = 0.1
+MIN_CIRCLE_SEGMENTS = 72
+# The farthest such a chord strays from its arc: a segment of at most 1 mm and 5 degrees (72 a
+# circle) has its largest sagitta, r (1 - cos 2.5 deg), where the two meet, r = 1 mm / 5 deg.
+ARC_CHORD_DEVIATION_MM = (MAX_ARC_SEGMENT_MM / math.radians(360 / MIN_CIRCLE_SEGMENTS)
+                          * (1 - math.cos(math.radians(180 / MIN_CIRCLE_SEGMENTS))))
+ARC_SEGMENTS_MAX = 10_000_000   # an arc longer than this many shortest segments: an error naming its line
 
 
 def parse_words(code: str, where: str, bare: bool = False) -> dict[str, float]:
@@ -268,7 +280,32 @@ def _arc(st: GcodeState, w: dict, no: int, cw: bool, where: str) -> list[Move]:
     x, y, z, e = _target(st, w)
     if "F" in w:
         st.f = w["F"]
-    x0, y0 = st.x, st.y
+    cx, cy, r0, a0, sweep, n = arc_geometry(st.x, st.y, x, y, w, cw, where)
+    out = []
+    zs, es = st.z, st.e
+    for i in range(1, n + 1):
+        t = i / n
+        if i == n:
+            px, py = x, y
+        else:
+            px, py = arc_point(cx, cy, r0, a0, sweep, t)
+        pz = zs + (z - zs) * t
+        pe = es + (e - es) * t
+        m = Move(st.n_moves, no, st.x, st.y, st.z, px, py, pz, pe - st.e, st.e,
+                 st.f, st.outer, st.role, arc=True)
+        st.n_moves += 1
+        st.x, st.y, st.z, st.e = px, py, pz, pe
+        out.append(m)
+    st.x, st.y, st.z, st.e = x, y, z, e
+    return out
+
+
+def arc_geometry(x0: float, y0: float, x: float, y: float, w: dict, cw: bool,
+                 where: str) -> tuple[float, float, float, float, float, int]:
+    """A G2 (cw) or G3 from (x0, y0) to (x, y) with the words w (I/J, or R: the shorter arc for
+    R > 0, the longer for R < 0, as Marlin): its centre, radius, start angle, sweep (radians,
+    negative clockwise; a whole turn when it ends where it starts) and how many segments Marlin
+    cuts it into (arc_segments). The chord ends are arc_point's at i/n, the last the end itself."""
     if "R" in w:
         r = w["R"]
         dx, dy = x - x0, y - y0
@@ -294,26 +331,35 @@ def _arc(st: GcodeState, w: dict, no: int, cw: bool, where: str) -> list[Move]:
     else:
         if sweep <= 1e-9:
             sweep += 2 * math.pi
-    length = abs(sweep) * r0
-    n = max(1, math.ceil(length / ARC_CHORD_MM))
-    out = []
-    zs, es = st.z, st.e
-    for i in range(1, n + 1):
-        t = i / n
-        if i == n:
-            px, py = x, y
-        else:
-            a = a0 + sweep * t
-            px, py = cx + r0 * math.cos(a), cy + r0 * math.sin(a)
-        pz = zs + (z - zs) * t
-        pe = es + (e - es) * t
-        m = Move(st.n_moves, no, st.x, st.y, st.z, px, py, pz, pe - st.e, st.e,
-                 st.f, st.outer, st.role, arc=True)
-        st.n_moves += 1
-        st.x, st.y, st.z, st.e = px, py, pz, pe
-        out.append(m)
-    st.x, st.y, st.z, st.e = x, y, z, e
-    return out
+    if not abs(r0 * sweep) <= ARC_SEGMENTS_MAX * MIN_ARC_SEGMENT_MM:     # (also inf, nan)
+        raise GcodeError(f"{where}: arc of radius {r0:g} mm is too long to cut into segments")
+    return cx, cy, r0, a0, sweep, arc_segments(r0, sweep)
+
+
+def arc_segments(radius: float, sweep: float) -> int:
+    """How many segments Marlin 2.1's plan_arc cuts an arc of `radius` (mm) turning `sweep`
+    (radians, finite) into, with its default settings: whole segments of MAX_ARC_SEGMENT_MM
+    (1 mm) and at least MIN_CIRCLE_SEGMENTS (72) to a whole turn; more when that leaves them
+    longer than 1 mm, fewer when shorter than MIN_ARC_SEGMENT_MM (0.1 mm). In double where Marlin
+    computes in float (an arc within about 1e-6 mm of a whole number of millimetres may get one
+    segment more or less there). _scan.c's arc_segments is this, operation for operation."""
+    a = abs(sweep)
+    flat = radius * a
+    min_seg = max(1, math.ceil(MIN_CIRCLE_SEGMENTS * (a / (2 * math.pi))))
+    nominal = max(math.floor(flat / MAX_ARC_SEGMENT_MM), min_seg)
+    nominal_mm = flat / nominal
+    if nominal_mm > MAX_ARC_SEGMENT_MM:
+        return math.ceil(flat / MAX_ARC_SEGMENT_MM)
+    if nominal_mm < MIN_ARC_SEGMENT_MM:
+        return max(1, math.floor(flat / MIN_ARC_SEGMENT_MM))
+    return nominal
+
+
+def arc_point(cx: float, cy: float, r0: float, a0: float, sweep: float, t: float) -> tuple[float, float]:
+    """The point a fraction t of the way along an arc (arc_geometry's centre, radius, start angle
+    and sweep): where Marlin's segment i of n ends, t = i / n."""
+    a = a0 + sweep * t
+    return cx + r0 * math.cos(a), cy + r0 * math.sin(a)
 
 
 def check_text(data, source: str = "<gcode>") -> None:
@@ -403,7 +449,7 @@ def might_hold(data: bytes, words) -> bool:
     return any(w in data for w in words) or b"M0" in data or b"m0" in data
 
 
-SCAN_VERSION = 10     # the compiled scanner's VERSION this code calls (_scan.c's module init)
+SCAN_VERSION = 11     # the compiled scanner's VERSION this code calls (_scan.c's module init)
 
 
 SCAN_REBUILD = "cd host && python3 setup.py build_ext --inplace (or make deps)"

@@ -2,7 +2,7 @@
  *
  * A Scanner keeps the machine state (positions, G90/G91, M82/M83, the feature role) across the
  * chunks of one file and turns each chunk's complete lines into fixed-size move records, one per
- * G0/G1 and one per chord of a G2/G3 (gcode.ARC_CHORD_MM), with exactly the numbers gcode/__init__.py
+ * G0/G1 and one per chord of a G2/G3 (Marlin's segments, gcode.arc_segments), with exactly the numbers gcode/__init__.py
  * computes: the same line splitting (\n, \r\n and a lone \r, as Python's universal newlines), the
  * same words (letters split words, so "1e5" is two words), decimal values converted by strtod
  * (correctly rounded, as float()), the same arc arithmetic (math.hypot is Python's own, so it is
@@ -70,7 +70,7 @@ typedef struct {
     PyThreadState *ts; /* feed() runs without the GIL: its thread state, for hold() */
     int needed;        /* hold() was called (feed() keeps the GIL a while after) */
     int busy;          /* in feed() */
-    double chord;
+    long long arcs;    /* G2/G3 lines read so far */
     int events;        /* gcode/estimate.py's mode: see event_line() */
     int lean;          /* annotate's reach check in marked mode (1), build's passes (2): see emit() */
     long long moves;   /* records made so far, kept or not (lean 2: each kept one's number) */
@@ -413,7 +413,23 @@ static int py_hypot(Scanner *s, double a, double b, double *out) {
     return 0;
 }
 
-/* gcode._arc, operation for operation. */
+/* gcode.arc_segments, operation for operation: how many segments Marlin 2.1 cuts an arc into. */
+static double arc_segments(double radius, double sweep) {
+    double a = fabs(sweep), flat = radius * a;
+    double min_seg = ceil(72 * (a / (2 * M_PI)));
+    if (min_seg < 1) min_seg = 1;
+    double nominal = floor(flat / 1.0);
+    if (nominal < min_seg) nominal = min_seg;
+    double nominal_mm = flat / nominal;
+    if (nominal_mm > 1.0) return ceil(flat / 1.0);
+    if (nominal_mm < 0.1) {
+        double n = floor(flat / 0.1);
+        return n < 1 ? 1 : n;
+    }
+    return nominal;
+}
+
+/* gcode._arc (with gcode.arc_geometry and arc_point), operation for operation. */
 static int arc(Scanner *s, const char *line, Words *w, int cw) {
     double x, y, z, e;
     target(s, w, &x, &y, &z, &e);
@@ -444,10 +460,9 @@ static int arc(Scanner *s, const char *line, Words *w, int cw) {
     } else {
         if (sweep <= 1e-9) sweep += 2 * M_PI;
     }
-    double length = fabs(sweep) * r0;
-    double c = ceil(length / s->chord);
-    if (!isfinite(c) || c > 1e7) return unsupported(s);
-    long n = c < 1 ? 1 : (long)c;
+    /* (gcode.ARC_SEGMENTS_MAX * MIN_ARC_SEGMENT_MM: longer, inf or nan is gcode's error) */
+    if (!(fabs(r0 * sweep) <= 10000000 * 0.1)) return unsupported(s);
+    long n = (long)arc_segments(r0, sweep);
     double zs = s->z, es = s->e;
     for (long i = 1; i <= n; i++) {
         double t = (double)i / (double)n, px, py;
@@ -461,6 +476,7 @@ static int arc(Scanner *s, const char *line, Words *w, int cw) {
         if (emit(s, line, px, py, zs + (z - zs) * t, es + (e - es) * t, 1) < 0) return -1;
     }
     s->x = x; s->y = y; s->z = z; s->e = e;
+    if (!s->quiet) s->arcs++;
     return 0;
 }
 
@@ -890,11 +906,10 @@ static PyObject *Scanner_feed(Scanner *s, PyObject *args) {
 }
 
 static int Scanner_init(Scanner *s, PyObject *args, PyObject *kw) {
-    static char *kwlist[] = {"outer_roles", "s3d_roles", "classify", "chord", "events", "lean", NULL};
+    static char *kwlist[] = {"outer_roles", "s3d_roles", "classify", "events", "lean", NULL};
     PyObject *outer, *s3d, *classify;
-    double chord = 0.5;
     int events = 0, lean = 0;
-    if (!PyArg_ParseTupleAndKeywords(args, kw, "OOO|dpi", kwlist, &outer, &s3d, &classify, &chord,
+    if (!PyArg_ParseTupleAndKeywords(args, kw, "OOO|pi", kwlist, &outer, &s3d, &classify,
                                      &events, &lean))
         return -1;
     if (s->busy) {
@@ -925,7 +940,7 @@ static int Scanner_init(Scanner *s, PyObject *args, PyObject *kw) {
     s->outer = 0;
     s->line_no = 0;
     s->pending_cr = 0;
-    s->chord = chord;
+    s->arcs = 0;
     Py_XSETREF(s->roles, PyList_New(0));
     Py_XSETREF(s->outer_roles, PyFrozenSet_New(outer));
     Py_XSETREF(s->s3d_roles, PyFrozenSet_New(s3d));
@@ -983,6 +998,11 @@ static PyObject *Scanner_lines(Scanner *s, void *c) {
     return PyLong_FromLong(s->line_no);
 }
 
+static PyObject *Scanner_arcs(Scanner *s, void *c) {
+    (void)c;
+    return PyLong_FromLongLong(s->arcs);
+}
+
 static PyObject *Scanner_flagged(Scanner *s, void *c) {
     (void)c;
     return PyLong_FromLong(s->flagged);
@@ -1024,6 +1044,7 @@ static PyGetSetDef Scanner_getset[] = {
      "lean 2: the move numbers (int64) of the last feed's records, counting every move (else None)",
      NULL},
     {"flagged", (getter)Scanner_flagged, NULL, "lines so far that may be bulgekit's or an M92", NULL},
+    {"arcs", (getter)Scanner_arcs, NULL, "G2/G3 lines read so far (not counting events)", NULL},
     {"line_ends", (getter)Scanner_line_ends, NULL,
      "(\\n, \\r, \\r\\n) bytes and pairs so far: bytes.count's of the data consumed", NULL},
     {NULL, NULL, NULL, NULL, NULL}};
@@ -1586,6 +1607,6 @@ PyMODINIT_FUNC PyInit__scan(void) {
     PyModule_AddObject(m, "Scanner", (PyObject *)&ScannerType);
     PyModule_AddIntConstant(m, "RECORD_SIZE", (long)sizeof(Record));
     /* what gcode.SCAN_VERSION expects: a module built from an older _scan.c is not used */
-    PyModule_AddIntConstant(m, "VERSION", 10);
+    PyModule_AddIntConstant(m, "VERSION", 11);
     return m;
 }

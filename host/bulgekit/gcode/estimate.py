@@ -64,8 +64,8 @@ The planner empties (the machine stops) at G4, G28, M400 and the heating waits M
 moves before brake to a stop and the ones after start from rest (the drain's cost), the dwell
 itself is added; the time the host takes to fill the queue again is not modelled. Not
 modelled either: Marlin's slow-down when the buffer runs low (a host that keeps it full: SD
-card, or a fast enough serial line), LIN_ADVANCE, S-curve acceleration, arcs' exact segment
-count (G2/G3 are cut into pieces of at most 1 mm, as MAX_ARC_SEGMENT_MM).
+card, or a fast enough serial line), LIN_ADVANCE, S-curve acceleration. G2/G3 are cut into Marlin
+2.1's own segments (gcode.arc_segments: at most 1 mm, at least 72 to a turn).
 """
 from __future__ import annotations
 
@@ -81,7 +81,8 @@ import numpy as np
 
 from ..errors import BulgekitError
 from ..machine import DEFAULT as _PM, PrinterModel
-from . import GcodeError, check_file_ends, command_of, parse_words, refuse_cut_off, split_code
+from . import (GcodeError, arc_geometry, arc_point, check_file_ends, command_of, parse_words,
+               refuse_cut_off, split_code)
 
 PLAN_VERSION = 1       # the compiled planner's VERSION this code calls (_plan.c's module init)
 
@@ -450,8 +451,6 @@ class _Parser:
         self.e_at = _lround(self.pos[3] * spm["E"])
 
     def arc(self, n, cw, w):
-        if "R" in w:
-            self.err(n, "G2/G3 with R is not supported by the estimator (use I/J)")
         x0, y0 = self.pos[0], self.pos[1]
         if w.get("F"):
             self.f = w["F"] / 60
@@ -460,23 +459,17 @@ class _Parser:
         y1 = (y0 + w["Y"] if self.rel[1] else w["Y"]) if w.get("Y") is not None else y0
         z1 = (self.pos[2] + w["Z"] if self.rel[2] else w["Z"]) if w.get("Z") is not None else self.pos[2]
         e1 = (self.pos[3] + w["E"] if self.rel[3] else w["E"]) if w.get("E") is not None else self.pos[3]
-        cx, cy = x0 + (w.get("I") or 0.0), y0 + (w.get("J") or 0.0)
-        r = math.hypot(x0 - cx, y0 - cy)
-        a0, a1 = math.atan2(y0 - cy, x0 - cx), math.atan2(y1 - cy, x1 - cx)
-        sweep = a1 - a0
-        if cw and sweep >= 0:
-            sweep -= 2 * math.pi
-        elif not cw and sweep <= 0:
-            sweep += 2 * math.pi
-        segs = max(1, math.ceil(abs(sweep) * r / 1.0))      # MAX_ARC_SEGMENT_MM 1
+        try:                                    # Marlin's segments, as every reader cuts them
+            cx, cy, r, a0, sweep, segs = arc_geometry(x0, y0, x1, y1, w, cw, f"{self.src}:{n}")
+        except GcodeError as e:
+            raise EstimateError(str(e)) from None
         z0, e0 = self.pos[2], self.pos[3]
         px, py = x0, y0
         for k in range(1, segs + 1):
-            t = k / segs
             if k == segs:
                 nx, ny = x1, y1
             else:
-                nx, ny = cx + r * math.cos(a0 + sweep * t), cy + r * math.sin(a0 + sweep * t)
+                nx, ny = arc_point(cx, cy, r, a0, sweep, k / segs)
             self.emit(n, [nx - px, ny - py, (z1 - z0) / segs, (e1 - e0) / segs])
             px, py = nx, ny
         self.pos = [x1, y1, z1, e1]
@@ -1054,7 +1047,7 @@ def _estimate_scanned(path: str, m: Machine, source: str, blocks: bool = True) -
     plan = _Planner(m, source, blocks)
     if movescan._scan is None:
         raise movescan.Unsupported("bulgekit.gcode._scan is not built")
-    sc = movescan._scan.Scanner((), (), movescan._classify, 1.0, events=True)
+    sc = movescan._scan.Scanner((), (), movescan._classify, events=True)
     base, buf = 0, b""
 
     def text_at(off: int) -> str:

@@ -144,12 +144,19 @@ class Chunks:
     """What consume gets: iterate for RECORD arrays (moves in file order); `roles` names the
     role indices seen so far (complete once iteration ends); `lines` counts the lines read;
     `flagged` the lines read that gcode.check_not_processed's or scan_m92's regexes may match
-    (the compiled scanner's count, a superset; None from the Python parser or a kept Scan)."""
+    (the compiled scanner's count, a superset; None from the Python parser or a kept Scan);
+    `arcs` the G2/G3 lines read. A line's moves (an arc's chords) are all in one chunk."""
 
     def __init__(self, it: Iterator[np.ndarray], roles: list[str], lines: Callable[[], int],
                  flagged: Callable[[], int] | None = None, tops: list | None = None,
-                 numbers: list | None = None):
+                 numbers: list | None = None, arcs: Callable[[], int] = lambda: 0,
+                 all_arcs: bool = True):
         self._it, self.roles, self._lines, self._flagged = it, roles, lines, flagged
+        self._arcs = arcs
+        # lean chunks hold every arc chord (run(..., lean=2), a kept Scan's), or (lean=1) only
+        # the extruding ones and no travel arc after the outer wall: what a run that bypasses
+        # arcs (fallback.plan_records' arcs_bypass) needs, and no more
+        self.all_arcs = all_arcs
         # lean chunks (run(..., lean=True) with the compiled scanner): the records annotate's
         # lazy reach check can plan only, and per part of the file read, what classes() would
         # give as top_not_arc on all its moves (filled as iteration goes); else None
@@ -175,6 +182,10 @@ class Chunks:
     @property
     def flagged(self) -> int | None:
         return None if self._flagged is None else self._flagged()
+
+    @property
+    def arcs(self) -> int:
+        return self._arcs()
 
 
 def _consume(consume: Callable[[Chunks], T], chunks: Chunks) -> T:
@@ -266,22 +277,22 @@ def _classify(text: str):
     return False, gcode.feature_of_comment(comment) if comment is not None else None
 
 
-def _fast(path, lean: bool = False) -> Chunks:
+def _fast(path, lean: int = 0) -> Chunks:
     assert _scan is not None and _scan.RECORD_SIZE == RECORD.itemsize
     sc = _scan.Scanner(sorted(gcode.OUTER_ROLES), sorted(gcode._S3D_ROLES), _classify,
-                       gcode.ARC_CHORD_MM, lean=lean)
+                       lean=lean)
     # the role names, lines and flagged lines as of the part the caller has: the scanner (on the
     # read-ahead thread, _ahead) may be a part further on
     roles: list[str] = []
     tops: list | None = [] if lean else None
-    seen = [0, 0]                             # lines, flagged
+    seen = [0, 0, 0]                          # lines, flagged, arcs
 
     def part(data, final: bool, base: int):
         """One feed of the scanner: (its records (None: none), the scanner's counts after it),
         and the bytes it used."""
         recs, used = sc.feed(data, final, base)
         a = np.frombuffer(recs, dtype=RECORD) if recs else None   # read-only, not copied
-        return (a, (sc.lines, sc.flagged, len(sc.roles), sc.top if lean else None)), used
+        return (a, (sc.lines, sc.flagged, len(sc.roles), sc.top if lean else None, sc.arcs)), used
 
     def parts_bytes():
         # G-code in memory: windows of it, not copies (a line longer than a window widens it)
@@ -308,21 +319,23 @@ def _fast(path, lean: bool = False) -> Chunks:
             if _use_ahead(size):
                 parts = _ahead(parts)
                 stack.callback(parts.close)   # (the worker stopped before the file is closed)
-            for a, (lines, flagged, n_roles, top) in parts:
-                seen[:] = lines, flagged
+            for a, (lines, flagged, n_roles, top, arcs) in parts:
+                seen[:] = lines, flagged, arcs
                 roles.extend(sc.roles[len(roles):n_roles])
                 if lean:
                     tops.append(top)
                 if a is not None:
                     yield a
                 progress.tick(lines)
-    return Chunks(gen(), roles, lambda: seen[0], lambda: seen[1], tops)
+    return Chunks(gen(), roles, lambda: seen[0], lambda: seen[1], tops, arcs=lambda: seen[2],
+                  all_arcs=lean != 1)
 
 
 def from_moves(moves, roles: list[str] | None = None,
                state: gcode.GcodeState | None = None) -> Iterator[np.ndarray]:
     """gcode.Move objects as RECORD arrays (role indices into `roles`, which it fills; the
-    G90/M82 flags from `state`, the parser's state as each move is made, else absolute)."""
+    G90/M82 flags from `state`, the parser's state as each move is made, else absolute). A
+    line's moves (an arc's chords) are not cut between two arrays."""
     roles = [] if roles is None else roles
     role_ix = {r: i for i, r in enumerate(roles)}
     rows = []
@@ -335,23 +348,25 @@ def from_moves(moves, roles: list[str] | None = None,
                 roles.append(m.role)
         modes = ABS_XYZ | ABS_E if state is None else (
             (ABS_XYZ if state.abs_xyz else 0) | (ABS_E if state.abs_e else 0))
-        rows.append((m.x0, m.y0, m.z0, m.x1, m.y1, m.z1, m.e, m.e_start, m.f, -1,
-                     m.line_no, r, (OUTER if m.outer else 0) | (ARC if m.arc else 0) | modes, 0))
-        if len(rows) >= 65536:
+        if len(rows) >= 65536 and m.line_no != rows[-1][10]:
             yield np.array(rows, dtype=RECORD)
             rows = []
+        rows.append((m.x0, m.y0, m.z0, m.x1, m.y1, m.z1, m.e, m.e_start, m.f, -1,
+                     m.line_no, r, (OUTER if m.outer else 0) | (ARC if m.arc else 0) | modes, 0))
     if rows:
         yield np.array(rows, dtype=RECORD)
 
 
 def _slow(path, source: str) -> Chunks:
     roles: list[str] = []
-    count = [0]
+    count = [0, 0]                            # lines, arcs
     st = gcode.GcodeState()
 
     def moves(f):
         for ln in gcode.parse_lines(f, source, st):
             count[0] = ln.line_no
+            if ln.moves and ln.moves[0].arc:
+                count[1] += 1
             yield from ln.moves
 
     def gen():
@@ -361,7 +376,7 @@ def _slow(path, source: str) -> Chunks:
             f = open(path, "r", encoding="utf-8", errors="replace", newline="")
         with f:
             yield from from_moves(moves(f), roles, st)
-    return Chunks(gen(), roles, lambda: count[0])
+    return Chunks(gen(), roles, lambda: count[0], arcs=lambda: count[1])
 
 
 ENDS = 1 << 21                 # bytes of each end kept as text (gcode.open_checked's default)
@@ -399,6 +414,7 @@ class Scan:
         self.tops: list = []                   # lean: Chunks.tops, per chunk
         self.m92: list[tuple[int, float]] = []
         self.lines = 0
+        self.arcs = 0                          # G2/G3 lines
         self._classes: dict[int, tuple] = {}       # classes() of chunk k (non-empty ones), once
         self._held: list[bytes] | None = [] if self.lean else None   # lean, in memory: per
         self._held_bytes = 0                   # chunk its records' bytes, then its numbers'
@@ -430,7 +446,7 @@ class Scan:
         sc = None
         if self.fast:
             sc = _scan.Scanner(sorted(gcode.OUTER_ROLES), sorted(gcode._S3D_ROLES), _classify,
-                               gcode.ARC_CHORD_MM, lean=2 if self.lean else 0)
+                               lean=2 if self.lean else 0)
             self.roles = sc.roles
         n_cr = n_crlf = nl = 0
         plain = True
@@ -527,7 +543,7 @@ class Scan:
         self.ends = head.decode("utf-8", "replace") + "\n" + (tail.decode("utf-8", "replace") if size > ENDS else "")
         self._complete(tail)
         if sc is not None:
-            self.lines = sc.lines
+            self.lines, self.arcs = sc.lines, sc.arcs
         else:                                  # the Python parser's records (no offsets)
             if self._store is None:
                 self._store = tempfile.TemporaryFile()
@@ -538,7 +554,7 @@ class Scan:
             for a in ch:
                 self._store.write(a.tobytes())
                 self.chunks.append((len(a), ch.lines))
-            self.roles, self.lines = ch.roles, ch.lines
+            self.roles, self.lines, self.arcs = ch.roles, ch.lines, ch.arcs
 
     def _complete(self, tail: bytes) -> None:
         """gcode.check_complete's line-end check, on the file's last bytes."""
@@ -582,7 +598,8 @@ class Scan:
             _REPLAYED = None
             done[0] = self.lines
         return consume(Chunks(gen(), list(self.roles), lambda: done[0],
-                              tops=list(self.tops) if self.lean else None, numbers=numbers))
+                              tops=list(self.tops) if self.lean else None, numbers=numbers,
+                              arcs=lambda: self.arcs))
 
     def text_lines(self) -> Iterator[str]:
         """The file's lines as text (what gcode.open_checked's iterator gives), opened lazily."""
@@ -645,13 +662,14 @@ def kept(path) -> Scan | None:
 
 
 def run(path, consume: Callable[[Chunks], T], source: str | None = None,
-        fast: bool | None = None, lean: bool = False) -> T:
+        fast: bool | None = None, lean: int = 0) -> T:
     """consume(chunks) over the moves of the file at path (or of G-code bytes); see the module
     comment. fast=False forces the Python parser (tests compare the two); fast=True the compiled
     one only (Unsupported when it leaves the file to the Python parser). A file a Scan in force
     has read is not read again (fast=False still reads it with the Python parser). lean: the
-    compiled scanner gives only the records annotate's lazy reach check plans (Chunks.tops);
-    the Python parser gives them all, a kept Scan those it holds (Scan's lean)."""
+    compiled scanner gives only the records annotate's lazy reach check plans (Chunks.tops;
+    lean=2: and every arc chord, Chunks.all_arcs); the Python parser gives them all, a kept Scan
+    those it holds (Scan's lean)."""
     sc = kept(path)
     if sc is not None and fast is not False:
         return sc.run(consume, fast)
@@ -664,7 +682,7 @@ def run(path, consume: Callable[[Chunks], T], source: str | None = None,
             raise Unsupported("bulgekit.gcode._scan is not built")
     if use:
         try:
-            return _consume(consume, _fast(path, lean))
+            return _consume(consume, _fast(path, int(lean)))
         except _scan.ScanUnsupported as e:
             if fast:
                 raise Unsupported(f"line {e.args[0]}") from None

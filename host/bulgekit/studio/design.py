@@ -37,8 +37,8 @@ from ..errors import BulgekitError, InputError
 
 _ENTRY_RX = re.compile(r"(?:^|: )((text|strokes)\[(\d+)\])")   # a placement entry, "text[0]"
 # Fields the page may set per item kind, as the placement file names them.
-_TEXT_FIELDS = ("text", "at", "size", "font", "letter_spacing", "mirror", "rotate")
-_FILE_FIELDS = ("at", "scale", "image_width", "curve_tolerance", "rotate")
+_TEXT_FIELDS = ("text", "at", "size", "font", "letter_spacing", "mirror", "rotate", "face", "align")
+_FILE_FIELDS = ("at", "scale", "image_width", "curve_tolerance", "rotate", "face", "align")
 _BULGE_FIELDS = ("dwell", "extra", "tolerance", "geometric", "spacing", "line_width", "fallback",
                  "stop", "e_steps", "stop_e_steps")
 IMAGE_EXT = {".png", ".jpg", ".jpeg", ".bmp", ".gif", ".tif", ".tiff", ".webp"}
@@ -108,6 +108,11 @@ def entries(design: dict, assets: dict[str, Asset]) -> tuple[list[dict], list[di
                 t["at"] = [_num(x, f"item {iid}: at") for x in v]
             elif f in ("size", "letter_spacing", "scale", "image_width", "curve_tolerance", "rotate"):
                 t[f] = _num(v, f"item {iid}: {f}")
+            elif f == "face":
+                n = _num(v, f"item {iid}: face")
+                if n != int(n) or n < 1:
+                    raise DesignError(f"item {iid}: face: expected a whole number from 1, got {v!r}")
+                t[f] = int(n)
     return texts, files, tids + fids
 
 
@@ -211,6 +216,19 @@ def _entry_name(msg: str) -> str | None:
     return m.group(1) if m else None
 
 
+def _item_message(msg: str, texts: int, entries: int) -> tuple[int | None, str]:
+    """(the entry a message about a placement file is about: its index among the file's
+    entries, texts first, or None; the message, without the entry when it has one)."""
+    ent = _entry_of(msg)
+    if ent is None:
+        return None, msg
+    kind, n = ent
+    k = n if kind == "text" else texts + n
+    if k >= entries:
+        return None, msg
+    return k, _ENTRY_RX.sub("", msg, count=1).lstrip(": ").strip() or msg
+
+
 @dataclass
 class Preview:
     items: dict = field(default_factory=dict)     # id -> {"strokes": [[u, v, ...]], "errors": [], "warnings": []}
@@ -260,27 +278,24 @@ def preview(design: dict, assets: dict[str, Asset], model, gcode: Path, scratch:
             break
         except (PlacementError, InputError, BuildError) as e:
             pl = res = None
-            msg = str(e).replace(f"{path}: ", "")
-            ent = _entry_of(msg)
-            if ent is None:
+            k, msg = _item_message(str(e).replace(f"{path}: ", ""), len(t_live), len(live_ids))
+            if k is None:
                 out.errors.append(msg)
                 break
-            kind, n = ent
-            k = n if kind == "text" else len(t_live) + n
-            if k >= len(live_ids):
-                out.errors.append(msg)
-                break
-            out.items[live_ids[k]]["errors"].append(_ENTRY_RX.sub("", msg, count=1).lstrip(": ").strip()
-                                                    or msg)
+            out.items[live_ids[k]]["errors"].append(msg)
             del live[k]
     if pl is None:
         return out
-    # strokes per item, for drawing (the entries that drew are the live items, in file order)
+    # strokes per item as placed (on its face, if it names one), for drawing (the entries that
+    # drew are the live items, in file order)
     by_entry = dict(zip(pl.entries, (ids[k] for k in live)))
-    for st in pl.strokes:
+    for st in res.strokes:
         out.items[by_entry[_entry_name(st.source)]]["strokes"].append(
             [round(c, 3) for p in st.points for c in p])
     out.warnings += res.notes
+    for w in res.warnings:                       # crossing a corner, on the first layer
+        k, msg = _item_message(w.replace(f"{path}: ", ""), len(t_live), len(live_ids))
+        (out.warnings if k is None else out.items[live_ids[k]]["warnings"]).append(msg)
     walls = model.walls
     for over, pts in ((False, res.points), (True, res.over_points)):
         for p in pts:
@@ -414,7 +429,8 @@ def export(design: dict, assets: dict[str, Asset], gcode: Path, folder: Path, na
 
 def wall_view(model, max_vertices: int = 250_000) -> dict:
     """The outer walls for the page: per layer its z, bead height, length and u extent, and
-    (every k-th layer, within a vertex budget) its path in 3D."""
+    (every k-th layer, within a vertex budget) its path in 3D; their corners and faces
+    (preview.wall_marks: corner lines, face numbers and the runs of layers with their faces)."""
     total = sum(len(w.xy) for w in model.walls)
     stride = max(1, math.ceil(total / max_vertices))
     layers = []
@@ -428,6 +444,13 @@ def wall_view(model, max_vertices: int = 250_000) -> dict:
         layers.append(row)
     xy = np.concatenate([w.xy for w in model.walls])
     lo, hi = model.v_range
-    return {"layers": layers, "v_range": [lo, hi], "geometric": model.geometric,
+    from ..bulge.preview import wall_marks
+    marks = wall_marks(model)
+    r3 = lambda x: round(float(x), 3)
+    marks = {"corners": [[r3(u), r3(a), r3(b)] for u, a, b in marks["corners"]],
+             "faces": [[r3(u), r3(v), n] for u, v, n in marks["faces"]],
+             "runs": [[r3(a), r3(b), [[f.number, r3(f.u0), r3(f.u1)] for f in fs]]
+                      for a, b, fs in marks["runs"]]}
+    return {"layers": layers, "v_range": [lo, hi], "geometric": model.geometric, "marks": marks,
             "bounds": [float(xy[:, 0].min()), float(xy[:, 1].min()), float(xy[:, 0].max()),
                        float(xy[:, 1].max())]}

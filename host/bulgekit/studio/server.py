@@ -49,8 +49,9 @@ def check_assets() -> None:
     missing = [f for f in VENDOR_FILES if not (STATIC / "vendor" / f).is_file()]
     if missing:
         raise AssetsMissing(
-            f"the studio's front-end files are missing ({', '.join(missing)} in {STATIC / 'vendor'}): "
-            "run `python3 host/web/build.py` (it takes three.js from npm) and install the package again")
+            f"the studio's front-end files are missing ({', '.join(missing)} in {STATIC / 'vendor'}; "
+            "the package was built without npm): install npm, then the package again "
+            "(its build runs host/web/build.py, which takes three.js from npm)")
 
 
 @dataclass

@@ -232,27 +232,29 @@ def test_map_for_another_print_is_refused():
         annotate_bytes(g.encode(), m, Settings())
 
 
-def test_points_on_arcs_are_refused_with_the_reason():
-    # The firmware does not split G2/G3 (Marlin cuts arcs past our hook): a
-    # point only an arc passes is never reached, and the message says why.
+def test_points_on_arcs_are_reached_through_the_chords_annotate_writes():
+    # The firmware does not split G2/G3 (Marlin cuts arcs past our hook): the arc through a
+    # point is written as G1 chords, so both points are reached, as in the stock fallback; the
+    # arc that carries none stays an arc.
     from bulgekit.bulge.annotate import check_reach
-    g = ("G90\nM83\nG1 Z0.3 F600\n;TYPE:External perimeter\nG1 X0 Y0 F1800\n"
-         "G2 X20 Y0 I10 J0 E2\nG1 X0 Y0 E1.5\n")
-    m = mapformat.encode_map([(0.3, [(10.0, 10.0), (5.0, 0.0)])])
-    msg = check_reach(g.encode(), m, Settings(), "t.gcode")
-    assert re.search(r"^t.gcode: 1 of 2 map points .*1 of them lie on G2/G3 arcs "
-                     r"\(the first on line 6\).*arc fitting", msg)
-    # the stock fallback linearises arcs, so it reaches both
     from bulgekit.bulge.fallback import RewriteResult, rewrite
+    g = ("G90\nM83\nG1 Z0.3 F600\n;TYPE:External perimeter\nG1 X0 Y0 F1800\n"
+         "G2 X20 Y0 I10 J0 E2\nG1 X0 Y0 E1.5\nG2 X20 Y0 I10 J0 E2\n")
+    m = mapformat.encode_map([(0.3, [(10.0, 10.0), (5.0, 0.0)])])
+    assert check_reach(g.encode(), m, Settings(), "t.gcode") is None
+    out = annotate_bytes(g.encode(), m, Settings(), source="t.gcode").decode()
+    assert [l for l in out.splitlines() if l.startswith("G2")] == ["G2 X20 Y0 I10 J0 E2"]
+    assert "; bulgekit: 1 G2/G3 arc through map points written as 36 G1 chords" in out
     res = RewriteResult()
     "".join(rewrite(g.splitlines(keepends=True), mapformat.decode_map(m), Settings(), "t.gcode", res))
     assert res.stats.points_fired == 2
 
 
-def test_arc_after_a_wall_edge_leaves_a_deferred_point_to_a_later_move():
-    # (10.2, 0) lies beyond the first edge's end: deferred. The arc moves the
-    # head away (the firmware's core never sees it), so it does not stop at
-    # (10, 0) later; a move that passes the point takes it.
+def test_arc_after_a_wall_edge_takes_the_point_deferred_to_it():
+    # (10.2, 0) lies beyond the first edge's end: deferred. Were the arc left an arc, the
+    # firmware would never see it (the next G1 starts elsewhere, so the point waits for a move
+    # that passes it, line 9); the deferral crosses the arc, so annotate writes it as chords
+    # and its first chord, which passes within the tolerance, stops the point.
     from bulgekit.bulge.annotate import check_reach
     from bulgekit.bulge.fallback import RefPlanner
     from bulgekit.gcode import parse_lines
@@ -260,11 +262,21 @@ def test_arc_after_a_wall_edge_leaves_a_deferred_point_to_a_later_move():
          "G1 X10 Y0 E1\nG2 X30 Y0 I10 J0 E2\nG1 X10.2 Y-5\nG1 X10.2 Y5 E1\n")
     m = mapformat.encode_map([(0.3, [(10.2, 0.0)])])
     assert check_reach(g.encode(), m, Settings(), "t.gcode") is None
-    ref = RefPlanner(mapformat.decode_map(m), Settings())
-    for ln in parse_lines(g.splitlines(keepends=True), "t.gcode"):
-        for mv in ln.moves:
-            ref.bypass(mv) if mv.arc else ref.plan(mv)
-    assert [(s.line_no, round(s.x, 4), round(s.y, 4)) for s in ref.stops] == [(9, 10.2, 0.0)]
+
+    def stops(text):
+        ref = RefPlanner(mapformat.decode_map(m), Settings())
+        for ln in parse_lines(text.splitlines(keepends=True), "t.gcode"):
+            for mv in ln.moves:
+                if not mv.arc:                 # (the firmware never sees an arc)
+                    ref.plan(mv)
+        return [(s.line_no, round(s.x, 4), round(s.y, 4)) for s in ref.stops]
+    assert stops(g) == [(9, 10.2, 0.0)]
+    out = annotate_bytes(g.encode(), m, Settings(), source="t.gcode").decode()
+    assert not re.search(r"^G2", out, re.M)
+    got = stops(out)
+    # (its foot is 0.01 mm along the chord: the stop is where the head already is, the chord's start)
+    assert len(got) == 1 and got[0][1:] == (10.0, 0.0)
+    assert out.splitlines()[got[0][0] - 1].startswith("G1 X10.03805 Y0.87156 ")
 
 
 @pytest.mark.parametrize("name", ["prusa_cyl.gcode", "prusa_cyl_m83.gcode", "cura_cyl.gcode",
@@ -294,7 +306,8 @@ def test_fast_reach_check_says_what_the_reference_planner_says(name):
         ref = RefPlanner(mapformat.decode_map(m), settings)
         for ln in parse_lines(data.decode().splitlines(keepends=True), str(g)):
             for mv in ln.moves:
-                ref.bypass(mv) if mv.arc else ref.plan(mv)
+                if not mv.arc:
+                    ref.plan(mv)
         assert check_reach(data, m, settings, str(g)) == unreached_message(ref, str(g))
     assert check_reach(data, good, settings, str(g)) is None
     assert check_reach(data, wrong, settings, str(g)) is not None

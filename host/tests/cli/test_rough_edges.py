@@ -160,6 +160,7 @@ def test_progress_ticks_on_a_long_file(tmp_path):
     progress._state = None
     try:
         with progress.phase("test pass", total_lines=50000):
+            progress._state[3] = 0.0                  # the first tick draws at once
             for i, _ in enumerate(parse_lines(f"G1 X{i % 100} Y1 E0.1\n" for i in range(50000))):
                 if i % 16384 == 16383:
                     progress._state[3] = 0.0          # let the next tick draw at once
@@ -167,3 +168,52 @@ def test_progress_ticks_on_a_long_file(tmp_path):
         progress.disable()
     assert "test pass:  32 % (16,384 of 50,000 lines)" in buf.getvalue()
     assert "test pass: done in" in buf.getvalue()
+
+
+def test_progress_shows_a_rate_only_after_a_second(monkeypatch):
+    """A pass that jumps through records it holds drew '43,955,334 lines/s' at its first tick: the
+    rate and the time left now come once the pass has run RATE_AFTER_S."""
+    import io
+    from bulgekit import progress
+    clock = [100.0]
+    monkeypatch.setattr(progress.time, "perf_counter", lambda: clock[0])
+    buf = io.StringIO()
+    progress.enable(buf)
+    try:
+        with progress.phase("pass", total_lines=1000):
+            clock[0] += 0.1
+            progress.tick(900)                      # before 0.2 s: nothing drawn
+            assert buf.getvalue() == ""
+            clock[0] += 0.2
+            progress.tick(950)                      # 0.3 s: percent only
+            assert "pass:  95 % (950 of 1,000 lines)" in buf.getvalue() and "lines/s" not in buf.getvalue()
+            clock[0] += 1.7
+            progress.tick(1000)                     # 2 s: 500 lines/s
+            assert "1,000 of 1,000 lines), 500 lines/s, 0 s left" in buf.getvalue()
+    finally:
+        progress.disable()
+
+
+def test_svg_text_and_fill_are_said_in_builds_words(tmp_path):
+    """An SVG <text> is refused with the build's own option named (not `strokes --text`), skipped
+    with a warning under build --skip-unsupported; a filled shape is drawn as its outline and
+    that is said, once, with the first shape's line."""
+    from click.testing import CliRunner
+    from bulgekit.cli import main
+    from pathlib import Path
+    gcode = Path(__file__).parents[3] / "examples" / "cylinder40x20.gcode"
+    svg = tmp_path / "d.svg"
+    svg.write_text('<svg xmlns="http://www.w3.org/2000/svg" width="20mm" height="10mm" viewBox="0 0 20 10">\n'
+                   '<rect x="1" y="1" width="8" height="8" style="fill:#000"/>\n'
+                   '<circle cx="14" cy="5" r="3" fill="red"/>\n'
+                   '<text x="1" y="9">A</text>\n'
+                   '<path d="M 10 5 L 19 5" style="fill:none;stroke:#000"/>\n</svg>\n')
+    args = ["build", str(gcode), "-s", str(svg), "--at", "3,5", "-o", str(tmp_path / "o"), "--no-preview", "-q"]
+    r = CliRunner().invoke(main, args)
+    assert r.exit_code == 1 and "--text, or a [[text]] table" in r.stderr and "strokes --text" not in r.stderr
+    r = CliRunner().invoke(main, args + ["--skip-unsupported"])
+    assert r.exit_code == 0, r.stderr
+    warn = [ln for ln in r.stderr.splitlines() if ln.startswith("WARNING:")]
+    assert len(warn) == 2, r.stderr
+    assert "<text>" in warn[0] and "skipped" in warn[0]
+    assert "2 filled shape(s) drawn as their outlines only (the first: " in warn[1] and ":2 <rect>" in warn[1]

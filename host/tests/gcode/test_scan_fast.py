@@ -43,7 +43,7 @@ def _line(rng: random.Random) -> str:
 
 def _scan(data: bytes, mode: str, part: int):
     sc = movescan._scan.Scanner(sorted(gcode.OUTER_ROLES), sorted(gcode._S3D_ROLES),
-                                movescan._classify, gcode.ARC_CHORD_MM, **MODES[mode])
+                                movescan._classify, **MODES[mode])
     recs, nums, base = [], [], 0
     while True:
         stop = min(base + part, len(data))

@@ -140,7 +140,7 @@ def test_a_scanner_feeds_one_thread_at_a_time():
         except RuntimeError as e:
             errors.append(e)
         return movescan._classify(text)
-    sc = movescan._scan.Scanner([], [], classify, 0.5)
+    sc = movescan._scan.Scanner([], [], classify)
     recs, used = sc.feed("G1 X1 Y1 E1\n; caf\u00e9\nG1 X2 Y2 E1\n".encode(), True, 0)
     assert len(recs) // movescan.RECORD.itemsize == 2 and sc.lines == 3
     assert errors and "in use by another thread" in str(errors[0])

@@ -53,14 +53,20 @@ def test_new_items_go_to_free_space(browser, studio, tmp_path):
     lo, hi = pg.evaluate("() => window.studio.S.gcode.walls.v_range")
     length = pg.evaluate("() => window.studio.S.gcode.length_max")
     for i in range(len(b)):
-        assert lo <= b[i][1] and b[i][3] <= hi and 0 <= b[i][0] and b[i][2] <= length, b[i]
+        # (a letter's strokes may start a few µm before its baseline's start)
+        assert lo <= b[i][1] and b[i][3] <= hi and -0.01 <= b[i][0] and b[i][2] <= length, b[i]
         for j in range(i):
             assert apart(b[i], b[j]), (i, j, b)
-    # the first sits where a lone text always went; the next ones beside it on its row
-    assert pg.evaluate("() => window.studio.S.items[0].at") == [5, pytest.approx(7.05, abs=0.01)]
-    assert b[1][0] >= b[0][2] + 3 and b[1][1] == pytest.approx(b[0][1], abs=0.01)   # a word space apart
+    # the first sits in the middle of the view (the whole wall: a cylinder has no corners, so no
+    # face; issue 38), the next ones on its row where it is free, a word space apart
+    assert (b[0][0] + b[0][2]) / 2 == pytest.approx(length / 2, abs=0.5)
+    assert pg.evaluate("() => window.studio.S.items[0].at")[1] == pytest.approx(7.05, abs=0.01)
+    assert "face" not in pg.evaluate("() => window.studio.S.items[0]")
+    assert b[1][1] == pytest.approx(b[0][1], abs=0.01)
+    assert b[1][2] + 3 <= b[0][0] or b[1][0] >= b[0][2] + 3
     # no field is left over in the design the server gets, nor in Undo's states
     assert "placing" not in str(pg.evaluate("() => window.studio.design()"))
+    assert "centreOn" not in str(pg.evaluate("() => window.studio.design()"))
     assert not errors, errors
 
 
@@ -71,6 +77,7 @@ def test_a_full_wall_says_so(browser, studio):
     pg.fill("#item-form input[name=v]", "0.5")
     pg.fill("#item-form input[name=size]", "19")          # one text filling the wall's height ...
     pg.fill("#item-form textarea[name=text]", "WWWWW")    # ... and most of its length
+    pg.fill("#item-form input[name=u]", "5")
     settled(pg)
     assert pg.locator("#items li.overlap").count() == 0
     pg.click("#add-text")
@@ -173,7 +180,7 @@ def test_choices_are_not_cut_off(browser, studio):
         return out; }""")
     assert cut == [], cut
     n = pg.evaluate("() => [...document.querySelectorAll('#page-wall select')].filter((s) => s.offsetParent).length")
-    assert n == 5                                         # font, mode, printer, stock stops, file to send
+    assert n == 6                                # font, align, mode, printer, stock stops, file to send
     assert not errors, errors
 
 
@@ -286,3 +293,65 @@ def test_an_empty_gcode_is_called_empty(studio):
     job = wait_job(studio, job)
     assert job["state"] == "error" and job["error"] == "blank.gcode: the G-code file is empty"
     assert call(studio, "/api/state")[1]["gcode"]["name"] == "cylinder40x20.gcode"   # still open
+
+
+BOX = Path(__file__).resolve().parents[1] / "data" / "prusa_box.gcode"
+
+
+def test_corners_drawn_and_add_text_centred_on_the_face_in_view(browser, studio):
+    """Issue 38: the unrolled view draws the wall's corners and numbers its faces, and Add text
+    lands centred on the face in the middle of the view (on a box: the back face, 3, when the whole
+    wall shows; face 2 once the view is panned to it)."""
+    pg, errors = page_for(browser, studio)
+    pg.set_input_files("#gcode-file", str(BOX))
+    pg.wait_for_function("() => window.studio.S.gcode !== null", timeout=60_000)
+    marks = pg.evaluate("() => window.studio.S.gcode.walls.marks")
+    layers = pg.evaluate("() => window.studio.S.gcode.walls.layers.length")
+    assert len(marks["corners"]) == 4 * layers
+    assert sorted(n for _, _, n in marks["faces"]) == [1, 1, 2, 3, 4]
+    # a corner line is on the canvas: its green at the corner's u, half way up
+    u, a, b = marks["corners"][len(marks["corners"]) // 2]
+    rgb = pg.evaluate(f"""() => {{ const [x, y] = window.studio.view2d.toPx({u}, {(a + b) / 2});
+        const d = document.getElementById("unrolled").getContext("2d").getImageData(Math.round(x), Math.round(y), 1, 1).data;
+        return [d[0], d[1], d[2]]; }}""")
+    assert rgb[1] > rgb[0] + 40 and rgb[1] > rgb[2] + 30, rgb
+    runs = marks["runs"]
+
+    def centred(k, face):
+        it = pg.evaluate(f"() => window.studio.S.items[{k}]")
+        assert it["face"] == face and it["align"] == "center" and it["at"][0] == 0
+        b = boxes(pg)[k]
+        v = (b[1] + b[3]) / 2
+        fs = next(r[2] for r in runs if r[0] <= v <= r[1])
+        f = next(f for f in fs if f[0] == face)
+        # (the run's faces are its first layer's; the server centres it on its own layer's)
+        assert (b[0] + b[2]) / 2 == pytest.approx((f[1] + f[2]) / 2, abs=0.5)
+        assert f[1] < b[0] and b[2] < f[2]                # wholly on it
+
+    pg.click("#add-text")
+    pg.wait_for_function("() => window.studio.S.items.length === 1")
+    settled(pg)
+    centred(0, 3)
+    assert pg.input_value("#item-form input[name=face]") == "3"
+    assert pg.locator("#items li.warning").count() == 0       # on one face: no corner crossed
+    # pan: face 2's middle to the middle of the view, then another text goes there
+    f2 = next(f for f in runs[len(runs) // 2][2] if f[0] == 2)
+    mid = pg.evaluate("() => { const [a, b] = window.studio.view2d.uInView(); return (a + b) / 2; }")
+    box = pg.locator("#unrolled").bounding_box()
+    x0, y0 = box["x"] + box["width"] / 2, box["y"] + 8           # the background above the wall
+    dx = pg.evaluate(f"() => window.studio.view2d.toPx({mid}, 0)[0] - window.studio.view2d.toPx({(f2[1] + f2[2]) / 2}, 0)[0]")
+    pg.mouse.move(x0, y0)
+    pg.mouse.down()
+    pg.mouse.move(x0 + dx, y0, steps=6)
+    pg.mouse.up()
+    pg.click("#add-text")
+    pg.wait_for_function("() => window.studio.S.items.length === 2")
+    settled(pg)
+    centred(1, 2)
+    # moved across a corner, the text says which corner it crosses
+    pg.fill("#item-form input[name=u]", "9")
+    settled(pg)
+    warn = [w for w in pg.locator("#items li.warning").all_inner_texts() if "corner" in w]
+    assert warn == ["the text 'TEXT' crosses the corner between faces 2 and 3 at u 34.3 mm "
+                    "(z 5.10-10.20 mm): it bends round it (face = N puts it on one face)"], warn
+    assert not errors, errors

@@ -34,9 +34,9 @@ def checkout(tmp_path):
     return root
 
 
-def bootstrap(root, **env):
+def bootstrap(root, *args, **env):
     e = {k: v for k, v in os.environ.items() if k != "BK_NO_INSTALL"} | env
-    return subprocess.run(["bash", "tools/bootstrap.sh"], cwd=root, env=e, capture_output=True, text=True,
+    return subprocess.run(["bash", "tools/bootstrap.sh", *args], cwd=root, env=e, capture_output=True, text=True,
                           timeout=600)
 
 
@@ -64,3 +64,19 @@ def test_bootstrap_stops_when_the_install_did_not_help(checkout):
     r = bootstrap(checkout)
     assert r.returncode == 1
     assert "bootstrap: still missing after tools/install-deps.sh: studio front-end files" in r.stderr
+
+
+def test_the_demo_role_needs_no_test_toolchain(checkout):
+    """`make demo` (bootstrap --role demo): the studio's three.js, PlatformIO and the simulator are
+    the tests' needs, not the demo's: none is asked for, installed or built."""
+    (checkout / "tools" / "install-deps.sh").write_text(
+        "#!/usr/bin/env bash\necho \"install-deps ran $*\" >> calls.txt\n")
+    r = bootstrap(checkout, BK_NO_INSTALL="1")
+    assert r.returncode == 1 and "bootstrap: missing: studio front-end files" in r.stderr
+    r = bootstrap(checkout, "--role", "demo", BK_NO_INSTALL="1")
+    assert r.returncode == 0, r.stderr
+    assert "missing" not in r.stderr and not (checkout / "calls.txt").exists()
+    assert not (checkout / ".build" / "bin" / "bksim").exists()
+    assert (checkout / ".build" / "bin" / "bkcore").is_file()      # g++ is here: the demo runs the core
+    r = bootstrap(checkout)                                         # the test role installs, by role
+    assert (checkout / "calls.txt").read_text() == "install-deps ran --role test\n"

@@ -3,7 +3,10 @@ fresh Debian 12): into the python3 on PATH when its pip may install there, into 
 checkout when it may not (Debian's own python3 is externally managed, PEP 668, or has no pip), and
 tools/env.sh then runs .venv's python3. `install-deps.sh --where` only reports the choice, so nothing
 is installed here. The externally managed Python is a real one: this interpreter's binary copied
-beside its standard library (linked) and the marker file, which pip itself refuses to install into."""
+beside its standard library (linked) and the marker file, which pip itself refuses to install into.
+Roles: `--role demo` (make demo, the bulgekit command) plans the host package and its PyPI packages
+alone, no toolchain, simulator, slicer or browser; `--role test`, the default, all of it; `--plan`
+lists a role's packages without installing."""
 from __future__ import annotations
 
 import importlib.util
@@ -119,3 +122,50 @@ def test_once_there_the_venv_is_what_make_runs(checkout, tmp_path, with_pip):
     # sourced twice (bootstrap does, after install-deps), PATH holds .venv/bin once
     r = run(["/bin/bash", "-c", "source tools/env.sh && source tools/env.sh && echo $PATH"], checkout, path)
     assert r.stdout.strip().split(":").count(str(venv_bin)) == 1, r.stdout
+
+
+# What only the tests need: compilers, the AVR simulator, QEMU, clang, the slicer, the browser, npm
+# (Debian's), and from PyPI PlatformIO, SCons and the test extras (pytest, Playwright).
+TOOLCHAIN_APT = {"gcc", "g++", "make", "pkg-config", "gcc-avr", "avr-libc", "binutils-avr", "simavr",
+                 "libsimavr-dev", "libelf-dev", "clang", "libclang-rt-14-dev", "gcc-arm-none-eabi",
+                 "libnewlib-arm-none-eabi", "qemu-system-arm", "python3-dev", "prusa-slicer", "python3-louis",
+                 "liblouis-data", "chromium", "npm"}
+TOOLCHAIN_PIP = "platformio==6.2.0 scons==4.11.1 -e host[test]"
+
+
+def plan(root, role, path, pythonpath=None):
+    args = [] if role is None else ["--role", role]
+    r = run(["/bin/bash", "tools/install-deps.sh", *args, "--plan"], root, path, pythonpath)
+    assert r.returncode == 0, r.stderr
+    fields = dict(line.split(":", 1) for line in r.stdout.splitlines())
+    return fields["role"].strip(), set(fields["apt"].split()), fields["pip"].strip(), fields["npm"].strip()
+
+
+def test_the_demo_role_plans_the_host_package_alone(checkout, tmp_path):
+    # no python3 and no npm on PATH (a fresh Debian 12): the plan with the most in it
+    tools = tmp_path / "only-coreutils"
+    tools.mkdir()
+    (tools / "dirname").symlink_to(shutil.which("dirname"))
+    role, apt, pip, npm = plan(checkout, "demo", str(tools))
+    assert role == "demo"
+    assert apt == {"python3-venv"}           # to make .venv: Debian's python3 is externally managed
+    assert pip == "-e host" and npm == ""
+
+    # the default is the test role (make deps, .ci/run): all of it, npm too when there is none
+    role, apt, pip, npm = plan(checkout, None, str(tools))
+    assert role == "test"
+    assert apt == TOOLCHAIN_APT | {"python3-venv"}
+    assert pip == TOOLCHAIN_PIP and npm.startswith("three.js")
+    assert plan(checkout, "test", str(tools))[1:] == (apt, pip, npm)
+
+
+def test_a_python_that_takes_packages_needs_no_apt_for_the_demo(checkout, tmp_path, with_pip):
+    py = make_python(tmp_path / "pyenv", externally_managed=False)
+    _, apt, pip, _ = plan(checkout, "demo", f"{py.parent}:/usr/bin:/bin", with_pip)
+    assert apt == set() and pip == "-e host"
+
+
+def test_an_unknown_role_is_refused(checkout):
+    for args in (["--role", "docs"], ["--role"], ["--roles", "demo"]):
+        r = run(["/bin/bash", "tools/install-deps.sh", *args, "--plan"], checkout, "/usr/bin:/bin")
+        assert r.returncode == 2 and "install-deps:" in r.stderr and r.stdout == "", (args, r.stderr)

@@ -140,14 +140,32 @@ function clampItem(it) {
   it.at[1] = Math.min(Math.max(it.at[1], lo), hi);
 }
 
+// The face of the wall under the middle of the unrolled view at height v (the faces of the run of
+// layers holding v: wall_marks' runs), and that middle's u; face null on a wall without corners.
+function faceInView(v) {
+  const m = S.gcode.walls.marks, L = S.gcode.length_max;
+  const [a, b] = view2d.uInView();
+  const u = Math.min(Math.max((a + b) / 2, 0), L);
+  const run = m && (m.runs.find(([v0, v1]) => v >= v0 && v <= v1) || m.runs.at(-1));
+  if (!run || run[2].length < 2) return { face: null, u };
+  const f = run[2].find(([, u0, u1]) => (u >= u0 && u < u1) || (u - L >= u0 && u - L < u1)) || run[2][0];
+  return { face: f[0], u: (f[1] + f[2]) / 2 };
+}
+
 function addText() {
   flushHistory();
   const [lo, hi] = S.gcode.walls.v_range;
   const size = round2(Math.max(1, Math.min(6, (hi - lo) / 3)));
+  const v = +(lo + (hi - lo - size) / 2).toFixed(2);
+  // centred on the face in view (the server aligns it: face, align), or on the view's middle
+  // when the wall has no corners (placeNew centres it there once its strokes are in)
+  const { face, u } = faceInView(v + size / 2);
   const it = { id: `i${S.nextId++}`, kind: "text", text: "TEXT", font: "futural", size, letter_spacing: 0,
-    mirror: false, rotate: 0, at: [5, +(lo + (hi - lo - size) / 2).toFixed(2)] };
+    mirror: false, rotate: 0, at: [face ? 0 : round2(u - 2 * size), v] };
+  if (face) Object.assign(it, { face, align: "center" });
+  else it.centreOn = u;
   // a capital is about as wide as it is tall: the box "TEXT" will take, until its strokes are in
-  placeInFreeSpace(it, 4 * size, size);
+  placeInFreeSpace(it, 4 * size, size, u - 2 * size);
   S.items.push(it);
   select(it.id);
   requestPreview();
@@ -238,9 +256,10 @@ function moveToFreeSpace(it, box, load = null) {
   return load && how === "over" ? "over" : "ok";
 }
 
-function placeInFreeSpace(it, w, h) {
+// (u0: where its box starts, when `at` is not that: an item aligned on a face)
+function placeInFreeSpace(it, w, h, u0 = it.at[0]) {
   it.placing = true;                             // placeNew looks again with its real box
-  moveToFreeSpace(it, { u0: it.at[0], v0: it.at[1], u1: it.at[0] + w, v1: it.at[1] + h });
+  moveToFreeSpace(it, { u0, v0: it.at[1], u1: u0 + w, v1: it.at[1] + h });
 }
 
 // The items whose strokes' boxes cross this one's (both drawn already).
@@ -258,6 +277,11 @@ function overlapping(it) {
 function placeNew(it) {
   delete it.placing;
   const was = String(it.at);
+  if (it.centreOn !== undefined) {              // its middle where it was asked for
+    const b = itemBox(it);
+    it.at = [round2(it.at[0] + it.centreOn - (b.u0 + b.u1) / 2), it.at[1]];
+    delete it.centreOn;
+  }
   const how = moveToFreeSpace(it, itemBox(it), layerLoad(it));
   if (how === "full")                           // the list says which item it overlaps
     status(`no free space on the wall for ${itemName(it)}: it overlaps another item (move, shrink or delete one)`);
@@ -329,8 +353,10 @@ async function openPlacement(list) {
     const d = await postJSON("/api/import", { toml: await toml[0].text(), files: names });
     flushHistory();
     S.items = d.items.map((it) => it.kind === "text"
-      ? { size: 6, font: "futural", letter_spacing: 0, mirror: false, rotate: 0, at: [0, 0], ...it, id: `i${S.nextId++}` }
-      : { scale: 1, rotate: 0, at: [0, 0], ...it, assetKind: kinds[it.asset], id: `i${S.nextId++}` });
+      ? { size: 6, font: "futural", letter_spacing: 0, mirror: false, rotate: 0, at: [0, 1], ...it, id: `i${S.nextId++}` }
+      // (the placement file's default at: 1 mm above the bed, a .json stroke list as it is)
+      : { scale: 1, rotate: 0, at: /\.json$/i.test(it.asset) ? [0, 0] : [0, 1], ...it, assetKind: kinds[it.asset],
+          id: `i${S.nextId++}` });
     setBulgeForm(d.bulges);
     status(`${toml[0].name}: ${S.items.length} item(s)`);
     select(S.items.length ? S.items[0].id : null);
@@ -362,6 +388,8 @@ function fillItemForm(it) {
   } else if (it.assetKind === "image") f.image_width.value = +it.image_width.toFixed(2);
   else f.scale.value = +it.scale.toFixed(3);
   f.u.value = +it.at[0].toFixed(2); f.v.value = +it.at[1].toFixed(2); f.rotate.value = +it.rotate.toFixed(1);
+  f.face.value = it.face || ""; f.align.value = it.align || "center"; f.align.disabled = !it.face;
+  f.u.previousSibling.textContent = it.face ? "u from the aligned place, mm " : "u, mm ";
 }
 
 // Only the field edited changes: the others show rounded values, and an imported file's exact
@@ -377,6 +405,11 @@ function readItemForm(e) {
     case "mirror": it.mirror = el.checked; break;
     case "u": it.at = [num(it.at[0]), it.at[1]]; delete it.placing; break;    // placed by hand now
     case "v": it.at = [it.at[0], num(it.at[1])]; delete it.placing; break;
+    case "face":                                // on a face (u then counts from its place) or not
+      if (el.value === "" || !(+el.value >= 1)) { delete it.face; delete it.align; }
+      else { it.face = Math.round(+el.value); it.align = it.align || "center"; it.at = [0, it.at[1]]; }
+      delete it.placing; delete it.centreOn; fillItemForm(it); break;
+    case "align": if (it.face) { it.align = el.value; it.at = [0, it.at[1]]; fillItemForm(it); } break;
     default: it[el.name] = num(it[el.name]);      // size, letter_spacing, scale, image_width, rotate
   }
   renderItems();
@@ -451,6 +484,7 @@ function design() {
       if (it.assetKind === "image") o.image_width = it.image_width; else o.scale = it.scale;
       if (it.curve_tolerance !== undefined) o.curve_tolerance = it.curve_tolerance;
     }
+    if (it.face) Object.assign(o, { face: it.face, align: it.align || "center" });   // on a face
     return o;
   });
   const name = $("export-name").value.trim();
@@ -476,7 +510,7 @@ const history = [], redo = [];
 let historyTimer = null;
 const formValues = () => Object.fromEntries([...$("bulge-form").elements].filter((e) => e.name).map((e) => [e.name, e.value]));
 const snapshot = () => JSON.stringify({ items: S.items, form: formValues(), name: $("export-name").value },
-  (k, v) => (k === "placing" ? undefined : v));
+  (k, v) => (k === "placing" || k === "centreOn" ? undefined : v));
 
 function flushHistory() {        // before a discrete edit: the state it starts from is kept
   clearTimeout(historyTimer);
@@ -667,6 +701,24 @@ const view2d = (() => {
       const [x0, y0] = toPx(a, l.z), [x1, y1] = toPx(b, l.z - l.h);
       ctx.fillRect(x0, y0, Math.max(1, x1 - x0), Math.max(0.5, y1 - y0 - (k * l.h > 3 ? 0.5 : 0)));
     }
+    // the corners (lines over each layer's band) and the faces' numbers
+    const marks = S.gcode.walls.marks;
+    if (marks) {
+      ctx.strokeStyle = "#2a7a3a"; ctx.lineWidth = 1.2; ctx.beginPath();
+      for (const [u, a, b] of marks.corners) {
+        const [x, y0] = toPx(u, b), [, y1] = toPx(u, a);
+        ctx.moveTo(x, y0); ctx.lineTo(x, y1);
+      }
+      ctx.stroke();
+      ctx.font = "bold 12px system-ui"; ctx.textAlign = "center"; ctx.textBaseline = "middle";
+      for (const [u, v, n] of marks.faces) {
+        const [x, y] = toPx(u, v);
+        ctx.fillStyle = "rgba(255,255,255,.85)"; ctx.beginPath(); ctx.arc(x, y, 9, 0, 2 * Math.PI); ctx.fill();
+        ctx.strokeStyle = "#2a7a3a"; ctx.lineWidth = 1; ctx.stroke();
+        ctx.fillStyle = "#2a7a3a"; ctx.fillText(String(n), x, y + 0.5);
+      }
+      ctx.textAlign = "start"; ctx.textBaseline = "alphabetic";
+    }
     // axes
     ctx.strokeStyle = "#b0bec5"; ctx.fillStyle = "#78909c"; ctx.font = "11px system-ui"; ctx.lineWidth = 1;
     const steps = [0.5, 1, 2, 5, 10, 20, 50, 100, 200, 500, 1000, 2000, 5000];
@@ -788,7 +840,9 @@ const view2d = (() => {
     draw();
   }, { passive: false });
   new ResizeObserver(resize).observe(cv);
-  return { draw, fit, toPx, toMm };
+  // the u range the canvas shows
+  const uInView = () => [toMm(0, 0)[0], toMm(cv.width, 0)[0]];
+  return { draw, fit, toPx, toMm, uInView };
 })();
 
 // ---------------------------------------------------------------- the 3D view
