@@ -3,6 +3,7 @@
 (docs/marlin-integration.md, "Stops on stock firmware").
 
     stop_wall.py OUTDIR [--e-steps 93] [--weights 255,255,255,128,64,38] [--dwell 100]
+                 [--feed 2400] [--printer PRESET|FILE]
 
 writes OUTDIR/ref.g (no stops), OUTDIR/g4.g (each stop a `G4 P<ms>`) and OUTDIR/move.g
 (each stop an extruder-only move), ready for `bksim --ok-pace --input`: no comments, no
@@ -85,6 +86,10 @@ def main(argv=None):
     ap.add_argument("--rule", choices=("junction", "issue"), default="junction",
                     help="junction: the rule above; issue: issue 25's rule (the next move's first "
                     "step always 1/120 s after the last E step), for comparison")
+    ap.add_argument("--feed", type=float, default=FEED, help="the wall's feed rate, mm/min")
+    ap.add_argument("--printer", help="a printer model (bulgekit's presets or a profile file): "
+                    "the rates then come from the host's own rule for it (bulgekit.bulge.fallback), "
+                    "--e-steps, --accel, --jd and --max-e-rate being the model's unless given")
     args = ap.parse_args(argv)
     try:
         weights = [int(w) for w in args.weights.split(",")]
@@ -94,6 +99,9 @@ def main(argv=None):
         raise SystemExit("stop_wall.py: --weights must be 1..255, got %r" % args.weights)
     if args.e_steps <= 0:
         raise SystemExit("stop_wall.py: --e-steps must be > 0")
+    host_rule = None
+    if args.printer:
+        host_rule = _host_rule(args, argv or sys.argv[1:])
     n = max(MIN_STEPS, round(args.stop_e * args.e_steps))
     k = args.xy_steps if args.rule == "junction" else 0.0  # v x 0 < 120: always 1/120
     v_jd = math.sqrt(args.accel * args.jd * (1 / (math.sqrt(2) - 1)))  # 90 degrees: sin/(1-sin) = 2.414
@@ -106,13 +114,16 @@ def main(argv=None):
     for i in range(len(weights) + 1):
         for _ in range(PIECES_PER_GAP):
             x += PIECE_MM
-            piece = "G1 X%.3f E%.5f F%d" % (x, E_PER_PIECE, FEED)
+            piece = "G1 X%.3f E%.5f F%s" % (x, E_PER_PIECE, "%g" % args.feed)
             for b in bodies.values():
                 b.append(piece)
         if i == len(weights):
             break
         ms = dwell_ms(args.dwell, weights[i])
-        r = stop_move(ms, n, args.e_steps, k, v_jd, args.max_e_rate * args.e_steps)
+        if host_rule is not None:
+            r, st = host_rule(ms, n)
+        else:
+            r = stop_move(ms, n, args.e_steps, k, v_jd, args.max_e_rate * args.e_steps)
         # F for r - 0.5 steps/s, so that CEIL() lands on r; E to 5 decimals
         # is within 0.001 steps of n at up to 100 steps/mm (more digits above).
         digits = max(5, int(math.ceil(math.log10(args.e_steps * 100))))
@@ -120,7 +131,8 @@ def main(argv=None):
         f = (r - 0.5) * 60.0 / args.e_steps
         bodies["g4"].append("G4 P%d" % ms)
         bodies["move"].append("G1 E%.*f F%.2f" % (digits, e, f))
-        plan.append((weights[i], ms, n, r, still_s(n, r, args.e_steps, k, v_jd) * 1000))
+        plan.append((weights[i], ms, n, r, (st if host_rule is not None
+                                            else still_s(n, r, args.e_steps, k, v_jd)) * 1000))
     for name, body in bodies.items():
         with open(os.path.join(args.outdir, name + ".g"), "w") as fh:
             fh.write("\n".join(head + body + tail) + "\n")
@@ -129,6 +141,26 @@ def main(argv=None):
     for w, ms, n, r, st in plan:
         print("%3d  %8d  %7d  %12d  %8.3f" % (w, ms, n, r, st))
     return 0
+
+
+def _host_rule(args, argv):
+    """(ms, n) -> (rate, stillness s) by the host's rule for the printer model (issue 36): the
+    wall's pieces (along +X, E_PER_PIECE per PIECE_MM, at --feed) are the moves around each stop."""
+    here = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "host")
+    sys.path.insert(0, here)
+    from bulgekit.bulge import fallback, stopmodel
+    from dataclasses import replace
+    from bulgekit.machine import resolve
+    pm = resolve(args.printer)
+    if any(a.startswith("--e-steps") for a in argv):
+        pm = replace(pm, steps_per_mm=pm.steps_per_mm.with_(E=args.e_steps))
+    args.e_steps = pm.e_steps
+    piece = stopmodel.Piece(1.0, 0.0, E_PER_PIECE / PIECE_MM, args.feed / 60.0, pm.steps_per_mm.x)
+
+    def rule(ms, n):
+        m = fallback._rate_for(n, ms / 1000.0, pm.e_steps, piece.k, pm, piece)
+        return m.rate, m.still
+    return rule
 
 
 if __name__ == "__main__":

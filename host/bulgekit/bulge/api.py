@@ -161,7 +161,7 @@ def _build(gcode: Path, strokes, outdir, name, geometric, spacing, line_width, l
             if fpath is not None:
                 # the statistics count on the stock file's planner run: the planner runs once
                 def on_plan(planner):
-                    timers.append(_stats.StopTimer(planner))
+                    timers.append(_stats.StopTimer(planner, printer=_stats.timed_model(stops.printer)))
                     return timers[-1]
                 stock = fallback_gcode(gcode, res.map_bytes, fpath, settings, allow_unreached=True,
                                        stops=stops, _on_plan=on_plan).stock

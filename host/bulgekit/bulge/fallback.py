@@ -42,6 +42,8 @@ from ..gcode import (MAX_ARC_SEGMENT_MM, _WORD, GcodeState, Line, Move, arc_geom
 from ..errors import BulgekitError, output_part
 from .. import machine
 from ..machine import PrinterModel
+from . import stopmodel
+from .stopmodel import Piece
 from ..gcode import _M92_RX, _m92_e, _plain_lines, scan_m92
 
 
@@ -792,6 +794,13 @@ def unreached_message(planner: RefPlanner, source: str) -> str | None:
 # deviation takes the E-only move as a 90 degree corner) and makes its first step 1/(v k) after
 # the last E step, k being its leading axis's steps per mm of path. Below v k = 120 this is
 # 1/120 + (n - 1)/r + 1/120 (issue 25's rule); short, fast stops end sooner than that rule says.
+# Every number of it is the printer model's (issue 36, bulge/stopmodel.py): the floor
+# (min_step_rate), the E speed up to which the E move enters at its own speed (junction deviation
+# at M204 R, or the E/X jerks), v (junction deviation at the next move's own acceleration, with
+# LIN_ADVANCE's cut; classic jerk: the next move's jerk-limited safe speed, 10 mm/s along X at
+# Marlin's jerks, whatever the E rate), the steps per mm and the segment minimum. The constants
+# below are Marlin's defaults (machine.MARLIN), kept for the names; the rule reads the model.
+# Firmwares other than Marlin 2.x (prusa, reprap, klipper) keep the Marlin defaults' rule.
 STOP_MOVE, STOP_G4 = "move", "g4"
 DEFAULT_E_STEPS = machine.DEFAULT.e_steps   # the default printer model's E steps/mm
 MIN_STEPS_PER_SEGMENT = 6      # Marlin drops a move with fewer steps on every axis
@@ -839,17 +848,36 @@ class StockStops:
                 and getattr(self.printer, "firmware", None) == "klipper")
 
 
-def still_s(n: int, rate: int, spm: float | None = None, k: float = XY_STEPS) -> float:
+def rule_model(pm: PrinterModel | None) -> PrinterModel:
+    """The model whose planner the stop rule follows: the printer's own for Marlin 2.x, Marlin's
+    defaults for the other firmwares (their planners are not modelled here)."""
+    if pm is None or pm.firmware != "marlin":
+        return machine.DEFAULT
+    return pm
+
+
+def _floor(pm: PrinterModel):
+    f = pm.min_step_rate
+    return int(f) if f == int(f) and f > 0 else (f if f > 0 else 1)
+
+
+def still_s(n: int, rate: int, spm: float | None = None, k: float = XY_STEPS,
+            printer: PrinterModel | None = None, nxt: Piece | None = None) -> float:
     """Seconds the head stands still for an E-only move of n steps at `rate` steps/s (the rule
-    above) at `spm` E steps/mm, the next move's leading axis making k steps per mm of its path.
-    Without spm: issue 25's rule (the next move starts at the 120 steps/s floor)."""
-    return 1 / max(rate, MINIMAL_STEP_RATE) + (n - 1) / rate + next_start_s(rate, spm, k)
+    above) at `spm` E steps/mm, the next move's leading axis making k steps per mm of its path,
+    on `printer` (None: Marlin's defaults); nxt: that move (direction, E per mm, feed), which the
+    classic-jerk and LIN_ADVANCE junctions need. Without spm: issue 25's rule (the next move
+    starts at the 120 steps/s floor)."""
+    pm = rule_model(printer)
+    return 1 / max(rate, _floor(pm)) + (n - 1) / rate + next_start_s(rate, spm, k, pm, nxt, n)
 
 
-def next_start_s(rate: int, spm: float | None = None, k: float = XY_STEPS) -> float:
+def next_start_s(rate: int, spm: float | None = None, k: float = XY_STEPS,
+                 printer: PrinterModel | None = None, nxt: Piece | None = None, n: int = 0) -> float:
     """The last term of still_s: from the stop's last E step to the next move's first step."""
-    v = min(rate / spm, V_JD) if spm else 0.0
-    return 1 / max(MINIMAL_STEP_RATE, v * k)
+    pm = rule_model(printer)
+    v = stopmodel.next_entry(pm, rate, spm, nxt, n) if spm else 0.0
+    return 1 / max(_floor(pm), v * k)
 
 
 @dataclass
@@ -864,6 +892,11 @@ class StopMove:
     nearest: bool = False      # the dwell could not be made exactly (counted in the stats)
     why: str = ""              # a move stop written as G4: "extra" (under 6 steps), "long"
     klipper: klipper_stop.KlipperStop | None = None   # Klipper's form: E (mm) and speed
+    ramp: float = 0.0          # s the moves around it add by braking and starting (stopmodel.ramp_s)
+    v_exit: float = 0.0        # mm/s the move before brakes to (the E move's entry; G4: 0)
+    v_entry: float = 0.0       # mm/s the move after starts at (next_entry; G4: 0)
+    here: Piece | None = None  # the move it stops on (for stopmodel.chain_ramps)
+    after: Piece | None = None  # the piece the head goes on with
 
     def feed(self, spm: float) -> float:
         """mm/min whose block rate, ceil(n x feed / length), is `rate`: the middle of the feeds
@@ -871,32 +904,40 @@ class StopMove:
         return (self.rate - 0.5) * 60 / spm
 
 
-def _min_steps_for(d: float) -> int:
+def _min_steps_for(d: float, pm: PrinterModel = machine.DEFAULT) -> int:
     """The fewest steps whose rate stays at or above SLOWEST_STEP_RATE for a stillness of d s."""
-    need = 1 + SLOWEST_STEP_RATE * (d - 2 / MINIMAL_STEP_RATE)
-    return max(MIN_STEPS_PER_SEGMENT, math.ceil(need - 1e-9))
+    need = 1 + SLOWEST_STEP_RATE * (d - 2 / _floor(pm))
+    return max(_min_segment(pm), math.ceil(need - 1e-9))
+
+
+def _min_segment(pm: PrinterModel) -> int:
+    return pm.min_segment_steps if pm.min_segment_steps > 0 else 1
 
 
 def plan_stop(ms: int, spm: float, owed_mm: float, steps: int | None = None,
-              k: float = XY_STEPS) -> StopMove:
+              k: float = XY_STEPS, printer: PrinterModel | None = None,
+              nxt: Piece | None = None, here: Piece | None = None) -> StopMove:
     """The E-only move for a stop of `ms`: n whole steps (`steps`, or the fewest that make it),
     at most the whole steps of the extra owed at the stop, and the rate whose stillness is
     nearest the dwell (k: the next move's leading-axis steps per mm of path, see still_s). Falls back to G4 when the owed extra is under MIN_STEPS_PER_SEGMENT steps
-    (a shorter E-only move is dropped by Marlin: the stop would be lost)."""
+    (a shorter E-only move is dropped by Marlin: the stop would be lost). printer: the model
+    (None: Marlin's defaults); nxt / here: the moves after and before the stop, for the
+    junctions and for the stop-and-start time (`ramp`, with `here`)."""
+    pm = rule_model(printer)
     d = ms / 1000
     if ms == 0:
         return StopMove(0, "none")            # a weight-0 point: nothing to hold
-    want = steps if steps is not None else _min_steps_for(d)
+    want = steps if steps is not None else _min_steps_for(d, pm)
     avail = math.floor(owed_mm * spm + 1e-6)
-    if avail < MIN_STEPS_PER_SEGMENT:
-        return StopMove(ms, STOP_G4, still=d, why="extra")
+    if avail < _min_segment(pm):
+        return _g4(ms, "extra", pm, here, nxt)
     best = None
     # whole rates make the stillness come in quanta ((n - 1)/r^2 per step/s, large at low
     # rates): unless the steps were given, a step or a few more are added when the fewest
     # miss the dwell by more than NEAREST_MS
     last = want if steps is not None else min(avail, 2 * want + 8)
     for n in range(min(want, avail), max(min(want, avail), last) + 1):
-        cand = _rate_for(n, d, spm, k)
+        cand = _rate_for(n, d, spm, k, pm, nxt)
         if best is None or abs(cand.still - d) < abs(best.still - d) - 1e-9:
             best = cand
         if abs(best.still - d) * 1000 <= NEAREST_MS:
@@ -904,24 +945,41 @@ def plan_stop(ms: int, spm: float, owed_mm: float, steps: int | None = None,
     best.ms = ms
     if abs(best.still - d) > G4_OVER_S and best.still < d:
         # too little extra for the slowest rate: G4 holds nearer the dwell, despite its drain
-        return StopMove(ms, STOP_G4, still=d, why="long")
+        return _g4(ms, "long", pm, here, nxt)
     best.nearest = abs(best.still - d) * 1000 > NEAREST_MS
+    if here is not None:
+        best.here, best.after = here, nxt
+        best.v_exit = stopmodel.e_entry(pm, best.rate, spm, here)
+        best.v_entry = stopmodel.next_entry(pm, best.rate, spm, nxt, best.n)
+        best.ramp = stopmodel.ramp_s(pm, here, best.v_exit, best.v_entry)
     return best
 
 
-def _rate_for(n: int, d: float, spm: float, k: float = XY_STEPS) -> StopMove:
+def _g4(ms: int, why: str, pm: PrinterModel, here: Piece | None,
+        after: Piece | None = None) -> StopMove:
+    """A stop written as G4: the head brakes to rest and starts from rest (and the planner
+    drains and refills, which is not counted in `ramp`)."""
+    ramp = stopmodel.ramp_s(pm, here, 0.0, 0.0) if here is not None else 0.0
+    return StopMove(ms, STOP_G4, still=ms / 1000, why=why, ramp=ramp, here=here, after=after)
+
+
+def _rate_for(n: int, d: float, spm: float, k: float = XY_STEPS,
+              printer: PrinterModel | None = None, nxt: Piece | None = None) -> StopMove:
     """n steps at the whole rate whose stillness is nearest d s: a first guess from issue 25's
     rule, then the whole rates around it by the full rule (stillness falls as the rate rises)."""
-    # above v_jd the E move would have to accelerate from the junction: the rule holds below it
-    r_max = max(int(min(MAX_E_FEEDRATE, V_JD) * spm), MINIMAL_STEP_RATE)
-    if d >= (n + 1) / MINIMAL_STEP_RATE:
-        r = (n - 1) / (d - 2 / MINIMAL_STEP_RATE)
-    elif d > 1 / MINIMAL_STEP_RATE:
-        r = n / (d - 1 / MINIMAL_STEP_RATE)
+    pm = rule_model(printer)
+    floor = _floor(pm)
+    # above the E entry limit (junction deviation at M204 R; classic jerk: the E/X jerks) the E
+    # move would have to accelerate from the junction: the rule holds below it
+    r_max = max(int(min(pm.max_feedrate.e, stopmodel.e_entry_limit(pm)) * spm), floor)
+    if d >= (n + 1) / floor:
+        r = (n - 1) / (d - 2 / floor)
+    elif d > 1 / floor:
+        r = n / (d - 1 / floor)
     else:
         r = float(r_max)
     clamp = lambda q: min(max(q, SLOWEST_STEP_RATE), r_max)
-    still = lambda q: still_s(n, q, spm, k)
+    still = lambda q: still_s(n, q, spm, k, pm, nxt)
     lo, hi = clamp(math.floor(r)), clamp(math.ceil(r))
     # the full rule's stillness is at most the first guess's: slow down until it is not short
     while lo > SLOWEST_STEP_RATE and still(lo) < d:
@@ -930,7 +988,7 @@ def _rate_for(n: int, d: float, spm: float, k: float = XY_STEPS) -> StopMove:
         mid = (lo + hi) // 2
         lo, hi = (mid, hi) if still(mid) >= d else (lo, mid)
     rate = min((lo, hi), key=lambda q: abs(still(q) - d))
-    return StopMove(0, STOP_MOVE, n, rate, still(rate), start=next_start_s(rate, spm, k))
+    return StopMove(0, STOP_MOVE, n, rate, still(rate), start=next_start_s(rate, spm, k, pm, nxt, n))
 
 
 def _lround(v) -> int:
@@ -993,6 +1051,10 @@ class StopWriter:
         self.stop_e_mm = 0.0                   # E laid during stops
         self.unpaid_e_mm = 0.0                 # of that, not taken from a following piece
         self.autoretract = 0                   # stops of MIN_AUTORETRACT or more (see there)
+        self.pm = rule_model(stops.printer)    # the planner the stops are timed for
+        self.ramp_s = 0.0                      # braking into and starting from the stops, s, by
+                                               # the model's stepper arithmetic (stopmodel.ramp_s)
+        self.written: list[StopMove] = []      # every stop counted, in the file's order
         self.arcs = ArcCount()                 # G2/G3 written as G1 chords (ArcLines)
         # Klipper's form (stops.klipper): its numbers, the toolhead's accel as the file sets it,
         # the last X/Y move (end x, y and unit direction) and E moved past the cross-section limit
@@ -1075,14 +1137,19 @@ class StopWriter:
         if v is not None:
             self.m92.append((line_no, v))
 
-    def plan(self, a: Action, line_no: int, k: float = XY_STEPS) -> StopMove:
-        """k: leading-axis steps per mm of the move the head goes on with (see still_s)."""
+    def plan(self, a: Action, line_no: int, k: float = XY_STEPS, nxt: Piece | None = None,
+             here: Piece | None = None) -> StopMove:
+        """k: leading-axis steps per mm of the move the head goes on with (see still_s); nxt,
+        here: the moves after and before the stop (plan_stop)."""
         if self.cfg.stop == STOP_G4:
-            return StopMove(a.ms, STOP_G4, still=a.ms / 1000)
+            return _g4(a.ms, "", self.pm, here, nxt)
         # the extra owed here, less what stops before it (not yet paid) laid already
-        return plan_stop(a.ms, self.spm_at(line_no), a.extra - self.debt, self.cfg.stop_e_steps, k)
+        return plan_stop(a.ms, self.spm_at(line_no), a.extra - self.debt, self.cfg.stop_e_steps, k,
+                         self.pm, nxt, here)
 
     def count(self, stop: StopMove, laid: float = 0.0) -> None:
+        self.ramp_s += stop.ramp
+        self.written.append(stop)
         if stop.kind == STOP_G4:
             self.g4 += 1
             self.g4_s += stop.still
@@ -1124,7 +1191,7 @@ class StopWriter:
             if self.capped_e_mm > 1e-9:
                 out += f", {self.capped_e_mm:.3f} mm of it left out"
         if self.g4_why.get("extra"):
-            out += f"; {self.g4_why['extra']} as G4 (extra under {MIN_STEPS_PER_SEGMENT} E steps)"
+            out += f"; {self.g4_why['extra']} as G4 (extra under {_min_segment(self.pm)} E steps)"
         if self.g4_why.get("long"):
             out += (f"; {self.g4_why['long']} as G4 (dwell too long for the extra's steps at "
                     f"{SLOWEST_STEP_RATE} steps/s)")
@@ -1270,22 +1337,55 @@ def _unchanged(m: Move, actions: list[Action]) -> bool:
             and abs(actions[0].e - m.e) < 1e-12)
 
 
-def _lead_steps(m: Move, at: tuple, nxt: Action | None, spm: float, stop_n: int) -> float:
+def _lead_steps(m: Move, at: tuple, nxt: Action | None, spm: float, stop_n: int,
+                pm: PrinterModel = machine.DEFAULT) -> float:
     """Steps per mm of path of the leading axis of the piece the head goes on with (still_s's k):
     X/Y at XY_STEPS, or E where that piece carries the rest of the extra in more steps than X/Y
     make (at 415 E steps/mm, 37-49 steps over 0.1-0.6 mm: Marlin then starts it at its entry
     speed times E's steps per mm, and the head moves on sooner; stock-verify, issue 25). Without
     a piece after the stop on this move (a stop at its end), the move's own direction, X/Y only.
-    `at`: where the head stands (x, y)."""
+    `at`: where the head stands (x, y). X and Y steps/mm: the printer model's."""
+    sx, sy = pm.steps_per_mm.x, pm.steps_per_mm.y
     if nxt is not None and nxt.kind == "line":
         dx, dy = nxt.x - at[0], nxt.y - at[1]
         length = math.hypot(dx, dy)
         if length > 1e-9:
             e_steps = max(0.0, nxt.e * spm - stop_n)     # the stop's steps come out of its extra
-            return max(XY_STEPS * max(abs(dx), abs(dy)), e_steps) / length
+            return max(_xy_steps(sx, sy, abs(dx), abs(dy)), e_steps) / length
     dx, dy = abs(m.x1 - m.x0), abs(m.y1 - m.y0)
     length = math.hypot(dx, dy)
-    return XY_STEPS * max(dx, dy) / length if length > 1e-9 else XY_STEPS
+    return _xy_steps(sx, sy, dx, dy) / length if length > 1e-9 else sx
+
+
+def _xy_steps(sx: float, sy: float, dx: float, dy: float) -> float:
+    """The leading X/Y axis's steps over (dx, dy) (>= 0)."""
+    return sx * max(dx, dy) if sx == sy else max(sx * dx, sy * dy)
+
+
+def _pieces(m: Move, at: tuple, nxt: Action | None, spm: float, stop_n: int, k: float,
+            pm: PrinterModel, owed: float = 0.0) -> tuple[Piece, Piece]:
+    """(the move the head stops on, the piece it goes on with) as stopmodel sees them: unit
+    direction, filament per mm of path (the piece after: less the stop's own steps), feed mm/s,
+    k (the piece after: `k` as _lead_steps gave it), length. A stop at the move's end: the next
+    line carries the rest of the extra (`owed`), taken as a piece like this move."""
+    f = m.f / 60.0
+    dx, dy = m.x1 - m.x0, m.y1 - m.y0
+    length = math.hypot(dx, dy)
+    if length > 1e-9:
+        ux, uy, epm = abs(dx) / length, abs(dy) / length, max(m.e, 0.0) / length
+        k_here = _xy_steps(pm.steps_per_mm.x, pm.steps_per_mm.y, ux, uy)
+    else:
+        ux, uy, epm, k_here = 1.0, 0.0, 0.0, pm.steps_per_mm.x
+    here = Piece(ux, uy, epm, f, k_here)
+    rest = max(0.0, owed - stop_n / spm)
+    after = Piece(ux, uy, epm + (rest / length if length > 1e-9 else 0.0), f, k, length)
+    if nxt is not None and nxt.kind == "line":
+        ndx, ndy = nxt.x - at[0], nxt.y - at[1]
+        nlen = math.hypot(ndx, ndy)
+        if nlen > 1e-9:
+            e = max(0.0, nxt.e - stop_n / spm)
+            after = Piece(abs(ndx) / nlen, abs(ndy) / nlen, e / nlen, f, k, nlen)
+    return here, after
 
 
 def _unit_xy(m: Move) -> tuple[float, float] | None:
@@ -1402,10 +1502,13 @@ def _emit(ln: Line, per_move, st: GcodeState, sw: StopWriter) -> Iterator[str]:
                 nxt = acts[i + 1] if i + 1 < len(acts) else None
                 prev = acts[i - 1] if i and acts[i - 1].kind == "line" else None
                 at = (prev.x, prev.y) if prev else (m.x0, m.y0)    # a dwell carries no position
-                guess = sw.cfg.stop_e_steps or MIN_STEPS_PER_SEGMENT
-                stop = sw.plan(a, ln.line_no, _lead_steps(m, at, nxt, spm, guess))
+                guess = sw.cfg.stop_e_steps or _min_segment(sw.pm)
+                k = _lead_steps(m, at, nxt, spm, guess, sw.pm)
+                laid = 0 if sw.cfg.stop == STOP_G4 else guess      # (G4 lays none of the extra)
+                stop = sw.plan(a, ln.line_no, k, *_pieces(m, at, nxt, spm, laid, k, sw.pm, a.extra)[::-1])
                 if stop.kind == STOP_MOVE and stop.n != guess:   # k with the steps it lays
-                    stop = sw.plan(a, ln.line_no, _lead_steps(m, at, nxt, spm, stop.n))
+                    k = _lead_steps(m, at, nxt, spm, stop.n, sw.pm)
+                    stop = sw.plan(a, ln.line_no, k, *_pieces(m, at, nxt, spm, stop.n, k, sw.pm, a.extra)[::-1])
                 if stop.kind == "none":
                     continue
                 if stop.kind == STOP_G4:

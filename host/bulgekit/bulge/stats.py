@@ -7,10 +7,13 @@ names the points no outer-wall move passes within the tolerance.
 """
 from __future__ import annotations
 
+import math
 import re
 from dataclasses import dataclass, field
 
 from . import mapformat
+from . import stopmodel
+from .. import machine
 from ..gcode import movescan
 from .fallback import ArcCount, ArcLines, RefPlanner, Settings, plan_records
 from ..gcode import ARC_CHORD_DEVIATION_MM, open_checked
@@ -41,6 +44,23 @@ class Stats:
     slicer_time_s: float | None = None
     stock: object | None = None    # fallback.StopWriter of the stock file, when one was written
     arcs: ArcCount | None = None   # G2/G3 through points, written as G1 chords (from the G-code run)
+    printer: object | None = None  # the printer model decel_s was timed for (None: v/a, below)
+    gaps: list = field(default_factory=list)  # with printer: each stop's (ms, path mm from the
+                                              # stop before, or None), from StopTimer
+
+    def stock_ramps(self) -> list[float] | None:
+        """With a printer model and a stock file: the seconds each stop of the stock file adds
+        beyond its stillness (stopmodel.chain_ramps: its own speeds into and out of each stop,
+        the gaps between stops from the planner's run), in the file's order; None when the
+        stops written and the planner's do not pair up."""
+        if self.printer is None or self.stock is None:
+            return None
+        written = [w for w in self.stock.written if w.here is not None]
+        gaps = [g for ms, g in self.gaps if ms > 0 or self.stock.cfg.stop == "g4"]
+        if len(written) != len(self.stock.written) or len(written) != len(gaps):
+            return [w.ramp for w in self.stock.written]
+        return stopmodel.chain_ramps(self.printer, [stopmodel.RampStop(w.here, w.v_exit, w.v_entry, g, w.after)
+                                                    for w, g in zip(written, gaps)])
 
     @property
     def added_s(self) -> float:
@@ -80,9 +100,15 @@ class Stats:
             # as bulgekit estimate times it; a G4 its dwell and the planner's drain
             out.append(f"stock file: {self.stock.summary()}")
             held = self.stock.run_s + self.stock.g4_s
+            ramps = self.decel_s
+            if self.printer is not None:
+                # timed by the printer's own stepper: the stillness as the head stands, the
+                # braking and starting around each stop as the stock file's stops make them
+                held = self.stock.still_s + self.stock.g4_s
+                ramps = sum(self.stock_ramps())
             t = f"stock file's added time: {_hms(held)} in the stops"
-            if self.decel_s is not None:
-                t += f" + {_hms(self.decel_s)} stopping/starting = {_hms(held + self.decel_s)}"
+            if ramps is not None:
+                t += f" + {_hms(ramps)} stopping/starting = {_hms(held + ramps)}"
             if self.stock.g4:
                 t += f" (and the planner's drain and refill at each of its {self.stock.g4} G4)"
             out.append(t)
@@ -160,35 +186,91 @@ def slicer_time(text: str) -> float | None:
     return None
 
 
+def timed_model(pm) -> object | None:
+    """The printer model the stop-and-start time is timed with, or None for the old v/a at a
+    fixed acceleration: the default model (Marlin's defaults, machine.DEFAULT) keeps the old
+    figure so that build's outputs stay the bytes they were (tests/bulge/test_build_identical.py);
+    every other Marlin model is timed by its own stepper (stopmodel.ramp_s)."""
+    if pm is None or pm == machine.DEFAULT or pm.firmware != "marlin":
+        return None
+    return pm
+
+
 class StopTimer:
     """An on_move hook of a planner's run (plan_records, fallback.rewrite): the time the stops
-    cost over cruising, decelerating to each and back, v/a at its move's feed rate."""
+    cost over cruising, decelerating to each and back: v/a at its move's feed rate, or with a
+    printer model (timed_model) Marlin's stepper braking to rest and starting from rest at the
+    model's acceleration for that move (stopmodel.ramp_s)."""
 
-    def __init__(self, planner: RefPlanner, accel_mm_s2: float = 1000.0):
+    def __init__(self, planner: RefPlanner, accel_mm_s2: float = 1000.0, printer=None):
         self.planner, self.accel = planner, accel_mm_s2
+        self.printer = printer
         self.seen = 0
-        self.decel_s = 0.0
+        self._decel_s = 0.0
         self.arcs = ArcLines(planner)          # the arcs the outputs write as chords
+        self.ramp_stops: list = []     # with a printer: (ms, stopmodel.RampStop) per stop
+        self._last = None              # (move index, path mm since the chain began, mm at its last stop)
+
+    @property
+    def decel_s(self) -> float:
+        if self.printer is None:
+            return self._decel_s
+        return sum(stopmodel.chain_ramps(self.printer, [r for _, r in self.ramp_stops]))
+
+    @property
+    def gaps(self) -> list:
+        return [(ms, r.gap) for ms, r in self.ramp_stops]
 
     def __call__(self, m, actions) -> None:
         self.arcs(m, actions)
         k = len(self.planner.stops) - self.seen      # stops this move made
         self.seen = len(self.planner.stops)
-        if k:
-            self.decel_s += k * (m.f / 60.0) / self.accel
+        if self.printer is None:
+            if k:
+                self._decel_s += k * (m.f / 60.0) / self.accel
+            return
+        # the path since the last stop, while moves follow one another extruding
+        chain = self._last is not None and m.index == self._last[0] + 1 and m.extruding
+        s, last_stop = (self._last[1], self._last[2]) if chain else (0.0, None)
+        if not m.extruding:
+            self._last = None
+            return
+        piece = _piece(self.printer, m)
+        cx, cy = m.x0, m.y0
+        for a in actions:
+            if a.kind == "line":
+                s += math.hypot(a.x - cx, a.y - cy)
+                cx, cy = a.x, a.y
+            elif a.kind == "dwell":
+                gap = s - last_stop if last_stop is not None else None
+                self.ramp_stops.append((a.ms, stopmodel.RampStop(piece, 0.0, 0.0, gap)))
+                last_stop = s
+        self._last = (m.index, s, last_stop)
+
+
+def _piece(pm, m) -> stopmodel.Piece:
+    dx, dy = abs(m.x1 - m.x0), abs(m.y1 - m.y0)
+    length = math.hypot(dx, dy)
+    if length <= 1e-9:
+        return stopmodel.Piece(1.0, 0.0, 0.0, m.f / 60.0, pm.steps_per_mm.x)
+    ux, uy = dx / length, dy / length
+    k = max(pm.steps_per_mm.x * ux, pm.steps_per_mm.y * uy)
+    return stopmodel.Piece(ux, uy, max(m.e, 0.0) / length, m.f / 60.0, k)
 
 
 def print_stats(gcode_path, map_bytes: bytes, settings: Settings, arena: int = ARENA_BYTES,
-                accel_mm_s2: float = 1000.0, planned: StopTimer | None = None) -> Stats:
+                accel_mm_s2: float = 1000.0, planned: StopTimer | None = None,
+                printer=None) -> Stats:
     """map_stats plus a run of the G-code through the reference planner. planned: the hook of
     a run of a planner with this map and these settings over this file that has already
-    happened (build: the stock fallback's), which is then not run again."""
+    happened (build: the stock fallback's), which is then not run again. printer: a model to
+    time the stopping and starting with (timed_model; None: v/a at accel_mm_s2)."""
     st = map_stats(map_bytes, settings, arena)
     bm = mapformat.decode_map(map_bytes)
     ends, _ = open_checked(gcode_path)             # checked; its moves are scanned in chunks
 
     def run(chunks):
-        timer = StopTimer(RefPlanner(bm, settings), accel_mm_s2)
+        timer = StopTimer(RefPlanner(bm, settings), accel_mm_s2, printer)
         plan_records(timer.planner, chunks, timer)
         return timer
     if planned is None:
@@ -215,6 +297,8 @@ def print_stats(gcode_path, map_bytes: bytes, settings: Settings, arena: int = A
     st.dwell_s = dwell_ms / 1000
     st.extra_e_mm = planner.stats.extra_applied
     st.decel_s = decel
+    st.printer = planned.printer
+    st.gaps = planned.gaps if planned.printer is not None else []
     st.arcs = ArcCount(len(planned.arcs.lines))
     st.slicer_time_s = slicer_time(ends)
     return st
