@@ -246,11 +246,14 @@ def _toml_value(v) -> str:
     raise PlacementError(f"cannot write {v!r} to a placement file")
 
 
-def dump_placement(texts: list[dict], strokes: list[dict], bulges: dict, header: str = "") -> str:
-    """A placement file's text: [[text]] tables, then [[strokes]], then [bulges]. The keys are
-    checked as load_placement checks them, so what this writes reads back the same."""
+def dump_placement(texts: list[dict], strokes: list[dict], bulges: dict, header: str = "",
+                   braille: list[dict] = ()) -> str:
+    """A placement file's text: [[text]] tables, then [[braille]], then [[strokes]] (the order
+    load_placement reads them in), then [bulges]. The keys are checked as load_placement checks
+    them, so what this writes reads back the same."""
     out = [f"# {ln}" if ln else "#" for ln in header.splitlines()]
-    for kind, tables, keys in (("text", texts, _TEXT_KEYS), ("strokes", strokes, _STROKE_KEYS)):
+    for kind, tables, keys in (("text", texts, _TEXT_KEYS), ("braille", braille, _BRAILLE_KEYS),
+                               ("strokes", strokes, _STROKE_KEYS)):
         for i, t in enumerate(tables):
             _check(t, keys, f"{kind}[{i}]", Path("placement"))
             out += ["", f"[[{kind}]]"] + [f"{k} = {_toml_value(v)}" for k, v in t.items()]
