@@ -1,17 +1,19 @@
 """What the studio's page edits, and everything computed from it, without the web server.
 
-A design is the page's JSON: items (text, or a drawing file: SVG, JSON strokes or an image)
-with their place on the unrolled wall, and the [bulges] settings. It becomes a placement file
+A design is the page's JSON: items (text, braille, or a drawing file: SVG, JSON strokes or an
+image) with their place on the unrolled wall, and the [bulges] settings. It becomes a placement file
 (placement.dump_placement) and is read back with load_placement, the CLI's own reader, so the
 preview, the export and `bulgekit build --placement` all start from the same file's text.
 
     design = {"name": "part",
               "items": [{"id": "t1", "kind": "text", "text": "HI", "at": [5, 3], "size": 6,
                          "font": "futural", "letter_spacing": 0, "mirror": false, "rotate": 0},
+                        {"id": "b1", "kind": "braille", "text": "Hi", "at": [5, 12], "grade": 1},
                         {"id": "d1", "kind": "file", "asset": "logo.svg", "at": [0, 0],
                          "scale": 1, "rotate": 15, "image_width": 20}],
               "bulges": {"dwell": 100, "extra": 0.1, "tolerance": 0.25, "geometric": false,
-                         "spacing": 0.9, "line_width": 0.45, "fallback": false}}
+                         "spacing": 0.9, "line_width": 0.45, "fallback": false,
+                         "printer": "ender3"}}
 
 Messages go back beside the item at fault: a stroke's source names its placement entry
 ("text[0] ..."), map points carry their strokes' sources, and points the reference planner
@@ -29,18 +31,24 @@ from pathlib import Path
 import numpy as np
 
 from ..bulge import api, mapformat, stats as _stats
-from ..bulge.fallback import (DEFAULT_DWELL_MS, DEFAULT_E_STEPS, DEFAULT_EXTRA_E_MM, DEFAULT_TOLERANCE_MM,
+from ..bulge.fallback import (DEFAULT_DWELL_MS, DEFAULT_EXTRA_E_MM, DEFAULT_TOLERANCE_MM,
                         MODE_GEOMETRIC, MODE_MARKED, Settings, StockStops)
+from ..bulge.braille import wall_check
 from ..bulge.mapbuild import DEFAULT_LINE_WIDTH, BuildError, too_many_message
 from ..bulge.placement import PlacementError, dump_placement, load_placement
 from ..errors import BulgekitError, InputError
 
-_ENTRY_RX = re.compile(r"(?:^|: )((text|strokes)\[(\d+)\])")   # a placement entry, "text[0]"
+_ENTRY_RX = re.compile(r"(?:^|: )((text|braille|strokes)\[(\d+)\])")   # a placement entry, "text[0]"
+# the placement file's tables of things to draw, in the order load_placement reads them (so the
+# order of its entries), and the page's item kind for each
+KINDS = ("text", "braille", "strokes")
+_TABLE_OF = {"text": "text", "braille": "braille", "file": "strokes"}
 # Fields the page may set per item kind, as the placement file names them.
-_TEXT_FIELDS = ("text", "at", "size", "font", "letter_spacing", "mirror", "rotate", "face", "align")
-_FILE_FIELDS = ("at", "scale", "image_width", "curve_tolerance", "rotate", "face", "align")
+_FIELDS = {"text": ("text", "at", "size", "font", "letter_spacing", "mirror", "rotate", "face", "align"),
+           "braille": ("text", "at", "grade", "table", "face", "align"),
+           "file": ("at", "scale", "image_width", "curve_tolerance", "rotate", "face", "align")}
 _BULGE_FIELDS = ("dwell", "extra", "tolerance", "geometric", "spacing", "line_width", "fallback",
-                 "stop", "e_steps", "stop_e_steps")
+                 "stop", "e_steps", "stop_e_steps", "printer", "firmware")
 IMAGE_EXT = {".png", ".jpg", ".jpeg", ".bmp", ".gif", ".tif", ".tiff", ".webp"}
 DRAWING_EXT = {".svg", ".json"} | IMAGE_EXT
 MAX_ITEMS = 64
@@ -74,33 +82,37 @@ def _num(v, where: str) -> float:
     return v
 
 
-def entries(design: dict, assets: dict[str, Asset]) -> tuple[list[dict], list[dict], list[str]]:
-    """([[text]] tables, [[strokes]] tables, item id per entry in file order: texts first)."""
+def entries(design: dict, assets: dict[str, Asset]) -> tuple[dict[str, list[dict]], list[str]]:
+    """The placement file's tables per kind (KINDS: [[text]], [[braille]], [[strokes]]) and the
+    item id of each entry in file order (the tables in KINDS' order)."""
     items = design.get("items", [])
     if not isinstance(items, list):
         raise DesignError("items: expected a list")
     if len(items) > MAX_ITEMS:
         raise DesignError(f"items: at most {MAX_ITEMS} items, got {len(items)}")
-    texts, files, tids, fids = [], [], [], []
+    tables: dict[str, list[dict]] = {k: [] for k in KINDS}
+    ids: dict[str, list[str]] = {k: [] for k in KINDS}
     for k, it in enumerate(items):
         if not isinstance(it, dict):
             raise DesignError(f"items[{k}]: expected an object")
         iid = str(it.get("id", k))
-        if it.get("kind") == "text":
-            t = {f: it[f] for f in _TEXT_FIELDS if f in it}
-            texts.append(t)
-            tids.append(iid)
-        elif it.get("kind") == "file":
+        kind = it.get("kind")
+        if kind not in _TABLE_OF:
+            raise DesignError(f"item {iid}: unknown kind {kind!r} (text, braille or file)")
+        t = {f: it[f] for f in _FIELDS[kind] if f in it}
+        if kind == "file":
             a = assets.get(str(it.get("asset")))
             if a is None:
                 raise DesignError(f"item {iid}: drawing file {it.get('asset')!r} is not loaded")
-            t = {"file": a.name} | {f: it[f] for f in _FILE_FIELDS if f in it}
+            t = {"file": a.name} | t
             if Path(a.name).suffix.lower() not in IMAGE_EXT:
                 t.pop("image_width", None)
-            files.append(t)
-            fids.append(iid)
-        else:
-            raise DesignError(f"item {iid}: unknown kind {it.get('kind')!r} (text or file)")
+        if kind == "braille":               # a grade or a table, not both (the table wins)
+            t = {f: v for f, v in t.items() if v is not None and v != ""}
+            if "table" in t:
+                t.pop("grade", None)
+        tables[_TABLE_OF[kind]].append(t)
+        ids[_TABLE_OF[kind]].append(iid)
         for f, v in t.items():
             if f == "at":
                 if not (isinstance(v, list) and len(v) == 2):
@@ -108,12 +120,16 @@ def entries(design: dict, assets: dict[str, Asset]) -> tuple[list[dict], list[di
                 t["at"] = [_num(x, f"item {iid}: at") for x in v]
             elif f in ("size", "letter_spacing", "scale", "image_width", "curve_tolerance", "rotate"):
                 t[f] = _num(v, f"item {iid}: {f}")
-            elif f == "face":
-                n = _num(v, f"item {iid}: face")
+            elif f in ("face", "grade"):
+                n = _num(v, f"item {iid}: {f}")
                 if n != int(n) or n < 1:
-                    raise DesignError(f"item {iid}: face: expected a whole number from 1, got {v!r}")
+                    raise DesignError(f"item {iid}: {f}: expected a whole number from 1, got {v!r}")
                 t[f] = int(n)
-    return texts, files, tids + fids
+    return tables, [i for k in KINDS for i in ids[k]]
+
+
+def _dump(tables: dict[str, list[dict]], bulges: dict, header: str = "") -> str:
+    return dump_placement(tables["text"], tables["strokes"], bulges, header, braille=tables["braille"])
 
 
 def bulges(design: dict) -> dict:
@@ -126,20 +142,50 @@ def bulges(design: dict) -> dict:
             v = b[f]
             if f in ("dwell", "stop_e_steps") and isinstance(v, float) and v.is_integer():
                 v = int(v)
+            if f in ("printer", "firmware") and isinstance(v, str):
+                v = v.strip()
+                if not v:
+                    continue
+                if f == "printer":
+                    v = printer_path(v)
             out[f] = v
     return out
 
 
+def printer_path(v: str) -> str:
+    """[bulges] printer as the page gives it: a preset's name as it is, a file's path made
+    absolute (from the folder the studio runs in), so that the placement file an export writes
+    names the same file wherever it is read."""
+    from ..machine import PRESETS
+    if v in PRESETS:
+        return v
+    return str(Path(v).expanduser().absolute())
+
+
+def printer_model_of(b: dict, gcode: Path | None = None):
+    """The printer model the stock file is written for, as `bulgekit build --placement` takes it
+    ([bulges] printer and firmware, then the G-code's own settings before its first extrusion)."""
+    from ..cli._util import printer_model
+    from ..machine import FIRMWARES
+    fw = b.get("firmware")
+    if fw is not None and fw not in FIRMWARES:
+        raise DesignError(f"bulges: firmware {fw!r}: one of {', '.join(FIRMWARES)}")
+    try:
+        return printer_model(b.get("printer"), fw, gcode)
+    except BulgekitError as e:
+        raise DesignError("bulges: " + str(e).replace("--printer ", "printer ")) from None
+
+
 def placement_text(design: dict, assets: dict[str, Asset], file_ref=lambda a: a.name) -> str:
-    texts, files, _ = entries(design, assets)
-    for t in files:
+    tables, _ = entries(design, assets)
+    for t in tables["strokes"]:
         t["file"] = file_ref(assets[t["file"]])
     try:
-        return dump_placement(texts, files, bulges(design),
-                              header="bulgekit placement, written by `bulgekit studio`.\n"
-                                     "Use: bulgekit build PART.gcode --placement THIS_FILE -o out/\n"
-                                     "or as a slicer post-processing step: bulgekit post-process "
-                                     "--placement THIS_FILE")
+        return _dump(tables, bulges(design),
+                     header="bulgekit placement, written by `bulgekit studio`.\n"
+                            "Use: bulgekit build PART.gcode --placement THIS_FILE -o out/\n"
+                            "or as a slicer post-processing step: bulgekit post-process "
+                            "--placement THIS_FILE")
     except PlacementError as e:
         raise DesignError(str(e).removeprefix("placement: ")) from None
 
@@ -153,11 +199,11 @@ def from_placement(text: str, files: dict[str, str], assets: dict[str, Asset], s
         doc = tomllib.loads(text)
     except tomllib.TOMLDecodeError as e:
         raise DesignError(f"placement file: not valid TOML: {e}") from None
-    unknown = sorted(set(doc) - {"text", "strokes", "bulges"})
+    unknown = sorted(set(doc) - {*KINDS, "bulges"})
     if unknown:
-        raise DesignError(f"placement file: unknown table {unknown[0]!r} (known: text, strokes, bulges)")
+        raise DesignError(f"placement file: unknown table {unknown[0]!r} (known: {', '.join(KINDS)}, bulges)")
     tables = {}
-    for kind in ("text", "strokes"):
+    for kind in KINDS:
         v = doc.get(kind, [])
         v = [v] if isinstance(v, dict) else v
         if not isinstance(v, list) or not all(isinstance(t, dict) for t in v):
@@ -166,7 +212,8 @@ def from_placement(text: str, files: dict[str, str], assets: dict[str, Asset], s
     bulges = doc.get("bulges", {})
     if not isinstance(bulges, dict):
         raise DesignError("placement file: 'bulges' must be a table ([bulges])")
-    items = [{"kind": "text"} | t for t in tables["text"]]
+    items = [{"kind": "text"} | t for t in tables["text"]] + [{"kind": "braille"} | t for t in tables["braille"]]
+    n_drawn = len(items)
     for i, t in enumerate(tables["strokes"]):
         ref = t.get("file")
         if not isinstance(ref, str):
@@ -179,9 +226,8 @@ def from_placement(text: str, files: dict[str, str], assets: dict[str, Asset], s
     scratch.mkdir(parents=True, exist_ok=True)
     check = scratch / "import.toml"
     try:
-        check.write_text(dump_placement(tables["text"], [t | {"file": str(assets[it["asset"]].path)}
-                                                         for t, it in zip(tables["strokes"], items[len(tables["text"]):])],
-                                        bulges), encoding="utf-8")
+        files = [t | {"file": str(assets[it["asset"]].path)} for t, it in zip(tables["strokes"], items[n_drawn:])]
+        check.write_text(_dump(tables | {"strokes": files}, bulges), encoding="utf-8")
         load_placement(check)
     except PlacementError as e:
         raise DesignError("placement file: " + str(e).removeprefix("placement: ")
@@ -198,10 +244,12 @@ def settings_of(b: dict) -> Settings:
         raise DesignError(f"bulges: {e}") from None
 
 
-def stops_of(b: dict) -> StockStops:
-    """How the export's stock file writes its stops: as `bulgekit build --placement` reads them."""
+def stops_of(b: dict, printer=None) -> StockStops:
+    """How the export's stock file writes its stops, for the printer model (printer_model_of): as
+    `bulgekit build --placement` reads them."""
     try:
-        return StockStops(b.get("stop", "move"), b.get("e_steps", DEFAULT_E_STEPS), b.get("stop_e_steps"))
+        return StockStops(b.get("stop", "move"), b.get("e_steps"), b.get("stop_e_steps"),
+                          printer if printer is not None else printer_model_of(b))
     except ValueError as e:
         raise DesignError(f"bulges: {e}") from None
 
@@ -216,14 +264,14 @@ def _entry_name(msg: str) -> str | None:
     return m.group(1) if m else None
 
 
-def _item_message(msg: str, texts: int, entries: int) -> tuple[int | None, str]:
+def _item_message(msg: str, tables: dict[str, list], entries: int) -> tuple[int | None, str]:
     """(the entry a message about a placement file is about: its index among the file's
-    entries, texts first, or None; the message, without the entry when it has one)."""
+    entries, in KINDS' order, or None; the message, without the entry when it has one)."""
     ent = _entry_of(msg)
     if ent is None:
         return None, msg
     kind, n = ent
-    k = n if kind == "text" else texts + n
+    k = sum(len(tables[x]) for x in KINDS[:KINDS.index(kind)]) + n
     if k >= entries:
         return None, msg
     return k, _ENTRY_RX.sub("", msg, count=1).lstrip(": ").strip() or msg
@@ -251,11 +299,14 @@ def preview(design: dict, assets: dict[str, Asset], model, gcode: Path, scratch:
     """Strokes per item, the map's points and every message, for the page. An item that fails
     is reported beside itself and left out, so the others still show; check runs the G-code
     through the reference planner to find points no move stops at (slower on large files)."""
-    texts, files, ids = entries(design, assets)
+    tables, ids = entries(design, assets)
+    flat = [(kind, t) for kind in KINDS for t in tables[kind]]     # the entries, in file order
     b = bulges(design)
     out = Preview(items={i: {"strokes": [], "errors": [], "warnings": []} for i in ids})
     try:
         settings = settings_of(b)
+        if "printer" in b or "firmware" in b:
+            printer_model_of(b, gcode)          # said now, not first at the export
     except DesignError as e:
         out.errors.append(str(e))
         return out
@@ -263,22 +314,27 @@ def preview(design: dict, assets: dict[str, Asset], model, gcode: Path, scratch:
     live = list(range(len(ids)))                 # entries still in the file
     pl = res = None
     for _ in range(len(ids) + 1):
-        t_live = [texts[k] for k in live if k < len(texts)]
-        f_live = [files[k - len(texts)] for k in live if k >= len(texts)]
+        live_tables = {kind: [] for kind in KINDS}
+        for k in live:
+            kind, t = flat[k]
+            live_tables[kind].append(t | {"file": str(assets[t["file"]].path)} if kind == "strokes" else t)
         live_ids = [ids[k] for k in live]
         if not live_ids:
             break
-        f_live = [t | {"file": str(assets[t["file"]].path)} for t in f_live]
         path = scratch / "preview.toml"
-        path.write_text(dump_placement(t_live, f_live, b), encoding="utf-8")
+        path.write_text(_dump(live_tables, b), encoding="utf-8")
         try:
             pl = load_placement(path)
-            res = api.build_map(model, pl.strokes, spacing=b.get("spacing"),
-                                line_width=b.get("line_width", DEFAULT_LINE_WIDTH), strict=False)
+            line_width = b.get("line_width", DEFAULT_LINE_WIDTH)
+            check_walls = wall_check(pl.strokes, settings.dwell_ms, b.get("spacing"), line_width)
+            if check_walls is not None:          # braille: a dot this print can make (as build)
+                check_walls(model)
+            res = api.build_map(model, pl.strokes, spacing=b.get("spacing"), line_width=line_width,
+                                strict=False)
             break
         except (PlacementError, InputError, BuildError) as e:
             pl = res = None
-            k, msg = _item_message(str(e).replace(f"{path}: ", ""), len(t_live), len(live_ids))
+            k, msg = _item_message(str(e).replace(f"{path}: ", ""), live_tables, len(live_ids))
             if k is None:
                 out.errors.append(msg)
                 break
@@ -294,7 +350,7 @@ def preview(design: dict, assets: dict[str, Asset], model, gcode: Path, scratch:
             [round(c, 3) for p in st.points for c in p])
     out.warnings += res.notes
     for w in res.warnings:                       # crossing a corner, on the first layer
-        k, msg = _item_message(w.replace(f"{path}: ", ""), len(t_live), len(live_ids))
+        k, msg = _item_message(w.replace(f"{path}: ", ""), live_tables, len(live_ids))
         (out.warnings if k is None else out.items[live_ids[k]]["warnings"]).append(msg)
     walls = model.walls
     for over, pts in ((False, res.points), (True, res.over_points)):
@@ -389,9 +445,9 @@ def export(design: dict, assets: dict[str, Asset], gcode: Path, folder: Path, na
     # (compared without case: macOS and Windows file systems)
     taken = {"placement.toml"} | {f"{name}{ext}".lower() for ext in (".bkm", ".bulge.gcode", ".stock.gcode",
                                                                    ".stats.txt", ".preview.png", ".preview3d.png")}
-    _, files, _ = entries(design, assets)
+    tables, _ = entries(design, assets)
     as_named = {}
-    for a in (assets[t["file"]] for t in files):
+    for a in (assets[t["file"]] for t in tables["strokes"]):
         if a.name not in as_named:
             n, k = a.name, 1
             while n.lower() in taken:
@@ -410,9 +466,11 @@ def export(design: dict, assets: dict[str, Asset], gcode: Path, folder: Path, na
         ppath.write_text(text, encoding="utf-8")
         pl = load_placement(ppath)
         b = pl.bulges
+        settings, line_width = settings_of(b), b.get("line_width", DEFAULT_LINE_WIDTH)
+        stops = stops_of(b, printer_model_of(b | {"printer": pl.printer}, gcode))
         out = api.build(gcode, pl.strokes, folder, name=name, spacing=b.get("spacing"),
-                        line_width=b.get("line_width", DEFAULT_LINE_WIDTH),
-                        settings=settings_of(b), write_fallback=True, stops=stops_of(b))
+                        line_width=line_width, settings=settings, write_fallback=True, stops=stops,
+                        _check_walls=wall_check(pl.strokes, settings.dwell_ms, b.get("spacing"), line_width))
         pv.build_unrolled(out, folder / f"{name}.preview.png")
         pv.build_3d(out, folder / f"{name}.preview3d.png")
         made = sorted(p for p in folder.iterdir() if p.is_file())

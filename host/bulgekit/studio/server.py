@@ -96,10 +96,12 @@ class Studio:
         self.view: dict | None = None          # the walls the page draws (wall_view of one of them)
         self.assets: dict[str, dz.Asset] = {}
         self.asset_kinds: dict[str, str] = {}
+        self.asset_info: dict[str, dict] = {}      # what add_asset said of each (the page's info)
         self.design: dict | None = None
         self.design_gcode = ""                  # the G-code the design was last previewed on
         self.exports: dict[str, dz.Export] = {}
         self.lithos: dict[str, dict] = {}      # key -> the lithophane's files and its 3D view
+        self.litho_last: dict | None = None     # the last one made: a reloaded page shows it again
         self.jobs: dict[str, Job] = {}
         self.worker = ThreadPoolExecutor(1, thread_name_prefix="studio-work")
         self.sending = threading.Lock()
@@ -200,6 +202,12 @@ class Studio:
         base = dz.safe_name(name)
         stem, suf = Path(base).stem, Path(base).suffix.lower()
         final, k = f"{stem}{suf}", 1
+        same = self.assets.get(final)
+        if same is not None and same.path.read_bytes() == data:
+            # the same file chosen again (a picture for a second lithophane, a drawing added
+            # twice): it is the one already here, under its own name
+            return self.asset_info[final]
+        # another file of a name already taken: NAME-2 (the design's items may use the first);
         # unique also where case does not count (macOS, Windows)
         while final.lower() in {n.lower() for n in self.assets}:
             k += 1
@@ -222,6 +230,7 @@ class Studio:
             raise dz.DesignError(f"{name}: cannot be read ({type(e).__name__}: {e})") from None
         self.assets[final] = dz.Asset(final, path)
         self.asset_kinds[final] = info["kind"]
+        self.asset_info[final] = info
         return info
 
     def _check_image(self, path: Path, name: str) -> dict:
@@ -378,7 +387,10 @@ class Studio:
             o = lt.LithoOptions(**opts)
         except TypeError as e:
             raise dz.DesignError(f"lithophane: {e}") from None
-        name = dz.safe_name(name or Path(a.name).stem, "lithophane")
+        # the outputs are named after the picture as the user named it (face.png: face.*), also
+        # when another picture of that name came first and the copy here is face-2.png; the
+        # folder's number keeps the lithophanes apart
+        name = dz.safe_name(name or Path(self.asset_info[a.name]["original"]).stem, "lithophane")
         key = f"{self.next_id()}-{name}"
         folder = self.workdir / "litho" / key
 
@@ -398,8 +410,19 @@ class Studio:
         self.lithos[key] = {"paths": res.paths, "view": litho_view(res.plan)}
         files = [{"name": p.name, "bytes": p.stat().st_size, "url": f"/files/litho/{key}/{p.name}"}
                  for p in sorted(folder.iterdir())]
-        return {"key": key, "files": files, "figures": litho_figures(res.stats),
-                "look": f"/files/litho/{key}/{res.paths['png'].name}", "view": f"/api/litho/{key}/view"}
+        out = {"key": key, "files": files, "figures": litho_figures(res.stats),
+               "look": f"/files/litho/{key}/{res.paths['png'].name}", "view": f"/api/litho/{key}/view"}
+        # what a reloaded page needs to show it again: the result, the picture and the form
+        self.litho_last = out | {"picture": self.asset_info[a.name], "options": opts}
+        return out
+
+
+def printer_choices() -> list[dict]:
+    """The printer models the page offers for the stock file: the presets (bulgekit.machine),
+    each with its firmware, E steps/mm and the line its stock file's header gives."""
+    from ..machine import PRESETS
+    return [{"name": n, "firmware": m.firmware, "e_steps": m.e_steps, "describe": m.describe()}
+            for n, m in PRESETS.items()]
 
 
 def litho_choices() -> dict:
@@ -651,7 +674,8 @@ def make_app(st: Studio, port_ref: dict) -> web.Application:
                        "image_megapixels": st.limits.image_pixels / 1e6, "arena": st.limits.arena,
                        "layer_points": LAYER_POINTS_MAX},
             "jobs": [j.json() for j in st.jobs.values() if j.state == "running"],
-            "workdir": str(st.workdir), "litho": litho_choices()})
+            "workdir": str(st.workdir), "litho": litho_choices(), "litho_last": st.litho_last,
+            "printers": printer_choices()})
 
     def too_big(name: str, limit: int, what: str, size: int | None = None) -> web.Response:
         hint = "; start it with a larger --max-upload" if what == "G-code" else ""
