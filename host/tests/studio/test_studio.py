@@ -659,3 +659,104 @@ def test_import_messages_name_the_users_files(studio, tmp_path):
     status, body = call(studio, "/api/import", {"toml": "[[strokes]]\nfile = 'spot.png'\nimage_width = -2\n",
                                                 "files": {"spot.png": pic}})
     assert status == 400 and str(studio.studio.workdir) not in body["error"] and "--" not in body["error"]
+
+
+# -- issue 37/38: braille items, the printer model, names of pictures chosen again
+
+def braille_item(iid="b", **kw):
+    return {"id": iid, "kind": "braille", "text": "Hello", "at": [70, 4]} | kw
+
+
+def test_dump_placement_writes_braille_that_reads_back(tmp_path):
+    text = dump_placement([{"text": "HI", "at": [1, 6]}], [],
+                          {"dwell": 100}, braille=[{"text": "Hello", "at": [5, 3], "grade": 2},
+                                                   {"text": "Gruß", "at": [5, 12], "table": "de-g1.ctb",
+                                                    "face": 1, "align": "left"}])
+    assert text.index("[[text]]") < text.index("[[braille]]")
+    p = tmp_path / "p.toml"
+    p.write_text(text)
+    pl = load_placement(p)
+    assert pl.entries == ["text[0]", "braille[0]", "braille[1]"]
+    # what load refuses, dump refuses, naming the entry
+    from bulgekit.bulge.placement import PlacementError
+    with pytest.raises(PlacementError, match=r"braille\[0\]: unknown key 'size'"):
+        dump_placement([], [], {}, braille=[{"text": "x", "size": 6}])
+    with pytest.raises(PlacementError, match=r"braille\[0\].grade: expected a whole number"):
+        dump_placement([], [], {}, braille=[{"text": "x", "grade": "2"}])
+
+
+def test_braille_item_previews_and_exports_as_the_cli(studio, tmp_path):
+    d = design(text_item(), braille_item(grade=2), dwell=120)
+    status, p = call(studio, "/api/preview", {"design": d})
+    assert status == 200 and not p["errors"], p
+    assert p["items"]["b"]["strokes"] and not p["items"]["b"]["errors"]
+    assert any("b" in q[6] for q in p["points"])
+    # a table by name instead of a grade; a bad one is said beside the item
+    status, p = call(studio, "/api/preview", {"design": design(braille_item(table="nope.ctb"))})
+    assert status == 200 and p["items"]["b"]["errors"] and "nope.ctb" in p["items"]["b"]["errors"][0]
+    # what this print cannot make readable is said beside it too (as build refuses it)
+    status, p = call(studio, "/api/preview", {"design": design(text_item(), braille_item(), dwell=600)})
+    assert p["items"]["b"]["errors"] and "readable dot" in p["items"]["b"]["errors"][0]
+    assert p["items"]["t1"]["strokes"]
+    d["name"] = "dots"
+    job = wait_job(studio, call(studio, "/api/export", {"design": d})[1])
+    assert job["state"] == "done", job["error"]
+    folder = Path(job["result"]["folder"])
+    assert '[[braille]]\ntext = "Hello"\nat = [70, 4]\ngrade = 2\n' in (folder / "placement.toml").read_text()
+    cli = cli_build(GCODE, folder / "placement.toml", tmp_path / "cli", "dots")
+    assert len(cli) == 6 and all(_sha(p) == _sha(folder / p.name) for p in cli)
+    # and a placement file with braille comes in as braille items
+    status, back = call(studio, "/api/import", {"toml": (folder / "placement.toml").read_text(), "files": {}})
+    assert status == 200 and [i["kind"] for i in back["items"]] == ["text", "braille"]
+
+
+def test_printer_model_reaches_the_stock_file_as_the_cli(studio, tmp_path):
+    stock = {}
+    for printer in (None, "prusa-mk3s"):
+        d = design(text_item(), fallback=True, **({"printer": printer} if printer else {}))
+        d["name"] = f"pm-{printer}"
+        job = wait_job(studio, call(studio, "/api/export", {"design": d})[1])
+        assert job["state"] == "done", job["error"]
+        folder = Path(job["result"]["folder"])
+        cli = cli_build(GCODE, folder / "placement.toml", tmp_path / str(printer), d["name"])
+        assert all(_sha(p) == _sha(folder / p.name) for p in cli)
+        stock[printer] = (folder / f"{d['name']}.stock.gcode").read_text()
+    assert "bulgekit printer: prusa-mk3s (prusa)" in stock["prusa-mk3s"]
+    assert stock["prusa-mk3s"].split("\n", 2)[2] != stock[None].split("\n", 2)[2]
+    # a profile file by its path (made absolute in the placement file), and one not there
+    prof = tmp_path / "mine.toml"
+    from click.testing import CliRunner
+    from bulgekit.cli import main
+    r = CliRunner().invoke(main, ["printer", "show", "ender3", "--toml"])
+    prof.write_text(r.output)
+    status, text = call(studio, "/api/placement", {"design": design(text_item(), printer=str(prof))}, raw=True)
+    assert f'printer = "{prof}"'.encode() in text
+    status, p = call(studio, "/api/preview", {"design": design(text_item(), printer=str(prof))})
+    assert not p["errors"], p["errors"]
+    status, p = call(studio, "/api/preview", {"design": design(text_item(), printer=str(tmp_path / "gone.cfg"))})
+    assert p["errors"] and "neither a file nor a preset" in p["errors"][0] and "--" not in p["errors"][0]
+
+
+def test_a_picture_chosen_again_keeps_its_name(studio, tmp_path):
+    img = tmp_path / "face.png"
+    Image.linear_gradient("L").resize((30, 24)).save(img)
+    first = _upload_bytes(studio, "face.png", img.read_bytes())
+    assert first == "face.png"
+    # the same picture again: the same file, not face-2.png
+    assert _upload_bytes(studio, "face.png", img.read_bytes()) == "face.png"
+    job = wait_job(studio, call(studio, "/api/litho", {"asset": "face.png", "options": {"width": 20}})[1])
+    assert job["state"] == "done", job["error"]
+    assert {f["name"] for f in job["result"]["files"]} >= {"face.litho.gcode", "face.stl"}
+    # another picture of that name: kept apart (a design may use the first), but its
+    # lithophane is still named after the picture
+    Image.linear_gradient("L").rotate(90).resize((30, 24)).save(img)
+    second = _upload_bytes(studio, "face.png", img.read_bytes())
+    assert second == "face-2.png"
+    job = wait_job(studio, call(studio, "/api/litho", {"asset": second, "options": {"width": 20}})[1])
+    assert job["state"] == "done", job["error"]
+    assert {f["name"] for f in job["result"]["files"]} >= {"face.litho.gcode", "face.stl"}
+    # the last lithophane is in the state a reloaded page reads
+    status, st = call(studio, "/api/state")
+    last = st["litho_last"]
+    assert last["key"] == job["result"]["key"] and last["picture"]["name"] == "face-2.png"
+    assert last["options"] == {"width": 20} and last["figures"] == job["result"]["figures"]
