@@ -368,6 +368,20 @@ def test_lithophane_tab(browser, studio, tmp_path):
         assert "astronaut.stock.gcode" in pg.inner_text("#litho-send-log")
         assert pg.evaluate("() => document.querySelector('#litho-send-bar').value") == 1
 
+    # a reload keeps it: the tab, the figures, the files, the 3D view and the form it was made with
+    key = pg.evaluate("() => window.studio.lithoKey()")
+    figures = pg.inner_text("#litho-figures")
+    pg.reload()
+    pg.wait_for_selector("body[data-ready='1']")
+    pg.wait_for_selector("#litho-figures", timeout=60_000)
+    assert pg.is_visible("#page-litho") and pg.is_hidden("#page-wall")
+    assert pg.evaluate("() => window.studio.lithoKey()") == key
+    assert pg.inner_text("#litho-figures") == figures and "astronaut.stl" in pg.inner_text("#litho-out")
+    assert pg.input_value(form + "input[name=width]") == "40" and "90 × 82 pixels" in pg.inner_text("#litho-pic")
+    pg.wait_for_function("() => !document.querySelector('#litho-send').disabled")
+    again = canvas_pixels(pg, "#litho-3d canvas")
+    assert (np.abs(again - np.median(again[:5])) > 8).mean() > 0.1
+
     # a bad setting is said in the page's own words
     pg.fill(form + "input[name=min_thickness]", "3")
     pg.click("#litho-make")
@@ -405,8 +419,8 @@ def test_open_placement_file_and_nudge_with_keys(browser, studio, tmp_path):
     pg.wait_for_function("() => window.studio.S.items.length === 2 && window.studio.S.items[0].text === 'Odd'")
     settled(pg)
     # the stock file's stop settings come in with it (issue 25) and go out with the export
-    assert pg.input_value("#bulge-form input[name=e_steps]") == "415.5"
-    assert pg.input_value("#bulge-form input[name=stop_e_steps]") == "8"
+    assert pg.input_value("#sec-printer input[name=e_steps]") == "415.5"
+    assert pg.input_value("#sec-printer input[name=stop_e_steps]") == "8"
     pg.fill("#export-name", "odd")
     pg.click("#export")
     pg.wait_for_selector("#export-zip", timeout=120_000)
@@ -466,4 +480,92 @@ def test_undo_redo_and_a_reload_keeps_the_design(browser, studio):
     assert pg.evaluate("() => window.studio.S.preview.points.length") == n
     pg.wait_for_timeout(500)
     assert pg.is_disabled("#undo")                # nothing to undo into: not an empty design
+    assert not errors, errors
+
+
+def export_and_compare(pg, run, tmp_path, name):
+    """Export from the page and compare every file with `bulgekit build --placement` on the
+    placement file it wrote; the export's folder."""
+    settled(pg)
+    pg.fill("#export-name", name)           # (not a change a preview waits for)
+    pg.click("#export")
+    pg.wait_for_selector("#export-zip", timeout=120_000)
+    folder = run.studio.workdir / "exports" / pg.evaluate("() => window.studio.S.exportKey")
+    cli = cli_build(GCODE, folder / "placement.toml", tmp_path / f"cli-{name}", name)
+    assert len(cli) == 6
+    for p in cli:
+        assert p.read_bytes() == (folder / p.name).read_bytes(), p.name
+    return folder
+
+
+def test_braille_item_added_previewed_and_exported(browser, studio, tmp_path):
+    pg, errors = page_for(browser, studio)
+    open_sample(pg)
+    # the unrolled view fits the wall: from the bed (a margin for the labels), not from v = -15
+    bottom = pg.evaluate("() => window.studio.view2d.toMm(0, document.querySelector('#unrolled').height)[1]")
+    assert -3 < bottom <= 0
+    pg.click("#add-braille")
+    settled(pg)
+    it = item(pg)
+    assert it["kind"] == "braille" and it["text"] == "hello" and it["grade"] == 1
+    assert "Braille “hello”" in pg.inner_text("#items") and "bumps" in pg.inner_text("#items")
+    # its fields: text and grade, no size, font or turn (braille keeps the standard's size)
+    assert pg.is_visible("#item-form select[name=grade]") and pg.is_visible("#item-form textarea[name=text]")
+    for f in ("input[name=size]", "select[name=font]", "input[name=rotate]", "input[name=table]"):
+        assert pg.is_hidden("#item-form " + f), f
+    n1 = pg.evaluate("() => window.studio.S.preview.points.length")
+    pg.fill("#item-form textarea[name=text]", "the bulge")
+    pg.select_option("#item-form select[name=grade]", "2")
+    settled(pg)
+    assert item(pg)["grade"] == 2 and pg.evaluate("() => window.studio.S.preview.points.length") != n1
+    assert not pg.evaluate("() => window.studio.S.preview.items[window.studio.S.items.at(-1).id].errors")
+    shot(pg, "10-braille")
+    folder = export_and_compare(pg, studio, tmp_path, "dots")
+    assert '[[braille]]\ntext = "the bulge"' in (folder / "placement.toml").read_text()
+    assert "grade = 2" in (folder / "placement.toml").read_text()
+    assert not errors, errors
+
+
+def test_one_printer_control_and_the_printer_model(browser, studio, tmp_path):
+    pg, errors = page_for(browser, studio)
+    open_sample(pg)
+    assert pg.locator("h2", has_text="Printer").count() == 1     # one place says what printer
+    stock_fields = ["select[name=printer_choice]", "select[name=firmware]", "select[name=stop]",
+                    "input[name=e_steps]", "input[name=stop_e_steps]"]
+    # bulgekit firmware: no stock-file fields
+    assert pg.input_value("#sec-printer select[name=fallback]") == "false"
+    for f in stock_fields:
+        assert pg.is_hidden("#sec-printer " + f), f
+    assert "bulgekit firmware" in pg.inner_text("#send-what")
+    pg.click("#add-text")
+    settled(pg)
+    default = export_and_compare(pg, studio, tmp_path, "plain")
+    # stock firmware: they show; a preset makes another stock file, still the CLI's
+    pg.select_option("#sec-printer select[name=fallback]", "true")
+    for f in stock_fields:
+        assert pg.is_visible("#sec-printer " + f), f
+    assert pg.is_hidden("#sec-printer input[name=printer_file]")
+    assert "stock firmware" in pg.inner_text("#send-what")
+    from bulgekit.machine import PRESETS
+    assert pg.eval_on_selector("#sec-printer select[name=printer_choice]",
+                               "s => [...s.options].map(o => o.value)") == [*PRESETS, "file"]
+    pg.select_option("#sec-printer select[name=printer_choice]", "prusa-mk3s")
+    assert "280" in pg.get_attribute("#sec-printer input[name=e_steps]", "placeholder")
+    assert "prusa" in pg.inner_text("#printer-describe")
+    folder = export_and_compare(pg, studio, tmp_path, "prusa")
+    placement = (folder / "placement.toml").read_text()
+    assert 'printer = "prusa-mk3s"' in placement and "fallback = true" in placement
+    a = (default / "plain.stock.gcode").read_text().splitlines()
+    b = (folder / "prusa.stock.gcode").read_text().splitlines()
+    assert "prusa-mk3s (prusa)" in b[1] and a[2:] != b[2:]
+    # a profile file by its path; one not there is said below the views
+    pg.select_option("#sec-printer select[name=printer_choice]", "file")
+    assert pg.is_visible("#sec-printer input[name=printer_file]")
+    pg.fill("#sec-printer input[name=printer_file]", str(tmp_path / "nowhere.cfg"))
+    pg.wait_for_function("() => document.querySelector('#global-msgs').textContent.includes('nowhere.cfg')",
+                         timeout=60_000)
+    assert "neither a file nor a preset" in pg.inner_text("#global-msgs")
+    # back to bulgekit firmware: the stock fields go again
+    pg.select_option("#sec-printer select[name=fallback]", "false")
+    assert pg.is_hidden("#sec-printer select[name=printer_choice]")
     assert not errors, errors

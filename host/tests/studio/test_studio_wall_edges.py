@@ -165,7 +165,7 @@ def test_choices_are_not_cut_off(browser, studio):
     pg, errors = page_for(browser, studio)
     open_sample(pg)
     pg.click("#add-text")                                 # the item form's font choice shows too
-    cut = pg.evaluate("""() => { const c = document.createElement("canvas").getContext("2d");
+    cut_off = """() => { const c = document.createElement("canvas").getContext("2d");
         const out = [];
         for (const s of document.querySelectorAll("#page-wall select")) {
           if (!s.offsetParent) continue;
@@ -177,10 +177,14 @@ def test_choices_are_not_cut_off(browser, studio):
           if (r.width < text + parseFloat(st.paddingLeft) + parseFloat(st.paddingRight) + 20 || r.right > aside.right)
             out.push([s.name || s.id, r.width, text]);
         }
-        return out; }""")
-    assert cut == [], cut
-    n = pg.evaluate("() => [...document.querySelectorAll('#page-wall select')].filter((s) => s.offsetParent).length")
-    assert n == 6                                # font, align, mode, printer, stock stops, file to send
+        return out; }"""
+    shown = "() => [...document.querySelectorAll('#page-wall select')].filter((s) => s.offsetParent).length"
+    assert pg.evaluate(cut_off) == []
+    assert pg.evaluate(shown) == 4               # font, align, mode, firmware
+    # stock firmware: its printer model, the firmware it runs and the stops' form too
+    pg.select_option("#sec-printer select[name=fallback]", "true")
+    assert pg.evaluate(cut_off) == []
+    assert pg.evaluate(shown) == 7
     assert not errors, errors
 
 

@@ -14,6 +14,7 @@ const $ = (id) => document.getElementById(id);
 const S = {                 // the page's state
   gcode: null,              // server's gcode state: walls, layers ...
   fonts: [],
+  printers: [],             // the printer models' presets (server: printer_choices)
   limits: {},
   items: [],                // design items (+ label, assetKind: page only)
   selected: null,           // item id
@@ -118,7 +119,7 @@ function setGcode(g, keepSettings = false) {
   const w = g.walls;
   $("gcode-info").textContent = `${g.name}\n${g.layers} layers, z ${w.v_range[0].toFixed(2)}–${w.v_range[1].toFixed(2)} mm, ` +
     `wall up to ${g.length_max.toFixed(1)} mm around` + (g.geometric ? "\nno outer-wall comments: geometric mode" : "");
-  for (const id of ["add-text", "add-file", "open-placement", "export", "placement"]) $(id).disabled = false;
+  for (const id of ["add-text", "add-braille", "add-file", "open-placement", "export", "placement"]) $(id).disabled = false;
   if (!keepSettings) $("bulge-form").geometric.value = g.geometric ? "true" : "false";
   for (const it of S.items) clampItem(it);
   view2d.fit();
@@ -130,7 +131,8 @@ function setGcode(g, keepSettings = false) {
 // ---------------------------------------------------------------- items
 
 function itemName(it) {
-  if (it.kind === "text") return `Text “${it.text.replace(/\n/g, " ").slice(0, 24)}”`;
+  if (it.kind === "text" || it.kind === "braille")
+    return `${it.kind === "text" ? "Text" : "Braille"} “${it.text.replace(/\n/g, " ").slice(0, 24)}”`;
   return `${it.assetKind === "image" ? "Picture" : "Drawing"} ${it.asset}`;
 }
 
@@ -152,20 +154,28 @@ function faceInView(v) {
   return { face: f[0], u: (f[1] + f[2]) / 2 };
 }
 
-function addText() {
+// Braille's size is the standard's (bulge/braille.py): a cell's dots span 5 mm up from `at` (its
+// bottom dots), a cell takes 6 mm along the wall; "hello" in grade 1 is 5 cells.
+const BRAILLE_CELL_HEIGHT = 5, BRAILLE_CELL_PITCH = 6, BRAILLE_DOT = 1.5;
+
+// A text or braille item (kind), centred on the face in view (the server aligns it: face,
+// align), or on the view's middle when the wall has no corners (placeNew centres it there once
+// its strokes are in).
+function addItem(kind) {
   flushHistory();
   const [lo, hi] = S.gcode.walls.v_range;
-  const size = round2(Math.max(1, Math.min(6, (hi - lo) / 3)));
-  const v = +(lo + (hi - lo - size) / 2).toFixed(2);
-  // centred on the face in view (the server aligns it: face, align), or on the view's middle
-  // when the wall has no corners (placeNew centres it there once its strokes are in)
+  const braille = kind === "braille";
+  // a capital is about as wide as it is tall: the box "TEXT" will take, until its strokes are in
+  const size = braille ? BRAILLE_CELL_HEIGHT : round2(Math.max(1, Math.min(6, (hi - lo) / 3)));
+  const w = braille ? 5 * BRAILLE_CELL_PITCH : 4 * size;
+  const v = +(lo + Math.max(braille ? BRAILLE_DOT : 0, (hi - lo - size) / 2)).toFixed(2);
   const { face, u } = faceInView(v + size / 2);
-  const it = { id: `i${S.nextId++}`, kind: "text", text: "TEXT", font: "futural", size, letter_spacing: 0,
-    mirror: false, rotate: 0, at: [face ? 0 : round2(u - 2 * size), v] };
+  const it = braille ? { id: `i${S.nextId++}`, kind, text: "hello", grade: 1 }
+    : { id: `i${S.nextId++}`, kind, text: "TEXT", font: "futural", size, letter_spacing: 0, mirror: false, rotate: 0 };
+  it.at = [face ? 0 : round2(u - w / 2), v];
   if (face) Object.assign(it, { face, align: "center" });
   else it.centreOn = u;
-  // a capital is about as wide as it is tall: the box "TEXT" will take, until its strokes are in
-  placeInFreeSpace(it, 4 * size, size, u - 2 * size);
+  placeInFreeSpace(it, w, size, u - w / 2);
   S.items.push(it);
   select(it.id);
   requestPreview();
@@ -332,7 +342,8 @@ async function addDrawing(file) {
 // A placement file (and the drawing files it names, chosen with it) replaces the design: the
 // server checks it as `bulgekit build --placement` would and hands back the items.
 const BULGE_DEFAULTS = { dwell: 100, extra: 0.1, tolerance: 0.25, spacing: "", line_width: 0.45,
-  geometric: false, fallback: false, stop: "move", e_steps: 93, stop_e_steps: "" };
+  geometric: false, fallback: false, stop: "move", e_steps: "", stop_e_steps: "", firmware: "" };
+const DEFAULT_PRINTER = "marlin";      // what no `printer` key means (bulgekit.machine.DEFAULT)
 
 async function openPlacement(list) {
   showError("asset-error", null);
@@ -354,6 +365,7 @@ async function openPlacement(list) {
     flushHistory();
     S.items = d.items.map((it) => it.kind === "text"
       ? { size: 6, font: "futural", letter_spacing: 0, mirror: false, rotate: 0, at: [0, 1], ...it, id: `i${S.nextId++}` }
+      : it.kind === "braille" ? { at: [0, 1], ...it, id: `i${S.nextId++}` }
       // (the placement file's default at: 1 mm above the bed, a .json stroke list as it is)
       : { scale: 1, rotate: 0, at: /\.json$/i.test(it.asset) ? [0, 0] : [0, 1], ...it, assetKind: kinds[it.asset],
           id: `i${S.nextId++}` });
@@ -369,25 +381,35 @@ function select(id) {
   const it = S.items.find((i) => i.id === id);
   $("sec-item").hidden = !it;
   if (it) {
-    const f = $("item-form");
-    for (const el of f.querySelectorAll(".for-text")) el.hidden = it.kind !== "text";
-    for (const el of f.querySelectorAll(".for-drawing")) el.hidden = !(it.kind === "file" && it.assetKind !== "image");
-    for (const el of f.querySelectorAll(".for-image")) el.hidden = !(it.kind === "file" && it.assetKind === "image");
+    itemFields(it);
     fillItemForm(it);
   }
   renderItems();
   view2d.draw();
 }
 
+// The item form shows the fields of the item's kind: an element of class for-KIND shows for
+// text, braille, drawing (SVG, JSON) or image; for-table only while braille takes a table.
+const kindOf = (it) => (it.kind === "file" ? (it.assetKind === "image" ? "image" : "drawing") : it.kind);
+
+function itemFields(it) {
+  for (const el of $("item-form").querySelectorAll("[class*='for-']"))
+    el.hidden = !el.classList.contains(`for-${kindOf(it)}`) || (el.classList.contains("for-table") && it.table === undefined);
+}
+
 function fillItemForm(it) {
   const f = $("item-form");
-  if (it.kind === "text") {
+  if (it.kind === "text" || it.kind === "braille")
     if (document.activeElement !== f.text) f.text.value = it.text;
+  if (it.kind === "text") {
     f.font.value = it.font; f.size.value = +it.size.toFixed(2);
     f.letter_spacing.value = it.letter_spacing; f.mirror.checked = it.mirror;
+  } else if (it.kind === "braille") {
+    f.grade.value = it.table !== undefined ? "table" : String(it.grade || 1);
+    if (document.activeElement !== f.table) f.table.value = it.table || "";
   } else if (it.assetKind === "image") f.image_width.value = +it.image_width.toFixed(2);
   else f.scale.value = +it.scale.toFixed(3);
-  f.u.value = +it.at[0].toFixed(2); f.v.value = +it.at[1].toFixed(2); f.rotate.value = +it.rotate.toFixed(1);
+  f.u.value = +it.at[0].toFixed(2); f.v.value = +it.at[1].toFixed(2); f.rotate.value = +(it.rotate || 0).toFixed(1);
   f.face.value = it.face || ""; f.align.value = it.align || "center"; f.align.disabled = !it.face;
   f.u.previousSibling.textContent = it.face ? "u from the aligned place, mm " : "u, mm ";
 }
@@ -410,6 +432,11 @@ function readItemForm(e) {
       else { it.face = Math.round(+el.value); it.align = it.align || "center"; it.at = [0, it.at[1]]; }
       delete it.placing; delete it.centreOn; fillItemForm(it); break;
     case "align": if (it.face) { it.align = el.value; it.at = [0, it.at[1]]; fillItemForm(it); } break;
+    case "grade":                               // braille: grade 1 or 2, or a table by name
+      if (el.value === "table") { delete it.grade; it.table = it.table || ""; }
+      else { it.grade = +el.value; delete it.table; }
+      itemFields(it); break;
+    case "table": it.table = el.value.trim(); break;
     default: it[el.name] = num(it[el.name]);      // size, letter_spacing, scale, image_width, rotate
   }
   renderItems();
@@ -464,10 +491,13 @@ function bulgeSettings() {
   for (const k of ["extra", "tolerance", "spacing", "line_width"]) if (n(f[k]) !== null) out[k] = n(f[k]);
   out.geometric = f.geometric.value === "true";
   out.fallback = f.fallback.value === "true";
-  // the stock file's stops (the export always writes it): written only when not the defaults,
-  // so a placement file without them stays as it was
+  // the printer and the stock file's stops (the export always writes the stock file): written
+  // only when not the defaults, so a placement file without them stays as it was
+  const printer = f.printer_choice.value === "file" ? f.printer_file.value.trim() : f.printer_choice.value;
+  if (printer && printer !== DEFAULT_PRINTER) out.printer = printer;
+  if (f.firmware.value) out.firmware = f.firmware.value;
   if (f.stop.value !== "move") out.stop = f.stop.value;
-  if (n(f.e_steps) !== null && n(f.e_steps) !== 93) out.e_steps = n(f.e_steps);
+  if (n(f.e_steps) !== null) out.e_steps = n(f.e_steps);
   if (n(f.stop_e_steps) !== null) out.stop_e_steps = Math.round(n(f.stop_e_steps));
   return out;
 }
@@ -476,10 +506,14 @@ function design() {
   const items = S.items.map((it) => {
     // sent as they are (an imported file's values must come back unchanged); a drag rounds
     // what it makes (round2 below)
-    const o = { id: it.id, kind: it.kind, at: [...it.at], rotate: it.rotate };
+    const o = { id: it.id, kind: it.kind, at: [...it.at] };
+    if (it.kind !== "braille") o.rotate = it.rotate;          // braille is not turned
     if (it.kind === "text") Object.assign(o, { text: it.text, font: it.font, size: it.size,
       letter_spacing: it.letter_spacing, mirror: it.mirror });
-    else {
+    else if (it.kind === "braille") {
+      o.text = it.text;
+      if (it.table) o.table = it.table; else if (it.grade) o.grade = it.grade;
+    } else {
       o.asset = it.asset;
       if (it.assetKind === "image") o.image_width = it.image_width; else o.scale = it.scale;
       if (it.curve_tolerance !== undefined) o.curve_tolerance = it.curve_tolerance;
@@ -530,6 +564,7 @@ function restore(state) {
   const d = JSON.parse(state);
   S.items = d.items;
   for (const [k, v] of Object.entries(d.form)) $("bulge-form")[k].value = v;
+  printerFields();
   $("export-name").value = d.name;
   select(S.items.some((i) => i.id === S.selected) ? S.selected : null);
   requestPreview();
@@ -559,6 +594,22 @@ function setBulgeForm(b) {
     const val = b[k] ?? v;
     f[k].value = typeof val === "boolean" ? String(val) : val;
   }
+  const printer = b.printer ?? DEFAULT_PRINTER, preset = S.printers.some((p) => p.name === printer);
+  f.printer_choice.value = preset ? printer : "file";
+  f.printer_file.value = preset ? "" : printer;
+  printerFields();
+}
+
+// The printer section: the stock file's fields only for stock firmware, the profile file's
+// path only when one is chosen; the preset's own line and E steps as hints; the send button
+// says which file it sends.
+function printerFields() {
+  const f = $("bulge-form"), stock = f.fallback.value === "true", file = f.printer_choice.value === "file";
+  for (const el of $("sec-printer").querySelectorAll(".for-stock")) el.hidden = !stock || (el.classList.contains("for-file") && !file);
+  const p = S.printers.find((x) => x.name === f.printer_choice.value);
+  $("printer-describe").textContent = p ? p.describe : "";
+  f.e_steps.placeholder = p ? `the model's: ${+p.e_steps.toFixed(2)}` : "the model's";
+  $("send-what").textContent = `the file for ${stock ? "stock firmware (NAME.stock.gcode)" : "bulgekit firmware (NAME.bulge.gcode)"}`;
 }
 
 async function pump(check = false) {
@@ -620,8 +671,8 @@ function showPreview(p) {
 // What a drag changes: place, turn and size; strokes computed for one geometry are shown for
 // another by the affine map between them (exact for moves and turns, near enough for sizes).
 function geomOf(it) {
-  const size = it.kind === "text" ? it.size : it.assetKind === "image" ? it.image_width : it.scale;
-  return { u: it.at[0], v: it.at[1], rot: it.rotate, size };
+  const size = it.kind === "text" ? it.size : it.kind === "braille" ? 1 : it.assetKind === "image" ? it.image_width : it.scale;
+  return { u: it.at[0], v: it.at[1], rot: it.rotate || 0, size };
 }
 
 function mapPoint(g0, g1, u, v) {
@@ -672,19 +723,32 @@ const view2d = (() => {
 
   function fit() {
     if (!S.gcode) return;
-    resize();
     const w = S.gcode.walls, L = S.gcode.length_max;
     const [lo, hi] = w.v_range;
-    k = Math.min((cv.width - 40) / (L + 10), (cv.height - 40) / (hi - lo + 4));
+    // the wall fills the view: u 0..L with 5 mm each side, v from the bed (or the wall's
+    // foot, if lower) with room for the u labels below. A wall wider than the view's shape
+    // takes a lower view (at least 180 px), and the 3D view below gets the rest.
+    const v0 = Math.min(0, lo), views = $("views");
+    views.style.gridTemplateRows = "";
+    resize();
+    const need = 40 + (hi - v0 + 2) * (cv.width - 40) / (L + 10);
+    if (need < cv.height) {
+      views.style.gridTemplateRows = `${Math.max(180, Math.ceil(need))}px 1fr auto`;
+      resize();
+    }
+    k = Math.min((cv.width - 40) / (L + 10), (cv.height - 40) / (hi - v0 + 2));
     ou = -5 - (cv.width / k - (L + 10)) / 2;
-    ov = lo - 2 - (cv.height / k - (hi - lo + 4)) / 2;
+    ov = v0 - 16 / k;
     draw();
   }
 
+  // (braille keeps the standard's size and is not turned: no handles but the frame)
   function handles(it) {
     const b = itemBox(it);
     const [x0, y0] = toPx(b.u0, b.v1), [x1, y1] = toPx(b.u1, b.v0);
-    return { box: [x0 - 4, y0 - 4, x1 + 4, y1 + 4], scale: [x1 + 4, y1 + 4], rotate: [(x0 + x1) / 2, y0 - 22] };
+    const fixed = it.kind === "braille";
+    return { box: [x0 - 4, y0 - 4, x1 + 4, y1 + 4], scale: fixed ? null : [x1 + 4, y1 + 4],
+      rotate: fixed ? null : [(x0 + x1) / 2, y0 - 22] };
   }
 
   function draw() {
@@ -743,7 +807,9 @@ const view2d = (() => {
       ctx.strokeStyle = bad ? "#e53935" : it.id === S.selected ? "#ef6c00" : "#546e7a";
       ctx.fillStyle = ctx.strokeStyle;
       ctx.lineWidth = 1.2;
+      const dot = it.kind === "braille" ? Math.max(1, (BRAILLE_DOT / 2) * k) : 0;   // a dot's base
       for (const st of itemStrokes(it)) {
+        if (dot) { const [x, y] = toPx(...st[0]); ctx.beginPath(); ctx.arc(x, y, dot, 0, 2 * Math.PI); ctx.stroke(); continue; }
         if (st.length === 1) { const [x, y] = toPx(...st[0]); ctx.fillRect(x - 1, y - 1, 2, 2); continue; }
         ctx.beginPath();
         st.forEach(([u, v], i) => { const [x, y] = toPx(u, v); i ? ctx.lineTo(x, y) : ctx.moveTo(x, y); });
@@ -768,10 +834,12 @@ const view2d = (() => {
       ctx.strokeStyle = "#ef6c00"; ctx.setLineDash([3, 3]); ctx.lineWidth = 1;
       ctx.strokeRect(h.box[0], h.box[1], h.box[2] - h.box[0], h.box[3] - h.box[1]);
       ctx.setLineDash([]);
-      ctx.beginPath(); ctx.moveTo((h.box[0] + h.box[2]) / 2, h.box[1]); ctx.lineTo(...h.rotate); ctx.stroke();
-      ctx.fillStyle = "#fff";
-      ctx.fillRect(h.scale[0] - 5, h.scale[1] - 5, 10, 10); ctx.strokeRect(h.scale[0] - 5, h.scale[1] - 5, 10, 10);
-      ctx.beginPath(); ctx.arc(h.rotate[0], h.rotate[1], 6, 0, 2 * Math.PI); ctx.fill(); ctx.stroke();
+      if (h.rotate) {
+        ctx.beginPath(); ctx.moveTo((h.box[0] + h.box[2]) / 2, h.box[1]); ctx.lineTo(...h.rotate); ctx.stroke();
+        ctx.fillStyle = "#fff";
+        ctx.fillRect(h.scale[0] - 5, h.scale[1] - 5, 10, 10); ctx.strokeRect(h.scale[0] - 5, h.scale[1] - 5, 10, 10);
+        ctx.beginPath(); ctx.arc(h.rotate[0], h.rotate[1], 6, 0, 2 * Math.PI); ctx.fill(); ctx.stroke();
+      }
       const [ax, ay] = toPx(...it.at);
       ctx.fillStyle = "#ef6c00"; ctx.fillRect(ax - 2, ay - 2, 4, 4);
     }
@@ -779,7 +847,7 @@ const view2d = (() => {
 
   function hit(x, y) {
     const sel = S.items.find((i) => i.id === S.selected);
-    if (sel) {
+    if (sel && sel.kind !== "braille") {
       const h = handles(sel);
       if (Math.hypot(x - h.scale[0], y - h.scale[1]) < 9) return { it: sel, mode: "scale" };
       if (Math.hypot(x - h.rotate[0], y - h.rotate[1]) < 9) return { it: sel, mode: "rotate" };
@@ -1014,7 +1082,8 @@ async function sendFile(ids, body, ready) {
 
 function doSend() {
   return sendFile({ error: "send-error", bar: "send-bar", log: "send-log", button: "send" },
-    { export: S.exportKey, which: $("send-which").value, port: $("port").value, baud: +$("baud").value },
+    { export: S.exportKey, which: $("bulge-form").fallback.value === "true" ? "stock" : "bulge",
+      port: $("port").value, baud: +$("baud").value },
     () => S.exportKey);
 }
 
@@ -1112,6 +1181,30 @@ function lithoResult(res) {
   out.append(tab, files, look);
 }
 
+// A lithophane made: its figures, files, look and 3D view, ready to send.
+async function showLitho(res) {
+  L.key = res.key;
+  lithoResult(res);
+  litho3d.show(await api(res.view));
+  $("litho-send").disabled = false;
+}
+
+// After a reload: the last lithophane the server made, its picture and the form it was made with.
+async function restoreLitho(last) {
+  const f = $("litho-form");
+  if (last.options.shape) f.shape.value = last.options.shape;
+  lithoShape();
+  for (const el of f.elements) {
+    if (!el.name || !(el.name in last.options)) continue;
+    if (el.type === "checkbox") el.checked = !!last.options[el.name]; else el.value = last.options[el.name];
+  }
+  const pic = last.picture;
+  L.asset = pic.name;
+  $("litho-pic").textContent = `${pic.original || pic.name}: ${pic.width_px} × ${pic.height_px} pixels`;
+  $("litho-make").disabled = false;
+  await showLitho(last);
+}
+
 async function makeLitho() {
   showError("litho-error", null);
   $("litho-make").disabled = true;
@@ -1123,10 +1216,7 @@ async function makeLitho() {
       bar.value = j.total ? j.done / j.total : 0;
       status(`lithophane: ${j.label || "…"}${j.total ? ` ${j.done}/${j.total}` : ""}`, j.total ? j.done / j.total : 0);
     });
-    L.key = res.key;
-    lithoResult(res);
-    litho3d.show(await api(res.view));
-    $("litho-send").disabled = false;
+    await showLitho(res);
     status(`lithophane ${res.key} made`);
   } catch (e) {
     showError("litho-error", e);
@@ -1327,23 +1417,40 @@ function dropTarget(el, onFile) {
 
 async function init() {
   const st = await api("/api/state");
-  S.fonts = st.fonts; S.limits = st.limits;
+  S.fonts = st.fonts; S.limits = st.limits; S.printers = st.printers || [];
+  const pc = $("bulge-form").printer_choice;
+  pc.textContent = "";
+  for (const p of [...S.printers, { name: "file", firmware: null }]) {
+    const o = document.createElement("option");
+    o.value = p.name; o.textContent = p.firmware ? `${p.name} (${p.firmware})` : "a profile file…";
+    pc.append(o);
+  }
+  pc.value = DEFAULT_PRINTER;
+  printerFields();
   const fs = $("item-form").font;
   for (const f of st.fonts) { const o = document.createElement("option"); o.value = o.textContent = f; fs.append(o); }
-  for (const t of document.querySelectorAll(".tab")) t.onclick = () => {
-    for (const x of document.querySelectorAll(".tab")) x.classList.toggle("active", x === t);
-    $("page-wall").hidden = t.dataset.tab !== "wall";
-    $("page-litho").hidden = t.dataset.tab !== "litho";
+  // the tab shown stays shown over a reload (this browser tab's session)
+  const showTab = (name) => {
+    for (const x of document.querySelectorAll(".tab")) x.classList.toggle("active", x.dataset.tab === name);
+    $("page-wall").hidden = name !== "wall";
+    $("page-litho").hidden = name !== "litho";
+    sessionStorage.setItem("studio-tab", name);
   };
+  for (const t of document.querySelectorAll(".tab")) t.onclick = () => showTab(t.dataset.tab);
+  if (sessionStorage.getItem("studio-tab") === "litho") showTab("litho");
   $("gcode-file").onchange = (e) => e.target.files[0] && openGcode(e.target.files[0]);
   dropTarget($("drop"), openGcode);
   dropTarget($("unrolled-wrap"), (f) => (/\.(gcode|gco|g)$/i.test(f.name) || !S.gcode ? openGcode(f) : addDrawing(f)));
-  $("add-text").onclick = addText;
+  $("add-text").onclick = () => addItem("text");
+  $("add-braille").onclick = () => addItem("braille");
   $("add-file").onchange = (e) => { const f = e.target.files[0]; e.target.value = ""; if (f) addDrawing(f); };
   $("open-placement").onchange = (e) => { const l = [...e.target.files]; e.target.value = ""; if (l.length) openPlacement(l); };
   $("item-form").addEventListener("input", readItemForm);
   $("bulge-form").addEventListener("input", requestPreview);
   $("bulge-form").addEventListener("change", requestPreview);
+  // (the printer's fields are the form's, in their own section)
+  $("sec-printer").addEventListener("input", () => { printerFields(); requestPreview(); });
+  $("sec-printer").addEventListener("change", () => { printerFields(); requestPreview(); });
   const deleteItem = () => { flushHistory(); S.items = S.items.filter((i) => i.id !== S.selected); select(null); requestPreview(); };
   $("delete-item").onclick = deleteItem;
   // keys, when no field has the focus: Delete removes the selected item, arrows nudge it
@@ -1377,6 +1484,7 @@ async function init() {
   $("litho-make").onclick = makeLitho;
   $("litho-form").shape.addEventListener("change", lithoShape);
   lithoChoices(st.litho);
+  if (st.litho_last) restoreLitho(st.litho_last).catch((e) => showError("litho-error", e));
   $("litho-send").onclick = sendLitho;
   $("litho-port").addEventListener("focus", loadPorts, { once: true });
   window.addEventListener("dragover", (e) => e.preventDefault());
