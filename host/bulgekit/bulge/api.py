@@ -78,11 +78,14 @@ def fallback_gcode(gcode, map_bytes: bytes, out, settings: Settings = Settings()
 
 
 def bulge_stats(map_bytes: bytes, settings: Settings = Settings(), gcode=None,
-          arena: int = _stats.ARENA_BYTES, _planned: _stats.StopTimer | None = None) -> _stats.Stats:
+          arena: int = _stats.ARENA_BYTES, _planned: _stats.StopTimer | None = None,
+          printer=None) -> _stats.Stats:
+    """printer: the model whose planner times the stops' braking and starting (None: the
+    default model's)."""
     if gcode is None:
         return _stats.map_stats(map_bytes, settings, arena)
     with progress.phase("statistics", path=gcode):
-        return _stats.print_stats(gcode, map_bytes, settings, arena, planned=_planned)
+        return _stats.print_stats(gcode, map_bytes, settings, arena, planned=_planned, printer=printer)
 
 
 @dataclass
@@ -161,12 +164,13 @@ def _build(gcode: Path, strokes, outdir, name, geometric, spacing, line_width, l
             if fpath is not None:
                 # the statistics count on the stock file's planner run: the planner runs once
                 def on_plan(planner):
-                    timers.append(_stats.StopTimer(planner, printer=_stats.timed_model(stops.printer)))
+                    timers.append(_stats.StopTimer(planner, _stats.accel_of(stops.printer),
+                                                   _stats.timed_model(stops.printer)))
                     return timers[-1]
                 stock = fallback_gcode(gcode, res.map_bytes, fpath, settings, allow_unreached=True,
                                        stops=stops, _on_plan=on_plan).stock
             return stock, bulge_stats(res.map_bytes, settings, gcode, arena,
-                                      timers[-1] if timers else None)
+                                      timers[-1] if timers else None, stops.printer)
         # the stock file and the statistics are made on a second core while the map is annotated
         # into the G-code: a child forked from this process and its scan (bulgekit.parallel;
         # where none can be forked, after the annotating, as before). The same files; of two

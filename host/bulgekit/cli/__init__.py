@@ -430,12 +430,14 @@ def mcodes(map_file, output, numbered, arena, dwell, extra, tolerance, geometric
 @click.option("-g", "--gcode", type=click.Path(exists=True, dir_okay=False),
               help="Also run this (unannotated) G-code to count the stops that really happen.")
 @_arena_option
-@click.option("--accel", type=POSITIVE, default=1000.0, show_default=True,
-              help="Acceleration (mm/s^2) for the stop/start time estimate.")
+@click.option("--accel", type=POSITIVE,
+              help="Time the stops' braking and starting as v/a at this acceleration (mm/s^2) "
+                   "[the printer model's planner, step by step on Marlin].")
 @_settings_options
+@printer_options
 @progress_option
 @friendly
-def stats(map_file, gcode, arena, accel, dwell, extra, tolerance, geometric):
+def stats(map_file, gcode, arena, accel, dwell, extra, tolerance, geometric, printer, firmware):
     """Per-layer points, stops and the time bulges add. Warnings (points the G-code's moves do
     not reach) go to stderr, and then the exit status is 1."""
     from ..bulge import stats as st
@@ -444,7 +446,8 @@ def stats(map_file, gcode, arena, accel, dwell, extra, tolerance, geometric):
     if gcode:
         from .. import progress
         with progress.phase("statistics", path=gcode):
-            s = st.print_stats(gcode, data, settings, arena, accel)
+            s = st.print_stats(gcode, data, settings, arena, accel,
+                               printer=printer_model(printer, firmware, gcode))
     else:
         s = st.map_stats(data, settings, arena)
     warned = False

@@ -100,6 +100,7 @@ def test_stats_on_the_stock_rewrites_planner_run_are_the_stats_of_their_own(data
     """build runs the planner once: the statistics count on the stock fallback's run (its
     records path, or its text path when the compiled scanner is not there) and give what a run
     of their own gives."""
+    from bulgekit import machine
     from bulgekit.bulge import fallback
     from bulgekit.bulge.stats import StopTimer
     g = data_dir / "prusa_cyl.gcode"
@@ -109,8 +110,8 @@ def test_stats_on_the_stock_rewrites_planner_run_are_the_stats_of_their_own(data
         monkeypatch.setattr(fallback.movescan, "available", lambda: False)
     timers = []
 
-    def on_plan(planner):
-        timers.append(StopTimer(planner))
+    def on_plan(planner):              # (as build makes it: the default model, timed by its stepper)
+        timers.append(StopTimer(planner, machine.DEFAULT.accel, machine.DEFAULT))
         return timers[-1]
     res = fallback.rewrite_file(g, tmp_path / "s.gcode", r.bulge_map, settings,
                                 allow_unreached=True, on_plan=on_plan)
