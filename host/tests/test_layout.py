@@ -1,5 +1,5 @@
 """The package's layout (issue 26): imports flow one way, cli/studio -> jobs (bulge, litho,
-printer) -> gcode -> base (errors, progress, parallel); no flat module comes back beside the base; the
+printer) -> gcode -> base (errors, progress, parallel, outputs); no flat module comes back beside the base; the
 public API (`import bulgekit as bk`) keeps its names.  Where things live: docs/host.md."""
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ import bulgekit as bk
 PKG = Path(__file__).resolve().parents[1] / "bulgekit"
 
 # floor of each part: an import goes to a lower floor, or stays inside its own package
-FLOORS = {"errors": 0, "progress": 0, "parallel": 0, "gcode": 1, "bulge": 2, "litho": 2, "printer": 2, "studio": 3, "cli": 3}
+FLOORS = {"errors": 0, "progress": 0, "parallel": 0, "outputs": 0, "gcode": 1, "bulge": 2, "litho": 2, "printer": 2, "studio": 3, "cli": 3}
 # imports between two packages on the same floor, each with its reason
 SIDEWAYS = {
     ("litho", "bulge"): "the calibration plate's labels are drawn with the stroke fonts "
@@ -102,7 +102,7 @@ def test_the_floor_table_knows_every_subpackage():
 
 
 def test_only_the_base_lies_flat():
-    extra = {p.stem for p in PKG.glob("*.py")} - {"__init__", "__main__", "errors", "progress", "parallel"}
+    extra = {p.stem for p in PKG.glob("*.py")} - {"__init__", "__main__", "errors", "progress", "parallel", "outputs"}
     assert not extra, f"modules beside the base: {sorted(extra)}: put each in its job's subpackage"
 
 

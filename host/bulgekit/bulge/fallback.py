@@ -38,7 +38,8 @@ import numpy as np
 from . import mapformat
 from ..gcode import movescan
 from ..gcode import GcodeState, Line, Move, parse_lines
-from ..errors import BulgekitError, output_part
+from ..errors import BulgekitError
+from ..outputs import part as output_part
 from ..gcode import _M92_RX, _m92_e, _plain_lines, scan_m92
 
 
@@ -1337,7 +1338,6 @@ def rewrite_file(src, dst, bmap: mapformat.BulgeMap, settings: Settings,
     on_plan(planner) is called with each planner made to run over the file (a second one when
     the compiled scanner leaves the file to the text path) and returns an on_move hook (see
     rewrite()), or None: build's statistics count on the rewrite's run (result.planner)."""
-    import os
     from ..gcode import check_not_processed, open_checked
     res = RewriteResult()
     byte_path = movescan.available()
@@ -1381,5 +1381,4 @@ def rewrite_file(src, dst, bmap: mapformat.BulgeMap, settings: Settings,
                 f.write("".join(buf))
         if res.unreached and not allow_unreached:
             raise UnreachedError(res.unreached)
-        os.replace(tmp, dst)
     return res

@@ -836,9 +836,8 @@ def save_json(strokes: Sequence[Stroke], path: str) -> None:
     doc = {"strokes": [{"points": [[round(u, 6), round(v, 6)] for u, v in s.points],
                         "weight": s.weight, **({"source": s.source} if s.source else {})}
                        for s in strokes]}
-    with open(path, "w", encoding="utf-8") as f:
-        json.dump(doc, f, indent=1)
-        f.write("\n")
+    from .. import outputs
+    outputs.write(path, json.dumps(doc, indent=1) + "\n")
 
 
 # --------------------------------------------------------------------------

@@ -243,8 +243,8 @@ def post_process(placement, arena, keep, gcode):
     named here or in the placement file, as for a bad option: slicers take any other than 0 as
     a failure)."""
     import shutil
-    import tempfile
 
+    from .. import outputs
     from ..bulge import api
     from ..bulge.mapbuild import DEFAULT_LINE_WIDTH
     from ..bulge.placement import PlacementError, load_placement
@@ -259,20 +259,20 @@ def post_process(placement, arena, keep, gcode):
     except ValueError as e:
         raise PlacementError(f"{placement}: bulges: {e}") from None
     src = Path(gcode)
-    tmp = Path(tempfile.mkdtemp(prefix=".bulgekit-", dir=src.parent))
-    try:
-        out = api.build(src, pl.strokes, tmp, name="pp", spacing=b.get("spacing"),
-                        line_width=b.get("line_width", DEFAULT_LINE_WIDTH), settings=settings, arena=arena,
-                        write_fallback=bool(b.get("fallback")), stops=stops)
+    # built in a scratch folder beside the file, then the result takes the file's place with
+    # --keep's files when the command ends: all or nothing (bulgekit.outputs)
+    with outputs.scratch(src.parent) as tmp, outputs.Outputs() as staged:
+        with outputs.apart():
+            out = api.build(src, pl.strokes, tmp, name="pp", spacing=b.get("spacing"),
+                            line_width=b.get("line_width", DEFAULT_LINE_WIDTH), settings=settings,
+                            arena=arena, write_fallback=bool(b.get("fallback")), stops=stops)
         result = out.fallback_path if b.get("fallback") else out.gcode_path
         if keep:
-            Path(keep).mkdir(parents=True, exist_ok=True)
+            staged.folder(keep)
             for p in (out.map_path, out.stats_path):
-                shutil.copy(p, Path(keep) / f"{src.stem}{p.suffix}")
+                outputs.write(Path(keep) / f"{src.stem}{p.suffix}", p.read_bytes())
         shutil.copymode(src, result)
-        os.replace(result, src)                     # atomic on one file system: all or nothing
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
+        os.replace(result, staged.part(src))        # (one file system: renamed, not copied)
     s = out.stats
     click.echo(f"bulgekit: {s.points} points on {len(s.layers)} layers "
                f"{'rewritten for stock firmware' if b.get('fallback') else 'annotated'} into {src}")
@@ -351,6 +351,7 @@ def mcodes(map_file, output, numbered, arena, dwell, extra, tolerance, geometric
     """The M-code stream that configures the printer and uploads MAP: M720 settings,
     M721 begin/chunks/commit. Send it from Pronterface, OctoPrint or `bulgekit send`
     before printing G-code that carries M722 markers (or none, with --geometric)."""
+    from .. import outputs
     settings = _settings(dwell, extra, tolerance, geometric)
     data = _read_map(map_file)
     mapformat.check_upload_fits(data, arena, map_file)
@@ -365,7 +366,7 @@ def mcodes(map_file, output, numbered, arena, dwell, extra, tolerance, geometric
         text = [settings.m720()] + mapformat.upload_lines(data)
     out = "\n".join(text) + "\n"
     if output:
-        Path(output).write_text(out)
+        outputs.write(output, out)
         click.echo(f"wrote {output}: {len(text)} lines ({len(data)} map bytes)")
     else:
         click.echo(out, nl=False)

@@ -1,6 +1,7 @@
 """Pieces shared by the command modules (cli/__init__.py, cli/io.py)."""
 from __future__ import annotations
 
+import contextlib
 import functools
 import math
 import sys
@@ -10,15 +11,23 @@ import click
 from ..errors import BulgekitError, MissingInputError
 
 
-def friendly(fn):
+def friendly(fn=None, *, outputs: bool = True):
     """Turn expected failures into one-line messages (exit status 1): our own
     errors (they name the file and line, stroke or layer), map-format errors,
     and I/O errors. An input file named inside another and not there is a usage
-    error (exit status 2), as click's for one named on the command line."""
+    error (exit status 2), as click's for one named on the command line.
+    Every file the command writes goes in place when it ends, all or none (one
+    bulgekit.outputs.Outputs for the command); outputs=False: none for a command
+    that runs until stopped (studio)."""
+    if fn is None:
+        return functools.partial(friendly, outputs=outputs)
+    from .. import outputs as out
+
     @functools.wraps(fn)
     def wrapper(*a, **kw):
         try:
-            return fn(*a, **kw)
+            with out.Outputs(final=True) if outputs else contextlib.nullcontext():
+                return fn(*a, **kw)
         except MissingInputError as e:
             raise click.UsageError(str(e), click.get_current_context(silent=True)) from None
         except BulgekitError as e:
