@@ -1,4 +1,4 @@
-"""Outputs written all or nothing (issue 37).
+"""Outputs written all or nothing, and how a command ends on SIGINT or SIGTERM (issue 37).
 
 Every file bulgekit writes for its user is written under a part name beside it
 (NAME.EXT.<pid>-<n>.part) and renamed over its target once everything the run makes is whole:
@@ -20,6 +20,9 @@ reads back: post-process's build in a scratch() folder, the studio's export fold
 A job in a forked child (bulgekit.parallel) writes only into parts its parent opened before the
 fork (Outputs.part(dst) in the parent): the parent ends the child if it still runs, then removes
 them with the rest.
+
+ending(): a command's SIGINT and SIGTERM raise Stopped, which unwinds it (each finally runs:
+parts removed, children ended) and ends it with one line on stderr and exit status 130 or 143.
 """
 from __future__ import annotations
 
@@ -30,6 +33,7 @@ import itertools
 import os
 import shutil
 import signal
+import sys
 import tempfile
 import threading
 from pathlib import Path
@@ -38,7 +42,7 @@ _SIGNALS = (signal.SIGINT, signal.SIGTERM)
 _current: contextvars.ContextVar[Outputs | None] = contextvars.ContextVar("bulgekit_outputs",
                                                                           default=None)
 _numbers = itertools.count(1)
-_ending = 0             # (the CLI's signal handling, to come)
+_ending = 0             # ending()s open in this process (the CLI's): a final commit drops signals
 
 
 def _main_thread() -> bool:
@@ -71,7 +75,11 @@ class Outputs:
         root = self._root
         if exc is None:
             if root is self:
-                self._commit()
+                try:
+                    self._commit()
+                except BaseException:              # (also a signal as the renaming began)
+                    self._discard(list(self._parts))
+                    raise
             return False
         named = {part: dst for dst, (part, _) in root._parts.items()}
         if root is self:
@@ -118,40 +126,53 @@ class Outputs:
         return path
 
     def _commit(self) -> None:
+        for dst, (part, is_folder) in self._parts.items():
+            # what a rename would refuse, before any is made (a file over a folder)
+            if os.path.isdir(dst) and not is_folder:
+                raise IsADirectoryError(errno.EISDIR, os.strerror(errno.EISDIR), dst)
         with held(drop=self.final and _ending > 0):
-            try:
-                for dst, (part, is_folder) in self._parts.items():
-                    # what a rename would refuse, before any is made (a file over a folder)
-                    if os.path.isdir(dst) and not is_folder:
-                        raise IsADirectoryError(errno.EISDIR, os.strerror(errno.EISDIR), dst)
-                for dst, (part, _) in list(self._parts.items()):
-                    try:
-                        os.replace(part, dst)
-                    except OSError as e:
-                        raise type(e)(e.errno, e.strerror, dst) from None
-                    del self._parts[dst]
-            except BaseException:
-                self._discard(list(self._parts))
-                raise
+            for dst, (part, _) in list(self._parts.items()):
+                try:
+                    os.replace(part, dst)
+                except OSError as e:
+                    raise type(e)(e.errno, e.strerror, dst) from None
+                del self._parts[dst]
             self._made.clear()
 
     def _discard(self, targets) -> None:
+        """The parts of targets removed (and the folders this run made, when empty), each even
+        when a signal comes meanwhile; that signal's exception is raised at the end."""
         root = self._root
-        with held():
-            for dst in targets:
-                part, is_folder = root._parts.pop(dst, (None, False))
-                if part is None:
-                    continue
-                with contextlib.suppress(OSError):
-                    if is_folder:
-                        shutil.rmtree(part)
+        steps = [(dst, *root._parts[dst]) for dst in targets if dst in root._parts]
+        if root is self:
+            # a child forked to write a part is ended first (its parent's finally does so too,
+            # but a signal may come before the parent holds it)
+            steps = [(None, None, None)] + steps + [(None, d, None) for d in reversed(self._made)]
+        came = None
+        for dst, path, is_folder in steps:
+            while True:
+                try:
+                    if path is None:
+                        from . import parallel
+                        parallel.end_all()
+                    elif dst is None:
+                        path.rmdir()              # (only when empty: a file from before stays)
+                    elif is_folder:
+                        shutil.rmtree(path)
                     else:
-                        os.unlink(part)
-            if root is self:
-                for d in reversed(self._made):          # (only when empty: a file from before stays)
-                    with contextlib.suppress(OSError):
-                        d.rmdir()
-                self._made.clear()
+                        os.unlink(path)
+                except OSError:
+                    pass
+                except BaseException as e:        # (a second Ctrl-C, outside the CLI): go on
+                    came = came or e
+                    continue
+                break
+            if dst is not None:
+                root._parts.pop(dst, None)
+        if root is self:
+            self._made.clear()
+        if came is not None:
+            raise came
 
 
 def current() -> Outputs | None:
@@ -198,12 +219,13 @@ def apart():
 def scratch(beside):
     """A temporary folder in `beside` (the same file system: its files can be renamed into
     place), removed at the end however the run ends (write into it apart())."""
-    with held():
-        d = Path(tempfile.mkdtemp(prefix=".bulgekit-", dir=beside))
+    d = None
     try:
+        with held():
+            d = Path(tempfile.mkdtemp(prefix=".bulgekit-", dir=beside))
         yield d
     finally:
-        with held():
+        if d is not None:
             shutil.rmtree(d, ignore_errors=True)
 
 
@@ -232,3 +254,48 @@ def held(drop: bool = False):
                     h(signum, frame)          # KeyboardInterrupt, or ending()'s Stopped
                 elif h == signal.SIG_DFL:
                     os.kill(os.getpid(), signum)
+
+
+class Stopped(BaseException):
+    """SIGINT or SIGTERM during ending(): unwinds the command (not an Exception, so nothing
+    takes it for an error and goes on)."""
+
+    def __init__(self, signum: int):
+        super().__init__(signum)
+        self.signum = signum
+
+
+def _stop(signum, frame):
+    for n in _SIGNALS:                        # once: a second Ctrl-C does not cut the unwinding short
+        signal.signal(n, signal.SIG_IGN)
+    raise Stopped(signum)
+
+
+@contextlib.contextmanager
+def ending(prog: str = "bulgekit", exiting: bool = False):
+    """A command's SIGINT and SIGTERM: each unwinds it (Stopped) and ends it with one line on
+    stderr, `PROG: interrupted` or `PROG: terminated`, and exit status 128 + the signal's
+    number (130, 143). The handlers before are put back at the end, or with exiting (the
+    process ends with the command) both signals are ignored from then on: a command that
+    finished is not cut short in its exit. One inside another does nothing."""
+    global _ending
+    if not _main_thread() or _ending:
+        yield
+        return
+    old = {}
+    _ending += 1
+    try:
+        for n in _SIGNALS:
+            old[n] = signal.signal(n, _stop)
+        yield
+    except Stopped as e:
+        word = "interrupted" if e.signum == signal.SIGINT else "terminated"
+        err = sys.stderr
+        with contextlib.suppress(Exception):
+            err.write(("\r\x1b[K" if err.isatty() else "") + f"{prog}: {word}\n")   # (past a progress line)
+            err.flush()
+        raise SystemExit(128 + e.signum) from None
+    finally:
+        _ending -= 1
+        for n, h in old.items():
+            signal.signal(n, signal.SIG_IGN if exiting else h)

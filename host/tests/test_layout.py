@@ -18,6 +18,8 @@ SIDEWAYS = {
                         "(bulge.strokes.text_strokes)",
     ("cli", "studio"): "`bulgekit studio` starts the studio's server",
     ("parallel", "progress"): "a forked child shows no progress: its lines would cross its parent's",
+    ("outputs", "parallel"): "a failed run's parts are removed once the children that may write "
+                             "them are ended (parallel.end_all)",
     ("studio", "cli"): "printing from the studio checks the printer's arena as `bulgekit send` does "
                        "(cli.io.annotated_arena, check_printer_arena)",
 }

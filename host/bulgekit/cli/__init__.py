@@ -94,7 +94,17 @@ def _scanner_words() -> str:
             "missing": "Python only, bulgekit.gcode._scan not built: slower on large files"}[gcode.scanner_state()]
 
 
-@click.group(context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})
+class _Main(click.Group):
+    """The command group: Ctrl-C (SIGINT) and SIGTERM end any command with one line on stderr
+    and exit status 130 or 143, its outputs and its children taken back (bulgekit.outputs)."""
+
+    def main(self, *args, **kwargs):
+        from .. import outputs
+        with outputs.ending():
+            return super().main(*args, **kwargs)
+
+
+@click.group(cls=_Main, context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})
 @click.version_option(__version__, prog_name="bulgekit",
                       message="%(prog)s %(version)s (G-code scanner: " + _scanner_words() + ")")
 def main():

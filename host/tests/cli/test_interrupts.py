@@ -1,0 +1,170 @@
+"""Ctrl-C and SIGTERM in a command (issue 37): exit status 130 / 143 with one line on stderr,
+no new file and no part left in the output folder, an earlier output of the same name as it
+was, and no child left running. `build --fallback` (its stock file is written in a forked
+child), `post-process` (the file replaced in place) and `litho`, each run as `python -m
+bulgekit` and stopped at several moments of its run. The soak on a 100 MB file:
+tools/interrupt_soak.py (docs/host.md, "Exit status")."""
+from __future__ import annotations
+
+import hashlib
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+REPO = Path(__file__).resolve().parents[3]
+sys.path.insert(0, str(REPO / "tools"))
+
+pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
+
+# moments of the run, as shares of one whole run's time, counted from when the command's
+# handlers are in place (before that Python itself is starting)
+SHARES = (0.0, 0.15, 0.35, 0.55, 0.75, 0.9)
+
+
+def folder(d: Path) -> dict:
+    """Every file in d (and below) with its bytes' digest."""
+    return {str(p.relative_to(d)): hashlib.sha256(p.read_bytes()).hexdigest()
+            for p in sorted(d.rglob("*")) if p.is_file()}
+
+
+def start(args, cwd) -> subprocess.Popen:
+    env = dict(os.environ, PYTHONPATH=str(REPO / "host"))
+    return subprocess.Popen([sys.executable, "-m", "bulgekit", *map(str, args)], cwd=cwd, env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True)
+
+
+def ready(proc) -> float:
+    """Waits until the command's own SIGTERM handler is in place (bulgekit.outputs.ending; Python
+    alone catches SIGINT only); returns when."""
+    t0 = time.monotonic()
+    while True:
+        assert proc.poll() is None, proc.communicate()
+        try:
+            status = Path(f"/proc/{proc.pid}/status").read_text()
+        except FileNotFoundError:
+            status = ""
+        caught = next((int(ln.split()[1], 16) for ln in status.splitlines() if ln.startswith("SigCgt:")), 0)
+        if caught >> (signal.SIGTERM - 1) & 1:
+            return time.monotonic()
+        assert time.monotonic() - t0 < 30
+        time.sleep(0.002)
+
+
+def whole_run(args, cwd) -> float:
+    """One run to its end (the earlier outputs the interrupted runs must leave): its seconds."""
+    proc = start(args, cwd)
+    t = ready(proc)
+    out, err = proc.communicate(timeout=120)
+    assert proc.returncode == 0, err.decode()
+    return time.monotonic() - t
+
+
+def stop_at(args, cwd, delay: float, sig=signal.SIGINT, group: bool = True):
+    """The command stopped `delay` s after its handlers are in place: (exit status, stderr's
+    lines, whether it had ended before the signal). group: to its process group, as a terminal's
+    Ctrl-C (its forked children hear it too); else to it alone, as `kill PID`."""
+    proc = start(args, cwd)
+    time.sleep(max(0.0, ready(proc) + delay - time.monotonic()))
+    ended = proc.poll() is not None
+    if not ended:
+        (os.killpg if group else os.kill)(proc.pid, sig)
+    _, err = proc.communicate(timeout=60)
+    assert not alive(proc.pid), "a child of the command is left running"
+    return proc.returncode, err.decode().splitlines(), ended
+
+
+def alive(group: int) -> bool:
+    """Whether a process of the group still runs (given a moment to be reaped)."""
+    t0 = time.monotonic()
+    while time.monotonic() - t0 < 1.0:
+        try:
+            os.killpg(group, 0)
+        except ProcessLookupError:
+            return False
+        time.sleep(0.01)
+    return True
+
+
+def check_stops(args, cwd, watched: Path, seconds: float, shares=SHARES, term_share=0.5, reset=None):
+    """Each stop leaves `watched` (a folder) byte for byte as the run before left it: exit
+    status 130 (143). A signal after the outputs went in place is too late: the run ends as
+    usual, exit status 0, all its files new (then reset() puts the input back, if given)."""
+    before = folder(watched)
+    runs = [(s, signal.SIGINT, True) for s in shares] + [(shares[1], signal.SIGINT, False),
+                                                        (term_share, signal.SIGTERM, False)]
+    stopped = 0
+    for share, sig, group in runs:
+        code, err, ended = stop_at(args, cwd, share * seconds, sig, group)
+        now = folder(watched)
+        if code == 0:                                    # ended, or stopped too late
+            assert err == [] and now.keys() == before.keys(), (share, sig, err)
+            before = now
+            if reset is not None:
+                reset()
+                before = folder(watched)
+            continue
+        stopped += 1
+        word = "interrupted" if sig == signal.SIGINT else "terminated"
+        assert (code, err) == (128 + sig, [f"bulgekit: {word}"]), (share, sig)
+        assert now == before, (share, sig, err)          # no new file, no part, none changed
+    assert stopped >= len(runs) - 2
+
+
+@pytest.fixture(scope="module")
+def big(tmp_path_factory):
+    """A generated file (bench_annotate.make_gcode, as tools/bench_host.py makes 100 MB)."""
+    from bench_annotate import make_gcode
+    p = tmp_path_factory.mktemp("big") / "big.gcode"
+    make_gcode(p, 8)
+    return p
+
+
+def test_build_fallback_stopped_leaves_the_earlier_files(big, tmp_path):
+    out = tmp_path / "out"
+    seconds = whole_run(["build", big, "--text", "OLD", "--at", "5,3", "--fallback", "-o", out, "-q"],
+                        tmp_path)
+    assert {"big.stock.gcode", "big.bulge.gcode", "big.preview.png"} <= set(folder(out))
+    (out / "mine.txt").write_text("the user's own file\n")
+    check_stops(["build", big, "--text", "HELLO", "--at", "5,3", "--fallback", "-o", out, "-q"],
+                tmp_path, out, seconds)
+
+
+def test_build_stopped_into_a_new_folder_leaves_no_folder(big, tmp_path):
+    args = ["build", big, "--text", "HELLO", "--at", "5,3", "--fallback", "-o", tmp_path / "new" / "out"]
+    seconds = whole_run(args, tmp_path)
+    shutil.rmtree(tmp_path / "new")
+    check_stops(args, tmp_path, tmp_path, seconds, shares=(0.3, 0.6, 0.9))
+    assert not (tmp_path / "new").exists()
+
+
+def test_post_process_stopped_leaves_the_slicers_file(big, tmp_path):
+    g = tmp_path / "slicer" / "part.gcode"
+    g.parent.mkdir()
+    shutil.copy(big, g)
+    pl = tmp_path / "p.toml"
+    pl.write_text('[[text]]\ntext = "HI"\nat = [5, 3]\nsize = 5\n\n[bulges]\nfallback = true\n')
+    args = ["post-process", "--placement", pl, "--keep", tmp_path / "slicer" / "kept", g]
+    seconds = whole_run(args, tmp_path)
+    again = lambda: shutil.copy(big, g)                 # noqa: E731 (the slicer's file again)
+    again()
+    check_stops(args, tmp_path, g.parent, seconds, shares=(0.1, 0.4, 0.7, 0.9), reset=again)
+
+
+def test_litho_stopped_leaves_the_earlier_files(tmp_path):
+    a = np.full((40, 200), 255, np.uint8)
+    a[:, :100] = 0
+    pic = tmp_path / "p.png"
+    Image.fromarray(a).save(pic)
+    out = tmp_path / "o"
+    args = ["litho", pic, "-o", out, "--width", 100, "--height", 20, "--foot", 0, "-q"]
+    seconds = whole_run(args, tmp_path)
+    Image.fromarray(a[:, ::-1]).save(pic)               # the next run's files differ
+    check_stops(args, tmp_path, out, seconds, shares=(0.1, 0.4, 0.7, 0.9))
