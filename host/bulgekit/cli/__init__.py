@@ -8,7 +8,7 @@ from pathlib import Path
 
 import click
 
-from ._util import FINITE, POSITIVE, Num, friendly, outdir_option, pair, progress_option
+from ._util import FINITE, POSITIVE, Num, friendly, outdir_option, pair, progress_option, warning_lines
 from .. import __version__
 from ..bulge import mapformat
 from ..bulge.fallback import (DEFAULT_DWELL_MS, DEFAULT_E_STEPS, DEFAULT_EXTRA_E_MM, DEFAULT_TOLERANCE_MM,
@@ -96,11 +96,12 @@ def _scanner_words() -> str:
 
 class _Main(click.Group):
     """The command group: Ctrl-C (SIGINT) and SIGTERM end any command with one line on stderr
-    and exit status 130 or 143, its outputs and its children taken back (bulgekit.outputs)."""
+    and exit status 130 or 143, its outputs and its children taken back (bulgekit.outputs);
+    bulgekit's warnings are one line each on stderr (warning_lines)."""
 
     def main(self, *args, **kwargs):
         from .. import outputs
-        with outputs.ending():
+        with outputs.ending(), warning_lines():
             return super().main(*args, **kwargs)
 
 

@@ -5,6 +5,7 @@ import contextlib
 import functools
 import math
 import sys
+import warnings
 
 import click
 
@@ -41,6 +42,21 @@ def friendly(fn=None, *, outputs: bool = True):
         except OSError as e:
             raise click.ClickException(f"{e.filename or ''}: {e.strerror or e}") from None
     return wrapper
+
+
+@contextlib.contextmanager
+def warning_lines():
+    """While a command runs, a warning of bulgekit's own (gcode.CutOffWarning) is one line on
+    stderr, `WARNING: FILE: ...`, once per message; others are shown as Python shows them."""
+    with warnings.catch_warnings():
+        shown = warnings.showwarning
+
+        def show(message, category, filename, lineno, file=None, line=None):
+            if not category.__module__.startswith("bulgekit"):
+                return shown(message, category, filename, lineno, file, line)
+            click.echo(f"WARNING: {message}", err=True)
+        warnings.showwarning = show
+        yield
 
 
 def progress_option(fn):
