@@ -6,13 +6,9 @@ bulgekit` and stopped at several moments of its run. The soak on a 100 MB file:
 tools/interrupt_soak.py (docs/host.md, "Exit status")."""
 from __future__ import annotations
 
-import hashlib
-import os
 import shutil
 import signal
-import subprocess
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -22,6 +18,8 @@ from PIL import Image
 REPO = Path(__file__).resolve().parents[3]
 sys.path.insert(0, str(REPO / "tools"))
 
+from interrupt_soak import files as folder, stop_at, whole_run  # noqa: E402
+
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
 
 # moments of the run, as shares of one whole run's time, counted from when the command's
@@ -29,83 +27,21 @@ pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="re
 SHARES = (0.0, 0.15, 0.35, 0.55, 0.75, 0.9)
 
 
-def folder(d: Path) -> dict:
-    """Every file in d (and below) with its bytes' digest."""
-    return {str(p.relative_to(d)): hashlib.sha256(p.read_bytes()).hexdigest()
-            for p in sorted(d.rglob("*")) if p.is_file()}
-
-
-def start(args, cwd) -> subprocess.Popen:
-    env = dict(os.environ, PYTHONPATH=str(REPO / "host"))
-    return subprocess.Popen([sys.executable, "-m", "bulgekit", *map(str, args)], cwd=cwd, env=env,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True)
-
-
-def ready(proc) -> float:
-    """Waits until the command's own SIGTERM handler is in place (bulgekit.outputs.ending; Python
-    alone catches SIGINT only); returns when."""
-    t0 = time.monotonic()
-    while True:
-        assert proc.poll() is None, proc.communicate()
-        try:
-            status = Path(f"/proc/{proc.pid}/status").read_text()
-        except FileNotFoundError:
-            status = ""
-        caught = next((int(ln.split()[1], 16) for ln in status.splitlines() if ln.startswith("SigCgt:")), 0)
-        if caught >> (signal.SIGTERM - 1) & 1:
-            return time.monotonic()
-        assert time.monotonic() - t0 < 30
-        time.sleep(0.002)
-
-
-def whole_run(args, cwd) -> float:
-    """One run to its end (the earlier outputs the interrupted runs must leave): its seconds."""
-    proc = start(args, cwd)
-    t = ready(proc)
-    out, err = proc.communicate(timeout=120)
-    assert proc.returncode == 0, err.decode()
-    return time.monotonic() - t
-
-
-def stop_at(args, cwd, delay: float, sig=signal.SIGINT, group: bool = True):
-    """The command stopped `delay` s after its handlers are in place: (exit status, stderr's
-    lines, whether it had ended before the signal). group: to its process group, as a terminal's
-    Ctrl-C (its forked children hear it too); else to it alone, as `kill PID`."""
-    proc = start(args, cwd)
-    time.sleep(max(0.0, ready(proc) + delay - time.monotonic()))
-    ended = proc.poll() is not None
-    if not ended:
-        (os.killpg if group else os.kill)(proc.pid, sig)
-    _, err = proc.communicate(timeout=60)
-    assert not alive(proc.pid), "a child of the command is left running"
-    return proc.returncode, err.decode().splitlines(), ended
-
-
-def alive(group: int) -> bool:
-    """Whether a process of the group still runs (given a moment to be reaped)."""
-    t0 = time.monotonic()
-    while time.monotonic() - t0 < 1.0:
-        try:
-            os.killpg(group, 0)
-        except ProcessLookupError:
-            return False
-        time.sleep(0.01)
-    return True
-
-
 def check_stops(args, cwd, watched: Path, seconds: float, shares=SHARES, term_share=0.5, reset=None):
-    """Each stop leaves `watched` (a folder) byte for byte as the run before left it: exit
-    status 130 (143). A signal after the outputs went in place is too late: the run ends as
+    """Each stop leaves `watched` (a folder) as the run before left it (the same files, none
+    replaced, no part), with exit status 130 (143) and one line on stderr. A signal after the outputs went in place is too late: the run ends as
     usual, exit status 0, all its files new (then reset() puts the input back, if given)."""
     before = folder(watched)
     runs = [(s, signal.SIGINT, True) for s in shares] + [(shares[1], signal.SIGINT, False),
                                                         (term_share, signal.SIGTERM, False)]
     stopped = 0
     for share, sig, group in runs:
-        code, err, ended = stop_at(args, cwd, share * seconds, sig, group)
+        code, err, left = stop_at(args, cwd, share * seconds, sig, group)
+        assert not left, "a process of the command is left running"
         now = folder(watched)
         if code == 0:                                    # ended, or stopped too late
             assert err == [] and now.keys() == before.keys(), (share, sig, err)
+            assert all(now[n] != before[n] for n in now if n != "mine.txt")
             before = now
             if reset is not None:
                 reset()
@@ -114,7 +50,7 @@ def check_stops(args, cwd, watched: Path, seconds: float, shares=SHARES, term_sh
         stopped += 1
         word = "interrupted" if sig == signal.SIGINT else "terminated"
         assert (code, err) == (128 + sig, [f"bulgekit: {word}"]), (share, sig)
-        assert now == before, (share, sig, err)          # no new file, no part, none changed
+        assert now == before, (share, sig)               # no new file, no part, none replaced
     assert stopped >= len(runs) - 2
 
 
