@@ -120,18 +120,19 @@ def main() -> int:
             code, err, left = stop_at(args, d, delay, sig)
             now = files(out)
             codes[code] = codes.get(code, 0) + 1
+            renewed = now.keys() == before.keys() and all(now[n][0] != before[n][0] for n in now)
             if code == 0:                      # stopped once its outputs were in place
-                ok = err == [] and now.keys() == before.keys() and all(
-                    now[n][0] != before[n][0] for n in now) and not left
-                before = now
+                ok = err == [] and renewed and not left
+                said = "outputs all new" if renewed else "OUTPUTS NOT ALL NEW"
             else:
                 ok = code == 128 + sig and err == [f"bulgekit: {word}"] and now == before and not left
-            new = sorted(set(now) - set(before)) if code else []
+                added = sorted(set(now) - set(before))
+                said = ("outputs unchanged" if now == before else
+                        "OUTPUTS CHANGED" + (f", new files {added}" if added else ""))
             broken += not ok
-            print(f"run {k + 1:2d}: {sig.name} at {delay:5.2f} s: exit {code}, stderr {err!r}, "
-                  f"{'outputs unchanged' if now == before else 'outputs all new' if code == 0 else 'CHANGED'}"
-                  f"{', new files ' + str(new) if new else ''}{', A PROCESS LEFT' if left else ''}"
-                  f"{'' if ok else '  <-- BROKEN'}")
+            print(f"run {k + 1:2d}: {sig.name} at {delay:5.2f} s: exit {code}, stderr {err!r}, {said}"
+                  f"{', A PROCESS LEFT' if left else ''}{'' if ok else '  <-- BROKEN'}")
+            before = now
         print(f"exit statuses: {dict(sorted(codes.items()))}; runs that broke the rule: {broken}")
     return 1 if broken else 0
 
