@@ -104,3 +104,25 @@ def test_litho_stopped_leaves_the_earlier_files(tmp_path):
     seconds = whole_run(args, tmp_path)
     Image.fromarray(a[:, ::-1]).save(pic)               # the next run's files differ
     check_stops(args, tmp_path, out, seconds, shares=(0.1, 0.4, 0.7, 0.9))
+
+
+@pytest.mark.parametrize("fallback", [[], ["--fallback"]])
+def test_build_that_fails_half_way_leaves_the_earlier_files(data_dir, tmp_path, monkeypatch, fallback):
+    """An error after the map, annotated G-code, stock file and stats are written (the preview
+    fails): exit status 1, and the folder as the run before left it."""
+    from click.testing import CliRunner
+    from bulgekit.bulge import preview
+    from bulgekit.cli import main
+    from bulgekit.errors import BulgekitError
+    out = tmp_path / "out"
+    args = ["build", str(data_dir / "prusa_cyl.gcode"), "--at", "10,2", "--text-size", "4", "-o", str(out),
+            *fallback]
+    assert CliRunner().invoke(main, [*args, "--text", "OLD"]).exit_code == 0
+    before = folder(out)
+
+    def broken(*a, **kw):
+        raise BulgekitError("the preview cannot be drawn")
+    monkeypatch.setattr(preview, "build_unrolled", broken)
+    r = CliRunner().invoke(main, [*args, "--text", "NEW"])
+    assert r.exit_code == 1 and "the preview cannot be drawn" in r.output
+    assert folder(out) == before
