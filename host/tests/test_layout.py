@@ -1,5 +1,5 @@
 """The package's layout (issue 26): imports flow one way, cli/studio -> jobs (bulge, litho,
-printer) -> gcode -> the printer model (machine) -> base (errors, progress, parallel); no flat module comes back beside the base; the
+printer) -> gcode -> the printer model (machine) -> base (errors, progress, parallel, outputs); no flat module comes back beside the base; the
 public API (`import bulgekit as bk`) keeps its names.  Where things live: docs/host.md."""
 from __future__ import annotations
 
@@ -11,14 +11,16 @@ import bulgekit as bk
 PKG = Path(__file__).resolve().parents[1] / "bulgekit"
 
 # floor of each part: an import goes to a lower floor, or stays inside its own package
-FLOORS = {"errors": 0, "progress": 0, "parallel": 0, "machine": 1, "gcode": 2, "bulge": 3, "litho": 3,
-          "printer": 3, "studio": 4, "cli": 4}
+FLOORS = {"errors": 0, "progress": 0, "parallel": 0, "outputs": 0, "machine": 1, "gcode": 2, "bulge": 3,
+          "litho": 3, "printer": 3, "studio": 4, "cli": 4}
 # imports between two packages on the same floor, each with its reason
 SIDEWAYS = {
     ("litho", "bulge"): "the calibration plate's labels are drawn with the stroke fonts "
                         "(bulge.strokes.text_strokes)",
     ("cli", "studio"): "`bulgekit studio` starts the studio's server",
     ("parallel", "progress"): "a forked child shows no progress: its lines would cross its parent's",
+    ("outputs", "parallel"): "a failed run's parts are removed once the children that may write "
+                             "them are ended (parallel.end_all)",
     ("studio", "cli"): "printing from the studio checks the printer's arena as `bulgekit send` does "
                        "(cli.io.annotated_arena, check_printer_arena)",
 }
@@ -103,7 +105,7 @@ def test_the_floor_table_knows_every_subpackage():
 
 
 def test_only_the_base_lies_flat():
-    extra = {p.stem for p in PKG.glob("*.py")} - {"__init__", "__main__", "errors", "progress", "parallel"}
+    extra = {p.stem for p in PKG.glob("*.py")} - {"__init__", "__main__", "errors", "progress", "parallel", "outputs"}
     assert not extra, f"modules beside the base: {sorted(extra)}: put each in its job's subpackage"
 
 

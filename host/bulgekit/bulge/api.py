@@ -19,7 +19,7 @@ from typing import Sequence
 from . import annotate as _annotate
 from . import fallback as _fallback
 from . import mapbuild, mapformat, stats as _stats, wall
-from .. import parallel, progress
+from .. import outputs, parallel, progress
 from .fallback import MODE_GEOMETRIC, MODE_MARKED, Settings
 from ..errors import BulgekitError, InputError
 from .strokes import Stroke
@@ -149,13 +149,14 @@ def _build(gcode: Path, strokes, outdir, name, geometric, spacing, line_width, l
     gpath = outdir / f"{name}.bulge.gcode"
     fpath = outdir / f"{name}.stock.gcode" if write_fallback else None
     spath = outdir / f"{name}.stats.txt"
-    # The folder is made only now that the inputs are checked, and a build that fails while
-    # writing takes back what it wrote (and the folder, if it made it): all or nothing.
-    made_dir = not outdir.exists()
-    outdir.mkdir(parents=True, exist_ok=True)
-    written = [p for p in (map_path, gpath, fpath, spath) if p is not None and not p.exists()]
-    try:
-        map_path.write_bytes(res.map_bytes)
+    # The folder is made only now that the inputs are checked; the files go in place together
+    # when all are whole (in the CLI, with the command's other files), or none does and the
+    # folder goes too if this made it (bulgekit.outputs)
+    with outputs.Outputs() as staged:
+        staged.folder(outdir)
+        if fpath is not None:
+            staged.part(fpath)     # before the fork: the child writes it, this process removes it
+        outputs.write(map_path, res.map_bytes)
         # the map was placed on this file's walls; points it still misses are
         # listed by the stats below (one planner run instead of three)
         def stock_and_stats():
@@ -188,14 +189,8 @@ def _build(gcode: Path, strokes, outdir, name, geometric, spacing, line_width, l
                 stock, st = beside.result()
         finally:
             if beside is not None:
-                beside.close()                 # (before a failed build takes its files back)
+                beside.close()                 # (ended before its part is removed)
         st.stock = stock
         st.arcs = ann.arcs                     # (as written: their chords and how near the arcs)
-        spath.write_text(st.text() + "\n", encoding="utf-8")
-    except BaseException:
-        for p in written:
-            p.unlink(missing_ok=True)
-        if made_dir and not any(outdir.iterdir()):
-            outdir.rmdir()
-        raise
+        outputs.write(spath, st.text() + "\n")
     return BuildOutput(map_path, gpath, fpath, spath, res, ann, st)

@@ -39,7 +39,8 @@ from . import klipper_stop, mapformat
 from ..gcode import movescan
 from ..gcode import (MAX_ARC_SEGMENT_MM, _WORD, GcodeState, Line, Move, arc_geometry, command_of,
                      parse_lines, parse_words, split_code)
-from ..errors import BulgekitError, output_part
+from ..errors import BulgekitError
+from ..outputs import part as output_part
 from .. import machine
 from ..machine import PrinterModel
 from . import stopmodel
@@ -1764,7 +1765,6 @@ def rewrite_file(src, dst, bmap: mapformat.BulgeMap, settings: Settings,
     on_plan(planner) is called with each planner made to run over the file (a second one when
     the compiled scanner leaves the file to the text path) and returns an on_move hook (see
     rewrite()), or None: build's statistics count on the rewrite's run (result.planner)."""
-    import os
     from ..gcode import check_not_processed, open_checked
     res = RewriteResult()
     byte_path = movescan.available() and not stops.klipper    # Klipper's form: the text path
@@ -1808,5 +1808,4 @@ def rewrite_file(src, dst, bmap: mapformat.BulgeMap, settings: Settings,
                 f.write("".join(buf))
         if res.unreached and not allow_unreached:
             raise UnreachedError(res.unreached)
-        os.replace(tmp, dst)
     return res

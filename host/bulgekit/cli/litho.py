@@ -6,7 +6,6 @@ cli/__init__.py calls register(main) to add it to the bulgekit command group.
 from __future__ import annotations
 
 import math
-import signal
 
 import click
 
@@ -22,10 +21,6 @@ def _bed(ctx, param, value):
     if len(parts) not in (2, 3) or not all(math.isfinite(p) and p > 0 for p in parts):
         raise click.BadParameter(f"expected two or three sizes > 0 mm (X,Y[,Z]), got {value!r}")
     return tuple(parts)
-
-
-def _terminated(signum, frame):
-    raise SystemExit(128 + signum)
 
 
 def register(main):
@@ -179,12 +174,7 @@ def register(main):
             if progress.enabled():
                 click.echo(f"\rplanning layers: {done}/{total}", err=True, nl=done == total)
 
-        # SIGTERM ends the run as Ctrl-C does, so make() removes its temporary files
-        old = signal.signal(signal.SIGTERM, _terminated)
-        try:
-            res = lt.make(image, outdir, name=name, progress=show, options=opts)
-        finally:
-            signal.signal(signal.SIGTERM, old)
+        res = lt.make(image, outdir, name=name, progress=show, options=opts)
         s = res.stats
         click.echo(summary(s))
         if "calibration" in s:

@@ -39,12 +39,10 @@ body's volume). Only the split between the lines changes below, never the thickn
 """
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import json
 import math
 import os
-import tempfile
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
@@ -52,6 +50,7 @@ import numpy as np
 
 from . import tone
 from .. import machine
+from .. import outputs
 from ..errors import BulgekitError
 from ..machine import PrinterModel
 
@@ -1365,7 +1364,7 @@ def write_gcode(plan: Plan, path, mode: str, name: str = "lithophane", estimate_
         w.flow = o.wall_flow
     ratio = o.first_layer_speed / o.wall_speed
     n = len(plan.layers)
-    with pg.phase(f"writing {_shown(path)}", n, unit="layers"):
+    with pg.phase(f"writing {Path(path).name}", n, unit="layers"):
         for k, L in enumerate(plan.layers):
             w.out(f";LAYER:{k}")
             w.out(f"G1 Z{_fmt(L.z, 3)} F{_fmt(o.z_speed * 60, 1)}")
@@ -1384,7 +1383,7 @@ def write_gcode(plan: Plan, path, mode: str, name: str = "lithophane", estimate_
             w.out(f"G1 E-{_fmt(o.retract, 4)} F{_fmt(o.retract_speed * 60, 1)}")
         w.out(fill(end).rstrip("\n"))
         w.flush()
-        _write_atomic(path, w.text())
+        outputs.write(path, w.text())
     for it in w.items:                              # the estimate needs the moves' numbers only
         if not isinstance(it, str):
             it[0] = None
@@ -1393,7 +1392,7 @@ def write_gcode(plan: Plan, path, mode: str, name: str = "lithophane", estimate_
     out = []
     for m in estimate_with:
         every = "" if m.min_segment_steps else ", every move planned"
-        with pg.phase(f"estimating {_shown(path)}{every}", 1, unit="estimates"):
+        with pg.phase(f"estimating {Path(path).name}{every}", 1, unit="estimates"):
             out.append(estimate.estimate_lines(w.lines(), m, source=os.fspath(path), blocks=False).total_s)
     return out
 
@@ -1412,67 +1411,6 @@ def _options_dict(o: LithoOptions) -> dict:
     d["printer"] = o.printer.describe()         # the model, as the stock file's header names it
     return d
 
-
-def _umask() -> int:
-    m = os.umask(0)
-    os.umask(m)
-    return m
-
-
-@contextlib.contextmanager
-def _held():
-    """SIGINT and SIGTERM held back until the end, then handled as they would have been. Python
-    runs signal handlers in the main thread whichever thread the signal reached (numpy's worker
-    threads do not block it), so a signal mask does not hold them: the handlers are swapped for
-    one that notes the signal. Elsewhere than the main thread no handler runs: nothing to hold."""
-    import signal
-    import threading
-
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    got = []
-    old = {n: signal.signal(n, lambda signum, frame: got.append((signum, frame)))
-           for n in (signal.SIGINT, signal.SIGTERM)}
-    try:
-        yield
-    finally:
-        for n, h in old.items():
-            signal.signal(n, h)
-        if got:
-            signum, frame = got[0]
-            h = old[signum]
-            if callable(h):
-                h(signum, frame)                      # e.g. KeyboardInterrupt, the CLI's SystemExit
-            elif h == signal.SIG_DFL:
-                os.kill(os.getpid(), signum)
-
-
-def _write_atomic(path, data, binary=False):
-    """Write all of it or nothing: a temporary file in the same folder, renamed over the target.
-    `data`: str or bytes, or an iterable of them (written piece by piece)."""
-    path = Path(path)
-    tmp = None
-    try:
-        with _held():                                 # the file is made and its name kept
-            fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".part", dir=path.parent)
-        with os.fdopen(fd, "wb" if binary else "w") as f:
-            if isinstance(data, (str, bytes)):
-                f.write(data)
-            else:
-                f.writelines(data)
-        os.chmod(tmp, 0o666 & ~_umask())
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            if tmp is not None:
-                os.unlink(tmp)
-        except OSError:
-            pass
-        raise
-
-
-# --- the body as an STL --------------------------------------------------------------------
 
 def body_mesh(plan: Plan) -> tuple[np.ndarray, np.ndarray]:
     """Vertices (mm, bed coordinates) and triangles of the printed body, watertight.
@@ -1560,7 +1498,7 @@ def write_stl(V: np.ndarray, F: np.ndarray, path, name="bulgekit lithophane") ->
     rec = np.zeros(len(F), dtype=[("n", "<f4", 3), ("v", "<f4", (3, 3)), ("attr", "<u2")])
     rec["n"], rec["v"] = n, tri
     head = name.encode()[:80].ljust(80, b" ")
-    _write_atomic(path, [head, np.uint32(len(F)).tobytes(), memoryview(rec).cast("B")], binary=True)
+    outputs.write(path, [head, np.uint32(len(F)).tobytes(), memoryview(rec).cast("B")])
 
 
 # --- predicted look and statistics ---------------------------------------------------------
@@ -1694,7 +1632,7 @@ def write_transmission_png(plan: Plan, path) -> None:
         d.text((x, 5), label, fill=255)
     buf = __import__("io").BytesIO()
     canvas.save(buf, format="PNG")
-    _write_atomic(path, buf.getvalue(), binary=True)
+    outputs.write(path, buf.getvalue())
 
 
 def plan_stats(plan: Plan, stl_volume: float) -> dict:
@@ -1801,23 +1739,23 @@ def make(image, outdir, name: str | None = None, progress=None, machine=None, **
     name = name or ("calibration" if calibration else Path(os.fspath(image)).stem)
     out = Path(outdir)
     plan = plan_lithophane(image, o, progress=progress)
-    out.mkdir(parents=True, exist_ok=True)
     final = {"gcode": out / f"{name}.litho.gcode", "stock": out / f"{name}.stock.gcode",
              "stl": out / f"{name}.stl", "png": out / f"{name}.transmission.png",
              "json": out / f"{name}.litho.json"}
     m = machine or machine_for(o)
-    with _Staged(final) as paths:                     # all five files or none
+    with outputs.Outputs() as staged:                 # all five files or none (bulgekit.outputs)
+        staged.folder(out)
         with pg.phase(f"writing {final['stl'].name}", 1, unit="files"):
             V, F = body_mesh(plan)
-            write_stl(V, F, paths["stl"], name=f"bulgekit lithophane {name}")
+            write_stl(V, F, final["stl"], name=f"bulgekit lithophane {name}")
             stl_volume = mesh_volume(V, F)
             del V, F
         times = {}
         # the litho file also with every move planned (Klipper, RepRapFirmware): nothing dropped
         every = dataclasses.replace(m, min_segment_steps=0)
-        times["gcode"], times["every"] = write_gcode(plan, paths["gcode"], "litho", name, estimate_with=[m, every])
-        times["stock"], = write_gcode(plan, paths["stock"], "stock", name, estimate_with=[m])
-        write_transmission_png(plan, paths["png"])
+        times["gcode"], times["every"] = write_gcode(plan, final["gcode"], "litho", name, estimate_with=[m, every])
+        times["stock"], = write_gcode(plan, final["stock"], "stock", name, estimate_with=[m])
+        write_transmission_png(plan, final["png"])
         stats = plan_stats(plan, stl_volume)
         stats["name"] = name
         stats["image"] = None if calibration else os.fspath(image)
@@ -1828,57 +1766,8 @@ def make(image, outdir, name: str | None = None, progress=None, machine=None, **
                              "estimated_time_s_stock": round(times["stock"], 1),
                              "estimated_time_s_gcode_every_move_planned": round(times["every"], 1),
                              "machine": machine_words(m)}
-        _write_atomic(paths["json"], json.dumps(stats, indent=2) + "\n")
+        outputs.write(final["json"], json.dumps(stats, indent=2) + "\n")
     return LithoResult(plan, final, stats)
-
-
-def _shown(path) -> str:
-    """A file's name as the user will see it: without _Staged's temporary suffix."""
-    name = Path(path).name
-    return name.rsplit(".", 2)[0] if name.endswith(".part") else name
-
-
-class _Staged:
-    """Outputs written under temporary names beside their targets (NAME.EXT.xxxx.part) and
-    renamed over them together at the end, with SIGINT and SIGTERM held back while renaming: a
-    run that fails or is interrupted leaves no new file and the earlier ones intact."""
-
-    def __init__(self, final: dict):
-        self.final, self.tmp = final, {}
-
-    def __enter__(self) -> dict:
-        try:
-            with _held():                             # no file made and not yet recorded
-                for k, p in self.final.items():
-                    fd, t = tempfile.mkstemp(prefix=p.name + ".", suffix=".part", dir=p.parent)
-                    os.close(fd)
-                    self.tmp[k] = Path(t)
-        except BaseException:
-            self._discard()
-            raise
-        return dict(self.tmp)
-
-    def __exit__(self, exc_type, exc, tb) -> bool:
-        if exc_type is not None:
-            self._discard()
-            return False
-        try:
-            with _held():
-                for k in list(self.tmp):
-                    os.replace(self.tmp[k], self.final[k])
-                    del self.tmp[k]
-        except BaseException:
-            self._discard()
-            raise
-        return False
-
-    def _discard(self) -> None:
-        for t in self.tmp.values():
-            try:
-                os.unlink(t)
-            except OSError:
-                pass
-        self.tmp.clear()
 
 
 def machine_for(o: LithoOptions):

@@ -32,7 +32,7 @@ from pathlib import Path
 
 from aiohttp import web
 
-from .. import progress
+from .. import outputs, progress
 from ..errors import BulgekitError
 from . import design as dz
 
@@ -600,6 +600,10 @@ def _message(e: BaseException) -> str:
 
 # -- HTTP
 
+class _TooBig(Exception):
+    """An upload past its limit: its part is removed, the answer says so."""
+
+
 def _error(status: int, text: str) -> web.Response:
     return web.json_response({"error": text}, status=status)
 
@@ -674,18 +678,16 @@ def make_app(st: Studio, port_ref: dict) -> web.Application:
             return name
         base = dz.safe_name(name, "part.gcode")
         dest = st.workdir / "gcode" / f"{st.next_id()}-{base}"
-        part = dest.with_name(dest.name + ".part")
         got = 0
-        try:
-            with open(part, "wb") as f:
+        try:                                    # an upload cut off or refused leaves nothing
+            with outputs.part(dest) as part, open(part, "wb") as f:
                 async for chunk in request.content.iter_chunked(1 << 20):
                     got += len(chunk)
                     if got > st.limits.gcode_bytes:
-                        return too_big(name, st.limits.gcode_bytes, "G-code")
+                        raise _TooBig
                     f.write(chunk)
-            part.replace(dest)
-        finally:
-            part.unlink(missing_ok=True)        # an upload cut off or refused leaves nothing
+        except _TooBig:
+            return too_big(name, st.limits.gcode_bytes, "G-code")
         job = st.start("open", st.open_upload, dest, name)
         return web.json_response(job.json())
 

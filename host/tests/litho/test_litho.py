@@ -586,18 +586,18 @@ def test_a_failing_last_writer_leaves_the_earlier_outputs(tmp_path, monkeypatch)
     before = folder(out)
     assert sorted(before) == sorted(f"p{x}" for x in OUTPUTS)
     p2 = picture(tmp_path, "p2.png", boxes=[(20, 0, 40, 16, 0)])     # other files would come out
-    write = lt._write_atomic
+    write = lt.outputs.write
 
     def interrupted(path, *a, **kw):
         if Path(path).name.startswith("p.litho.json"):               # the last of the five
             raise KeyboardInterrupt
         return write(path, *a, **kw)
 
-    monkeypatch.setattr(lt, "_write_atomic", interrupted)
+    monkeypatch.setattr(lt.outputs, "write", interrupted)
     with pytest.raises(KeyboardInterrupt):
         lt.make(p2, out, options=opts(), name="p")
     assert folder(out) == before                                     # nothing new, nothing left over
-    monkeypatch.setattr(lt, "_write_atomic", write)
+    monkeypatch.setattr(lt.outputs, "write", write)
     lt.make(p2, out, options=opts(), name="p")
     after = folder(out)
     assert sorted(after) == sorted(before)
