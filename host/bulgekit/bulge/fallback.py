@@ -787,7 +787,7 @@ def unreached_message(planner: RefPlanner, source: str) -> str | None:
 # (--stop g4, the paper's rewrite). Marlin's G4 drains the planner queue before it dwells
 # (planner.synchronize()); a G1 of E alone is queued like any move, and the head stands still
 # while the extruder makes its steps. Measured in simulated stock Marlin 2.1.2.7 (issue 25,
-# docs/marlin-integration.md): with n whole E steps at r steps/s the head stands still for
+# docs/verification/marlin-simulation.md): with n whole E steps at r steps/s the head stands still for
 #     1/max(r, 120) + (n - 1)/r + 1/max(120, v k) s
 # where r is the block's nominal rate, ceil(n x feed / length) in whole steps/s, and 120 steps/s
 # Marlin's MINIMAL_STEP_RATE. The E move's first step comes 1/r after the last X/Y step (never

@@ -3,7 +3,7 @@
 The stock stop (fallback.py, "stops for stock firmware") is an E-only move of n steps at r
 steps/s between two X/Y moves A (before) and B (after). Read from Marlin 2.1.2.7's planner.cpp
 and stepper.cpp and checked in simulated stock Marlin 2.1.2.7 with four settings (issue 36,
-docs/marlin-integration.md "Stops exact on Marlin with other settings"):
+docs/verification/marlin-simulation.md "Stops exact on Marlin with other settings"):
 
   head still = 1/max(r, floor) + (n - 1)/r + 1/max(floor, v k)
 
