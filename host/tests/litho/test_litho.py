@@ -20,6 +20,7 @@ from click.testing import CliRunner
 from PIL import Image
 
 from bulgekit import litho as lt
+from bulgekit.litho import outputs, paths, thickness
 from bulgekit.cli import main
 from bulgekit.cli.litho import summary
 
@@ -297,7 +298,7 @@ def test_nothing_outside_the_body(step_plan):
 
     o, f = step_plan.options, step_plan.field
     for k in (0, 7, 14):
-        P = lt._layer_polygon(o, f, k)
+        P = paths._layer_polygon(o, f, k)
         for s in step_plan.layers[k].sections:
             for x, y in s.pts:
                 assert P.buffer(1e-6).contains(Point(x, y)), (k, s.kind, x, y)
@@ -586,18 +587,18 @@ def test_a_failing_last_writer_leaves_the_earlier_outputs(tmp_path, monkeypatch)
     before = folder(out)
     assert sorted(before) == sorted(f"p{x}" for x in OUTPUTS)
     p2 = picture(tmp_path, "p2.png", boxes=[(20, 0, 40, 16, 0)])     # other files would come out
-    write = lt._write_atomic
+    write = outputs._write_atomic
 
     def interrupted(path, *a, **kw):
         if Path(path).name.startswith("p.litho.json"):               # the last of the five
             raise KeyboardInterrupt
         return write(path, *a, **kw)
 
-    monkeypatch.setattr(lt, "_write_atomic", interrupted)
+    monkeypatch.setattr(outputs, "_write_atomic", interrupted)
     with pytest.raises(KeyboardInterrupt):
         lt.make(p2, out, options=opts(), name="p")
     assert folder(out) == before                                     # nothing new, nothing left over
-    monkeypatch.setattr(lt, "_write_atomic", write)
+    monkeypatch.setattr(outputs, "_write_atomic", write)
     lt.make(p2, out, options=opts(), name="p")
     after = folder(out)
     assert sorted(after) == sorted(before)
@@ -855,12 +856,12 @@ def test_held_gap_moves_only_where_it_must():
     to the nearer edge (the least change), and otherwise it stays."""
     lo = np.array([[1.0, 1.1, 1.0, 1.5, 1.5, 0.2, 0.2]])
     hi = np.array([[2.0, 2.1, 1.9, 2.5, 2.5, 0.9, 1.2]])
-    q = lt._held_gap(lo, hi)
+    q = thickness._held_gap(lo, hi)
     assert q.tolist() == [[1.5, 1.5, 1.5, 1.5, 1.5, 0.9, 0.9]]
     rng = np.random.default_rng(3)
     lo = rng.uniform(0, 1, (5, 200))
     hi = lo + rng.uniform(0.05, 0.5, (5, 200))
-    q = lt._held_gap(lo, hi)
+    q = thickness._held_gap(lo, hi)
     assert np.all(q >= lo) and np.all(q <= hi)
     moved = np.abs(np.diff(q, axis=1)) > 0
     prev_in = (q[:, :-1] >= lo[:, 1:]) & (q[:, :-1] <= hi[:, 1:])
