@@ -6,7 +6,7 @@ import numpy as np
 
 from . import tone
 from .atomic import _write_atomic
-from .paths import Plan
+from .paths import Plan, end_unit
 
 
 # --- predicted look and statistics ---------------------------------------------------------
@@ -17,8 +17,9 @@ def printed_thickness(plan: Plan) -> np.ndarray:
     columns, closer to the end than a line width, are the end walls: solid through the plate."""
     o, fld = plan.options, plan.field
     t = np.array([2 * L.wall + L.gap for L in plan.layers[fld.n_foot:]])
-    if o.shape == "planar":
-        ends = (fld.s < o.line_width - 1e-9) | (fld.s > fld.s[-1] - o.line_width + 1e-9)
+    if o.shape != "cylinder":
+        e = o.line_width * end_unit(o)
+        ends = (fld.s < e - 1e-9) | (fld.s > fld.s[-1] - e + 1e-9)
         t[:, ends] = fld.t[fld.n_foot:, ends]
     return t
 
@@ -64,3 +65,50 @@ def write_transmission_png(plan: Plan, path) -> None:
     buf = __import__("io").BytesIO()
     canvas.save(buf, format="PNG")
     _write_atomic(path, buf.getvalue(), binary=True)
+
+
+SCATTER_MM = 0.5        # sigma of the light's scatter in the plate, mm: an assumption, not measured
+
+
+def likeness(plan: Plan) -> dict | None:
+    """The picture against the print as this plan makes it: the picture (cropped as used, at up
+    to picture.REF_MM per pixel) on the plate's L* range, against the predicted backlit L* of the
+    printed thickness as sampled (linear along the layer between samples, one value per layer)
+    with the light's scatter in the plate as a Gaussian blur of SCATTER_MM (in linear light).
+    What it measures is what sampling at the pitch and layer height, the tone range and the
+    scatter lose; not what a printer gets wrong. Inside the frame; None for the calibration plate."""
+    from scipy.ndimage import gaussian_filter
+
+    o, fld = plan.options, plan.field
+    lay = fld.layout
+    if lay is None or lay.reference is None:
+        return None
+    ref = np.asarray(lay.reference, dtype=float)
+    Hr, Wr = ref.shape
+    rows, cols = fld.inside
+    t = printed_thickness(plan)[:, fld.inside[1] if o.shape == "cylinder" else slice(None)]
+    n_rows, m = t.shape
+    # the reference's pixel centres on the sample grid (a sample is a cell's centre, as resampled)
+    xc = (np.arange(Wr) + 0.5) / Wr * m - 0.5
+    yc = np.minimum(((np.arange(Hr) + 0.5) / Hr * n_rows).astype(int), n_rows - 1)
+    top = t[::-1]                                        # the picture's top row first
+    j0 = np.clip(np.floor(xc).astype(int), 0, m - 1)
+    j1 = np.clip(j0 + 1, 0, m - 1)
+    f = np.clip(xc - j0, 0.0, 1.0)
+    tt = top[yc][:, j0] * (1 - f) + top[yc][:, j1] * f
+    Y = tone.plate_luminance(tt, o.attenuation, o.min_thickness)
+    px = lay.width / Wr
+    Y = gaussian_filter(Y, sigma=(SCATTER_MM / (lay.height / Hr), SCATTER_MM / px), mode="nearest")
+    L_lo, _ = tone.plate_range(o.attenuation, o.min_thickness, o.max_thickness)
+    pred = tone.lightness(Y)
+    target = tone.target_lightness(tone.lightness(ref), L_lo, o.invert)
+    # inside the frame: the same share of the picture as fld.inside of the samples
+    c0, c1 = (0, m) if o.shape == "cylinder" else (cols.start or 0, cols.stop if cols.stop is not None else m)
+    r0, r1 = n_rows - (rows.stop if rows.stop is not None else n_rows), n_rows - (rows.start or 0)
+    cut = (slice(int(r0 / n_rows * Hr), int(np.ceil(r1 / n_rows * Hr))),
+           slice(int(c0 / m * Wr), int(np.ceil(c1 / m * Wr))))
+    sim = tone.similarity(target[cut], pred[cut])
+    return {"mean_abs_dL": round(sim["mean_abs_dL"], 2),
+            "ssim_L": round(sim["ssim_L"], 3) if np.isfinite(sim["ssim_L"]) else None,
+            "grid_mm": [round(lay.width / Wr, 3), round(lay.height / Hr, 3)],
+            "sampled_mm": [o.pitch, o.layer_height], "scatter_sigma_mm": SCATTER_MM}

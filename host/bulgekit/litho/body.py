@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 
 from .atomic import _write_atomic
-from .paths import Plan
+from .paths import Plan, arc_start
 
 
 # --- the body as an STL --------------------------------------------------------------------
@@ -28,6 +28,14 @@ def body_mesh(plan: Plan) -> tuple[np.ndarray, np.ndarray]:
         X = np.broadcast_to(fld.s, (R, C))
         front = np.stack([X, T, np.broadcast_to(zs[:, None], (R, C))], axis=-1)
         back = np.stack([X, np.zeros((R, C)), np.broadcast_to(zs[:, None], (R, C))], axis=-1)
+        closed = False
+    elif o.shape == "arc":
+        r_in = o.diameter / 2 - o.max_thickness
+        a = arc_start(fld) + fld.s
+        c, sn = np.cos(a), np.sin(a)
+        Z = np.broadcast_to(zs[:, None], (R, C))
+        front = np.stack([(r_in + T) * c, (r_in + T) * sn, Z], axis=-1)
+        back = np.stack([np.broadcast_to(r_in * c, (R, C)), np.broadcast_to(r_in * sn, (R, C)), Z], axis=-1)
         closed = False
     else:
         r_in = o.diameter / 2 - o.max_thickness
@@ -53,9 +61,11 @@ def body_mesh(plan: Plan) -> tuple[np.ndarray, np.ndarray]:
         tri = np.concatenate([t1, t2])
         return tri[:, ::-1] if flip else tri
 
-    # The outward normal follows the winding; planar front faces +Y, cylinder front faces outwards.
-    faces.append(grid(idx_f, flip=not closed))
-    faces.append(grid(idx_b, flip=closed))
+    # The outward normal follows the winding; planar front faces +Y, cylinder and arc fronts face
+    # outwards (their samples run the other way round as seen from the relief)
+    turned = o.shape != "planar"
+    faces.append(grid(idx_f, flip=not turned))
+    faces.append(grid(idx_b, flip=turned))
 
     def strip(top_idx, bot_idx, flip):
         """Quads between two vertex rows (a cap or an end), as triangles."""
@@ -65,11 +75,11 @@ def body_mesh(plan: Plan) -> tuple[np.ndarray, np.ndarray]:
         tri = np.concatenate([np.stack([a, b, c_], -1), np.stack([a, c_, d], -1)])
         return tri[:, ::-1] if flip else tri
 
-    faces.append(strip(idx_f[0], idx_b[0], flip=closed))        # bottom cap
-    faces.append(strip(idx_f[-1], idx_b[-1], flip=not closed))  # top cap
-    if not closed:                                              # the two ends of the plate
-        faces.append(strip(idx_f[:, 0], idx_b[:, 0], flip=True))
-        faces.append(strip(idx_f[:, -1], idx_b[:, -1], flip=False))
+    faces.append(strip(idx_f[0], idx_b[0], flip=turned))        # bottom cap
+    faces.append(strip(idx_f[-1], idx_b[-1], flip=not turned))  # top cap
+    if not closed:                                              # the two ends of the plate or arc
+        faces.append(strip(idx_f[:, 0], idx_b[:, 0], flip=not turned))
+        faces.append(strip(idx_f[:, -1], idx_b[:, -1], flip=turned))
     F = np.concatenate(faces)
     V = V + np.array([ox, oy, 0.0])
     if fld.n_foot:
@@ -96,3 +106,25 @@ def write_stl(V: np.ndarray, F: np.ndarray, path, name="bulgekit lithophane") ->
     rec["n"], rec["v"] = n, tri
     head = name.encode()[:80].ljust(80, b" ")
     _write_atomic(path, [head, np.uint32(len(F)).tobytes(), memoryview(rec).cast("B")], binary=True)
+
+
+def standing(V: np.ndarray, F: np.ndarray) -> dict:
+    """Whether the body stands by itself: its centre of mass (uniform density) against its
+    footprint on the bed (the convex hull of the vertices on the bed), the margin from the centre
+    of mass's plumb point to the footprint's edge (negative: outside, it falls over) and the
+    angle it may be leaned by before it tips, atan(margin / height of the centre of mass)."""
+    import shapely
+    from shapely.geometry import MultiPoint
+
+    a, b, c = V[F[:, 0]], V[F[:, 1]], V[F[:, 2]]
+    vol = np.einsum("ij,ij->i", a, np.cross(b, c)) / 6.0          # tetrahedra from the origin
+    com = (vol[:, None] * (a + b + c) / 4.0).sum(axis=0) / vol.sum()
+    z0 = V[:, 2].min()
+    hull = MultiPoint(V[V[:, 2] <= z0 + 1e-6, :2]).convex_hull
+    p = shapely.Point(com[:2])
+    margin = hull.exterior.distance(p) * (1 if hull.contains(p) else -1)
+    h = com[2] - z0
+    return {"centre_of_mass_mm": [round(float(x), 2) for x in com],
+            "footprint_margin_mm": round(float(margin), 2),
+            "tip_angle_deg": round(float(np.degrees(np.arctan2(margin, h))), 1),
+            "stands": bool(margin > 0)}

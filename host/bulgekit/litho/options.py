@@ -11,7 +11,8 @@ from ..machine import PrinterModel
 from . import tone
 
 
-SHAPES = ("planar", "cylinder")
+SHAPES = ("planar", "cylinder", "arc")
+ARC_ANGLE = 120.0       # degrees: an arc's default angle
 CURVES = tone.CURVES
 WORDS = ("e", "w")
 LIGHT_GAPS = ("mid-line", "walls")
@@ -40,9 +41,12 @@ class LithoError(BulgekitError):
 @dataclass
 class LithoOptions:
     shape: str = "planar"
-    width: float = 100.0            # planar: plate width, mm
-    diameter: float = 54.8          # cylinder: outer diameter at the thickest point, mm
+    width: float | None = 100.0     # planar: plate width, mm (None: from --height and the aspect, else 100)
+    diameter: float = 54.8          # cylinder, arc: outer diameter at the thickest point, mm
     height: float | None = None     # picture height, mm (None: from the picture's aspect ratio)
+    angle: float | None = None      # degrees of the circle the picture covers: an arc's (None: 120),
+                                    # or on a cylinder (None: all round, or what --height leaves)
+    stretch: bool = False           # the picture stretched to the size given, not cropped
     min_thickness: float = 0.8      # mm, white (paper: 2.4 mm plate)
     max_thickness: float = 2.4      # mm, black
     invert: bool = False            # light = thick
@@ -132,7 +136,7 @@ def check_options(o: LithoOptions) -> None:
         bad("words", f"{o.words!r} is not one of {', '.join(WORDS)}")
     if o.light_gaps not in LIGHT_GAPS:
         bad("light-gaps", f"{o.light_gaps!r} is not one of {', '.join(LIGHT_GAPS)}")
-    positive = {"width": o.width, "diameter": o.diameter, "layer-height": o.layer_height,
+    positive = {"width": 100.0 if o.width is None else o.width, "diameter": o.diameter, "layer-height": o.layer_height,
                 "line-width": o.line_width, "pitch": o.pitch, "filament": o.filament,
                 "wall-speed": o.wall_speed, "infill-flow": o.flow, "accel": o.accel, "max-speed": o.max_speed,
                 "min-speed": o.min_speed, "first-layer-speed": o.first_layer_speed,
@@ -163,11 +167,17 @@ def check_options(o: LithoOptions) -> None:
         bad("min-line", f"{o.line_min():g} mm must be less than --max-line {o.max_line:g} mm")
     if o.min_speed >= o.max_speed:
         bad("min-speed", f"{o.min_speed:g} must be less than --max-speed {o.max_speed:g}")
-    if o.shape == "cylinder":
+    if o.angle is not None:
+        if o.shape == "planar":
+            bad("angle", "is for --shape cylinder or arc")
+        if not (math.isfinite(o.angle) and 0 < o.angle <= (360 if o.shape == "cylinder" else 300)):
+            bad("angle", f"must be more than 0 and at most {360 if o.shape == 'cylinder' else 300} "
+                         f"degrees, got {o.angle:g}")
+    if o.shape in ("cylinder", "arc"):
         if o.diameter / 2 - o.max_thickness < 5 * o.line_width:
             bad("diameter", f"{o.diameter:g} mm leaves no room inside a {o.max_thickness:g} mm wall")
         if o.foot:
-            bad("foot", "a cylinder stands by itself; --foot is for planar plates")
+            bad("foot", f"a{'n' if o.shape == 'arc' else ''} {o.shape} stands by itself; --foot is for planar plates")
     if o.shape == "planar" and o.foot and o.foot < o.max_thickness:
         bad("foot", f"{o.foot:g} mm must be at least --max {o.max_thickness:g} mm deep")
     if len(o.bed) not in (2, 3) or not all(math.isfinite(b) and b > 0 for b in o.bed):

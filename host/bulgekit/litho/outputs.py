@@ -9,12 +9,13 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from .atomic import _Staged, _write_atomic
-from .body import body_mesh, mesh_volume, write_stl
+from .body import body_mesh, mesh_volume, standing, write_stl
 from .calibration import calibration_field
 from .gcode import machine_for, machine_words, write_gcode
 from .backlit import write_transmission_png
 from .options import LithoOptions, options_dict
 from .paths import Plan, plan_lithophane
+from .picture import picture_words
 from .stats import plan_stats
 
 
@@ -51,6 +52,7 @@ def make(image, outdir, name: str | None = None, progress=None, machine=None, **
             V, F = body_mesh(plan)
             write_stl(V, F, paths["stl"], name=f"bulgekit lithophane {name}")
             stl_volume = mesh_volume(V, F)
+            stands = standing(V, F)
             del V, F
         times = {}
         # the litho file also with every move planned (Klipper, RepRapFirmware): nothing dropped
@@ -59,6 +61,9 @@ def make(image, outdir, name: str | None = None, progress=None, machine=None, **
         times["stock"], = write_gcode(plan, paths["stock"], "stock", name, estimate_with=[m])
         write_transmission_png(plan, paths["png"])
         stats = plan_stats(plan, stl_volume)
+        stats["stands"] = stands
+        if plan.field.layout is not None:
+            stats["picture"] = picture_words(plan.field.layout)
         stats["name"] = name
         stats["image"] = None if calibration else os.fspath(image)
         if calibration:

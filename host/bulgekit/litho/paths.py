@@ -91,6 +91,11 @@ def _layer_polygon(o: LithoOptions, fld: Field, k: int):
     from shapely.geometry import Polygon
 
     t = fld.t[k]
+    if o.shape == "arc":
+        r_in, a = o.diameter / 2 - o.max_thickness, arc_start(fld) + fld.s
+        outer = np.column_stack([(r_in + t) * np.cos(a), (r_in + t) * np.sin(a)])
+        inner = np.column_stack([r_in * np.cos(a), r_in * np.sin(a)])[::-1]
+        return Polygon(np.vstack([outer, inner]))
     if o.shape == "planar":
         if k < fld.n_foot:                                  # the foot block, centred on the plate
             y0 = (o.max_thickness - o.foot) / 2
@@ -116,18 +121,35 @@ def _capped(s: Section, o: LithoOptions, flow) -> np.ndarray:
     return (s.e > 0) & (s.width * o.layer_height * s.v < flow * (1 - 1e-6))
 
 
+def arc_start(fld: Field) -> float:
+    """The angle (rad) where an arc's samples start: the arc is centred on the front (-Y), its
+    convex face towards the front, the picture left to right seen from there."""
+    return -math.pi / 2 - float(fld.s[-1]) / 2
+
+
+def end_unit(o: LithoOptions) -> float:
+    """Along an open layer, the samples' unit per mm: 1 on a plate (x mm); on an arc (angle) 1 /
+    the radius of a thin plate's middle, where its end walls are measured."""
+    return 1.0 if o.shape == "planar" else 1.0 / (o.diameter / 2 - o.max_thickness + o.min_thickness / 2)
+
+
 class _Band:
-    """Points across the layer on each sample's probe (planar: vertical lines at x; cylinder:
-    radial lines at angle s), and the area of a band between two probes. Everything in a layer
+    """Points across the layer on each sample's probe (planar: vertical lines at x; cylinder and
+    arc: radial lines at angle s), and the area of a band between two probes. Everything in a layer
     is a band between two offsets from the back face, so the bands add up to the body exactly
     (the STL is linear between samples too)."""
 
     def __init__(self, o: LithoOptions, fld: Field, k: int, x=None):
-        self.o, self.closed = o, o.shape == "cylinder"
+        self.o, self.closed, self.arc = o, o.shape == "cylinder", o.shape == "arc"
         if self.closed:
             self.r_in = o.diameter / 2 - o.max_thickness
             self.c, self.sn = np.cos(fld.s), np.sin(fld.s)
             self.dth = 2 * math.pi / len(fld.s)
+        elif self.arc:
+            self.r_in = o.diameter / 2 - o.max_thickness
+            self.x = fld.s if x is None else x
+            a = arc_start(fld) + self.x
+            self.c, self.sn = np.cos(a), np.sin(a)
         else:
             self.x = fld.s if x is None else x
             self.y0 = (o.max_thickness - o.foot) / 2 if k < fld.n_foot else 0.0
@@ -138,6 +160,9 @@ class _Band:
             r = self.r_in + off
             p = np.column_stack([r * self.c, r * self.sn])
             return np.vstack([p, p[:1]])
+        if self.arc:
+            r = self.r_in + off
+            return np.column_stack([r * self.c, r * self.sn])
         return np.column_stack([self.x, self.y0 + off])
 
     def area(self, lo, hi):
@@ -147,6 +172,9 @@ class _Band:
             hr = h * (self.r_in + (lo + hi) / 2)             # exact for an annulus sector
             hr = np.append(hr, hr[:1])
             return (hr[:-1] + hr[1:]) / 2 * self.dth
+        if self.arc:
+            hr = h * (self.r_in + (lo + hi) / 2)
+            return (hr[:-1] + hr[1:]) / 2 * np.abs(np.diff(self.x))
         return (h[:-1] + h[1:]) / 2 * np.abs(np.diff(self.x))
 
 
@@ -420,7 +448,8 @@ def _layer_paths(o: LithoOptions, fld: Field, k: int, wall_q, mid_q, counts: dic
     n = len(t)
     w, nl = o.line_width, int(fld.lines[k])
     lmin = o.line_min()
-    planar = o.shape == "planar"
+    planar = o.shape != "cylinder"                  # open: a plate or an arc, with two ends
+    unit = end_unit(o)
     wb, wf = fld.ww[k], fld.wf[k]                  # back and front wall widths
     ww = (wb + wf) / 2
     gm = t - wb - wf
@@ -428,7 +457,8 @@ def _layer_paths(o: LithoOptions, fld: Field, k: int, wall_q, mid_q, counts: dic
         # the mid-line runs between the end walls (x = w .. X - w), the walls' centre lines from
         # x = w / 2 to X - w / 2: the samples inside, and the ends
         X = fld.s[-1]
-        ends = lambda a: np.concatenate([[a], fld.s[(fld.s > a + 1e-9) & (fld.s < X - a - 1e-9)], [X - a]])
+        ends = lambda a: np.concatenate([[a * unit], fld.s[(fld.s > a * unit + 1e-9) & (fld.s < X - a * unit - 1e-9)],
+                                         [X - a * unit]])
         xm = ends(w)
         um = xm / (X / (n - 1))
         wwm = np.interp(xm, fld.s, wb)
@@ -585,6 +615,8 @@ def plan_lithophane(image, o: LithoOptions | None = None, progress=None) -> Plan
     o = o or LithoOptions()
     fld = image if isinstance(image, Field) else thickness_field(image, o)   # a Field: calibration_field
     o = replace(o, foot=fld.foot)          # the plan and its files carry the depth in use
+    if o.width is None:                    # ... and the width (a plate's; 100 as before elsewhere)
+        o = replace(o, width=float(fld.picture_mm[0]) if o.shape == "planar" and fld.layout else 100.0)
     _check_fits(o, fld)
     plan = Plan(o, fld)
     plan.counts.update(shared_mm3=0.0)
@@ -599,8 +631,8 @@ def plan_lithophane(image, o: LithoOptions | None = None, progress=None) -> Plan
             pos = walls[0].pts[0]
         secs = []
         flows = []
-        if o.shape == "planar":
-            # one loop round the plate, then the mid-line(s) from the end nearer the loop's start
+        if o.shape != "cylinder":
+            # one loop round the plate (or arc), then the mid-line(s) from the end nearer the loop's start
             secs.append(_rotate_loop(walls[0], pos, o))
             flows.append(wall_q)
             for m in mids:
@@ -632,6 +664,9 @@ def _check_fits(o: LithoOptions, fld: Field) -> None:
     """Refuse a part larger than the bed (with the purge line at the front), before any planning."""
     if o.shape == "planar":
         size = (fld.s[-1], max(o.max_thickness, o.foot))
+    elif o.shape == "arc":
+        P = np.vstack([_layer_polygon(o, fld, k).exterior.coords for k in (0, fld.layers - 1)])
+        size = tuple(P.max(axis=0) - P.min(axis=0))
     else:
         size = (o.diameter, o.diameter)
     bx, by = o.bed[0], o.bed[1]

@@ -7,7 +7,7 @@ import math
 import numpy as np
 
 from . import tone
-from .backlit import look
+from .backlit import likeness
 from .options import INFILL_FLOW
 from .paths import Plan, _capped
 
@@ -82,7 +82,7 @@ def laid_volume(plan: Plan) -> dict:
     if not per:
         return {}
     dev = np.concatenate(per)
-    ends = [max(d[0], d[-1]) for d in per] if plan.options.shape == "planar" else []
+    ends = [max(d[0], d[-1]) for d in per] if plan.options.shape != "cylinder" else []
     r = lambda v: round(float(v), 4)
     return {"layer_total_max_dev": r(max(map(abs, totals))), "interval_median_dev": r(np.median(dev)),
             "interval_p99_dev": r(np.percentile(dev, 99)), "interval_max_dev": r(dev.max()),
@@ -115,9 +115,6 @@ def plan_stats(plan: Plan, stl_volume: float) -> dict:
                 capped_t += float(tm[cap].sum()); total_mid_t += float(tm.sum())
                 capped_len += float(seg[laid][cap].sum()); mid_len += float(seg[laid].sum())
     filament = sum(d["filament_mm"] for d in by_kind.values())
-    src, pred = (a[fld.inside] for a in look(plan))               # the frame is not the picture
-    r = float(np.corrcoef(src.ravel(), pred.ravel())[0, 1]) if src.std() > 0 and pred.std() > 0 else float("nan")
-    sim = tone.similarity(src, pred)
     L_lo, L_hi = tone.plate_range(o.attenuation, o.min_thickness, o.max_thickness)
     pic = fld.t[fld.n_foot:]
     samples = pic.size
@@ -162,8 +159,6 @@ def plan_stats(plan: Plan, stl_volume: float) -> dict:
         "laid_volume": laid,
         "look": {"attenuation_per_mm": o.attenuation, "curve": o.curve,
                  "plate_L_range": [round(L_lo, 2), round(L_hi, 2)],
-                 "mean_abs_dL": round(sim["mean_abs_dL"], 3),
-                 # None when the picture has fewer than 7 rows or samples (no 7 x 7 window)
-                 "ssim_L": round(sim["ssim_L"], 4) if math.isfinite(sim["ssim_L"]) else None,
-                 "correlation": round(r, 4)},
+                 # the picture against the print as sampled, with the light's scatter (backlit.likeness)
+                 "picture_vs_print": likeness(plan)},
     }

@@ -45,6 +45,7 @@ class Field:
     picture_mm: tuple        # (width or circumference, height) of the picture, mm
     inside: tuple            # (rows, samples) slices of the picture inside the frame
     foot: float = 0.0        # depth of the foot, mm (0: none)
+    layout: object = None    # picture.Layout: how the picture lies on the part (None: calibration)
 
     @property
     def layers(self) -> int:
@@ -54,8 +55,10 @@ class Field:
 def thickness_field(image, o: LithoOptions) -> Field:
     """The field of a picture file: the picture on the sample grid through the tone curve
     (picture.samples), then frame, walls and foot (_field)."""
-    t, bright, s, pic_w = picture.samples(image, o)
-    return _field(t, bright, s, o, pic_w)
+    t, bright, s, lay, cols = picture.samples(image, o)
+    fld = _field(t, bright, s, o, lay.width, cols)
+    fld.layout = lay
+    return fld
 
 
 MID_MARGIN = 0.1        # a kept mid-line is this much wider than min_line: slopes and the
@@ -218,18 +221,21 @@ def _steady_walls(t, ww, shared, lines, o: LithoOptions, steps):
     return wb, wf
 
 
-def _field(t: np.ndarray, bright: np.ndarray, s: np.ndarray, o: LithoOptions, pic_w: float) -> Field:
-    """The field from the picture's thickness (rows, samples): frame, gaps, foot."""
+def _field(t: np.ndarray, bright: np.ndarray, s: np.ndarray, o: LithoOptions, pic_w: float,
+           cols: slice | None = None) -> Field:
+    """The field from the picture's thickness (rows, samples): frame, gaps, foot. `cols`: the
+    samples the picture covers (all unless a cylinder's picture covers part of it)."""
     rows, n = t.shape
     tmax = o.max_thickness
-    inside = (slice(0, rows), slice(0, n))
+    cols = slice(0, n) if cols is None else cols
+    inside = (slice(0, rows), cols)
     if o.frame > 0:
         fr = int(math.ceil(o.frame / o.layer_height))
         t[:fr] = tmax
         t[-fr:] = tmax
-        cols = slice(0, n)
-        if o.shape == "planar":
-            edge = (s <= o.frame + 1e-9) | (s >= pic_w - o.frame - 1e-9)
+        if o.shape != "cylinder":
+            x = s if o.shape == "planar" else s * (o.diameter / 2)    # along the outer face, mm
+            edge = (x <= o.frame + 1e-9) | (x >= pic_w - o.frame - 1e-9)
             t[:, edge] = tmax
             cols = slice(int(np.argmin(edge)), n - int(np.argmin(edge[::-1])))
         inside = (slice(fr, max(fr, rows - fr)), cols)
@@ -241,6 +247,9 @@ def _field(t: np.ndarray, bright: np.ndarray, s: np.ndarray, o: LithoOptions, pi
     lines = np.maximum(1, np.ceil(gap.max(axis=1) / o.max_line - 1e-9)).astype(int)
     if o.shape == "planar":
         steps = np.broadcast_to(np.diff(s), (rows, n - 1))
+    elif o.shape == "arc":                             # along the mid-line's arc
+        r_mid = o.diameter / 2 - o.max_thickness + t / 2
+        steps = ((r_mid[:, 1:] + r_mid[:, :-1]) / 2) * np.diff(s)
     else:                                              # along the mid-line's circle
         r_mid = o.diameter / 2 - o.max_thickness + t / 2
         steps = r_mid * (2 * math.pi / n)

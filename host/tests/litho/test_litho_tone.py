@@ -156,13 +156,18 @@ def test_look_in_L_and_the_png_unstretched(tmp_path):
     lk = json.loads(res.paths["json"].read_text())["look"]
     assert lk["curve"] == "perceptual"
     assert lk["plate_L_range"] == pytest.approx([36.12, 100.0], abs=0.01)
-    target, pred = lt.look(res.plan)
-    assert lk["mean_abs_dL"] == pytest.approx(np.abs(pred - target).mean(), abs=1e-3)
-    assert lk["ssim_L"] == pytest.approx(structural_similarity(target, pred, data_range=100), abs=1e-4)
-    assert lk["mean_abs_dL"] < 3 and lk["ssim_L"] > 0.9
+    # no figure compares the model with itself; the picture against the print as sampled (0.4 x
+    # 0.2 mm) and blurred by the light's scatter is not the same, and says so
+    assert not {"mean_abs_dL", "ssim_L", "correlation"} & set(lk)
+    v = lk["picture_vs_print"]
+    assert v["sampled_mm"] == [0.4, 0.2] and v["scatter_sigma_mm"] == 0.5
+    assert 0.05 < v["mean_abs_dL"] < 5 and 0.3 < v["ssim_L"] < 0.999
     from bulgekit.cli.litho import summary
-    assert (f"(L*, the plate shows 36-100): mean |dL*| {lk['mean_abs_dL']:.1f}, SSIM {lk['ssim_L']:.3f}"
+    assert (f"a model, not a measured print): mean |dL*| {v['mean_abs_dL']:.1f}, SSIM {v['ssim_L']:.2f}"
             in summary(res.stats | {"name": "ramp"}))
+    sharp = lt.make(tmp_path / "ramp.png", tmp_path / "o2",
+                    options=lt.LithoOptions(width=30.0, height=6.0, pitch=0.8)).stats["look"]["picture_vs_print"]
+    assert sharp["mean_abs_dL"] > v["mean_abs_dL"]                 # coarser sampling loses more
     # the backlit panel shows the thickest plate as the grey it is (sRGB of Y = exp(-1.5 x 1.6))
     im = np.asarray(Image.open(res.paths["png"]))
     pw, ph = res.plan.field.picture_mm
