@@ -243,7 +243,7 @@ def body_job(image: Path, shape: str, d: Path, kind: str = "drawn sample", photo
     name = f"{image.stem}_{shape}"
     kw = dict(shape=shape, start_gcode=str(d / "start.g"), end_gcode=str(d / "end.g"), purge=False)
     if shape == "cylinder":
-        kw["height"] = 60.5
+        kw.update(height=60.5, stretch=True)        # the picture all round, as the earlier rounds
     res = litho.make(image, d, name=name, **kw)
     ours = {}
     for a in accels:

@@ -230,6 +230,8 @@ def samples(image, o: LithoOptions) -> tuple:
     rows = int(round(pic_h / o.layer_height))
     if rows < 2:
         raise LithoError(f"{image}: the picture would be {pic_h:.2f} mm tall, less than two layers")
+    # the note names the height printed: whole layers
+    lay.note = lay.note.replace(f"x {_mm(pic_h)} mm", f"x {_mm(rows * o.layer_height)} mm", 1)
     m = cols.stop - cols.start
     if m > 8 * (x1 - x0) and rows > 8 * (y1 - y0):
         raise LithoError(f"{image}: picture is {x1 - x0} x {y1 - y0} px, too small for {m} x {rows} samples "
