@@ -27,6 +27,10 @@ SIDEWAYS = {
 # the facade (bulgekit/__init__.py, __main__.py) sits above everything; of it, the package
 # imports only the version string
 FROM_FACADE = {"__version__"}
+# the lithophane job by stage (issue 37): a module imports only modules of lower stages; the
+# package's __init__.py is the facade over all of them
+LITHO_STAGES = {"tone": 0, "options": 1, "picture": 2, "thickness": 3, "calibration": 4,
+                "paths": 5, "gcode": 6, "body": 6, "backlit": 6, "stats": 7, "files": 8}
 PUBLIC = ["BuildOutput", "BulgekitError", "InputError", "MODE_GEOMETRIC", "MODE_MARKED", "MODE_OFF",
           "Settings", "StockStops", "Stroke", "__version__", "annotate_gcode", "build", "build_map",
           "bulge_stats", "fallback_gcode", "load_strokes", "text_strokes", "walls"]
@@ -92,6 +96,22 @@ def test_imports_flow_one_way():
                 bad.append(where + ": upward")
             elif FLOORS[there] == FLOORS[me] and (me, there) not in SIDEWAYS:
                 bad.append(where + ": sideways, not in SIDEWAYS")
+    assert not bad, "\n".join(bad)
+
+
+def test_litho_stages_flow_one_way():
+    bad = []
+    mods = [(p, m, i) for p, m, i in modules() if m.startswith("bulgekit.litho.")]
+    assert {m.split(".")[2] for _, m, _ in mods} == set(LITHO_STAGES), "a litho module with no stage"
+    for path, mod, is_init in mods:
+        me = mod.split(".")[2]
+        for line, target, _ in imports(path, mod, is_init):
+            parts = target.split(".")
+            if parts[:2] != ["bulgekit", "litho"]:
+                continue
+            there = parts[2] if len(parts) > 2 else "__init__"
+            if there == "__init__" or LITHO_STAGES[there] >= LITHO_STAGES[me]:
+                bad.append(f"{path.relative_to(PKG.parent)}:{line}: {me} imports {target}: not a lower stage")
     assert not bad, "\n".join(bad)
 
 
