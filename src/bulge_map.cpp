@@ -1,4 +1,4 @@
-// Compact bulge map v1 codec and store. See bulge_map.h and docs/map-format.md.
+// Compact bulge map v1 codec and store. See bulge_map.h and docs/reference/map-format.md.
 #include "bulge_map.h"
 
 #include <string.h>

@@ -1,7 +1,7 @@
 // Compact bulge map v1: checksums, varints, validation and the in-RAM store.
 //
 // The host sends the bulge points of every layer as a small binary image (see
-// docs/map-format.md). The firmware keeps that image compact in a fixed arena
+// docs/reference/map-format.md). The firmware keeps that image compact in a fixed arena
 // and decodes one layer record into a MapLayer only when printing reaches it,
 // so a few hundred points cost a few bytes each instead of 5 bytes of struct.
 // Records are validated in full (CRC, varints, ranges, z order) before they are

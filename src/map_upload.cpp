@@ -1,4 +1,4 @@
-// M721 map upload. See map_upload.h and docs/mcodes.md.
+// M721 map upload. See map_upload.h and docs/reference/mcodes.md.
 #include "map_upload.h"
 
 #include "reply_text.h"

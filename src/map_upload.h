@@ -1,4 +1,4 @@
-// M721: the bulge map upload over a G-code text link (see docs/mcodes.md).
+// M721: the bulge map upload over a G-code text link (see docs/reference/mcodes.md).
 //
 //   M721 S<size> C<crc32> [A1]   begin (A1: the bytes are records to append)
 //   M721 O<offset> D<base32>     chunk, <= 64 base32 chars (40 bytes) a line

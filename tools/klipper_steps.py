@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Step times of a Klipper batch run, as a bksim trace (docs/marlin-integration.md,
+"""Step times of a Klipper batch run, as a bksim trace (docs/verification/marlin-simulation.md,
 "Stops on stock firmware").
 
     klipper_steps.py DUMP.txt -o TRACE.txt

@@ -15,7 +15,8 @@ Debian's `cura` package (not installed, only unpacked: `apt-get download cura &&
 cura_*.deb DIR`), found under --cura-defs. Not part of `make test` (it takes minutes).
 
 Terms (issue 18), the same for every method:
-  bodies       our NAME.stl: planar 100 mm wide (height from the picture), cylinder 54.8 x 60.5 mm
+  bodies       our NAME.stl: planar 100 mm wide (height from the picture), cylinder 54.8 x 60.5 mm,
+               arc 120 degrees of a 54.8 mm circle (height from the picture)
   lines        0.2 mm layers (first layer too), 0.4 mm lines, 1.75 mm filament
   speeds       walls 40 mm/s, infill 100 mm/s, travel 150 mm/s; first layer 20 mm/s (slicers: every
                first-layer move; ours: first-layer walls, mid-line at the same fraction of its rate)
@@ -141,9 +142,10 @@ def write_photos(names, d: Path) -> list[Path]:
 
 def tone_error(stats: dict):
     """Mean |delta L*| between the picture and the predicted look, from the JSON's `look` block,
-    if the generator reports one (None otherwise)."""
+    if the generator reports one (None otherwise): the picture against the print as sampled."""
     import re
-    for k, v in stats.get("look", {}).items():
+    lk = stats.get("look", {})
+    for k, v in dict(lk, **(lk.get("picture_vs_print") or {})).items():
         if isinstance(v, (int, float)) and re.search(r"mean.*(delta|d)_?l|(delta|d)_?l.*mean", k, re.I):
             return float(v)
     return None
@@ -241,7 +243,7 @@ def body_job(image: Path, shape: str, d: Path, kind: str = "drawn sample", photo
     name = f"{image.stem}_{shape}"
     kw = dict(shape=shape, start_gcode=str(d / "start.g"), end_gcode=str(d / "end.g"), purge=False)
     if shape == "cylinder":
-        kw["height"] = 60.5
+        kw.update(height=60.5, stretch=True)        # the picture all round, as the earlier rounds
     res = litho.make(image, d, name=name, **kw)
     ours = {}
     for a in accels:
@@ -377,13 +379,15 @@ def report(bodies: list, res: dict, accels) -> str:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--out", type=Path, required=True)
-    ap.add_argument("--images", type=Path, nargs="+",
+    ap.add_argument("--images", type=Path, nargs="*",
                     default=[ROOT / "examples/litho" / f"{n}.png" for n in ("wedge", "text", "drawing")])
     ap.add_argument("--photos", nargs="*", default=list(PHOTOS), metavar="NAME",
                     help=f"scikit-image photographs to run besides --images ({', '.join(PHOTOS)}; default all)")
     ap.add_argument("--photo-like", nargs="*", default=[], metavar="STEM",
                     help="stems of --images that are photographs or photo-like (the speed rule applies)")
-    ap.add_argument("--shapes", nargs="+", default=["planar", "cylinder"], choices=["planar", "cylinder"])
+    ap.add_argument("--shapes", nargs="+", default=["planar", "cylinder"], choices=["planar", "cylinder", "arc"],
+                    help="bodies to make (arc: the curved panel, 120 degrees of the 54.8 mm circle, the "
+                         "height from the picture)")
     ap.add_argument("--accel", type=float, nargs="+", default=[1000.0, 3000.0])
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--cura-defs")

@@ -109,7 +109,7 @@ def main(argv=None) -> int:
     ramp = out / "ramp.png"
     from PIL import Image
     Image.fromarray(np.tile(np.linspace(255, 0, 256).round().astype(np.uint8), (24, 1))).save(ramp)
-    rp = lt.plan_lithophane(ramp, lt.LithoOptions(shape=a.shape, height=4.0, **kw))
+    rp = lt.plan_lithophane(ramp, lt.LithoOptions(shape=a.shape, height=4.0, stretch=True, **kw))
     t = lt.printed_thickness(rp)
     jumps = np.diff(t, axis=1)
     if a.shape == "cylinder":

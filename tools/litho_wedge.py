@@ -153,7 +153,7 @@ def main(argv=None):
     rows = {}
     with tempfile.TemporaryDirectory() as d:
         for c in tone.CURVES:
-            o = lt.LithoOptions(curve=c, height=2.0, attenuation=a.attenuation, min_thickness=a.min_thickness,
+            o = lt.LithoOptions(curve=c, height=2.0, stretch=True, attenuation=a.attenuation, min_thickness=a.min_thickness,
                                 max_thickness=a.max_thickness, gamma=a.gamma)
             r = step_errors(o, Path(d) / "wedge.png")
             rows[c] = r

@@ -1,6 +1,6 @@
 #!/usr/bin/env python3
 """A straight wall with stops, written three ways, for timing stops on stock firmware
-(docs/marlin-integration.md, "Stops on stock firmware").
+(docs/verification/marlin-simulation.md, "Stops on stock firmware").
 
     stop_wall.py OUTDIR [--e-steps 93] [--weights 255,255,255,128,64,38] [--dwell 100]
                  [--feed 2400] [--printer PRESET|FILE]

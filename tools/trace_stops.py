@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Check a simulated Marlin print from its step-pin trace (docs/marlin-integration.md).
+"""Check a simulated Marlin print from its step-pin trace (docs/verification/marlin-simulation.md).
 
     trace_stops.py cut GCODE --layers 2-4 --keep "External perimeter,Perimeter" -o OUT
         A short print from a sliced file: the chosen layers, only the chosen slicer

@@ -1,6 +1,17 @@
-"""`python3 -m bulgekit`: the `bulgekit` command."""
+"""`python3 -m bulgekit` and the `bulgekit` command (pyproject's [project.scripts])."""
 import sys
 
-from .cli import main
+from .outputs import ending
 
-sys.exit(main())
+
+def run():
+    """The command: SIGINT and SIGTERM end it as bulgekit.outputs.ending says from here on, also
+    while its modules are imported."""
+    with ending(exiting=True):
+        from .cli import main
+
+        return main()
+
+
+if __name__ == "__main__":
+    sys.exit(run())

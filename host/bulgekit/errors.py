@@ -1,6 +1,6 @@
 """The errors bulgekit reports to its user; every job's errors derive from BulgekitError. Also
-the two places where a file's OS errors are put in the user's terms: a picture read
-(reading_picture) and an output written all or nothing (output_part).
+where a picture's OS errors are put in the user's terms (reading_picture; an output's are in
+bulgekit.outputs, which writes every output all or nothing).
 
 At the base of the package, so that every floor (gcode, the jobs, cli and studio) may raise
 them: `bk.BulgekitError` and `bk.InputError` are the same classes.
@@ -8,7 +8,6 @@ them: `bk.BulgekitError` and `bk.InputError` are the same classes.
 from __future__ import annotations
 
 import contextlib
-import os
 
 
 class BulgekitError(Exception):
@@ -38,21 +37,3 @@ def reading_picture(path: str):
         raise InputError(f"{path}: cannot read image (not a format Pillow recognizes)") from None
     except (OSError, ValueError, SyntaxError) as e:
         raise InputError(f"{path}: cannot read image: {e}") from None
-
-
-@contextlib.contextmanager
-def output_part(dst):
-    """An output written all or nothing: the body writes dst's part (yielded: dst.part beside it)
-    and renames it to dst (os.replace) once the output is whole; a part left behind by an error
-    or Ctrl-C is removed. An OSError about the part, or one naming no file (a write's), is said
-    of dst, the file the user named."""
-    part = f"{os.fspath(dst)}.part"
-    try:
-        yield part
-    except OSError as e:
-        if e.filename not in (part, None):
-            raise
-        raise type(e)(e.errno, e.strerror, os.fspath(dst)) from None
-    finally:
-        if os.path.exists(part):
-            os.unlink(part)

@@ -14,7 +14,10 @@ locked in the child), so it is made only then, on Linux (macOS's system librarie
 fork-safe), with two cores or more and without BULGEKIT_FORK=0. Otherwise, and when a child
 ends without a result (killed), the job runs in this process when result() is called: the same
 result, later. The child hears no Ctrl-C: this process's close() (in a finally) ends it, and
-shows no progress (bulgekit.progress): its lines would cross this process's.
+the kernel ends it when this process dies (even by SIGKILL); it shows no progress
+(bulgekit.progress): its lines would cross this process's. A job writes only into parts of
+outputs this process opened before the fork (bulgekit.outputs): ended half way, it leaves a
+part this process removes.
 """
 from __future__ import annotations
 
@@ -27,6 +30,15 @@ import threading
 from typing import Any, Callable
 
 _NO_JOB = object()
+_SIGNALS = {signal.SIGINT, signal.SIGTERM}
+_live: set[Forked] = set()             # children not yet reaped
+
+
+def end_all() -> None:
+    """Every child still running ended and reaped (bulgekit.outputs, before a failed run's
+    parts are removed: none is written after)."""
+    for child in list(_live):
+        child.close()
 
 
 def can_fork() -> bool:
@@ -54,10 +66,18 @@ class Forked:
         from_child = os.pipe()
         for s in (sys.stdout, sys.stderr):     # (nothing buffered here is written twice)
             s.flush()
-        pid = os.fork()
-        if pid == 0:                           # the child: never returns
-            self._serve(fn, warm, to_child, from_child)
-        self._pid = pid
+        parent = os.getpid()
+        # no signal handled between the fork and the child's noting: one that unwinds this process
+        # then finds it in _live (outputs ends every child before it removes their parts)
+        signal.pthread_sigmask(signal.SIG_BLOCK, _SIGNALS)
+        try:
+            pid = os.fork()
+            if pid == 0:                       # the child: never returns
+                self._serve(fn, warm, to_child, from_child, parent)
+            self._pid = pid
+            _live.add(self)
+        finally:
+            signal.pthread_sigmask(signal.SIG_UNBLOCK, _SIGNALS)
         self.forked = True
         os.close(from_child[1])
         self._from = from_child[0]
@@ -160,6 +180,7 @@ class Forked:
             except ChildProcessError:
                 pass
             self._pid = 0
+            _live.discard(self)
             if self._to is not None:
                 os.close(self._to)
                 self._to = None
@@ -168,10 +189,13 @@ class Forked:
                 self._from = -1
 
     @staticmethod
-    def _serve(fn, warm, to_child, from_child) -> None:
+    def _serve(fn, warm, to_child, from_child, parent) -> None:
         code = 0
         try:
             signal.signal(signal.SIGINT, signal.SIG_IGN)   # Ctrl-C is the parent's to handle
+            signal.pthread_sigmask(signal.SIG_UNBLOCK, _SIGNALS)   # (blocked across the fork)
+            _live.clear()                      # (the parent's children)
+            _end_with(parent)
             # no collector in a child: it runs one job and ends, and a collection would write to
             # every object the fork shares with the parent (copying their pages) and cost
             # importing matplotlib 0.02-0.04 s of CPU; what the job leaves in cycles ends with it
@@ -212,3 +236,15 @@ class Forked:
             code = 1
         finally:
             os._exit(code)
+
+
+def _end_with(parent: int) -> None:
+    """This (forked) process is killed when its parent dies: prctl(PR_SET_PDEATHSIG, SIGKILL)
+    (Linux, where alone a child is forked); if the parent is gone already, it ends now."""
+    import ctypes
+    try:
+        ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGKILL)
+    except (OSError, AttributeError):
+        pass
+    if os.getppid() != parent:
+        os._exit(1)

@@ -66,8 +66,7 @@ def phase(label: str, total_lines: int | None = None, path=None, unit: str = "li
         yield
         return
     total = total_lines if total_lines is not None else (count_lines(path) if path else 0)
-    t0 = time.perf_counter()
-    _state = [label, max(total, 1), t0, t0, unit]         # the first line comes after 0.2 s
+    _state = [label, max(total, 1), time.perf_counter(), 0.0, unit]
     if heard is not None:
         heard(label, 0, _state[1])
     try:

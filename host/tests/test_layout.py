@@ -1,5 +1,5 @@
 """The package's layout (issue 26): imports flow one way, cli/studio -> jobs (bulge, litho,
-printer) -> gcode -> the printer model (machine) -> base (errors, progress, parallel); no flat module comes back beside the base; the
+printer) -> gcode -> the printer model (machine) -> base (errors, progress, parallel, outputs); no flat module comes back beside the base; the
 public API (`import bulgekit as bk`) keeps its names.  Where things live: docs/host.md."""
 from __future__ import annotations
 
@@ -11,20 +11,26 @@ import bulgekit as bk
 PKG = Path(__file__).resolve().parents[1] / "bulgekit"
 
 # floor of each part: an import goes to a lower floor, or stays inside its own package
-FLOORS = {"errors": 0, "progress": 0, "parallel": 0, "machine": 1, "gcode": 2, "bulge": 3, "litho": 3,
-          "printer": 3, "studio": 4, "cli": 4}
+FLOORS = {"errors": 0, "progress": 0, "parallel": 0, "outputs": 0, "machine": 1, "gcode": 2, "bulge": 3,
+          "litho": 3, "printer": 3, "studio": 4, "cli": 4}
 # imports between two packages on the same floor, each with its reason
 SIDEWAYS = {
     ("litho", "bulge"): "the calibration plate's labels are drawn with the stroke fonts "
                         "(bulge.strokes.text_strokes)",
     ("cli", "studio"): "`bulgekit studio` starts the studio's server",
     ("parallel", "progress"): "a forked child shows no progress: its lines would cross its parent's",
+    ("outputs", "parallel"): "a failed run's parts are removed once the children that may write "
+                             "them are ended (parallel.end_all)",
     ("studio", "cli"): "printing from the studio checks the printer's arena as `bulgekit send` does "
                        "(cli.io.annotated_arena, check_printer_arena)",
 }
 # the facade (bulgekit/__init__.py, __main__.py) sits above everything; of it, the package
 # imports only the version string
 FROM_FACADE = {"__version__"}
+# the lithophane job by stage (issue 37): a module imports only modules of lower stages; the
+# package's __init__.py is the facade over all of them
+LITHO_STAGES = {"tone": 0, "options": 1, "picture": 2, "thickness": 3, "calibration": 4,
+                "paths": 5, "gcode": 6, "body": 6, "backlit": 6, "stats": 7, "files": 8}
 PUBLIC = ["BuildOutput", "BulgekitError", "InputError", "MODE_GEOMETRIC", "MODE_MARKED", "MODE_OFF",
           "Settings", "StockStops", "Stroke", "__version__", "annotate_gcode", "build", "build_map",
           "bulge_stats", "fallback_gcode", "load_strokes", "text_strokes", "walls"]
@@ -93,6 +99,22 @@ def test_imports_flow_one_way():
     assert not bad, "\n".join(bad)
 
 
+def test_litho_stages_flow_one_way():
+    bad = []
+    mods = [(p, m, i) for p, m, i in modules() if m.startswith("bulgekit.litho.")]
+    assert {m.split(".")[2] for _, m, _ in mods} == set(LITHO_STAGES), "a litho module with no stage"
+    for path, mod, is_init in mods:
+        me = mod.split(".")[2]
+        for line, target, _ in imports(path, mod, is_init):
+            parts = target.split(".")
+            if parts[:2] != ["bulgekit", "litho"]:
+                continue
+            there = parts[2] if len(parts) > 2 else "__init__"
+            if there == "__init__" or LITHO_STAGES[there] >= LITHO_STAGES[me]:
+                bad.append(f"{path.relative_to(PKG.parent)}:{line}: {me} imports {target}: not a lower stage")
+    assert not bad, "\n".join(bad)
+
+
 def test_the_floor_table_knows_every_subpackage():
     subs = {p.name for p in PKG.iterdir() if p.is_dir() and (p / "__init__.py").is_file()}
     assert subs == {k for k in FLOORS if (PKG / k).is_dir()}, "a subpackage with no floor in FLOORS"
@@ -103,7 +125,7 @@ def test_the_floor_table_knows_every_subpackage():
 
 
 def test_only_the_base_lies_flat():
-    extra = {p.stem for p in PKG.glob("*.py")} - {"__init__", "__main__", "errors", "progress", "parallel"}
+    extra = {p.stem for p in PKG.glob("*.py")} - {"__init__", "__main__", "errors", "progress", "parallel", "outputs"}
     assert not extra, f"modules beside the base: {sorted(extra)}: put each in its job's subpackage"
 
 

@@ -24,7 +24,7 @@ static const uint8_t bkv_header_only[8] BKV_FLASH = {
 };
 static const uint32_t bkv_header_only_crc32 = 1452829056UL;
 
-// tiny.bkm: One layer at 0.60 mm, 3 points (the worked example of docs/map-format.md).
+// tiny.bkm: One layer at 0.60 mm, 3 points (the worked example of docs/reference/map-format.md).
 static const uint8_t bkv_tiny[20] BKV_FLASH = {
     0x42, 0x4B, 0x4D, 0x01, 0x00, 0x32, 0x1E, 0x1D, 0x3C, 0x00, 0x03, 0x07, 0x90, 0x03, 0x00, 0x01,
     0x28, 0x05, 0x28, 0xD7,

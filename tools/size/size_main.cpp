@@ -2,7 +2,7 @@
 // the Marlin adapter calls, with inputs the compiler cannot see, so LTO keeps
 // exactly what the firmware would keep. `make size` builds it and lists symbols.
 // Not a test and never run; the Marlin build gives the real figure
-// (docs/marlin-integration.md), this one is for quick iteration.
+// (docs/verification/marlin-simulation.md), this one is for quick iteration.
 #ifdef __AVR__
 #include <avr/io.h>
 #else

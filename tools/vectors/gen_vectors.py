@@ -281,7 +281,7 @@ def generate(out: Path) -> None:
 
     tiny = mf.encode_map([(0.6, [(10.0, 0.0), (9.95, 1.0), (9.8, 2.0)])])
     put_map("header_only.bkm", mf.encode_map([]), "A header and no layers: q 50 um, 0.30 mm layers.")
-    put_map("tiny.bkm", tiny, "One layer at 0.60 mm, 3 points (the worked example of docs/map-format.md).")
+    put_map("tiny.bkm", tiny, "One layer at 0.60 mm, 3 points (the worked example of docs/reference/map-format.md).")
     put_map(
         "weights.bkm",
         mf.encode_map(

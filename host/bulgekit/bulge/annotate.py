@@ -44,7 +44,8 @@ from . import mapformat
 from .fallback import MODE_GEOMETRIC, MODE_MARKED, ArcCount, Settings
 from ..gcode import check_complete, check_not_processed, feature_of_comment, is_outer
 from .. import progress
-from ..errors import BulgekitError, output_part
+from ..errors import BulgekitError
+from ..outputs import part as output_part
 from ..parallel import Forked
 
 ARENA_BYTES = mapformat.ARENA_BYTES
@@ -449,7 +450,7 @@ def annotate_file(src, dst, map_bytes: bytes, settings: Settings, arena: int = A
     out = made = wrote = None                 # the markers, or what making or writing them raised
     job = None
     try:
-        with output_part(dst) as tmp:         # renamed to dst once every check passed
+        with output_part(dst) as tmp:         # in place once every check passed (bulgekit.outputs)
             if check and bad_map is None and not kept:
                 # the reach check in a child on the second core (bulgekit.parallel), reading the
                 # file itself, while it is read here and the markers are made and written: a 100 MB
@@ -506,7 +507,6 @@ def annotate_file(src, dst, map_bytes: bytes, settings: Settings, arena: int = A
                     res.notes.append(msg)
             if wrote is not None:
                 raise wrote
-            os.replace(tmp, dst)
     finally:
         if job is not None:
             job.close()

@@ -19,7 +19,7 @@ from typing import Sequence
 from . import annotate as _annotate
 from . import fallback as _fallback
 from . import mapbuild, mapformat, stats as _stats, wall
-from .. import parallel, progress
+from .. import outputs, parallel, progress
 from .fallback import MODE_GEOMETRIC, MODE_MARKED, Settings
 from ..errors import BulgekitError, InputError
 from .strokes import Stroke
@@ -78,11 +78,14 @@ def fallback_gcode(gcode, map_bytes: bytes, out, settings: Settings = Settings()
 
 
 def bulge_stats(map_bytes: bytes, settings: Settings = Settings(), gcode=None,
-          arena: int = _stats.ARENA_BYTES, _planned: _stats.StopTimer | None = None) -> _stats.Stats:
+          arena: int = _stats.ARENA_BYTES, _planned: _stats.StopTimer | None = None,
+          printer=None) -> _stats.Stats:
+    """printer: the model whose planner times the stops' braking and starting (None: the
+    default model's)."""
     if gcode is None:
         return _stats.map_stats(map_bytes, settings, arena)
     with progress.phase("statistics", path=gcode):
-        return _stats.print_stats(gcode, map_bytes, settings, arena, planned=_planned)
+        return _stats.print_stats(gcode, map_bytes, settings, arena, planned=_planned, printer=printer)
 
 
 @dataclass
@@ -146,13 +149,14 @@ def _build(gcode: Path, strokes, outdir, name, geometric, spacing, line_width, l
     gpath = outdir / f"{name}.bulge.gcode"
     fpath = outdir / f"{name}.stock.gcode" if write_fallback else None
     spath = outdir / f"{name}.stats.txt"
-    # The folder is made only now that the inputs are checked, and a build that fails while
-    # writing takes back what it wrote (and the folder, if it made it): all or nothing.
-    made_dir = not outdir.exists()
-    outdir.mkdir(parents=True, exist_ok=True)
-    written = [p for p in (map_path, gpath, fpath, spath) if p is not None and not p.exists()]
-    try:
-        map_path.write_bytes(res.map_bytes)
+    # The folder is made only now that the inputs are checked; the files go in place together
+    # when all are whole (in the CLI, with the command's other files), or none does and the
+    # folder goes too if this made it (bulgekit.outputs)
+    with outputs.Outputs() as staged:
+        staged.folder(outdir)
+        if fpath is not None:
+            staged.part(fpath)     # before the fork: the child writes it, this process removes it
+        outputs.write(map_path, res.map_bytes)
         # the map was placed on this file's walls; points it still misses are
         # listed by the stats below (one planner run instead of three)
         def stock_and_stats():
@@ -161,12 +165,13 @@ def _build(gcode: Path, strokes, outdir, name, geometric, spacing, line_width, l
             if fpath is not None:
                 # the statistics count on the stock file's planner run: the planner runs once
                 def on_plan(planner):
-                    timers.append(_stats.StopTimer(planner, printer=_stats.timed_model(stops.printer)))
+                    timers.append(_stats.StopTimer(planner, _stats.accel_of(stops.printer),
+                                                   _stats.timed_model(stops.printer)))
                     return timers[-1]
                 stock = fallback_gcode(gcode, res.map_bytes, fpath, settings, allow_unreached=True,
                                        stops=stops, _on_plan=on_plan).stock
             return stock, bulge_stats(res.map_bytes, settings, gcode, arena,
-                                      timers[-1] if timers else None)
+                                      timers[-1] if timers else None, stops.printer)
         # the stock file and the statistics are made on a second core while the map is annotated
         # into the G-code: a child forked from this process and its scan (bulgekit.parallel;
         # where none can be forked, after the annotating, as before). The same files; of two
@@ -184,14 +189,8 @@ def _build(gcode: Path, strokes, outdir, name, geometric, spacing, line_width, l
                 stock, st = beside.result()
         finally:
             if beside is not None:
-                beside.close()                 # (before a failed build takes its files back)
+                beside.close()                 # (ended before its part is removed)
         st.stock = stock
         st.arcs = ann.arcs                     # (as written: their chords and how near the arcs)
-        spath.write_text(st.text() + "\n", encoding="utf-8")
-    except BaseException:
-        for p in written:
-            p.unlink(missing_ok=True)
-        if made_dir and not any(outdir.iterdir()):
-            outdir.rmdir()
-        raise
+        outputs.write(spath, st.text() + "\n")
     return BuildOutput(map_path, gpath, fpath, spath, res, ann, st)

@@ -225,31 +225,33 @@ def make(o: CalibrationOptions, outdir, name: str = "calibrate",
     """Writes NAME.bulge.gcode (bulgekit firmware: M720 P510 and the map, M720 E per band),
     NAME.stock.gcode (the printer model's stock firmware: the stops written into the moves),
     NAME.bkm and NAME.png (what to look for) into outdir: all of them or none."""
-    import os
-    import shutil
     import tempfile
 
     from . import api, fallback, mapformat
+    from .. import outputs
 
     lay = layout(o)
     lines = part_gcode(o, lay.height)
     settings = fallback.Settings(fallback.MODE_MARKED, DWELL_P_MS, EXTRA_DWELLS_MM, o.tolerance)
     outdir = Path(outdir)
-    made_dir = not outdir.exists()
-    outdir.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{name}-", dir=outdir))
-    try:
+    final = {k: outdir / f"{name}{ext}" for k, ext in
+             (("bulge", ".bulge.gcode"), ("stock", ".stock.gcode"), ("map", ".bkm"), ("png", ".png"))}
+    # the part and its map are made in a scratch folder; the four outputs go in place together
+    # when the run ends, or none does (bulgekit.outputs)
+    with tempfile.TemporaryDirectory(prefix="bulgekit-calibrate-") as scratch, outputs.Outputs() as out:
+        tmp = Path(scratch)
+        out.folder(outdir)
         plain = tmp / f"{name}.part.gcode"
         plain.write_text("".join(lines), encoding="utf-8")
-        built = api.build(plain, lay.strokes, tmp, name=name, line_width=o.line_width,
-                          layer_height=o.layer_height, settings=settings, write_fallback=False)
+        with outputs.apart():
+            built = api.build(plain, lay.strokes, tmp, name=name, line_width=o.line_width,
+                              layer_height=o.layer_height, settings=settings, write_fallback=False)
         bmap = mapformat.decode_map(built.map_path.read_bytes())
         # the bulgekit firmware's file: the annotated part with each band's M720 E
         ann = built.gcode_path.read_text(encoding="utf-8").splitlines(keepends=True)
         at = band_starts(ann, lay.bands, o.layer_height)
-        bulge = [ln for i, a in enumerate(ann)
-                 for ln in ([f"M720 E{at[i]:.3f} ; extra-E band\n"] if i in at else []) + [a]]
-        (tmp / f"{name}.bulge.gcode").write_text("".join(bulge), encoding="utf-8")
+        outputs.write(final["bulge"], [ln for i, a in enumerate(ann) for ln in
+                                       ([f"M720 E{at[i]:.3f} ; extra-E band\n"] if i in at else []) + [a]])
         # the stock file: the same planner, its extra E changed where the bands begin
         starts = band_starts(lines, lay.bands, o.layer_height)
         by_line = sorted((i + 1, e) for i, e in starts.items())        # 1-based line numbers
@@ -259,22 +261,13 @@ def make(o: CalibrationOptions, outdir, name: str = "calibrate",
             while by_line and m.line_no >= by_line[0][0]:
                 planner.s = replace(planner.s, extra_e=by_line.pop(0)[1])
         res = fallback.RewriteResult()
-        stock = list(fallback.rewrite(lines, bmap, settings, str(plain), res,
-                                      fallback.StockStops(stops_kind, printer=o.printer), planner,
-                                      on_move=on_move))
-        (tmp / f"{name}.stock.gcode").write_text("".join(stock), encoding="utf-8")
-        picture(lay, o, tmp / f"{name}.png")
+        outputs.write(final["stock"], list(fallback.rewrite(
+            lines, bmap, settings, str(plain), res, fallback.StockStops(stops_kind, printer=o.printer),
+            planner, on_move=on_move)))
+        outputs.write(final["map"], built.map_path.read_bytes())
+        with outputs.part(final["png"]) as p:
+            picture(lay, o, p)
         stops_bulge = sum(1 for p in built.result.points if p.weight > 0)
-        final = {k: outdir / f"{name}{ext}" for k, ext in
-                 (("bulge", ".bulge.gcode"), ("stock", ".stock.gcode"), ("map", ".bkm"), ("png", ".png"))}
-        for k, dst in final.items():
-            os.replace(tmp / dst.name, dst)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        if made_dir and not any(outdir.iterdir()):
-            outdir.rmdir()
-        raise
-    shutil.rmtree(tmp, ignore_errors=True)
     return CalibrationResult(final, lay, stops_bulge, sum(1 for st in res.stops if st.ms > 0),
                              res.stock.summary())
 
@@ -315,5 +308,5 @@ def picture(lay: Layout, o: CalibrationOptions, path) -> None:
     ax.set_title("bulgekit calibrate: the front face, seen from the front. "
                  f"Then M720 P<dwell> E<extra> and M500", fontsize=9)
     fig.tight_layout()
-    fig.savefig(path)
+    fig.savefig(path, format="png")
     plt.close(fig)

@@ -39,7 +39,8 @@ from . import klipper_stop, mapformat
 from ..gcode import movescan
 from ..gcode import (MAX_ARC_SEGMENT_MM, _WORD, GcodeState, Line, Move, arc_geometry, command_of,
                      parse_lines, parse_words, split_code)
-from ..errors import BulgekitError, output_part
+from ..errors import BulgekitError
+from ..outputs import part as output_part
 from .. import machine
 from ..machine import PrinterModel
 from . import stopmodel
@@ -786,7 +787,7 @@ def unreached_message(planner: RefPlanner, source: str) -> str | None:
 # (--stop g4, the paper's rewrite). Marlin's G4 drains the planner queue before it dwells
 # (planner.synchronize()); a G1 of E alone is queued like any move, and the head stands still
 # while the extruder makes its steps. Measured in simulated stock Marlin 2.1.2.7 (issue 25,
-# docs/marlin-integration.md): with n whole E steps at r steps/s the head stands still for
+# docs/verification/marlin-simulation.md): with n whole E steps at r steps/s the head stands still for
 #     1/max(r, 120) + (n - 1)/r + 1/max(120, v k) s
 # where r is the block's nominal rate, ceil(n x feed / length) in whole steps/s, and 120 steps/s
 # Marlin's MINIMAL_STEP_RATE. The E move's first step comes 1/r after the last X/Y step (never
@@ -1764,7 +1765,6 @@ def rewrite_file(src, dst, bmap: mapformat.BulgeMap, settings: Settings,
     on_plan(planner) is called with each planner made to run over the file (a second one when
     the compiled scanner leaves the file to the text path) and returns an on_move hook (see
     rewrite()), or None: build's statistics count on the rewrite's run (result.planner)."""
-    import os
     from ..gcode import check_not_processed, open_checked
     res = RewriteResult()
     byte_path = movescan.available() and not stops.klipper    # Klipper's form: the text path
@@ -1808,5 +1808,4 @@ def rewrite_file(src, dst, bmap: mapformat.BulgeMap, settings: Settings,
                 f.write("".join(buf))
         if res.unreached and not allow_unreached:
             raise UnreachedError(res.unreached)
-        os.replace(tmp, dst)
     return res

@@ -239,7 +239,7 @@ def _merge(samples: list[tuple[float, int, str]], length: float, min_gap: float,
 
 # Maps the toolkit writes quantise XY to 0.1 mm: a quarter of a 0.4 mm nozzle,
 # under half the 0.25 mm match tolerance and far below a bump's ~1 mm, and it
-# keeps text maps under 3 bytes/point (docs/map-format.md: 2.79 vs 3.23 at 50 um).
+# keeps text maps under 3 bytes/point (docs/reference/map-format.md: 2.79 vs 3.23 at 50 um).
 MAP_QUANTUM_UM = 100
 
 

@@ -1,7 +1,7 @@
 """Compact bulge map v1: encoder, decoder and M721 upload lines.
 
 Byte-compatible with the firmware codec (src/bulge_map.cpp); the layout is
-specified in docs/map-format.md. Pure standard library.
+specified in docs/reference/map-format.md. Pure standard library.
 
 Units: the public encoder takes millimetres; the map stores XY in quanta of
 ``quantum_um`` micrometres (int16) and z in 0.01 mm (uint16). Values are
@@ -543,7 +543,7 @@ def upload_lines(
 def read_upload(lines: Iterable[tuple[int, str]], source: str = "<gcode>",
                 refused: list | None = None) -> BulgeMap | None:
     """The map a G-code file's M721 lines put in force, as the firmware's MapUpload takes them
-    (docs/mcodes.md, M721): (line number, code) pairs, the code without comment or checksum
+    (docs/reference/mcodes.md, M721): (line number, code) pairs, the code without comment or checksum
     (an N word may lead). A begin (S, C; A1: an append), its chunks (O, D) and the commit (E):
     a full map replaces the one in force, an append's records go after it; X clears it.
     Returns every layer the file uploads over the print, its appends included (what the

@@ -142,33 +142,28 @@ def load_placement(path) -> Placement:
             raise PlacementError(f"{src}: unknown table {k!r} (known: text, braille, strokes, bulges)")
     strokes: list[Stroke] = []
     entries: list[str] = []
-    for i, t in enumerate(_tables(doc, "text", src)):
-        where = f"text[{i}]"
-        _check(t, _TEXT_KEYS, where, src)
-        if "text" not in t:
-            raise PlacementError(f"{src}: {where}: 'text' is missing")
-        u, v = _at(t, where, src)
-        try:
-            made = text_strokes(t["text"], float(t.get("size", 6.0)), spacing=float(t.get("letter_spacing", 0.0)),
-                                u0=u, v0=v, mirror=t.get("mirror", False), font=t.get("font", "futural"))
-        except InputError as e:
-            raise PlacementError(f"{src}: {where}: {e}") from None
-        strokes += _tagged(_on_face(_rotated(made, t.get("rotate", 0), (u, v)), t, u, where, src),
-                           where, src)
-        entries.append(where)
-    for i, t in enumerate(_tables(doc, "braille", src)):
-        where = f"braille[{i}]"
-        _check(t, _BRAILLE_KEYS, where, src)
-        if "text" not in t:
-            raise PlacementError(f"{src}: {where}: 'text' is missing")
-        u, v = _at(t, where, src)
-        from .braille import braille_strokes
-        try:
-            made = braille_strokes(t["text"], u, v, t.get("grade"), t.get("table"))
-        except InputError as e:
-            raise PlacementError(f"{src}: {where}: {e}") from None
-        strokes += _tagged(_on_face(made, t, u, where, src), where, src)
-        entries.append(where)
+    from .braille import braille_strokes
+    lettering = (   # (table, its keys, its strokes at (u, v), turned by `rotate`)
+        ("text", _TEXT_KEYS, True, lambda t, u, v: text_strokes(
+            t["text"], float(t.get("size", 6.0)), spacing=float(t.get("letter_spacing", 0.0)), u0=u, v0=v,
+            mirror=t.get("mirror", False), font=t.get("font", "futural"))),
+        ("braille", _BRAILLE_KEYS, False, lambda t, u, v: braille_strokes(
+            t["text"], u, v, t.get("grade"), t.get("table"))))
+    for kind, keys, turns, make in lettering:
+        for i, t in enumerate(_tables(doc, kind, src)):
+            where = f"{kind}[{i}]"
+            _check(t, keys, where, src)
+            if "text" not in t:
+                raise PlacementError(f"{src}: {where}: 'text' is missing")
+            u, v = _at(t, where, src)
+            try:
+                made = make(t, u, v)
+            except InputError as e:
+                raise PlacementError(f"{src}: {where}: {e}") from None
+            if turns:
+                made = _rotated(made, t.get("rotate", 0), (u, v))
+            strokes += _tagged(_on_face(made, t, u, where, src), where, src)
+            entries.append(where)
     for i, t in enumerate(_tables(doc, "strokes", src)):
         where = f"strokes[{i}]"
         _check(t, _STROKE_KEYS, where, src)

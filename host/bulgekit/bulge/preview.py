@@ -14,6 +14,7 @@ from typing import Sequence
 
 import numpy as np
 
+from .. import outputs
 from ..errors import InputError
 
 _BUMP_CMAP = "YlOrRd"
@@ -277,8 +278,7 @@ def build_unrolled(out, path, drawn=None):
         return path
     png = drawn.result()
     try:
-        with open(path, "wb") as f:
-            f.write(png)
+        outputs.write(path, png)
     except OSError as e:
         raise _cannot_write(path, e) from None
     return path
@@ -297,7 +297,8 @@ def _save(fig, path):
         fig.savefig(path, format="png")
         return
     try:
-        fig.savefig(os.fspath(path))
+        with outputs.part(path) as p:         # all or nothing (bulgekit.outputs)
+            fig.savefig(p, format=os.path.splitext(os.fspath(path))[1][1:].lower() or "png")
     except OSError as e:
         raise _cannot_write(path, e) from None
 

@@ -187,13 +187,16 @@ def slicer_time(text: str) -> float | None:
 
 
 def timed_model(pm) -> object | None:
-    """The printer model the stop-and-start time is timed with, or None for the old v/a at a
-    fixed acceleration: the default model (Marlin's defaults, machine.DEFAULT) keeps the old
-    figure so that build's outputs stay the bytes they were (tests/bulge/test_build_identical.py);
-    every other Marlin model is timed by its own stepper (stopmodel.ramp_s)."""
-    if pm is None or pm == machine.DEFAULT or pm.firmware != "marlin":
-        return None
-    return pm
+    """The printer model the stop-and-start time is timed with: a Marlin model's own stepper
+    (stopmodel.ramp_s; None: machine.DEFAULT's). Another firmware's (None returned) is timed as
+    v/a at its model's acceleration (accel_of): its planner is not modelled step by step."""
+    pm = machine.DEFAULT if pm is None else pm
+    return pm if pm.firmware == "marlin" else None
+
+
+def accel_of(pm) -> float:
+    """The acceleration a stop's braking and starting is timed at where timed_model gives None."""
+    return (machine.DEFAULT if pm is None else pm).accel
 
 
 class StopTimer:
@@ -259,12 +262,17 @@ def _piece(pm, m) -> stopmodel.Piece:
 
 
 def print_stats(gcode_path, map_bytes: bytes, settings: Settings, arena: int = ARENA_BYTES,
-                accel_mm_s2: float = 1000.0, planned: StopTimer | None = None,
+                accel_mm_s2: float | None = None, planned: StopTimer | None = None,
                 printer=None) -> Stats:
     """map_stats plus a run of the G-code through the reference planner. planned: the hook of
     a run of a planner with this map and these settings over this file that has already
-    happened (build: the stock fallback's), which is then not run again. printer: a model to
-    time the stopping and starting with (timed_model; None: v/a at accel_mm_s2)."""
+    happened (build: the stock fallback's), which is then not run again. printer: the model
+    the stopping and starting is timed for (None: machine.DEFAULT); accel_mm_s2, when given,
+    times it as v/a at that acceleration instead."""
+    if accel_mm_s2 is None:
+        accel_mm_s2, printer = accel_of(printer), timed_model(printer)
+    else:
+        printer = None
     st = map_stats(map_bytes, settings, arena)
     bm = mapformat.decode_map(map_bytes)
     ends, _ = open_checked(gcode_path)             # checked; its moves are scanned in chunks

@@ -3,7 +3,7 @@
 The stock stop (fallback.py, "stops for stock firmware") is an E-only move of n steps at r
 steps/s between two X/Y moves A (before) and B (after). Read from Marlin 2.1.2.7's planner.cpp
 and stepper.cpp and checked in simulated stock Marlin 2.1.2.7 with four settings (issue 36,
-docs/marlin-integration.md "Stops exact on Marlin with other settings"):
+docs/verification/marlin-simulation.md "Stops exact on Marlin with other settings"):
 
   head still = 1/max(r, floor) + (n - 1)/r + 1/max(floor, v k)
 
@@ -46,6 +46,7 @@ import functools
 import math
 from dataclasses import dataclass
 
+from ..gcode import estimate as es
 from ..machine import PrinterModel
 
 TIMER_RATE = 2_000_000          # AVR STEPPER_TIMER_RATE: F_CPU / 8
@@ -126,50 +127,13 @@ def e_entry_limit(pm: PrinterModel) -> float:
     return corner_speed(a, pm.junction_deviation)
 
 
-def _safe_speed(pm: PrinterModel, nominal: float, speeds) -> float:
-    """planner.cpp's safe_speed: the speed from which a block may start or stop at once."""
-    safe, limited = nominal, False
-    for cs, mj in speeds:
-        cs = abs(cs)
-        if cs > mj:
-            if limited:
-                if cs * safe > nominal * mj:
-                    safe = nominal * mj / cs
-            else:
-                safe *= mj / cs
-                limited = True
-    return safe
-
-
 def _jerk_junction(pm: PrinterModel, fa: float, prev, fb: float, cur) -> float:
     """Classic jerk: the junction speed planner.cpp gives a block of feed fb and axis speeds cur
-    (X, Y, Z, E) after one of feed fa and axis speeds prev ("Classic Jerk Limiting")."""
+    (X, Y, Z, E) after one of feed fa and axis speeds prev (the estimator's jerk_junction)."""
     j = pm.jerk
     jerks = (j.x, j.y, j.z, j.e)
-    safe_b = _safe_speed(pm, fb, zip(cur, jerks))
-    safe_a = _safe_speed(pm, fa, zip(prev, jerks))
-    if fb < fa:
-        vmax, smaller = fb, fb / fa
-    else:
-        vmax, smaller = fa, 1.0
-    v_factor, limited = 1.0, False
-    for ax in range(4):
-        v_exit, v_entry = prev[ax] * smaller, cur[ax]
-        if limited:
-            v_exit *= v_factor
-            v_entry *= v_factor
-        if v_exit > v_entry:
-            jerk = (v_exit - v_entry) if (v_entry > 0 or v_exit < 0) else max(v_exit, -v_entry)
-        else:
-            jerk = (v_entry - v_exit) if (v_entry < 0 or v_exit > 0) else max(-v_exit, v_entry)
-        if jerk > jerks[ax]:
-            v_factor *= jerks[ax] / jerk
-            limited = True
-    if limited:
-        vmax *= v_factor
-    if safe_a > vmax * 0.99 and safe_b > vmax * 0.99:
-        vmax = safe_b
-    return vmax
+    return es.jerk_junction(fa, prev, es.jerk_safe_speed(fa, prev, jerks), fb, cur,
+                            es.jerk_safe_speed(fb, cur, jerks), jerks)
 
 
 def _speeds(p: Piece, f: float):

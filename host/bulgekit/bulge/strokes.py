@@ -59,6 +59,11 @@ class Stroke:
         return sum(math.dist(a, b) for a, b in zip(self.points, self.points[1:]))
 
 
+class DrawingWarning(UserWarning):
+    """Something in a drawing that is drawn otherwise than asked (a filled shape as its outline,
+    a skipped <text>): one WARNING line on stderr (cli._util.warning_lines)."""
+
+
 # --------------------------------------------------------------------------
 # Shared helpers
 
@@ -520,7 +525,7 @@ def load_svg(path: str, *, offset: tuple[float, float] = (0.0, 0.0), scale: floa
                    f"(for lettering: --text, or a [[text]] table in a placement file)")
             if not skip_unsupported:
                 raise InputError(msg)
-            warnings.warn(msg + " — skipped", stacklevel=2)
+            warnings.warn(DrawingWarning(msg + " — skipped"), stacklevel=2)
             continue
         if not isinstance(el, se.Shape):
             continue
@@ -581,9 +586,10 @@ def load_svg(path: str, *, offset: tuple[float, float] = (0.0, 0.0), scale: floa
 
     if filled:
         # bulges follow strokes: a filled area is drawn as its outline. Said, not hidden.
-        warnings.warn(f"{path}: {len(filled)} filled shape(s) drawn as their outlines only (the "
-                      f"first: {filled[0]}); for a filled area hatch it with strokes, or give a "
-                      "picture (an image becomes dots)", stacklevel=2)
+        warnings.warn(DrawingWarning(
+            f"{path}: {len(filled)} filled shape(s) drawn as their outlines only (the first: "
+            f"{filled[0]}); for a filled area hatch it with strokes, or give a picture (an image "
+            "becomes dots)"), stacklevel=2)
     if not raw:
         raise InputError(f"{path}: no usable strokes (no paths, lines, polylines, polygons, rects, "
                          f"circles or ellipses outside <defs>)")
@@ -895,9 +901,8 @@ def save_json(strokes: Sequence[Stroke], path: str) -> None:
     doc = {"strokes": [{"points": [[round(u, 6), round(v, 6)] for u, v in s.points],
                         "weight": s.weight, **({"source": s.source} if s.source else {})}
                        for s in strokes]}
-    with open(path, "w", encoding="utf-8") as f:
-        json.dump(doc, f, indent=1)
-        f.write("\n")
+    from .. import outputs
+    outputs.write(path, json.dumps(doc, indent=1) + "\n")
 
 
 # --------------------------------------------------------------------------

@@ -9,7 +9,7 @@ from pathlib import Path
 import click
 
 from ._util import (AT_HELP, FINITE, POSITIVE, Num, at_for, face_options, friendly, outdir_option, pair,
-                    printer_model, printer_options, progress_option, show_warning)
+                    printer_model, printer_options, progress_option, warning_lines)
 from .. import __version__
 from ..bulge import mapformat
 from ..bulge.fallback import (DEFAULT_DWELL_MS, DEFAULT_E_STEPS, DEFAULT_EXTRA_E_MM, DEFAULT_TOLERANCE_MM,
@@ -109,7 +109,18 @@ def _scanner_words() -> str:
             "missing": "Python only, bulgekit.gcode._scan not built: slower on large files"}[gcode.scanner_state()]
 
 
-@click.group(context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})
+class _Main(click.Group):
+    """The command group: Ctrl-C (SIGINT) and SIGTERM end any command with one line on stderr
+    and exit status 130 or 143, its outputs and its children taken back (bulgekit.outputs);
+    bulgekit's warnings are one line each on stderr (warning_lines)."""
+
+    def main(self, *args, **kwargs):
+        from .. import outputs
+        with outputs.ending(), warning_lines():
+            return super().main(*args, **kwargs)
+
+
+@click.group(cls=_Main, context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})
 @click.version_option(__version__, prog_name="bulgekit",
                       message="%(prog)s %(version)s (G-code scanner: " + _scanner_words() + ")")
 def main():
@@ -129,8 +140,6 @@ def main():
     wall (its stretches between corners, 1 holding u = 0; the preview numbers
     them). Run `bulgekit demo` for a worked example.
     """
-    import warnings
-    warnings.showwarning = show_warning
 
 
 @main.command(short_help="Strokes + sliced G-code -> map, annotated G-code, stats, preview.")
@@ -287,8 +296,8 @@ def post_process(placement, arena, keep, gcode):
     named here or in the placement file, as for a bad option: slicers take any other than 0 as
     a failure)."""
     import shutil
-    import tempfile
 
+    from .. import outputs
     from ..bulge import api
     from ..bulge.mapbuild import DEFAULT_LINE_WIDTH
     from ..bulge.placement import PlacementError, load_placement
@@ -304,22 +313,22 @@ def post_process(placement, arena, keep, gcode):
     except ValueError as e:
         raise PlacementError(f"{placement}: bulges: {e}") from None
     src = Path(gcode)
-    tmp = Path(tempfile.mkdtemp(prefix=".bulgekit-", dir=src.parent))
-    try:
-        lw = b.get("line_width", DEFAULT_LINE_WIDTH)
-        out = api.build(src, pl.strokes, tmp, name="pp", spacing=b.get("spacing"),
-                        line_width=lw, settings=settings, arena=arena,
-                        write_fallback=bool(b.get("fallback")), stops=stops,
-                        _check_walls=_braille_check(pl.strokes, settings, b.get("spacing"), lw))
+    # built in a scratch folder beside the file, then the result takes the file's place with
+    # --keep's files when the command ends: all or nothing (bulgekit.outputs)
+    with outputs.scratch(src.parent) as tmp, outputs.Outputs() as staged:
+        with outputs.apart():
+            lw = b.get("line_width", DEFAULT_LINE_WIDTH)
+            out = api.build(src, pl.strokes, tmp, name="pp", spacing=b.get("spacing"),
+                            line_width=lw, settings=settings, arena=arena,
+                            write_fallback=bool(b.get("fallback")), stops=stops,
+                            _check_walls=_braille_check(pl.strokes, settings, b.get("spacing"), lw))
         result = out.fallback_path if b.get("fallback") else out.gcode_path
         if keep:
-            Path(keep).mkdir(parents=True, exist_ok=True)
+            staged.folder(keep)
             for p in (out.map_path, out.stats_path):
-                shutil.copy(p, Path(keep) / f"{src.stem}{p.suffix}")
+                outputs.write(Path(keep) / f"{src.stem}{p.suffix}", p.read_bytes())
         shutil.copymode(src, result)
-        os.replace(result, src)                     # atomic on one file system: all or nothing
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
+        os.replace(result, staged.part(src))        # (one file system: renamed, not copied)
     for w in out.result.warnings:
         click.echo(f"bulgekit: warning: {w}", err=True)
     s = out.stats
@@ -405,6 +414,7 @@ def mcodes(map_file, output, numbered, arena, dwell, extra, tolerance, geometric
     """The M-code stream that configures the printer and uploads MAP: M720 settings,
     M721 begin/chunks/commit. Send it from Pronterface, OctoPrint or `bulgekit send`
     before printing G-code that carries M722 markers (or none, with --geometric)."""
+    from .. import outputs
     settings = _settings(dwell, extra, tolerance, geometric)
     data = _read_map(map_file)
     mapformat.check_upload_fits(data, arena, map_file)
@@ -419,7 +429,7 @@ def mcodes(map_file, output, numbered, arena, dwell, extra, tolerance, geometric
         text = [settings.m720()] + mapformat.upload_lines(data)
     out = "\n".join(text) + "\n"
     if output:
-        Path(output).write_text(out)
+        outputs.write(output, out)
         click.echo(f"wrote {output}: {len(text)} lines ({len(data)} map bytes)")
     else:
         click.echo(out, nl=False)
@@ -430,12 +440,14 @@ def mcodes(map_file, output, numbered, arena, dwell, extra, tolerance, geometric
 @click.option("-g", "--gcode", type=click.Path(exists=True, dir_okay=False),
               help="Also run this (unannotated) G-code to count the stops that really happen.")
 @_arena_option
-@click.option("--accel", type=POSITIVE, default=1000.0, show_default=True,
-              help="Acceleration (mm/s^2) for the stop/start time estimate.")
+@click.option("--accel", type=POSITIVE,
+              help="Time the stops' braking and starting as v/a at this acceleration (mm/s^2) "
+                   "[the printer model's planner, step by step on Marlin].")
 @_settings_options
+@printer_options
 @progress_option
 @friendly
-def stats(map_file, gcode, arena, accel, dwell, extra, tolerance, geometric):
+def stats(map_file, gcode, arena, accel, dwell, extra, tolerance, geometric, printer, firmware):
     """Per-layer points, stops and the time bulges add. Warnings (points the G-code's moves do
     not reach) go to stderr, and then the exit status is 1."""
     from ..bulge import stats as st
@@ -444,7 +456,8 @@ def stats(map_file, gcode, arena, accel, dwell, extra, tolerance, geometric):
     if gcode:
         from .. import progress
         with progress.phase("statistics", path=gcode):
-            s = st.print_stats(gcode, data, settings, arena, accel)
+            s = st.print_stats(gcode, data, settings, arena, accel,
+                               printer=printer_model(printer, firmware, gcode))
     else:
         s = st.map_stats(data, settings, arena)
     warned = False

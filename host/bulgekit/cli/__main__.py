@@ -1,6 +1,8 @@
-"""`python3 -m bulgekit.cli`: the `bulgekit` command."""
+"""`python3 -m bulgekit.cli`: the `bulgekit` command (as bulgekit/__main__.py runs it)."""
 import sys
 
+from ..outputs import ending
 from . import main
 
-sys.exit(main())
+with ending(exiting=True):
+    sys.exit(main())

@@ -1,9 +1,11 @@
 """Pieces shared by the command modules (cli/__init__.py, cli/io.py)."""
 from __future__ import annotations
 
+import contextlib
 import functools
 import math
 import sys
+import warnings
 
 import click
 
@@ -17,15 +19,23 @@ class MissingInput(click.ClickException):
     exit_code = 2
 
 
-def friendly(fn):
+def friendly(fn=None, *, outputs: bool = True):
     """Turn expected failures into one-line messages (exit status 1): our own
     errors (they name the file and line, stroke or layer), map-format errors,
     and I/O errors. An input file named inside another and not there is a usage
-    error (exit status 2), as click's for one named on the command line."""
+    error (exit status 2), as click's for one named on the command line.
+    Every file the command writes goes in place when it ends, all or none (one
+    bulgekit.outputs.Outputs for the command); outputs=False: none for a command
+    that runs until stopped (studio)."""
+    if fn is None:
+        return functools.partial(friendly, outputs=outputs)
+    from .. import outputs as out
+
     @functools.wraps(fn)
     def wrapper(*a, **kw):
         try:
-            return fn(*a, **kw)
+            with out.Outputs(final=True) if outputs else contextlib.nullcontext():
+                return fn(*a, **kw)
         except MissingInputError as e:
             raise MissingInput(str(e)) from None
         except BulgekitError as e:
@@ -39,6 +49,21 @@ def friendly(fn):
         except OSError as e:
             raise click.ClickException(f"{e.filename or ''}: {e.strerror or e}") from None
     return wrapper
+
+
+@contextlib.contextmanager
+def warning_lines():
+    """While a command runs, a warning of bulgekit's own (gcode.CutOffWarning) is one line on
+    stderr, `WARNING: FILE: ...`, once per message; others are shown as Python shows them."""
+    with warnings.catch_warnings():
+        shown = warnings.showwarning
+
+        def show(message, category, filename, lineno, file=None, line=None):
+            if not category.__module__.startswith("bulgekit"):
+                return shown(message, category, filename, lineno, file, line)
+            click.echo(f"WARNING: {message}", err=True)
+        warnings.showwarning = show
+        yield
 
 
 def progress_option(fn):
@@ -184,8 +209,3 @@ def printer_model(printer: str | None, firmware: str | None, gcode=None, e_steps
         m = replace(m, steps_per_mm=m.steps_per_mm.with_(E=e_steps))
     return m
 
-
-def show_warning(message, category, filename, lineno, file=None, line=None):
-    """Python warnings (bulgekit's: a filled SVG shape drawn as its outline, a skipped <text>) as
-    one `WARNING:` line on stderr, without the source line Python shows."""
-    click.echo(f"WARNING: {message}", err=True)

@@ -6,7 +6,6 @@ cli/__init__.py calls register(main) to add it to the bulgekit command group.
 from __future__ import annotations
 
 import math
-import signal
 
 import click
 
@@ -24,25 +23,30 @@ def _bed(ctx, param, value):
     return tuple(parts)
 
 
-def _terminated(signum, frame):
-    raise SystemExit(128 + signum)
-
-
 def register(main):
     @main.command(short_help="A picture -> lithophane G-code (width mode + stock), STL, look, stats.")
     @click.argument("image", type=click.Path(exists=True, dir_okay=False), required=False)
     @click.option("--calibration", is_flag=True,
                   help="No picture: a calibration plate, ten steps from --min to --max with their "
                        "thickness written under them, to choose --attenuation for a filament.")
-    @click.option("--shape", type=click.Choice(["planar", "cylinder"]), default="planar", show_default=True,
-                  help="Flat plate (flat back) or a cylinder (round back, picture around it).")
+    @click.option("--shape", type=click.Choice(["planar", "cylinder", "arc"]), default="planar", show_default=True,
+                  help="Flat plate (flat back, on a foot), a cylinder (round back, picture around it) or an "
+                       "arc: a curved panel, part of a cylinder (--angle), that stands by itself.")
     @outdir_option("--out")
     @click.option("--name", help="Base name of the outputs (default: the picture's name).")
-    @click.option("--width", type=POSITIVE, default=100.0, show_default=True, help="Planar: plate width, mm.")
+    @click.option("--width", type=POSITIVE, default=None,
+                  help="Planar: plate width, mm [100, or from --height and the picture's aspect].")
     @click.option("--diameter", type=POSITIVE, default=54.8, show_default=True,
-                  help="Cylinder: outer diameter at the thickest point, mm.")
+                  help="Cylinder, arc: outer diameter at the thickest point, mm.")
     @click.option("--height", type=POSITIVE, default=None,
-                  help="Picture height, mm (default: from its aspect ratio; given, it stretches).")
+                  help="Picture height, mm (default: from its aspect ratio, at most the bed's height). "
+                       "The picture keeps its aspect: given with --width or --angle it is cropped, on a "
+                       "cylinder alone it sets the angle the picture covers.")
+    @click.option("--angle", type=POSITIVE, default=None,
+                  help="Degrees of the circle: an arc's [120]; on a cylinder the part the picture covers "
+                       "[all round, or what --height leaves], the rest plain at --min.")
+    @click.option("--stretch", is_flag=True,
+                  help="Stretch the picture to the size given instead of cropping it to keep its aspect.")
     @click.option("--min", "min_thickness", type=POSITIVE, default=0.8, show_default=True,
                   help="Thickness for white, mm (at least two wall lines).")
     @click.option("--max", "max_thickness", type=POSITIVE, default=2.4, show_default=True,
@@ -165,9 +169,10 @@ def register(main):
         if calibration:
             # the plate has its own size, steps and border: say so rather than ignore these
             ctx = click.get_current_context()
-            for p in ("width", "height", "diameter", "curve", "gamma", "invert", "frame"):
+            for p in ("width", "height", "diameter", "angle", "stretch", "curve", "gamma", "invert", "frame"):
                 if ctx.get_parameter_source(p) == click.core.ParameterSource.COMMANDLINE:
-                    why = "its size and border are fixed" if p in ("width", "height", "frame") else "no picture"
+                    why = ("its size and border are fixed" if p in ("width", "height", "angle", "frame", "stretch")
+                           else "no picture")
                     raise click.UsageError(f"--{p} does not apply to --calibration ({why})")
         kw["bed"] = tuple(kw["bed"])
         pm = printer_model(printer, firmware)
@@ -179,13 +184,10 @@ def register(main):
             if progress.enabled():
                 click.echo(f"\rplanning layers: {done}/{total}", err=True, nl=done == total)
 
-        # SIGTERM ends the run as Ctrl-C does, so make() removes its temporary files
-        old = signal.signal(signal.SIGTERM, _terminated)
-        try:
-            res = lt.make(image, outdir, name=name, progress=show, options=opts)
-        finally:
-            signal.signal(signal.SIGTERM, old)
+        res = lt.make(image, outdir, name=name, progress=show, options=opts)
         s = res.stats
+        if s.get("picture"):
+            click.echo(s["picture"]["note"])
         click.echo(summary(s))
         if "calibration" in s:
             click.echo(calibration_table(s))
@@ -219,10 +221,27 @@ def summary(s: dict) -> str:
            f"{wl['front_mm']['max']:.2f})"] if wl else []),   # a JSON from before this field has none
         f"  gaps narrower than a mid-line: walls narrowed for a thin mid-line at "
         f"{100 * gp['narrowed_share']:.2f} % of samples, shared by the walls at {100 * gp['shared_share']:.2f} %",
-        f"  predicted look vs picture (L*, the plate shows {lk['plate_L_range'][0]:.0f}-100): "
-        f"mean |dL*| {lk['mean_abs_dL']:.1f}, "
-        f"SSIM {'n/a' if lk['ssim_L'] is None else format(lk['ssim_L'], '.3f')} ({lk['curve']} curve)",
+        *_versus(lk),
+        *_stands(s.get("stands")),
     ])
+
+
+def _versus(lk: dict) -> list:
+    v = lk.get("picture_vs_print")
+    if not v:
+        return [f"  the plate shows L* {lk['plate_L_range'][0]:.0f}-100 ({lk['curve']} curve)"]
+    ssim = "n/a" if v["ssim_L"] is None else format(v["ssim_L"], ".2f")
+    return [f"  picture vs the print as sampled ({v['sampled_mm'][0]:g} x {v['sampled_mm'][1]:g} mm, light "
+            f"scatter {v['scatter_sigma_mm']:g} mm, L* {lk['plate_L_range'][0]:.0f}-100, {lk['curve']} curve; "
+            f"a model, not a measured print): mean |dL*| {v['mean_abs_dL']:.1f}, SSIM {ssim}"]
+
+
+def _stands(st) -> list:
+    if not st:
+        return []
+    return [f"  stands: centre of mass {st['footprint_margin_mm']:.1f} mm inside its footprint, tips when leaned "
+            f"{st['tip_angle_deg']:.1f} degrees" if st["stands"] else
+            f"  does NOT stand: centre of mass {-st['footprint_margin_mm']:.1f} mm outside its footprint"]
 
 
 def calibration_table(s: dict) -> str:

@@ -35,8 +35,7 @@ def register(main):
         """Send M115 and M503 to the printer on PORT and save what they say as a profile TOML.
         Settings M503 does not print keep Marlin's defaults (the profile lists every one: check
         them). Klipper answers no M503: give --printer your printer.cfg instead."""
-        from .. import machine
-        from ..errors import output_part
+        from .. import machine, outputs
         from ..printer.sender import Sender
         with Sender(port, baud, timeout=timeout, boot_wait=boot_wait) as s:
             ident = s.command("M115", "M115")
@@ -47,10 +46,7 @@ def register(main):
             raise machine.ProfileError(f"{port}: M503 printed no settings (is EEPROM_SETTINGS or "
                                        "its report off? Klipper: use --printer printer.cfg)")
         m = machine.from_m503(text, source=f"{port}", name=name)
-        with output_part(output) as part:
-            with open(part, "w", encoding="utf-8") as f:
-                f.write(machine.to_toml(m))
-            os.replace(part, output)
+        outputs.write(output, machine.to_toml(m))          # in place when the command ends
         click.echo(f"printer: {m.describe()}")
         click.echo(f"wrote {output} (use: --printer {output})")
 

@@ -18,7 +18,7 @@ def register(main):
                   help="Largest G-code the page may open, MB.")
     @click.option("--arena", type=click.IntRange(min=1), default=1024, show_default=True,
                   help="Printer's map arena (BK_MAP_ARENA_BYTES), for the page's warnings.")
-    @friendly
+    @friendly(outputs=False)
     def studio(gcode, port, no_browser, workdir, max_upload, arena):
         """Start the studio: a page on http://127.0.0.1:PORT/ to open a sliced G-code (GCODE, or
         drop one on the page), place text, SVG drawings and pictures on its outer wall, see the
@@ -29,11 +29,13 @@ def register(main):
         The server answers only this machine's browser page; it reads the files you choose and
         writes only in its working folder."""
         import os
+        import signal
         import threading
         import time
         import webbrowser
         from pathlib import Path
 
+        from ..outputs import Stopped
         from ..studio.server import Limits, Studio, serve
 
         if workdir is None:
@@ -52,7 +54,9 @@ def register(main):
             threading.Thread(target=webbrowser.open, args=(run.url,), daemon=True).start()
         try:
             threading.Event().wait()
-        except KeyboardInterrupt:
+        except Stopped as e:             # Ctrl-C is how it stops: exit status 0 (SIGTERM: 143)
+            if e.signum != signal.SIGINT:
+                raise
             click.echo("bulgekit studio: stopped")
         finally:
             run.stop()

@@ -563,43 +563,58 @@ def _classic_jerk(d, L, v, jerk):
     safe_prev = None
     for i in range(n):
         jk = jerk[i]
-        safe = v[i]
-        limited = False
-        for a in range(4):
-            cs, mj = abs(speed[i, a]), jk[a]
-            if cs > mj:
-                if limited:
-                    if cs * safe > v[i] * mj:
-                        safe = v[i] * mj / cs
-                else:
-                    safe *= mj / cs
-                    limited = True
+        safe = jerk_safe_speed(v[i], speed[i], jk)
         if i > 0:
-            vf = 1.0
-            lim = False
-            if v[i] < v[i - 1]:
-                vj, ssf = v[i], v[i] / v[i - 1]
-            else:
-                vj, ssf = v[i - 1], 1.0
-            for a in range(4):
-                vx, ve = speed[i - 1, a] * ssf, speed[i, a]
-                if lim:
-                    vx *= vf
-                    ve *= vf
-                if vx > ve:
-                    j = (vx - ve) if (ve > 0 or vx < 0) else max(vx, -ve)
-                else:
-                    j = (ve - vx) if (ve < 0 or vx > 0) else max(-vx, ve)
-                if j > jk[a]:
-                    vf *= jk[a] / j
-                    lim = True
-            if lim:
-                vj *= vf
-            if safe_prev > vj * 0.99 and safe > vj * 0.99:
-                vj = safe
+            vj = jerk_junction(v[i - 1], speed[i - 1], safe_prev, v[i], speed[i], safe, jk)
             out[i - 1] = vj * vj
         safe_prev = safe
     return out
+
+
+def jerk_safe_speed(nominal: float, speeds, jerks) -> float:
+    """Classic jerk (planner.cpp's safe_speed): the speed from which a block of this nominal
+    speed and these per-axis speeds (X, Y, Z, E) may start or stop at once."""
+    safe, limited = nominal, False
+    for cs, mj in zip(speeds, jerks):
+        cs = abs(cs)
+        if cs > mj:
+            if limited:
+                if cs * safe > nominal * mj:
+                    safe = nominal * mj / cs
+            else:
+                safe *= mj / cs
+                limited = True
+    return safe
+
+
+def jerk_junction(v_prev: float, prev, safe_prev: float, v_cur: float, cur, safe_cur: float,
+                  jerks) -> float:
+    """Classic jerk ("Classic Jerk Limiting" in planner.cpp): the speed at the junction from a
+    block of nominal speed v_prev and per-axis speeds prev to one of v_cur and cur, each axis's
+    change of speed within its jerk; the blocks' safe speeds (jerk_safe_speed) where both allow
+    more."""
+    vf, lim = 1.0, False
+    if v_cur < v_prev:
+        vj, ssf = v_cur, v_cur / v_prev
+    else:
+        vj, ssf = v_prev, 1.0
+    for a in range(4):
+        vx, ve = prev[a] * ssf, cur[a]
+        if lim:
+            vx *= vf
+            ve *= vf
+        if vx > ve:
+            j = (vx - ve) if (ve > 0 or vx < 0) else max(vx, -ve)
+        else:
+            j = (ve - vx) if (ve < 0 or vx > 0) else max(-vx, ve)
+        if j > jerks[a]:
+            vf *= jerks[a] / j
+            lim = True
+    if lim:
+        vj *= vf
+    if safe_prev > vj * 0.99 and safe_cur > vj * 0.99:
+        vj = safe_cur
+    return vj
 
 
 def _plan_segment_np(a, L, vn, maxentry2, m: Machine):

@@ -541,7 +541,7 @@ class Scan:
         self.plain_lines = plain and n_cr == n_crlf
         self.nl = nl
         self.ends = head.decode("utf-8", "replace") + "\n" + (tail.decode("utf-8", "replace") if size > ENDS else "")
-        self._complete(tail)
+        self._complete(head, tail)
         if sc is not None:
             self.lines, self.arcs = sc.lines, sc.arcs
         else:                                  # the Python parser's records (no offsets)
@@ -556,9 +556,9 @@ class Scan:
                 self.chunks.append((len(a), ch.lines))
             self.roles, self.lines, self.arcs = ch.roles, ch.lines, ch.arcs
 
-    def _complete(self, tail: bytes) -> None:
-        """gcode.check_complete's line-end check, on the file's last bytes."""
-        last = gcode.unended_line(tail)
+    def _complete(self, head: bytes, tail: bytes) -> None:
+        """gcode.check_complete's checks of the file's ends, on its first and last bytes."""
+        last = gcode.check_ends(head[:gcode.ENDS_CHECKED], tail[-gcode.ENDS_CHECKED:], self.source)
         if last is not None:
             gcode.refuse_cut_off(last, self.nl + 1, self.source)
 

@@ -7,7 +7,7 @@ Colour conversions are scikit-image's (`skimage.color`: sRGB with its transfer c
     L*  CIE lightness, 0 .. 100: how light a grey looks (equal steps look equal)
 
 The picture is decoded from sRGB to Y (alpha laid over white as a viewer shows it on a white page)
-and averaged in linear light (Y) onto the lithophane's samples. A plate t mm thick passes
+and averaged in linear light (Y) onto the lithophane's samples (picture.py). A plate t mm thick passes
 exp(-mu t) of the backlight (Beer-Lambert, mu = --attenuation), so relative to the thinnest plate
 it shows Y = exp(-mu (t - t_min)); the thickest plate's L* is the darkest the plate can show.
 
@@ -21,12 +21,10 @@ d = 1 - tone (tone = 1 - tone with --invert), then d ** gamma (gamma > 1 lighten
 from __future__ import annotations
 
 import math
-import os
 
 import numpy as np
 
 CURVES = ("perceptual", "linear", "transmission")
-_ROWS = 256                     # picture rows converted at a time (bounded memory on large photos)
 
 
 def _white():
@@ -79,74 +77,6 @@ def to_srgb(Y) -> np.ndarray:
 
     Y = np.clip(np.asarray(Y, dtype=float), 0.0, 1.0)
     return np.clip(xyz2rgb(grey_xyz(Y).reshape(-1, 1, 3)).reshape(Y.shape + (3,))[..., 1], 0.0, 1.0)
-
-
-def read_luminance(path) -> np.ndarray:
-    """A picture file as relative luminance Y (rows, columns), float32, row 0 at the top.
-
-    8- and 16-bit grey, grey + alpha, RGB(A), palette and CMYK pictures: alpha is laid over white
-    in sRGB values (as a viewer shows the picture on a white page). 16-bit grey keeps its 16 bits;
-    Pillow hands 16-bit colour over as 8 bits per channel. Errors name the file."""
-    from PIL import Image
-
-    from .. import progress as pg
-    from ..errors import reading_picture
-
-    path = os.fspath(path)
-    with reading_picture(path):
-        im = Image.open(path)                            # (its header: the size)
-    # a phase of its own, in rows converted (a 10 Mpx photo takes some 2 s)
-    with im, pg.phase(f"reading {os.path.basename(path)}", max(im.size[1], 1), unit="rows"):
-        with reading_picture(path):
-            raw, scale, alpha = _decoded(im)
-        out = np.empty(raw.shape[:2], dtype=np.float32)
-        for r in range(0, raw.shape[0], _ROWS):          # in bands of rows: a few MB at a time
-            a = np.clip(raw[r:r + _ROWS].astype(float) / scale, 0.0, 1.0)
-            if alpha is not None:
-                al = alpha[r:r + _ROWS].astype(float) / 255.0
-                al = al[..., None] if a.ndim == 3 else al
-                a = a * al + (1.0 - al)                      # over white
-            out[r:r + _ROWS] = srgb_to_luminance(a) if a.ndim == 3 else grey_to_luminance(a)
-            pg.tick(r + len(a))
-    return out
-
-
-def _decoded(im):
-    """The picture's values as an array (grey or RGB), their full scale, and alpha (or None)."""
-    im.load()
-    alpha = None
-    if im.mode.startswith("I;16") or im.mode == "I":
-        # 16-bit grey (I;16 from PNG, I from some TIFFs): full scale is 65535
-        raw, scale = np.asarray(im), 65535.0
-    elif im.mode == "F":
-        raw, scale = np.asarray(im), 1.0
-    else:
-        has_alpha = "A" in im.getbands() or "transparency" in im.info
-        grey = im.mode in ("1", "L", "LA") or (im.mode == "P" and not has_alpha and _grey_palette(im))
-        if grey:
-            raw = np.asarray(im.convert("LA") if has_alpha else im.convert("L"))
-        else:
-            raw = np.asarray(im.convert("RGBA" if has_alpha else "RGB"))
-        scale = 255.0
-        if has_alpha:
-            raw, alpha = raw[..., :-1], raw[..., -1]
-            raw = raw[..., 0] if grey else raw
-    return raw, scale, alpha
-
-
-def _grey_palette(im) -> bool:
-    pal = im.getpalette() or []
-    rgb = np.asarray(pal[:len(pal) // 3 * 3]).reshape(-1, 3)
-    return bool(len(rgb)) and bool(np.all(rgb == rgb[:, :1]))
-
-
-def resample(Y: np.ndarray, size: tuple[int, int]) -> np.ndarray:
-    """Y averaged over the pixels under each of size = (columns, rows) cells (area average in
-    linear light, so a fine pattern looks as bright as it does from afar)."""
-    from PIL import Image
-
-    im = Image.fromarray(np.ascontiguousarray(Y, dtype=np.float32), mode="F")
-    return np.asarray(im.resize(size, Image.Resampling.BOX), dtype=float)
 
 
 # --- the plate ---------------------------------------------------------------------------------
@@ -207,68 +137,3 @@ def similarity(target: np.ndarray, predicted: np.ndarray) -> dict:
             if min(target.shape) >= 7 else float("nan"))
     return {"mean_abs_dL": d, "ssim_L": ssim}
 
-
-# --- calibration plate ---------------------------------------------------------------------------
-
-CAL_STEPS = 10                  # steps of the calibration wedge, --min .. --max
-CAL_COLS = 5                    # steps per row
-CAL_STEP = (18.0, 10.0)         # one step, width x height, mm
-CAL_LABEL = 7.0                 # the label strip under each row of steps, mm
-CAL_TEXT = 5.0                  # digit height, mm
-CAL_STROKE = 1.2                # digit stroke width, mm (three samples, six layers: solid when printed)
-CAL_FRAME = 3.0                 # border, mm
-
-
-def calibration_size() -> tuple[float, float]:
-    """(width, height) of the calibration plate, mm."""
-    rows = math.ceil(CAL_STEPS / CAL_COLS)
-    return (CAL_COLS * CAL_STEP[0] + 2 * CAL_FRAME, rows * (CAL_STEP[1] + CAL_LABEL) + 2 * CAL_FRAME)
-
-
-def calibration_steps(t_min: float, t_max: float) -> np.ndarray:
-    """The wedge's thicknesses: CAL_STEPS from t_min to t_max, to 0.01 mm."""
-    return np.round(np.linspace(t_min, t_max, CAL_STEPS), 2)
-
-
-def calibration_layout():
-    """Per step: (x0, x1, y0, y1) of the step and of its label strip, mm from the plate's
-    bottom-left; the thinnest step top left, thicker to the right and in the next row down."""
-    W, Hh = calibration_size()
-    rows = math.ceil(CAL_STEPS / CAL_COLS)
-    out = []
-    for i in range(CAL_STEPS):
-        r, c = divmod(i, CAL_COLS)
-        x0 = CAL_FRAME + c * CAL_STEP[0]
-        top = Hh - CAL_FRAME - r * (CAL_STEP[1] + CAL_LABEL)
-        out.append(((x0, x0 + CAL_STEP[0], top - CAL_STEP[1], top),
-                    (x0, x0 + CAL_STEP[0], top - CAL_STEP[1] - CAL_LABEL, top - CAL_STEP[1])))
-    assert rows * (CAL_STEP[1] + CAL_LABEL) + 2 * CAL_FRAME == Hh
-    return out
-
-
-def calibration_map(s: np.ndarray, z: np.ndarray, steps, t_min: float, t_max: float,
-                    labels=None) -> np.ndarray:
-    """Thickness (len(z), len(s)) of the calibration plate at x = s and height z (mm): frame at
-    t_max, each step at its thickness, label strips at t_min with the labels' digits raised to
-    t_max (dark when backlit, raised when lit from the front)."""
-    import shapely
-    from shapely.geometry import LineString, Point
-
-    from ..bulge.strokes import text_strokes
-
-    X, Z = np.meshgrid(s, z)
-    t = np.full(X.shape, t_max)
-    for i, ((a0, a1, b0, b1), (c0, c1, d0, d1)) in enumerate(calibration_layout()):
-        t[(X >= a0) & (X < a1) & (Z >= b0) & (Z < b1)] = steps[i]
-        t[(X >= c0) & (X < c1) & (Z >= d0) & (Z < d1)] = t_min
-        if labels is None:
-            continue
-        strokes = text_strokes(labels[i], CAL_TEXT)
-        pts = np.array([p for st in strokes for p in st.points])
-        dx = (c0 + c1) / 2 - (pts[:, 0].min() + pts[:, 0].max()) / 2
-        dy = (d0 + d1) / 2 - CAL_TEXT / 2
-        shifted = [[(u + dx, v + dy) for u, v in st.points] for st in strokes]
-        ink = shapely.union_all([(Point(p[0]) if len(p) == 1 else LineString(p)).buffer(CAL_STROKE / 2)
-                                 for p in shifted])
-        t[shapely.contains_xy(ink, X, Z)] = t_max
-    return t

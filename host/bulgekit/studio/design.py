@@ -30,6 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import outputs
 from ..bulge import api, mapformat, stats as _stats
 from ..bulge.fallback import (DEFAULT_DWELL_MS, DEFAULT_EXTRA_E_MM, DEFAULT_TOLERANCE_MM,
                         MODE_GEOMETRIC, MODE_MARKED, Settings, StockStops)
@@ -456,33 +457,35 @@ def export(design: dict, assets: dict[str, Asset], gcode: Path, folder: Path, na
             taken.add(n.lower())
             as_named[a.name] = n
     text = placement_text(design, assets, lambda a: as_named[a.name])
-    folder.mkdir(parents=True, exist_ok=False)
     zpath = folder.parent / f"{folder.name}.zip"
-    tmp = folder.parent / f"{folder.name}.zip.part"
-    try:
-        for a, n in ((assets[k], n) for k, n in as_named.items()):
-            shutil.copyfile(a.path, folder / n)
-        ppath = folder / "placement.toml"
-        ppath.write_text(text, encoding="utf-8")
-        pl = load_placement(ppath)
-        b = pl.bulges
-        settings, line_width = settings_of(b), b.get("line_width", DEFAULT_LINE_WIDTH)
-        stops = stops_of(b, printer_model_of(b | {"printer": pl.printer}, gcode))
-        out = api.build(gcode, pl.strokes, folder, name=name, spacing=b.get("spacing"),
-                        line_width=line_width, settings=settings, write_fallback=True, stops=stops,
-                        _check_walls=wall_check(pl.strokes, settings.dwell_ms, b.get("spacing"), line_width))
-        pv.build_unrolled(out, folder / f"{name}.preview.png")
-        pv.build_3d(out, folder / f"{name}.preview3d.png")
-        made = sorted(p for p in folder.iterdir() if p.is_file())
-        with zipfile.ZipFile(tmp, "w", zipfile.ZIP_DEFLATED) as z:
-            for p in made:
-                z.write(p, f"{folder.name}/{p.name}")
-        tmp.replace(zpath)
-    except BaseException:
-        shutil.rmtree(folder, ignore_errors=True)
-        tmp.unlink(missing_ok=True)
-        raise
-    return Export(folder, made, zpath, out)
+    # the folder is filled under its part's name and goes in place with the zip: both or
+    # neither (bulgekit.outputs); what fails is said of the folder's own name
+    with outputs.Outputs() as staged:
+        stage = staged.part(folder, folder=True)
+        try:
+            with outputs.apart():
+                for a, n in ((assets[k], n) for k, n in as_named.items()):
+                    shutil.copyfile(a.path, stage / n)
+                ppath = stage / "placement.toml"
+                ppath.write_text(text, encoding="utf-8")
+                pl = load_placement(ppath)
+                b = pl.bulges
+                settings, line_width = settings_of(b), b.get("line_width", DEFAULT_LINE_WIDTH)
+                stops = stops_of(b, printer_model_of(b | {"printer": pl.printer}, gcode))
+                out = api.build(gcode, pl.strokes, stage, name=name, spacing=b.get("spacing"),
+                                line_width=line_width, settings=settings, write_fallback=True,
+                                stops=stops, _check_walls=wall_check(pl.strokes, settings.dwell_ms,
+                                                                     b.get("spacing"), line_width))
+                pv.build_unrolled(out, stage / f"{name}.preview.png")
+                pv.build_3d(out, stage / f"{name}.preview3d.png")
+        except BulgekitError as e:
+            e.args = (str(e).replace(str(stage), str(folder)),) + e.args[1:]
+            raise
+        made = sorted(p.name for p in stage.iterdir() if p.is_file())
+        with outputs.part(zpath) as zpart, zipfile.ZipFile(zpart, "w", zipfile.ZIP_DEFLATED) as z:
+            for n in made:
+                z.write(stage / n, f"{folder.name}/{n}")
+    return Export(folder, [folder / n for n in made], zpath, out)
 
 
 def wall_view(model, max_vertices: int = 250_000) -> dict:

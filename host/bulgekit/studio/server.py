@@ -32,7 +32,7 @@ from pathlib import Path
 
 from aiohttp import web
 
-from .. import progress
+from .. import outputs, progress
 from ..errors import BulgekitError
 from . import design as dz
 
@@ -460,7 +460,8 @@ def litho_view(plan) -> dict:
     on a grid of at most VIEW_CELLS a side; a 240 x 220 px picture at the defaults has 460 x 251
     samples, of which the view keeps 230 x 251) and the predicted look as a texture on it (uint8,
     up to VIEW_TEXELS a side, so the picture stays sharp where the mesh is coarse). `s` is along
-    the part (mm on a plate, radians round a cylinder), `z` up from the bed, mm."""
+    the part (mm on a plate, radians round a cylinder, radians from `arc_start` on an arc), `z`
+    up from the bed, mm."""
     import numpy as np
     from .. import litho as lt
     o, fld = plan.options, plan.field
@@ -488,8 +489,11 @@ def litho_view(plan) -> dict:
            "look": {"width": len(tj), "height": len(ti),
                     "data": _b64(np.round(pred[np.ix_(ti, tj)] * 255).astype(np.uint8))},
            "foot": None}
-    if o.shape == "cylinder":
+    if o.shape in ("cylinder", "arc"):
         out["r_in"] = o.diameter / 2 - o.max_thickness
+        if o.shape == "arc":                                   # where its samples' angles start
+            from ..litho.paths import arc_start
+            out["arc_start"] = round(arc_start(fld), 6)
     elif fld.n_foot:
         out["foot"] = {"depth": o.foot, "height": z0}
     return out
@@ -518,6 +522,13 @@ def litho_figures(st: dict) -> list:
     if size:
         out.append(["Picture", f"{round(size['picture_width'], 1):g} × {round(size['picture_height'], 1):g} mm"
                                + (" around" if st.get("shape") == "cylinder" else "")])
+    if isinstance(st.get("picture"), dict) and st["picture"].get("note"):
+        out.append(["How the picture lies", st["picture"]["note"]])   # what was chosen, cropped, fitted
+    sd = st.get("stands")
+    if isinstance(sd, dict) and "footprint_margin_mm" in sd:
+        out.append(["Stands by itself", f"yes: centre of mass {sd['footprint_margin_mm']:.1f} mm inside its "
+                    f"footprint, tips when leaned {sd['tip_angle_deg']:.1f}°" if sd.get("stands") else
+                    f"no: centre of mass {-sd['footprint_margin_mm']:.1f} mm outside its footprint"])
     if "layers" in st:
         out.append(["Layers", f"{st['layers']:,}"
                               + (f", {size['height']:g} mm tall" if "height" in size else "")])
@@ -580,26 +591,24 @@ def _machine_words(m: dict) -> str:
 
 # the look block's figures as the page words them; numbers without a word here are shown under
 # their key (a newer toolkit may add some), words and settings (curve, attenuation) are left out
-_LOOK_WORDS = {"mean_dL": ("Mean lightness error", "{:.1f} ΔL*"),
-               "mean_abs_dL": ("Mean lightness difference", "{:.1f} ΔL*"),
-               "ssim_L": ("Likeness (SSIM on lightness)", "{:.3f}"),
-               "ssim": ("Likeness (SSIM)", "{:.3f}"),
-               "correlation": ("Correlation with the picture", "{:.3f}")}
-_LOOK_SKIP = {"attenuation_per_mm", "curve"}
+# (the model against itself, the likeness figures of before issue 37, is not shown: a maker
+# read it as a promise about the print)
+_LOOK_SKIP = {"attenuation_per_mm", "curve", "mean_dL", "mean_abs_dL", "ssim_L", "ssim", "correlation"}
 
 
 def _look_figures(lk: dict) -> list:
     out = []
-    if "ssim_L" in lk and "ssim" in lk:
-        lk = {k: v for k, v in lk.items() if k != "ssim"}     # the one on lightness says it
     for k, v in lk.items():
         if k in _LOOK_SKIP:
             continue
-        if k in _LOOK_WORDS:
-            label, fmt = _LOOK_WORDS[k]
-            if isinstance(v, (int, float)):
-                out.append([label, fmt.format(v)])
-        elif isinstance(v, (list, tuple)) and len(v) == 2 and all(isinstance(x, (int, float)) for x in v):
+        if k == "picture_vs_print":
+            if isinstance(v, dict) and isinstance(v.get("mean_abs_dL"), (int, float)):
+                ssim = "n/a" if v.get("ssim_L") is None else f"{v['ssim_L']:.2f}"
+                out.append(["Picture vs the print as sampled (a model)",
+                            f"mean {v['mean_abs_dL']:.1f} ΔL*, SSIM {ssim} (sampled {v['sampled_mm'][0]:g} x "
+                            f"{v['sampled_mm'][1]:g} mm, light scatter {v['scatter_sigma_mm']:g} mm)"])
+            continue
+        if isinstance(v, (list, tuple)) and len(v) == 2 and all(isinstance(x, (int, float)) for x in v):
             word = "Lightness range the plate shows" if "L" in k else k.replace("_", " ")
             out.append([word, f"{v[0]:.0f}–{v[1]:.0f}" + (" L*" if "L" in k else "")])
         elif isinstance(v, (int, float)) and not isinstance(v, bool):
@@ -622,6 +631,10 @@ def _message(e: BaseException) -> str:
 
 
 # -- HTTP
+
+class _TooBig(Exception):
+    """An upload past its limit: its part is removed, the answer says so."""
+
 
 def _error(status: int, text: str) -> web.Response:
     return web.json_response({"error": text}, status=status)
@@ -698,18 +711,16 @@ def make_app(st: Studio, port_ref: dict) -> web.Application:
             return name
         base = dz.safe_name(name, "part.gcode")
         dest = st.workdir / "gcode" / f"{st.next_id()}-{base}"
-        part = dest.with_name(dest.name + ".part")
         got = 0
-        try:
-            with open(part, "wb") as f:
+        try:                                    # an upload cut off or refused leaves nothing
+            with outputs.part(dest) as part, open(part, "wb") as f:
                 async for chunk in request.content.iter_chunked(1 << 20):
                     got += len(chunk)
                     if got > st.limits.gcode_bytes:
-                        return too_big(name, st.limits.gcode_bytes, "G-code")
+                        raise _TooBig
                     f.write(chunk)
-            part.replace(dest)
-        finally:
-            part.unlink(missing_ok=True)        # an upload cut off or refused leaves nothing
+        except _TooBig:
+            return too_big(name, st.limits.gcode_bytes, "G-code")
         job = st.start("open", st.open_upload, dest, name)
         return web.json_response(job.json())
 

@@ -2,7 +2,9 @@
 (map, annotated G-code, stock file, stats) of every test file, in both stop modes, has the SHA-256
 that the code at dacdbcd (before the change) wrote. The stock file's header has since gained a
 line naming the printer model it was made for (fallback.PRINTER_HEADER): that one line is left
-out of its hash, every other byte is compared. The hashes are in data/build_outputs.json;
+out of its hash, every other byte is compared. The statistics' hashes were made again when
+their stop-and-start time came to be the printer model's (stopmodel.ramp_s, stats.timed_model)
+instead of v/a at 1000 mm/s²: every G-code and map hash is still dacdbcd's. The hashes are in data/build_outputs.json;
 to make them again from another checkout of the package:
 
     PYTHONPATH=/path/to/old/host python3 host/tests/bulge/test_build_identical.py --write

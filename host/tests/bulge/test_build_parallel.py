@@ -216,7 +216,8 @@ def _annotate_runs(tmp_path, gcode, bmap, out, fork: str) -> str:
         print("forked", forked)
         p = {str(out)!r}
         print("out", hashlib.sha256(open(p, "rb").read()).hexdigest() if os.path.isfile(p) else "none")
-        print("part", os.path.exists(p + ".part"))
+        print("part", any(n.endswith(".part") for n in os.listdir(os.path.dirname(p)))
+              if os.path.isdir(os.path.dirname(p)) else False)
         try:
             os.waitpid(-1, os.WNOHANG)
             print("a child is left")

@@ -341,7 +341,7 @@ def test_stop_length_matches_the_issue_table():
 
 
 def test_short_stops_follow_the_measured_junction_term():
-    # stock-sim (docs/marlin-integration.md, stops on stock firmware): at E 93, 6 steps, the next
+    # stock-sim (docs/verification/marlin-simulation.md, stops on stock firmware): at E 93, 6 steps, the next
     # X move along X (80 steps/mm) starts at v = r / 93 mm/s; F184.84 (287 steps/s) held
     # 24.96-26.50 ms for 25 ms stops, where issue 25's rule (1/120 at the end) gave 19.9-21.1 ms
     from bulgekit.bulge.fallback import plan_stop, still_s
@@ -573,7 +573,7 @@ def test_layer_search_by_bisection_finds_what_a_walk_finds():
 def test_an_e_led_piece_after_the_stop_times_it():
     """At 415 E steps/mm the piece after a stop can carry the rest of the extra in more E steps
     than X makes (Marlin then starts it at entry speed x E steps per mm of path: the head goes on
-    sooner, stock-verify in docs/marlin-integration.md): k is E's, so the E move runs slower."""
+    sooner, stock-verify in docs/verification/marlin-simulation.md): k is E's, so the E move runs slower."""
     from bulgekit.bulge.fallback import XY_STEPS, plan_stop
     text = HEAD.format(mode="M83") + "G1 X10 Y0 E1.0\n"
     settings = Settings(dwell_ms=25)
@@ -601,7 +601,7 @@ def test_stats_time_of_a_fast_stop_leaves_out_the_next_moves_start():
 
 
 def test_an_output_that_cannot_be_written_is_named_and_leaves_no_part(data_dir, tmp_path):
-    """The stock rewrite and annotate write OUT.part and rename it (errors.output_part): a folder
+    """The stock rewrite and annotate write OUT's part and rename it (bulgekit.outputs): a folder
     that is missing is said of OUT, the file asked for, and no part stays behind."""
     from bulgekit.bulge import api
     from bulgekit.bulge.mapbuild import build
@@ -617,4 +617,5 @@ def test_an_output_that_cannot_be_written_is_named_and_leaves_no_part(data_dir, 
     (tmp_path / "missing").mkdir()
     for write in (api.fallback_gcode, api.annotate_gcode):
         write(g, m, out)
-        assert out.stat().st_size > g.stat().st_size and not (tmp_path / "missing" / "x.gcode.part").exists()
+        assert out.stat().st_size > g.stat().st_size
+        assert [p.name for p in (tmp_path / "missing").iterdir()] == ["x.gcode"]

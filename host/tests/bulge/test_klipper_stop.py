@@ -8,7 +8,7 @@ times 4 nozzle^2 / filament area, docs/Config_Reference.md [extruder]); the head
 before the stop and first step after it by stepping the motors through the deceleration and
 the acceleration in 1 us steps (a step where a motor's position crosses the middle between two
 step positions, klippy/chelper/itersolve.c). Measured in Klipper's batch mode in
-docs/marlin-integration.md, "Stops exact on Klipper".
+docs/verification/marlin-simulation.md, "Stops exact on Klipper".
 """
 import math
 import re

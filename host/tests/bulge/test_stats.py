@@ -100,6 +100,7 @@ def test_stats_on_the_stock_rewrites_planner_run_are_the_stats_of_their_own(data
     """build runs the planner once: the statistics count on the stock fallback's run (its
     records path, or its text path when the compiled scanner is not there) and give what a run
     of their own gives."""
+    from bulgekit import machine
     from bulgekit.bulge import fallback
     from bulgekit.bulge.stats import StopTimer
     g = data_dir / "prusa_cyl.gcode"
@@ -109,8 +110,8 @@ def test_stats_on_the_stock_rewrites_planner_run_are_the_stats_of_their_own(data
         monkeypatch.setattr(fallback.movescan, "available", lambda: False)
     timers = []
 
-    def on_plan(planner):
-        timers.append(StopTimer(planner))
+    def on_plan(planner):              # (as build makes it: the default model, timed by its stepper)
+        timers.append(StopTimer(planner, machine.DEFAULT.accel, machine.DEFAULT))
         return timers[-1]
     res = fallback.rewrite_file(g, tmp_path / "s.gcode", r.bulge_map, settings,
                                 allow_unreached=True, on_plan=on_plan)
@@ -118,4 +119,8 @@ def test_stats_on_the_stock_rewrites_planner_run_are_the_stats_of_their_own(data
     shared = print_stats(g, r.map_bytes, settings, planned=timers[0])
     own = print_stats(g, r.map_bytes, settings)
     assert own.stops == len(r.points) > 5 and own.decel_s > 0
-    assert vars(shared) == vars(own)
+    # (the distances between neighbouring stops may differ: the records path does not see the
+    # moves its picker skips, the text path sees them all; the time they give is the same here)
+    a, b = dict(vars(shared)), dict(vars(own))
+    ga, gb = a.pop("gaps"), b.pop("gaps")
+    assert a == b and [ms for ms, _ in ga] == [ms for ms, _ in gb]

@@ -94,10 +94,13 @@ def test_lin_advance_cuts_the_next_moves_acceleration():
     assert still_s(6, 60, 93, 80, la, p) == still_s(6, 60, 93, 80, machine.MARLIN, p)
 
 
-def test_stats_time_the_default_model_as_before_and_others_by_their_stepper():
-    assert stats.timed_model(machine.MARLIN) is None and stats.timed_model(None) is None
+def test_stats_time_every_marlin_model_by_its_stepper():
+    """The default model too (its statistics' hashes were made again for it); another firmware
+    is timed as v/a at its model's acceleration."""
+    assert stats.timed_model(machine.MARLIN) is machine.MARLIN and stats.timed_model(None) is machine.MARLIN
     assert stats.timed_model(ENDER3) is ENDER3
-    assert stats.timed_model(replace(machine.MARLIN, firmware="prusa")) is None
+    prusa = replace(machine.MARLIN, firmware="prusa", accel=1250.0)
+    assert stats.timed_model(prusa) is None and stats.accel_of(prusa) == 1250.0
 
 
 @pytest.fixture(scope="module")

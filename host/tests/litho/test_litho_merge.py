@@ -12,6 +12,7 @@ import shapely
 from PIL import Image
 
 from bulgekit import litho as lt
+from bulgekit.litho import gcode, paths
 
 
 def photo(tmp_path, w=60, h=20, seed=3):
@@ -29,7 +30,7 @@ def plan(p, monkeypatch=None, merge=True, **kw):
     o = lt.LithoOptions(**{**dict(width=24.0, height=4.0, foot=0.0), **kw})
     if not merge:                                   # every sample's piece on its own
         alone = lambda pts, area, laid, u: (np.ones(len(pts), bool), pts)
-        monkeypatch.setattr(lt, "_keep_straight", alone)
+        monkeypatch.setattr(paths, "_keep_straight", alone)
     try:
         return lt.plan_lithophane(p, o)
     finally:
@@ -69,14 +70,14 @@ def test_a_plain_area_is_few_pieces(tmp_path):
 def recorded(monkeypatch, p, **kw):
     """Every _keep_straight call of a plan: its input and what it kept."""
     calls = []
-    real = lt._keep_straight
+    real = paths._keep_straight
 
     def spy(pts, area, laid, u):
         keep, out = real(pts, area, laid, u)
         calls.append((pts.copy(), area.copy(), laid.copy(), u.copy(), keep.copy(), out.copy()))
         return keep, out
 
-    monkeypatch.setattr(lt, "_keep_straight", spy)
+    monkeypatch.setattr(paths, "_keep_straight", spy)
     plan(p, **kw)
     monkeypatch.undo()
     return calls
@@ -126,9 +127,9 @@ def test_width_runs_are_not_split_at_a_bin_edge():
     laid = np.ones(6, bool)
     for w0 in (0.4, 0.4 * (1 + lt.WIDTH_TOL) ** 7, 0.3):     # anywhere on the scale
         area = np.array([w0, w0, w0 * 1.0001, w0 * 1.0001, w0, w0]) * seg
-        assert lt._width_runs(seg, area, laid, du).tolist() == [0, 6]
+        assert paths._width_runs(seg, area, laid, du).tolist() == [0, 6]
         area = np.array([w0, w0, w0, w0 * 1.025, w0 * 1.025, w0 * 1.025]) * seg
-        assert lt._width_runs(seg, area, laid, du).tolist() == [0, 3, 6]
+        assert paths._width_runs(seg, area, laid, du).tolist() == [0, 3, 6]
 
 
 def test_move_text_is_the_rounded_numbers_repr():
@@ -138,7 +139,7 @@ def test_move_text_is_the_rounded_numbers_repr():
     for nd in (1, 3, 4, 5):
         odd = [0.0, -0.0, 1.0, -1.0, 10.0, 0.5, 1e-5, -1e-5, 99.999, 1234.5]
         a = np.round(np.concatenate([rng.normal(0, 80, 3000), rng.normal(0, 2e-4, 500), odd]), nd) + 0.0
-        chars, mask = lt._word_chars("X", a, nd)
+        chars, mask = gcode._word_chars("X", a, nd)
         got = [bytes(c[m]).decode() for c, m in zip(chars, mask)]
         want = []
         for v in a.tolist():
@@ -150,6 +151,6 @@ def test_move_text_is_the_rounded_numbers_repr():
             want.append(" X" + r)
         assert got == want
     on = np.array([True, False])
-    texts = lt._move_texts(np.array([1.5, 2.0]), np.array([-3.25, 4.0]), ("E", np.array([0.0123, 0.0]), 5),
+    texts = gcode._move_texts(np.array([1.5, 2.0]), np.array([-3.25, 4.0]), ("E", np.array([0.0123, 0.0]), 5),
                            np.array([2400.0, 2400.0]), on, on, [1, 1])
     assert texts == ["G1 X1.5 Y-3.25 E0.0123 F2400.0", "G1 X2.0 Y4.0"]

@@ -346,7 +346,8 @@ def test_litho_job_makes_the_cli_files(studio, tmp_path):
     # the figures in the page's words: no CLI options or ASCII units, no working folder
     figures = dict(res["figures"])
     assert {"Print time", "Filament", "Fastest head speed", "Mid-line flow"} <= set(figures)
-    assert "SSIM" in " ".join(figures) and figures["Mid-line flow"] == "8 mm³/s"
+    assert "SSIM" in figures["Picture vs the print as sampled (a model)"] and figures["Mid-line flow"] == "8 mm³/s"
+    assert figures["How the picture lies"].startswith("picture 20.0 x 15.0 mm: the height from the picture's aspect")
     text = repr(res)
     assert "--" not in text and "mm^3" not in text and str(studio.studio.workdir) not in text
     status, body = call(studio, res["look"], raw=True)
@@ -366,9 +367,11 @@ def test_litho_job_makes_the_cli_files(studio, tmp_path):
 def test_litho_figures_show_the_look_block_they_are_given():
     from bulgekit.studio.server import litho_figures
     # a toolkit with lightness figures: those are shown, the plain SSIM gives way to the one on L*
-    f = dict(litho_figures({"look": {"curve": "perceptual", "mean_dL": 1.234, "ssim_L": 0.9123, "ssim": 0.5,
-                                     "L_range": [38.2, 100.0], "new_figure": 0.25}}))
-    assert f == {"Mean lightness error": "1.2 ΔL*", "Likeness (SSIM on lightness)": "0.912",
+    f = dict(litho_figures({"look": {"curve": "perceptual", "L_range": [38.2, 100.0], "new_figure": 0.25,
+                                     "picture_vs_print": {"mean_abs_dL": 2.94, "ssim_L": 0.853,
+                                                          "sampled_mm": [0.4, 0.2], "scatter_sigma_mm": 0.5}}}))
+    assert f == {"Picture vs the print as sampled (a model)":
+                 "mean 2.9 ΔL*, SSIM 0.85 (sampled 0.4 x 0.2 mm, light scatter 0.5 mm)",
                  "Lightness range the plate shows": "38–100 L*", "new figure": "0.25"}
     assert litho_figures({}) == []
     f = dict(litho_figures({"options": {"max_speed": 150}, "estimate": {
@@ -383,9 +386,8 @@ def test_litho_figures_word_what_the_toolkit_writes():
     from bulgekit.gcode import estimate
     from bulgekit.studio.server import litho_figures
     f = dict(litho_figures({"estimate": {"estimated_time_s_gcode": 60, "machine": lt.machine_words(estimate.Machine())},
-                            "look": {"mean_abs_dL": 0.04, "ssim_L": 1.0}, "gaps": {"narrowed_share": 0.187}}))
+                            "gaps": {"narrowed_share": 0.187}}))
     assert f["Times assume"] == "acceleration 3000 mm/s², junction deviation 0.013 mm, look-ahead of 16 moves"
-    assert f["Mean lightness difference"] == "0.0 ΔL*"
     assert f["Light tones"] == "a thin mid-line between narrower walls, 18.7 % of the samples"
     w = {"back_mm": {"min": 0.2, "median": 0.257, "max": 0.4}, "front_mm": {"min": 0.2, "median": 0.338, "max": 0.8}}
     assert dict(litho_figures({"walls": w}))["Walls"] == "back mostly 0.26 mm wide (0.20–0.40), front 0.20–0.80 mm"
@@ -401,7 +403,7 @@ def test_litho_view_is_the_relief_and_its_look(studio, tmp_path):
     import base64
     import numpy as np
     from bulgekit.studio.server import VIEW_CELLS
-    _, job = make_litho(studio, tmp_path, {"width": 110, "height": 10, "curve": "linear"})
+    _, job = make_litho(studio, tmp_path, {"width": 110, "height": 10, "curve": "linear", "stretch": True})
     assert job["state"] == "done", job["error"]
     status, v = call(studio, job["result"]["view"])
     assert status == 200 and v["shape"] == "planar"
@@ -659,6 +661,24 @@ def test_import_messages_name_the_users_files(studio, tmp_path):
     status, body = call(studio, "/api/import", {"toml": "[[strokes]]\nfile = 'spot.png'\nimage_width = -2\n",
                                                 "files": {"spot.png": pic}})
     assert status == 400 and str(studio.studio.workdir) not in body["error"] and "--" not in body["error"]
+
+
+def test_litho_arc_view_and_figures(tmp_path):
+    """The arc (issue 37): the view places its samples on the arc, the figures say how the
+    picture lies and whether the part stands."""
+    import numpy as np
+    from PIL import Image
+    from bulgekit import litho as lt
+    from bulgekit.studio.server import litho_figures, litho_view
+    Image.fromarray((np.arange(40 * 30).reshape(30, 40) % 251).astype(np.uint8)).save(tmp_path / "p.png")
+    res = lt.make(tmp_path / "p.png", tmp_path / "o", options=lt.LithoOptions(shape="arc", diameter=30.0))
+    v = litho_view(res.plan)
+    assert v["shape"] == "arc" and v["r_in"] == 15.0 - 2.4
+    assert v["arc_start"] == pytest.approx(-np.pi / 2 - np.radians(120) / 2, abs=1e-5)
+    f = dict(litho_figures(res.stats))
+    assert f["How the picture lies"] == res.stats["picture"]["note"]
+    assert f["Stands by itself"].startswith("yes: centre of mass")
+    assert "arc" in lt.SHAPES
 
 
 # -- issue 37/38: braille items, the printer model, names of pictures chosen again

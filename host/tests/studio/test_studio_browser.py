@@ -316,8 +316,12 @@ def test_lithophane_tab(browser, studio, tmp_path):
     pg.select_option(form + "select[name=shape]", "cylinder")
     assert pg.is_visible(form + "input[name=diameter]")
     assert not pg.is_visible(form + "input[name=width]") and not pg.is_visible(form + "input[name=foot]")
+    pg.select_option(form + "select[name=shape]", "arc")           # the curved panel (issue 37)
+    assert pg.is_visible(form + "input[name=diameter]") and pg.is_visible(form + "input[name=angle]")
+    assert not pg.is_visible(form + "input[name=width]") and not pg.is_visible(form + "input[name=foot]")
     pg.select_option(form + "select[name=shape]", "planar")
     assert pg.is_visible(form + "input[name=width]") and not pg.is_visible(form + "input[name=diameter]")
+    assert not pg.is_visible(form + "input[name=angle]")
     # the curves are the toolkit's
     from bulgekit import litho as lt
     assert pg.eval_on_selector(form + "select[name=curve]", "s => [...s.options].map(o => o.value)") == list(lt.CURVES)

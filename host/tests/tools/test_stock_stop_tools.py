@@ -1,4 +1,4 @@
-"""The measurement tools of issue 25 (docs/marlin-integration.md, "Stops on stock
+"""The measurement tools of issue 25 (docs/verification/marlin-simulation.md, "Stops on stock
 firmware"): trace_stops.py's per-stop figures for E-only stops, klipper_steps.py's
 replay of Klipper's stepper commands, and stop_wall.py's stillness rule."""
 import importlib.util

@@ -1101,7 +1101,7 @@ async function loadPorts() {
 const L = { asset: null, key: null, srcUrl: null, choices: null };
 // the curves in the page's words (a curve the toolkit adds without one here shows its name)
 const CURVE_WORDS = { linear: "linear (paper)", transmission: "transmission", perceptual: "perceptual" };
-const SHAPE_WORDS = { planar: "flat plate", cylinder: "cylinder" };
+const SHAPE_WORDS = { planar: "flat plate", cylinder: "cylinder", arc: "arc (curved panel)" };
 const LIGHT_GAP_WORDS = { "mid-line": "thin mid-line", walls: "walls share" };
 
 // The form's choices and defaults come from the toolkit (litho.SHAPES, CURVES, LIGHT_GAPS,
@@ -1130,7 +1130,7 @@ function lithoChoices(c) {
 // only the chosen shape's fields show (and only they are sent)
 function lithoShape() {
   const shape = $("litho-form").shape.value;
-  for (const el of $("litho-form").querySelectorAll("[data-shape]")) el.hidden = el.dataset.shape !== shape;
+  for (const el of $("litho-form").querySelectorAll("[data-shape]")) el.hidden = !el.dataset.shape.split(" ").includes(shape);
 }
 
 async function lithoPicture(file) {
@@ -1309,6 +1309,9 @@ const litho3d = (() => {
         if (ring) {
           const a = k === C ? v.s[0] + 2 * Math.PI : v.s[j], r = v.r_in + t;
           pos[p] = r * Math.cos(a); pos[p + 1] = r * Math.sin(a);
+        } else if (v.shape === "arc") {
+          const a = v.arc_start + v.s[j], r = v.r_in + t;
+          pos[p] = r * Math.cos(a); pos[p + 1] = r * Math.sin(a);
         } else { pos[p] = v.s[j] - mid; pos[p + 1] = t; }
         pos[p + 2] = z;
         uv[q] = k === C ? 1 + v.u[0] : v.u[j]; uv[q + 1] = v.v[i];
@@ -1374,11 +1377,11 @@ const litho3d = (() => {
     }
     scene.add(part);
     // the camera in front of the picture (the picture reads from -Y: the plate's flat back,
-    // the cylinder's outside), a little to the side and above
+    // the cylinder's and the arc's outside), a little to the side and above
     const bb = new THREE.Box3().setFromObject(part), c = bb.getCenter(new THREE.Vector3()), sz = bb.getSize(new THREE.Vector3());
     const R = Math.max(sz.x, sz.z, 1), d = 0.75 * R / Math.tan((camera.fov * Math.PI) / 360);
     controls.target.copy(c);
-    camera.position.set(c.x - 0.25 * d, c.y + (light === "day" && shape !== "cylinder" ? d : -d), c.z + 0.2 * d);
+    camera.position.set(c.x - 0.25 * d, c.y + (light === "day" && shape === "planar" ? d : -d), c.z + 0.2 * d);
     camera.near = d / 100; camera.far = d * 20;
     camera.updateProjectionMatrix();
     controls.update();
@@ -1387,7 +1390,7 @@ const litho3d = (() => {
 
   // a plate's relief is on its other side: daylight turns the camera round to it
   function turn(to) {
-    if (!part || shape === "cylinder" || to === light) return;
+    if (!part || shape !== "planar" || to === light) return;
     const t = controls.target;
     camera.position.set(2 * t.x - camera.position.x, 2 * t.y - camera.position.y, camera.position.z);
     controls.update();
