@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Figures of `bulgekit litho`'s paths on one picture (docs/lithophane.md, "Clean paths"):
+"""Figures of `bulgekit litho`'s paths on one picture (docs/verification/lithophane.md, "Clean paths"):
 extruding moves (and where the plan's pieces lie: front wall, back wall, mid-line), the shortest
 extruding move, the estimate with Marlin's 6-step rule and with every move planned (as Klipper
 does), the volume laid per sample interval against the body's, and a linear grey ramp's printed

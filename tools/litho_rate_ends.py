@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Where a lithophane band's mid-line leaves the set extruder rate: near its stretches' ends (the
 head starting and stopping) or inside them (the picture's steps). Estimator figures, exact over
-the trapezoids (docs/lithophane.md, "Extruder rate on the mid-line, verified").
+the trapezoids (docs/verification/lithophane.md, "Extruder rate on the mid-line, verified").
 
     python3 tools/litho_rate_ends.py out/band.litho.gcode [--end-mm 3] [--rate 3.326]
 

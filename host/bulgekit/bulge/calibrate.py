@@ -34,6 +34,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from .. import machine
+from ..gcode import startend
 from ..errors import BulgekitError
 from ..machine import PrinterModel
 from .strokes import Stroke, text_strokes
@@ -130,25 +131,8 @@ def _label(text: str, u: float, v: float, weight: int, centre: bool) -> list[Str
 
 
 # --- the part's own G-code -------------------------------------------------------------------
-START = """\
-G21 ; millimetres
-M140 S{bed_temp}
-M104 S{temp}
-G28 ; home
-M190 S{bed_temp}
-M109 S{temp}
-G90 ; absolute positions
-M83 ; relative E
-"""
-END = """\
-M104 S0
-M140 S0
-M107
-G91
-G1 Z5 F300
-G90
-M84
-"""
+START = startend.HEAT_AND_HOME + "G90 ; absolute positions\nM83 ; relative E\n"
+END = startend.END
 
 
 def part_gcode(o: CalibrationOptions, height: float) -> list[str]:
@@ -166,7 +150,7 @@ def part_gcode(o: CalibrationOptions, height: float) -> list[str]:
     e_mm = w * h / o.filament_area                    # filament per mm of wall
     out = [f"; bulgekit calibrate: {o.width:g} x {o.depth:g} x {n * h:.2f} mm, {n} layers",
            f"; layer_height = {h:g}", f"; printer: {o.printer.describe()}"]
-    out += START.replace("{temp}", str(o.temp)).replace("{bed_temp}", str(o.bed_temp)).splitlines()
+    out += startend.fill(START, o.temp, o.bed_temp).splitlines()
     out.append("M107")
     for k in range(n):
         z = (k + 1) * h

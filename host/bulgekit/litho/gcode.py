@@ -11,32 +11,16 @@ from pathlib import Path
 import numpy as np
 
 from .. import outputs
+from ..gcode import startend
 from .options import LithoError, LithoOptions, options_dict
 from .paths import Plan, Section
 
 
 # --- G-code --------------------------------------------------------------------------------
 
-DEFAULT_START = """\
-; default start (replace with --start-gcode FILE, where the words temp and bed_temp in braces
-; are filled in)
-G21 ; millimetres
-M140 S{bed_temp}
-M104 S{temp}
-G28 ; home
-M190 S{bed_temp}
-M109 S{temp}
-"""
-DEFAULT_END = """\
-; default end (replace with --end-gcode FILE)
-M104 S0
-M140 S0
-M107
-G91
-G1 Z5 F300
-G90
-M84
-"""
+DEFAULT_START = ("; default start (replace with --start-gcode FILE, where the words temp and bed_temp "
+                 "in braces\n; are filled in)\n" + startend.HEAT_AND_HOME)
+DEFAULT_END = "; default end (replace with --end-gcode FILE)\n" + startend.END
 
 
 def _fmt(v: float, nd: int) -> str:

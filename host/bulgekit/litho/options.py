@@ -22,7 +22,7 @@ LIGHT_GAPS = ("mid-line", "walls")
 # v^2 / (a L) (v = q / (W H), a the acceleration, L the stretch). 8 mm^3/s keeps >= 85 % of a
 # photo band's mid-line time within 5 % of the set rate at 3000 mm/s^2 (Marlin's default M204 P);
 # a printer that accelerates less gets q x sqrt(a / 3000), which keeps that share
-# (docs/lithophane.md, "Extruder rate on the mid-line, verified").
+# (docs/verification/lithophane.md, "Extruder rate on the mid-line, verified").
 INFILL_FLOW = 8.0       # mm^3/s
 FLOW_ACCEL = 3000.0     # mm/s^2
 
