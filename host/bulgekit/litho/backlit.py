@@ -55,16 +55,31 @@ def write_transmission_png(plan: Plan, path) -> None:
               (stretched, "predicted, STRETCHED (thickest = black)")]
     ims = [Image.fromarray(np.round(tone.to_srgb(tone.luminance(a[::-1])) * 255).astype(np.uint8))
            .resize(size, Image.Resampling.BILINEAR) for a, _ in panels]
-    pad, top = 10, 22
+    pad, top, line = 10, 22, 11
+    measure = ImageDraw.Draw(Image.new("L", (1, 1)))
+    labels = [_wrapped(label, size[0], measure) for _, label in panels]   # a narrow panel's label
+    top += line * (max(len(ls) for ls in labels) - 1)                     # in lines, not over the next
     canvas = Image.new("L", (3 * size[0] + 4 * pad, size[1] + top + pad), 128)
     d = ImageDraw.Draw(canvas)
-    for i, (im, (_, label)) in enumerate(zip(ims, panels)):
+    for i, (im, ls) in enumerate(zip(ims, labels)):
         x = pad + i * (size[0] + pad)
         canvas.paste(im, (x, top))
-        d.text((x, 5), label, fill=255)
+        for k, text in enumerate(ls):
+            d.text((x, 5 + k * line), text, fill=255)
     buf = __import__("io").BytesIO()
     canvas.save(buf, format="PNG")
     outputs.write(path, buf.getvalue())
+
+
+def _wrapped(label: str, width: int, draw) -> list[str]:
+    """The label in lines no wider than width px (words kept whole; one line when it fits)."""
+    lines: list[str] = []
+    for word in label.split(" "):
+        if lines and draw.textlength(f"{lines[-1]} {word}") <= width:
+            lines[-1] = f"{lines[-1]} {word}"
+        else:
+            lines.append(word)
+    return lines
 
 
 SCATTER_MM = 0.5        # sigma of the light's scatter in the plate, mm: an assumption, not measured
