@@ -159,6 +159,22 @@ class RefPlanner:
         self.deferred: set[int] = set()   # points whose feet lay beyond the last move's end
         self.last_end = None       # float bits of that move's x1, y1
 
+    def configure(self, settings: Settings) -> None:
+        """New M720 settings between moves (BulgePlanner::apply): the layer, its marks, the
+        owed extra and any deferred points stay."""
+        self.s = settings
+        self.tol2 = f32(settings.tolerance) * f32(settings.tolerance)
+
+    def append_layers(self, layers) -> None:
+        """Records an `M721 ... A1` append put after the map in force: a z that missed before is
+        looked up again (the firmware forgets its miss when the map's last z changes)."""
+        self.map.layers += list(layers)
+        self._zs = [l.z_cmm for l in self.map.layers]
+        self._sorted = all(a <= b for a, b in zip(self._zs, self._zs[1:]))
+        self.miss_z = None
+        if self.layer is not None:
+            self.below, self.above = self._neighbors(self.layer[0])
+
     # -- layer window (MapStore::find_layer + BulgePlanner::window)
     def _find(self, zc: int):
         best = None
