@@ -50,6 +50,7 @@ DROP = ("M104", "M109", "M140", "M190", "M106", "M107", "M84", "M105", "M117", "
 def prepare(src, dst):
     """A sliced file made fit for batch mode (see DROP); every other line as it is."""
     with open(src, encoding="utf-8", errors="replace") as f, open(dst, "w") as out:
+        out.write("SET_KINEMATIC_POSITION X=0 Y=0 Z=0\n")    # the head starts at the origin
         for line in f:
             code = line.split(";", 1)[0].split()
             head = code[0].upper() if code else ""
@@ -59,10 +60,9 @@ def prepare(src, dst):
                 out.write(line)
 
 
-def decode(serial_path, dict_path, tree=None):
-    """The MCU commands of a batch run's output, as text lines."""
-    if tree and tree not in sys.path:
-        sys.path.insert(0, tree)
+def decode(serial_path, dict_path):
+    """The MCU commands of a batch run's output, as text lines (with the installed klippy's
+    msgproto; run() may run another copy of the same package)."""
     from klippy import msgproto
     mp = msgproto.MessageParser()
     with open(dict_path, "rb") as f:
@@ -109,7 +109,8 @@ def main(argv=None):
     ap.add_argument("--dict", help="MCU data dictionary (default: tools/klipper_dict.py's)")
     ap.add_argument("--no-trace", action="store_true", help="only run klippy, decode nothing")
     ap.add_argument("--prepare", action="store_true",
-                    help="G28 -> SET_KINEMATIC_POSITION X=0 Y=0 Z=0; drop temperature and fan "
+                    help="start at SET_KINEMATIC_POSITION X=0 Y=0 Z=0, G28 made that too; drop "
+                         "temperature and fan "
                          "commands (written to OUT.in.gcode, which is run)")
     args = ap.parse_args(argv)
     tree = os.path.abspath(args.tree) if args.tree else None
@@ -121,7 +122,7 @@ def main(argv=None):
     print("klippy: exit %d, %.2f s CPU" % (rc, cpu))
     if rc != 0 or args.no_trace:
         return rc
-    lines = decode(args.out + ".serial", dict_path, tree)
+    lines = decode(args.out + ".serial", dict_path)
     with open(args.out + ".dump", "w") as f:
         f.write("\n".join(lines) + "\n")
     events, counts = klipper_steps.replay(lines)

@@ -169,8 +169,8 @@ class WidthMode:
         err = w.check("SQRDHLU", "M723")
         if err:
             return err
-        st, s = w.whole("S")
-        if st != "absent" and (st != "ok" or s > 1):
+        s_st, s = w.whole("S")
+        if s_st != "absent" and (s_st != "ok" or s > 1):
             return "M723 S must be 0 or 1"
         new = dict(kind=self.kind, target=self.target, D=self.dia, H=self.height,
                    L=self.low, U=self.high)
@@ -194,7 +194,7 @@ class WidthMode:
         r = self.base_rate(new["kind"], new["target"], new["D"])
         if r > f32(MAX_E_RATE):
             return "M723 extruder rate %s > %s (Q, D)" % (_fixed(r), _fixed(MAX_E_RATE))
-        on = None if st == "absent" else s
+        on = None if s_st == "absent" else s
         if on == 1 and new["kind"] is None:
             return "M723 S1 needs Q or R"
         if on == 1 and not self.on:
