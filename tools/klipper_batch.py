@@ -49,7 +49,7 @@ def disconnect(self):
     for _ in range(12000):
         if self.serialqueue is None:
             break
-        left = re.findall(r"(?:ready|upcoming)_bytes=(\d+)", self.stats(0))
+        left = re.findall(r"(?:ready|upcoming)_bytes=([0-9]+)", self.stats(0))
         if not any(int(v) for v in left):
             break
         time.sleep(0.005)

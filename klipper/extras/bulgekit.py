@@ -36,8 +36,7 @@ def _import_host():
                 sys.path.insert(0, d)
             break
     from bulgekit.bulge import fallback, klipper_stop, mapformat
-    from bulgekit.gcode import Move
-    return fallback, klipper_stop, mapformat, Move
+    return fallback, klipper_stop, mapformat
 
 
 # Limits of the firmware core (config/bulgekit_config.h)
@@ -255,6 +254,16 @@ class WidthMode:
         return float(width * self.height * f32(xy_len) * self.inv_area), None
 
 
+class _Line:
+    """The fields of a move RefPlanner.plan reads (as bulgekit.gcode.Move has them)."""
+    __slots__ = ("index", "line_no", "x0", "y0", "z0", "x1", "y1", "z1", "e", "outer")
+
+
+def _unit(d):
+    n = math.hypot(d[0], d[1])
+    return d[0] / n, d[1] / n
+
+
 def _pct(ratio):
     v = float(ratio) * 100.0
     return ">=1000000%" if v >= 1000000 else "%.2f%%" % v
@@ -425,8 +434,7 @@ def _base32(text):
 class BulgeKit:
     def __init__(self, config):
         self.printer = config.get_printer()
-        (self.fallback, self.kstop, self.mapformat,
-         self.Move) = _import_host()
+        self.fallback, self.kstop, self.mapformat = _import_host()
         import numpy
         self.f32 = numpy.float32
         fb = self.fallback
@@ -452,7 +460,7 @@ class BulgeKit:
         self.last_in = None         # the last position handed down, as gcode_move sees it
         self.e_off = 0.             # extra filament laid so far (hidden from gcode_move)
         self.ahead = 0.             # extra laid by stop moves, not yet taken off a piece
-        self.last_dir = None        # unit XY vector of the last XY motion
+        self.last_d = None          # X/Y of the last move with X/Y motion
         self.held = None            # a stop waiting for the direction that leaves it
         self.held_moves = []        # E-only moves after it (a retract), held with it
         self.stops = 0
@@ -460,6 +468,7 @@ class BulgeKit:
         self.extra_laid = 0.
         self.line_no = 0
         self.log_stops = config.getboolean("log_stops", False)
+        self.line = _Line()
         self.gcode = self.printer.lookup_object("gcode")
         self.gcode_move = self.printer.load_object(config, "gcode_move")
         for cmd in ("M720", "M721", "M722", "M723", "BULGEKIT_STATUS"):
@@ -475,7 +484,7 @@ class BulgeKit:
         self.prev_g1 = {}
         for cmd in ("G1", "G0"):
             self.prev_g1[cmd] = self.gcode.register_command(cmd, None)
-            self.gcode.register_command(cmd, self.cmd_G1)
+            self.gcode.register_command(cmd, self._g1_handler(self.prev_g1[cmd]))
         kin = self.toolhead.get_kinematics()
         steppers = {s.get_name(): s for s in kin.get_steppers()}
         name = type(kin).__name__.lower()
@@ -514,28 +523,36 @@ class BulgeKit:
         if self.last_in is None:
             self.get_position()
         start = self.last_in
-        self.last_in = list(newpos)
+        self.last_in = newpos[:]
         base = self.gcode_move.base_position
         de = newpos[3] - start[3]
         dx, dy = newpos[0] - start[0], newpos[1] - start[1]
-        xy = math.hypot(dx, dy)
-        if self.width.on and de > 0. and xy > 0.:
+        moves_xy = dx != 0. or dy != 0.
+        if self.width.on and de > 0. and moves_xy:
             self.width.set_percent(int(round(self.gcode_move.speed_factor * 6000.)))
-            speed = self.width.retime(xy, de / self.gcode_move.extrude_factor)
+            speed = self.width.retime(math.hypot(dx, dy), de / self.gcode_move.extrude_factor)
         if self.held is None and self.planner.passthrough(
-                de, dx != 0. or dy != 0., xy == 0. and de == 0. and newpos[2] == start[2],
-                self.marker, newpos[2] - self.gcode_move.base_position[2]):
-            self._down(newpos[:3] + [newpos[3] + self.e_off], speed, de, xy, dx, dy)
+                de, moves_xy, not moves_xy and de == 0. and newpos[2] == start[2],
+                self.marker, newpos[2] - base[2]):
+            # the common case: a line the planner gives back as it is
+            self.next_transform.move([newpos[0], newpos[1], newpos[2], newpos[3] + self.e_off],
+                                     speed)
+            if moves_xy:
+                self.last_d = (dx, dy)
             return
-        if self.held is not None and xy > 0.:
-            self._release_held((dx / xy, dy / xy))     # this move leaves the held stop
+        if self.held is not None and moves_xy:
+            self._release_held((dx, dy))     # this move leaves the held stop
         self.line_no += 1
-        m = self.Move(self.line_no, self.line_no, start[0] - base[0], start[1] - base[1],
-                      start[2] - base[2], newpos[0] - base[0], newpos[1] - base[1],
-                      newpos[2] - base[2], de, start[3], speed * 60., self.marker, None)
+        m = self.line        # what plan() reads of a bulgekit.gcode.Move, reused
+        m.index = m.line_no = self.line_no
+        m.x0, m.y0, m.z0 = start[0] - base[0], start[1] - base[1], start[2] - base[2]
+        m.x1, m.y1, m.z1 = newpos[0] - base[0], newpos[1] - base[1], newpos[2] - base[2]
+        m.e, m.outer = de, self.marker
         actions = self.planner.plan(m, self.marker)
+        if len(actions) == 1 and not actions[0].extra and not actions[0].dropped:
+            self._down([newpos[0], newpos[1], newpos[2], newpos[3] + self.e_off], speed, dx, dy)
+            return
         here = start[:3] + [start[3] + self.e_off]     # as handed down: the extra included
-        e_base = here[3]
         for i, a in enumerate(actions):
             if a.kind == "dwell":
                 self.stops += 1
@@ -553,21 +570,20 @@ class BulgeKit:
             else:
                 tgt = [a.x + base[0], a.y + base[1], a.z + base[2],
                        start[3] + de * a.t + self.e_off]
-            pdx, pdy = tgt[0] - here[0], tgt[1] - here[1]
-            self._down(tgt, speed, tgt[3] - e_base, math.hypot(pdx, pdy), pdx, pdy)
-            e_base = tgt[3]
+            self._down(tgt, speed, tgt[0] - here[0], tgt[1] - here[1])
             here = tgt
 
-    def _down(self, pos, speed, de, xy, dx, dy):
+    def _down(self, pos, speed, dx, dy):
         """One move to the next transform; a held stop goes first once its lead is known."""
+        moves_xy = dx != 0. or dy != 0.
         if self.held is not None:
-            if xy <= 0. and pos[2] == self.held[0][2]:
+            if not moves_xy and pos[2] == self.held[0][2]:
                 self.held_moves.append((list(pos), speed))   # E-only: the head stands
                 return
-            self._release_held((dx / xy, dy / xy) if xy > 0. else None)
+            self._release_held((dx, dy) if moves_xy else None)
         self.next_transform.move(pos, speed)
-        if xy > 0.:
-            self.last_dir = (dx / xy, dy / xy)
+        if moves_xy:
+            self.last_d = (dx, dy)
 
     def _stop(self, here, ms, owed, rest):
         """A stop of ms at `here` (as handed down), laying the extra owed after it: held until
@@ -577,14 +593,13 @@ class BulgeKit:
             logging.info("bulgekit: stop X%.4f Y%.4f Z%.4f P%d", here[0] - base[0],
                          here[1] - base[1], here[2] - base[2], ms)
         self._release_held(None)
-        self.held = (list(here), ms, owed, self.last_dir)
+        self.held = (list(here), ms, owed, self.last_d)
         for a in rest:
             if a.kind == "line":
                 base = self.gcode_move.base_position
                 dx, dy = a.x + base[0] - here[0], a.y + base[1] - here[1]
-                d = math.hypot(dx, dy)
-                if d > 0.:
-                    self._release_held((dx / d, dy / d), mid_move=True)
+                if dx != 0. or dy != 0.:
+                    self._release_held((dx, dy), mid_move=True)
                 break
 
     def _release_held(self, lead_dir, mid_move=False):
@@ -599,10 +614,8 @@ class BulgeKit:
         self.held, self.held_moves = None, []
         p = self._params()
         ks = self.kstop
-        tail = (ks.tail_s(p, pos[0], pos[1], arrive[0], arrive[1]) if arrive
-                else ks.mean_edge_s(p))
-        lead = (ks.lead_s(p, pos[0], pos[1], lead_dir[0], lead_dir[1]) if lead_dir
-                else ks.mean_edge_s(p))
+        tail = ks.tail_s(p, pos[0], pos[1], *_unit(arrive)) if arrive else ks.mean_edge_s(p)
+        lead = ks.lead_s(p, pos[0], pos[1], *_unit(lead_dir)) if lead_dir else ks.mean_edge_s(p)
         between = 0.
         prev_e = pos[3]
         for hp, hs in held_moves:
@@ -699,12 +712,17 @@ class BulgeKit:
         if err:
             raise gcmd.error(err)
 
-    def cmd_G1(self, gcmd):
+    def _g1_handler(self, prev):
+        def g1(gcmd):
+            if "W" in gcmd.get_command_parameters():
+                self.width_move(gcmd, prev)
+            else:
+                prev(gcmd)
+        return g1
+
+    def width_move(self, gcmd, prev):
+        """G0/G1 with a W word: its E from the width (M723), or an error and no move."""
         params = gcmd.get_command_parameters()
-        prev = self.prev_g1[gcmd.get_command()]
-        if "W" not in params:
-            prev(gcmd)
-            return
         w = self._words(gcmd)
         st, width = w.number("W", self.f32)
         if st != "ok":

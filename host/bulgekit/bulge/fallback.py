@@ -30,6 +30,7 @@ from __future__ import annotations
 import bisect
 import math
 import re
+import struct
 from dataclasses import dataclass, field
 from typing import Iterable, Iterator
 
@@ -123,8 +124,15 @@ class PlanStats:
     dwell_ms_total: int = 0
 
 
+_F32, _U32 = struct.Struct("<f"), struct.Struct("<I")
+
+
 def _bits(v) -> int:
-    return int(np.array(v, dtype=np.float32).view(np.uint32))
+    """v's IEEE bits as a float32 (rounded to nearest, as numpy rounds it)."""
+    try:
+        return _U32.unpack(_F32.pack(v))[0]
+    except OverflowError:      # beyond float32's range: numpy's infinity
+        return int(np.array(v, dtype=np.float32).view(np.uint32))
 
 
 def _sorted_points(rec: mapformat.Layer) -> list[tuple[int, int, int]]:
@@ -332,6 +340,10 @@ class RefPlanner:
             hits.append((t, i))
         if hits:
             self.stats.moves_split += 1
+        elif pending == 0:
+            # nothing to cut or to add: the move as it is (what line_to(1, 0) makes of it)
+            self.stop_ms = 0
+            return actions + [Action("line", m.x1, m.y1, m.z1, m.e * (1.0 - 0.0) + 0.0, t=1.0)]
         ln = np.sqrt(len2, dtype=np.float32)
         t_done = f32(0)
 
