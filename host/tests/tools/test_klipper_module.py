@@ -264,7 +264,8 @@ def cylinder(tmp_path_factory):
             head.append(line)
         if line.startswith("M721 E"):
             break
-    (d / "a.gcode").write_text("\n".join(head) + "\n" + (d / "a.body").read_text())
+    (d / "a.gcode").write_text("\n".join(head) + "\n" + (d / "a.body").read_text()
+                               + "GET_POSITION\n")
     return d
 
 
@@ -302,6 +303,14 @@ def test_cylinder_every_point_stopped_once_still_for_the_dwell(cylinder, cylinde
     assert "requested 100 ms x w/255 (63 ms) +- 1.00: all within" in out
     assert "matched by a stop %d" % pts in out
     assert re.search(r"E steps \d+ = G-code \d+ \+ %d stops x 0.1 mm \(\d+\): ok" % pts, out), out
+    # gcode_move's position never sees the extra (M114, GET_POSITION's "gcode:" line): it ends
+    # where the file does; the toolhead's E is ahead by the extra laid
+    end = [float(v) for v in re.search(r"final X(\S+) Y(\S+) Z(\S+) E(\S+)", out).groups()]
+    pos = lambda what: [float(v) for v in re.search(
+        what + r": X:(\S+) Y:(\S+) Z:(\S+) E:(\S+)", run.log).groups()]
+    host = [a - b for a, b in zip(pos("gcode"), pos("gcode base"))]
+    assert max(abs(a - b) for a, b in zip(host, end)) < 1e-5
+    assert abs(pos("toolhead")[3] - pos("gcode")[3] - pts * 0.1) < 1e-5
     # the extra filament: 0.1 mm a stop, to the step
     assert run.counts["A4"] - ref.counts["A4"] == round(pts * 0.1 * E_STEPS)
 
