@@ -475,11 +475,11 @@ class BulgeKit:
             self.gcode.register_command(cmd, getattr(self, "cmd_" + cmd),
                                         desc=getattr(self, "cmd_%s_help" % cmd, None))
         self.printer.register_event_handler("klippy:connect", self._handle_connect)
+        self.printer.register_event_handler("klippy:ready", self._handle_ready)
 
     # -- set-up
     def _handle_connect(self):
         self.toolhead = self.printer.lookup_object("toolhead")
-        self.next_transform = self.gcode_move.set_move_transform(self, force=True)
         # G0/G1 with a W word (M723): wrapped, the rest goes to gcode_move's handler
         self.prev_g1 = {}
         for cmd in ("G1", "G0"):
@@ -495,6 +495,12 @@ class BulgeKit:
         self.steps_xy = (1. / sx.get_step_dist() if sx else 80.,
                          1. / sy.get_step_dist() if sy else 80.)
         self.kinematics = kind
+
+    def _handle_ready(self):
+        # on top of the chain, after the transforms others put in at connect (skew_correction,
+        # z_thermal_adjust) or at start (bed_mesh): the planner sees the file's coordinates
+        self.next_transform = self.gcode_move.set_move_transform(self, force=True)
+        self.last_in = None
 
     def _params(self):
         th = self.toolhead
