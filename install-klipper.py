@@ -158,8 +158,8 @@ def main(argv=None):
             todo.append(("remove", path, src))
         todo.append(("copy" if args.copy else "link", path, src))
     for verb, path, src in todo:
-        print("%s%s %s%s" % ("would " if args.check else "", verb, path,
-                             " -> %s" % src if verb in ("link", "copy") else ""))
+        what = {"link": "%s -> %s" % (path, src), "copy": "%s to %s" % (src, path)}
+        print("%s%s %s" % ("would " if args.check else "", verb, what.get(verb, path)))
         if args.check:
             continue
         if verb == "remove":

@@ -485,6 +485,11 @@ class BulgeKit:
         for cmd in ("G1", "G0"):
             self.prev_g1[cmd] = self.gcode.register_command(cmd, None)
             self.gcode.register_command(cmd, self._g1_handler(self.prev_g1[cmd]))
+        # a stop held for the next move's direction is made before the head waits
+        for cmd in ("G4", "M400"):
+            prev = self.gcode.register_command(cmd, None)
+            if prev is not None:
+                self.gcode.register_command(cmd, self._wait_handler(prev))
         kin = self.toolhead.get_kinematics()
         steppers = {s.get_name(): s for s in kin.get_steppers()}
         name = type(kin).__name__.lower()
@@ -725,6 +730,12 @@ class BulgeKit:
             else:
                 prev(gcmd)
         return g1
+
+    def _wait_handler(self, prev):
+        def wait(gcmd):
+            self._release_held(None)
+            prev(gcmd)
+        return wait
 
     def width_move(self, gcmd, prev):
         """G0/G1 with a W word: its E from the width (M723), or an error and no move."""

@@ -399,3 +399,28 @@ def test_install_klipper_link_copy_uninstall(tmp_path):
     assert same(cmp)
     assert (t / ".git" / "info" / "exclude").read_bytes() == \
         (snap / ".git" / "info" / "exclude").read_bytes()
+
+
+@pytest.mark.parametrize("between", ["", "G1 E-0.8 F2100\n", "G4 P300\n"])
+def test_stop_at_a_move_end_held_for_the_next_direction(tree, dict_path, tmp_path, between):
+    """A point at a wall's last vertex stops there; the stop waits for the move that leaves it
+    (its first step times the stop's end), with a retract in between counted in the stop's time,
+    or made before a G4."""
+    from bulgekit.bulge import mapformat
+    data = mapformat.encode_map([(0.3, [(20.0, 0.0)])], quantum_um=100)
+    body = ("G92 E0\nM83\nG1 Z0.3 F600\nG1 X20 Y0 E1 F1800\n" + between
+            + "G1 X20 Y20 F6000\nG1 X40 Y20 E1 F1800\n")
+    g, ref = tmp_path / "in.gcode", tmp_path / "ref.gcode"
+    g.write_text("\n".join(["M720 S2 P100 E0.1 T0.25"] + mapformat.upload_lines(data)) + "\n" + body)
+    ref.write_text(body)
+    r0 = batch(tree, dict_path, ref, write_config(tmp_path / "r.cfg", module=False), tmp_path / "r")
+    r = batch(tree, dict_path, g, write_config(tmp_path / "p.cfg"), tmp_path / "b",
+              want_x=r0.counts["F0"])
+    assert r.stops() == [(20.0, 0.0, 0.3, 100)]
+    # the head stands from the last X/Y step before the stop to the first one after it
+    xy = sorted(c for c, pin, lvl in r.events if pin in ("F0", "F6") and lvl == 1)
+    still = max(b - a for a, b in zip(xy, xy[1:])) / 16e3
+    want = 100.0 + (300.0 if between.startswith("G4") else 0.0)
+    tol = 3.0 if between.startswith("G4") else 1.0    # before a G4 the lead is a mean
+    assert abs(still - want) <= tol, still
+    assert r.counts["A4"] - r0.counts["A4"] == round(0.1 * E_STEPS)
