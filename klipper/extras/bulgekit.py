@@ -451,9 +451,9 @@ class BulgeKit:
             dia=config.getfloat("filament_diameter", 1.75, minval=MIN_DIA, maxval=MAX_DIA),
             low=config.getfloat("width_min_speed", 5., minval=MIN_SPEED, maxval=MAX_SPEED),
             high=config.getfloat("width_max_speed", 150., minval=MIN_SPEED, maxval=MAX_SPEED))
-        self.upload = MapUpload(self.mapformat, config.getint(
-            "arena_bytes", 65535 - self.mapformat.HEADER_BYTES, minval=1024,
-            maxval=65535 - self.mapformat.HEADER_BYTES))
+        # the map's room: all that one M721 can carry (S is 16 bits), as Klipper's host has the
+        # memory; nothing is released while printing, so no smaller arena is offered
+        self.upload = MapUpload(self.mapformat, 65535 - self.mapformat.HEADER_BYTES)
         self.planner = fb.RefPlanner(None, self.settings)
         self.marker = False
         self.next_transform = None
