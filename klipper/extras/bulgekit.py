@@ -282,6 +282,7 @@ class MapUpload:
         self.crc = 0
         self.append = False
         self.data = None
+        self.appended = []          # the layers the last append committed
 
     def is_open(self):
         return self.size > 0
@@ -375,7 +376,7 @@ class MapUpload:
             return "error", "M721 CRC %d != C%d" % (crc, self.crc)
         try:
             if self.append:
-                after = self.map.layers[-1].z_cmm if self.map.layers else self.top_z
+                after = self.map.layers[-1].z_cmm if self.map.layers else -1
                 layers = self.mf.decode_records(data, self.map.has_weights, after)
             else:
                 new = self.mf.decode_map(data)
@@ -386,10 +387,7 @@ class MapUpload:
             self.appended = layers
             return "appended", None
         self.map, self.record_bytes = new, size - self.mf.HEADER_BYTES
-        self.top_z = -1
         return "committed", self.status()
-
-    top_z = -1
 
     def status(self):
         m = self.map
