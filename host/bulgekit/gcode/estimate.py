@@ -996,6 +996,8 @@ def _slow_e_only(vn, sel, steps_e, spm_e, floor):
     speed (see the module's doc); faster
     ones keep their trapezoid, which is n/r plus the ramp. -> (those moves, their cruise time)."""
     n = steps_e
+    if floor <= 0:                              # no step-rate floor (Klipper): none is slow
+        return sel[:0], np.zeros(0)
     # Marlin's length of the block is its whole steps in mm: the rate is speed x steps/mm
     rate = np.ceil(vn * spm_e - 1e-9)
     slow = (rate < floor) & (n >= 1)

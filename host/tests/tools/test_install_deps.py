@@ -129,8 +129,10 @@ def test_once_there_the_venv_is_what_make_runs(checkout, tmp_path, with_pip):
 TOOLCHAIN_APT = {"gcc", "g++", "make", "pkg-config", "gcc-avr", "avr-libc", "binutils-avr", "simavr",
                  "libsimavr-dev", "libelf-dev", "clang", "libclang-rt-14-dev", "gcc-arm-none-eabi",
                  "libnewlib-arm-none-eabi", "qemu-system-arm", "python3-dev", "prusa-slicer", "python3-louis",
-                 "liblouis-data", "chromium", "npm"}
-TOOLCHAIN_PIP = "platformio==6.2.0 scons==4.11.1 -e host[test]"
+                 "liblouis-data", "libusb-dev", "chromium", "npm"}
+# Klipper's klippy for the [bulgekit] module's batch-mode tests: its dependencies unpinned, the
+# package itself with --no-deps (its own pins would downgrade the host package's)
+TOOLCHAIN_PIP = "platformio==6.2.0 scons==4.11.1 cffi>=1.15 greenlet>=2.0 Jinja2>=3.0 -e host[test]"
 
 
 def plan(root, role, path, pythonpath=None):
