@@ -292,3 +292,14 @@ def test_cli_e_steps(tmp_path):
     assert r.exit_code == 0 and "steps/mm 100/100/400/280" in r.output, r.output
     r = CliRunner().invoke(main, ["estimate", str(p), "--e-steps", "0"])
     assert r.exit_code == 2 and "--e-steps" in r.output
+
+
+def test_a_klipper_model_has_no_step_rate_floor():
+    """Klipper steps an E-only move at its own speed from the first step: no 1/120 s floor (and
+    no division by the floor of 0 it has)."""
+    from bulgekit import machine
+    m = es.Machine.from_model(machine.PRESETS["klipper-corexy"])
+    assert m.min_step_rate == 0 and m.min_segment_steps == 0 and m.lookahead is None
+    r = es.estimate_lines(["M83", "G1 E0.0968 F61.5"], m)
+    # a trapezoid at the extruder's own limits, not 1/120 + (n - 1)/r
+    assert r.total_s == pytest.approx(trapezoid(0.0968, 61.5 / 60, m.retract_accel), rel=1e-6)
