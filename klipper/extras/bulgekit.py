@@ -4,7 +4,7 @@
 #
 # This file may be distributed under the terms of the GNU GPLv3 license.
 #
-# The same M-codes as bulgekit's Marlin fork (docs/mcodes.md), done in klippy:
+# The same M-codes as bulgekit's Marlin fork (docs/reference/mcodes.md), done in klippy:
 #  * M721 uploads a bulge map; the outer wall's extruding moves (between M722 S1 and
 #    M722 S0, or every extruding move in M720 S2) are split at the map's points by the
 #    host package's reference planner (bulgekit.bulge.fallback.RefPlanner, the Python mirror

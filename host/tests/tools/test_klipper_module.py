@@ -206,7 +206,7 @@ REPLIES = [
 
 
 def test_replies_and_errors_as_the_fork(tree, dict_path, tmp_path):
-    """docs/mcodes.md's replies and errors, in Klipper's form (respond_info / gcmd.error: the
+    """docs/reference/mcodes.md's replies and errors, in Klipper's form (respond_info / gcmd.error: the
     text without Marlin's echo: and Error: prefixes). A batch run ends at its first error, after
     the lines already read (all of these)."""
     g = tmp_path / "in.gcode"
