@@ -94,7 +94,9 @@ def register(main):
                        "widths) take the difference. The thickness is the same; 0: off.")
     @click.option("--accel", type=POSITIVE, default=None,
                   help="The printer's print acceleration, mm/s² (M204 P) [the printer model's; "
-                       "Marlin's default 3000]. "
+                       "Marlin's default 3000; on Klipper its max_accel_to_decel, max_accel x "
+                       "(1 - minimum_cruise_ratio), which its look-ahead plans the mid-line's "
+                       "speed changes with]. "
                        "Printed times assume it; below 3000 the mid-line's default flow is lower "
                        "(see --infill-flow) and --rate-accel is held to it. The file does not set it.")
     @click.option("--block-rate", type=NONNEG, default=120.0, show_default=True,
@@ -176,7 +178,7 @@ def register(main):
                     raise click.UsageError(f"--{p} does not apply to --calibration ({why})")
         kw["bed"] = tuple(kw["bed"])
         pm = printer_model(printer, firmware)
-        kw["accel"] = pm.accel if kw["accel"] is None else kw["accel"]
+        kw["accel"] = pm.rate_accel if kw["accel"] is None else kw["accel"]
         kw["filament"] = pm.filament_diameter if kw["filament"] is None else kw["filament"]
         opts = lt.LithoOptions(shape=shape, purge=not no_purge, printer=pm, **kw)
 

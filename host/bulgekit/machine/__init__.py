@@ -149,6 +149,15 @@ class PrinterModel:
         return (self.max_feedrate.x * ratio if v is None else v,
                 self.max_accel.x * ratio if a is None else a)
 
+    @property
+    def rate_accel(self) -> float:
+        """The acceleration a run of short moves at changing speeds gets: the print acceleration;
+        on Klipper the accel-to-decel limit, max_accel x (1 - minimum_cruise_ratio), by which its
+        look-ahead plans a move that speeds up and slows down again (a lithophane's mid-line)."""
+        if self.firmware == "klipper" and 0 < self.minimum_cruise_ratio < 1:
+            return self.accel * (1 - self.minimum_cruise_ratio)
+        return self.accel
+
     def describe(self) -> str:
         """One line: what a file's header and the statistics name."""
         corner = (f"jerk {_n(self.jerk.x)}/{_n(self.jerk.y)}/{_n(self.jerk.z)}/{_n(self.jerk.e)} mm/s"

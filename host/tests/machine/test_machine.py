@@ -3,6 +3,7 @@ settings, and the numbers derived from them."""
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import pytest
 
@@ -173,3 +174,18 @@ def test_model_refuses_nonsense():
         M.PrinterModel(accel=float("nan"))
     with pytest.raises(ValueError, match="> 0"):
         M.PrinterModel(steps_per_mm=M.Axes(80, 80, 400, 0))
+
+
+def test_klipper_plans_speed_changes_at_its_accel_to_decel(tmp_path):
+    """A lithophane's mid-line speeds up and slows down within short moves: Klipper's look-ahead
+    plans that at max_accel x (1 - minimum_cruise_ratio) (its max_accel_to_decel), Marlin at its
+    print acceleration; `litho`'s --accel default is that."""
+    from click.testing import CliRunner
+    from bulgekit.cli import main
+    k = M.PRESETS["klipper-corexy"]
+    assert k.rate_accel == 1500 and M.PRESETS["marlin"].rate_accel == 3000
+    assert replace(k, minimum_cruise_ratio=0.0).rate_accel == 3000
+    import json
+    r = CliRunner().invoke(main, ["litho", "--calibration", "--printer", "klipper-corexy", "-o", str(tmp_path), "-q"])
+    assert r.exit_code == 0, r.output
+    assert json.loads((tmp_path / "calibration.litho.json").read_text())["options"]["accel"] == 1500
