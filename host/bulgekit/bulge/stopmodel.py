@@ -53,6 +53,43 @@ TIMER_RATE = 2_000_000          # AVR STEPPER_TIMER_RATE: F_CPU / 8
 SQRT_HALF = math.sqrt(0.5)
 
 
+def _avr_table(step: int) -> tuple[list[int], list[int]]:
+    """Marlin's AVR speed_lookuptable.h (F_CPU 16 MHz) by the formula it was made with: entry i
+    holds the ticks of 32 + step x i steps/s and the difference to entry i + 1 (the slow table's
+    last difference is 3 in Marlin's)."""
+    t = [int(TIMER_RATE / (32 + step * i)) for i in range(257)]
+    g = [t[i] - t[i + 1] for i in range(256)]
+    if step == 8:
+        g[255] = 3
+    return t[:256], g
+
+
+_SLOW = _avr_table(8)
+_FAST = _avr_table(256)
+
+
+def avr_ticks(rate: float) -> int:
+    """Timer ticks (2 MHz) between steps at `rate` whole steps/s, as Marlin's AVR
+    calc_timer_interval makes them: a table lookup with linear interpolation, exact only at its
+    points (32 + 8k steps/s below 2,080), and under 40 steps/s the slow table's product of the
+    difference and the rate's low 3 bits is an AVR int, 16 bits, so it wraps: 38 and 39 steps/s
+    give 61,317 and 59,755 ticks (30.7 and 29.9 ms, not 26.3 and 25.6)."""
+    r = int(rate)
+    if r <= 32:
+        return _SLOW[0][0]
+    r -= 32
+    if r >= 0x800:
+        i = min(r >> 8, 255)
+        return _FAST[0][i] - (((r & 0xFF) * _FAST[1][i] + 128) >> 8)
+    i = r >> 3
+    return _SLOW[0][i] - (((_SLOW[1][i] * (r & 7)) & 0xFFFF) >> 3)
+
+
+def avr_interval_s(rate: float) -> float:
+    """Seconds between steps at `rate` whole steps/s on Marlin's AVR stepper (avr_ticks)."""
+    return avr_ticks(rate) / TIMER_RATE
+
+
 @dataclass(frozen=True)
 class Piece:
     """The X/Y move on one side of a stop, as the planner sees it: unit direction (ux, uy) in
