@@ -362,6 +362,13 @@ def _first(pm: PrinterModel, s: RampStop, k: float):
     return (max(1, round(s.after.length * k)), max(math.ceil(piece_accel(pm, s.after) * k), 1))
 
 
+def _reaches(prev: RampStop, gap: float | None) -> bool:
+    """The piece the head goes on with after `prev` runs to the next stop, `gap` mm on (within
+    0.02 mm): then it is also the block that brakes into that stop."""
+    return (gap is not None and prev.after is not None and prev.after.length > 0
+            and prev.after.length >= gap - 0.02)
+
+
 def chain_ramps(pm: PrinterModel, stops: list[RampStop]) -> list[float]:
     """Seconds each stop adds beyond its stillness, stops one after another along the path:
     between two stops closer than a full start and a full braking the head does not reach its
@@ -384,10 +391,15 @@ def chain_ramps(pm: PrinterModel, stops: list[RampStop]) -> list[float]:
             pnom, pfa, pib, pacc = prev
             f = firsts[i - 1]
             a0 = min(acc, f[1]) if f else acc
+            # the piece after the stop before reaches this one (the gap is that one block): it
+            # brakes into this stop at its own acceleration too (LIN_ADVANCE: cut for the extra
+            # it carries; this stop's move, p, is the slicer's line without that extra)
+            reach = _reaches(stops[i - 1], gap)
+            bacc = a0 if f and reach else acc
             full = (max(0, math.ceil((nom ** 2 - pib ** 2) / (2 * a0)))
-                    + max(0, math.floor((nom ** 2 - fa ** 2) / (2 * acc))) + 6)
+                    + max(0, math.floor((nom ** 2 - fa ** 2) / (2 * bacc))) + 6)
             if count < full:                     # the head does not reach its feed between
-                segs = [f, (count - f[0], acc)] if f and f[0] < count else [(count, a0)]
+                segs = [f, (count - f[0], acc)] if f and not reach and f[0] < count else [(count, a0)]
                 mid = count // 2
                 span, t_mid = _chain_span(segs, nom, min(pib, nom), fa, mid)
                 cost = span - (count - 1) / nom
@@ -398,6 +410,9 @@ def chain_ramps(pm: PrinterModel, stops: list[RampStop]) -> list[float]:
         if prev is not None:
             pnom, pfa, pib, pacc = prev
             out[i - 1] += _start_s(pnom, pib, pacc, firsts[i - 1]) if pib < pnom else 0.0
+            f = firsts[i - 1]
+            if f and _reaches(stops[i - 1], gap):
+                acc = min(acc, f[1])             # braking in the piece after the stop before
         out[i] += _brake_s(nom, fa, acc) if fa < nom else 0.0
     if rates and rates[-1] is not None:
         nom, fa, ib, acc = rates[-1]
