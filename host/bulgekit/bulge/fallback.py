@@ -915,7 +915,12 @@ def still_s(n: int, rate: int, spm: float | None = None, k: float = XY_STEPS,
     classic-jerk and LIN_ADVANCE junctions need. Without spm: issue 25's rule (the next move
     starts at the 120 steps/s floor)."""
     pm = rule_model(printer)
-    return 1 / max(rate, _floor(pm)) + (n - 1) / rate + next_start_s(rate, spm, k, pm, nxt, n)
+    # the E block's steps as Marlin's AVR timer makes them (stopmodel.avr_interval_s): its
+    # first at max(rate, floor), the others at the rate; 1/rate is exact only at the table's
+    # points, and at 38-39 steps/s the table's 16-bit product wraps (a 200 ms stop of 8 steps
+    # at 38 steps/s held the head 231 ms)
+    first = stopmodel.avr_interval_s(max(rate, _floor(pm)))
+    return first + (n - 1) * stopmodel.avr_interval_s(rate) + next_start_s(rate, spm, k, pm, nxt, n)
 
 
 def next_start_s(rate: int, spm: float | None = None, k: float = XY_STEPS,
@@ -1033,7 +1038,12 @@ def _rate_for(n: int, d: float, spm: float, k: float = XY_STEPS,
     while hi - lo > 1:                                   # bisect the whole rates between
         mid = (lo + hi) // 2
         lo, hi = (mid, hi) if still(mid) >= d else (lo, mid)
-    rate = min((lo, hi), key=lambda q: abs(still(q) - d))
+    cands = [lo, hi]
+    if lo <= 40:
+        # under 40 steps/s the AVR timer is not monotonic (38 and 39 steps/s wrap: avr_ticks), so
+        # the bisection may stop beside the nearest: try every rate there
+        cands += [q for q in range(SLOWEST_STEP_RATE, 41) if q <= r_max]
+    rate = min(cands, key=lambda q: abs(still(q) - d))
     return StopMove(0, STOP_MOVE, n, rate, still(rate), start=next_start_s(rate, spm, k, pm, nxt, n))
 
 

@@ -53,6 +53,43 @@ TIMER_RATE = 2_000_000          # AVR STEPPER_TIMER_RATE: F_CPU / 8
 SQRT_HALF = math.sqrt(0.5)
 
 
+def _avr_table(step: int) -> tuple[list[int], list[int]]:
+    """Marlin's AVR speed_lookuptable.h (F_CPU 16 MHz) by the formula it was made with: entry i
+    holds the ticks of 32 + step x i steps/s and the difference to entry i + 1 (the slow table's
+    last difference is 3 in Marlin's)."""
+    t = [int(TIMER_RATE / (32 + step * i)) for i in range(257)]
+    g = [t[i] - t[i + 1] for i in range(256)]
+    if step == 8:
+        g[255] = 3
+    return t[:256], g
+
+
+_SLOW = _avr_table(8)
+_FAST = _avr_table(256)
+
+
+def avr_ticks(rate: float) -> int:
+    """Timer ticks (2 MHz) between steps at `rate` whole steps/s, as Marlin's AVR
+    calc_timer_interval makes them: a table lookup with linear interpolation, exact only at its
+    points (32 + 8k steps/s below 2,080), and under 40 steps/s the slow table's product of the
+    difference and the rate's low 3 bits is an AVR int, 16 bits, so it wraps: 38 and 39 steps/s
+    give 61,317 and 59,755 ticks (30.7 and 29.9 ms, not 26.3 and 25.6)."""
+    r = int(rate)
+    if r <= 32:
+        return _SLOW[0][0]
+    r -= 32
+    if r >= 0x800:
+        i = min(r >> 8, 255)
+        return _FAST[0][i] - (((r & 0xFF) * _FAST[1][i] + 128) >> 8)
+    i = r >> 3
+    return _SLOW[0][i] - (((_SLOW[1][i] * (r & 7)) & 0xFFFF) >> 3)
+
+
+def avr_interval_s(rate: float) -> float:
+    """Seconds between steps at `rate` whole steps/s on Marlin's AVR stepper (avr_ticks)."""
+    return avr_ticks(rate) / TIMER_RATE
+
+
 @dataclass(frozen=True)
 class Piece:
     """The X/Y move on one side of a stop, as the planner sees it: unit direction (ux, uy) in
@@ -325,6 +362,13 @@ def _first(pm: PrinterModel, s: RampStop, k: float):
     return (max(1, round(s.after.length * k)), max(math.ceil(piece_accel(pm, s.after) * k), 1))
 
 
+def _reaches(prev: RampStop, gap: float | None) -> bool:
+    """The piece the head goes on with after `prev` runs to the next stop, `gap` mm on (within
+    0.02 mm): then it is also the block that brakes into that stop."""
+    return (gap is not None and prev.after is not None and prev.after.length > 0
+            and prev.after.length >= gap - 0.02)
+
+
 def chain_ramps(pm: PrinterModel, stops: list[RampStop]) -> list[float]:
     """Seconds each stop adds beyond its stillness, stops one after another along the path:
     between two stops closer than a full start and a full braking the head does not reach its
@@ -347,10 +391,15 @@ def chain_ramps(pm: PrinterModel, stops: list[RampStop]) -> list[float]:
             pnom, pfa, pib, pacc = prev
             f = firsts[i - 1]
             a0 = min(acc, f[1]) if f else acc
+            # the piece after the stop before reaches this one (the gap is that one block): it
+            # brakes into this stop at its own acceleration too (LIN_ADVANCE: cut for the extra
+            # it carries; this stop's move, p, is the slicer's line without that extra)
+            reach = _reaches(stops[i - 1], gap)
+            bacc = a0 if f and reach else acc
             full = (max(0, math.ceil((nom ** 2 - pib ** 2) / (2 * a0)))
-                    + max(0, math.floor((nom ** 2 - fa ** 2) / (2 * acc))) + 6)
+                    + max(0, math.floor((nom ** 2 - fa ** 2) / (2 * bacc))) + 6)
             if count < full:                     # the head does not reach its feed between
-                segs = [f, (count - f[0], acc)] if f and f[0] < count else [(count, a0)]
+                segs = [f, (count - f[0], acc)] if f and not reach and f[0] < count else [(count, a0)]
                 mid = count // 2
                 span, t_mid = _chain_span(segs, nom, min(pib, nom), fa, mid)
                 cost = span - (count - 1) / nom
@@ -361,6 +410,9 @@ def chain_ramps(pm: PrinterModel, stops: list[RampStop]) -> list[float]:
         if prev is not None:
             pnom, pfa, pib, pacc = prev
             out[i - 1] += _start_s(pnom, pib, pacc, firsts[i - 1]) if pib < pnom else 0.0
+            f = firsts[i - 1]
+            if f and _reaches(stops[i - 1], gap):
+                acc = min(acc, f[1])             # braking in the piece after the stop before
         out[i] += _brake_s(nom, fa, acc) if fa < nom else 0.0
     if rates and rates[-1] is not None:
         nom, fa, ib, acc = rates[-1]

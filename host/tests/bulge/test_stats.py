@@ -82,8 +82,9 @@ def test_build_stats_give_the_stock_files_stops_as_printed(data_dir, tmp_path):
     out = api.build(g, strokes, tmp_path / "b", write_fallback=True, settings=Settings(dwell_ms=130))
     st = out.stats
     n = st.stops
-    # 130 ms: 6 steps at r = 5 / (0.13 - 2/120) = 44.1 steps/s, 44 the nearest whole rate
-    held = n * still_s(6, 44)
+    # 130 ms: 6 steps at r = 5 / (0.13 - 2/120) = 44.1 steps/s would hold 131.25 ms at 44 on the
+    # AVR timer (44 lies between its table's points 40 and 48), so a step more: 7 at 53, 130.50 ms
+    held = n * still_s(7, 53)
     assert st.stock.moves == n and st.stock.still_s == pytest.approx(held)
     text = out.stats_path.read_text()
     assert f"stock file: stops as E-only moves: {n} ({held:.1f} s head still" in text
