@@ -36,9 +36,10 @@ def test_build_writes_map_gcode_stats_and_fallback(tmp_path, data_dir):
     g = (out / "prusa_cyl.bulge.gcode").read_text()
     assert "M720 S1 P150 E0.100 T0.250" in g and "M722 S1" in g
     stock = (out / "prusa_cyl.stock.gcode").read_text()
-    # each stop an E-only move: 150 ms = 2/120 + 6/45 s, 7 steps at 45 steps/s (6 steps would
-    # miss by 1.8 ms at a whole rate), F = (45 - 0.5) x 60 / 93
-    assert len(re.findall(r"^G1 E[\d.]+ F28\.710$", stock, re.M)) == m.point_count
+    # each stop an E-only move: 8 steps at 53 steps/s, the whole rate whose stillness by Marlin's
+    # AVR step timer (stopmodel.avr_ticks: 7 intervals of its table's 53 steps/s) is nearest
+    # 150 ms (149.48 ms, as the simulated Marlin held it), F = (53 - 0.5) x 60 / 93
+    assert len(re.findall(r"^G1 E[\d.]+ F33\.871$", stock, re.M)) == m.point_count
     assert "G4 P" not in stock
     assert f"stops when printed: {m.point_count} of {m.point_count}" in (out / "prusa_cyl.stats.txt").read_text()
     r = run("fallback", data_dir / "prusa_cyl.gcode", out / "prusa_cyl.bkm", "-o", tmp_path / "g4.gcode",
