@@ -565,6 +565,10 @@ def calibrate(outdir, name, stop_kind, layer_height, line_width, temp, bed_temp,
     click.echo(f"{len(r.layout.strokes)} strokes, {r.stops_stock} stops in {r.layout.height:g} mm "
                f"({int(round(r.layout.height / layer_height))} layers)")
     click.echo(f"stock file: {r.stock_summary}")
+    if "as G4" in r.stock_summary and pm.firmware == "marlin":
+        click.echo("note: on stock Marlin a G4 stop holds the head 100-110 ms longer than its P (the "
+                   "planner waits for moves after it): read the stock piece's 300 and 500 ms columns "
+                   "and its 0 and 0.05 mm bands as longer; the bulgekit file's values are exact")
     for k in ("bulge", "stock", "map", "png"):
         click.echo(f"wrote {r.paths[k]}")
     click.echo(f"look at {r.paths['png'].name}, print, then: M720 P<dwell> E<extra> and M500 (bulgekit "
