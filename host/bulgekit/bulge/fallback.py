@@ -844,19 +844,16 @@ def unreached_message(planner: RefPlanner, source: str) -> str | None:
 # (min_step_rate), the E speed up to which the E move enters at its own speed (junction deviation
 # at M204 R, or the E/X jerks), v (junction deviation at the next move's own acceleration, with
 # LIN_ADVANCE's cut; classic jerk: the next move's jerk-limited safe speed, 10 mm/s along X at
-# Marlin's jerks, whatever the E rate), the steps per mm and the segment minimum. The constants
-# below are Marlin's defaults (machine.MARLIN), kept for the names; the rule reads the model.
+# Marlin's jerks, whatever the E rate), the steps per mm and the segment minimum. The few names
+# below that stand for printer numbers are the default model's; the rule reads the printer's.
 # Firmwares other than Marlin 2.x (prusa, reprap, klipper) keep the Marlin defaults' rule.
 STOP_MOVE, STOP_G4 = "move", "g4"
 DEFAULT_E_STEPS = machine.DEFAULT.e_steps   # the default printer model's E steps/mm
-MIN_STEPS_PER_SEGMENT = 6      # Marlin drops a move with fewer steps on every axis
-MINIMAL_STEP_RATE = 120        # steps/s: Marlin's floor for a block's first and last step rate
+MIN_STEPS_PER_SEGMENT = machine.DEFAULT.min_segment_steps   # Marlin drops a move with fewer steps
+                               # on every axis (the default model's; the rule reads the printer's)
 SLOWEST_STEP_RATE = 32         # steps/s: AVR stepper timer's longest interval (F_CPU / 500000)
-MAX_E_FEEDRATE = 25.0          # mm/s: Marlin's default M203 E; a faster E move is slowed
-XY_STEPS = 80.0                # steps/mm of X and Y (Marlin's RAMPS and Ender-3 defaults)
-V_JD = math.sqrt(3000 * 0.013 / (math.sqrt(2) - 1))   # mm/s: junction deviation's speed at a
-                               # 90 degree corner, sqrt(a JD sin / (1 - sin)), Marlin's defaults
-                               # 3000 mm/s^2 and 0.013 mm: 9.7 mm/s
+XY_STEPS = machine.DEFAULT.steps_per_mm.x   # steps/mm of X: the default model's, where no printer
+                               # says (still_s's k)
 NEAREST_MS = 1.0               # a stop further than this from its dwell is counted as "nearest"
 MIN_AUTORETRACT = 0.1          # mm: with FWRETRACT autoretract on (M209 S1) Marlin turns a move of
                                # E alone this long or longer into a firmware retract/recover
