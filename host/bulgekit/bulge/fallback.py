@@ -1422,16 +1422,11 @@ def _pieces(m: Move, at: tuple, nxt: Action | None, spm: float, stop_n: int, k: 
     k (the piece after: `k` as _lead_steps gave it), length. A stop at the move's end: the next
     line carries the rest of the extra (`owed`), taken as a piece like this move."""
     f = m.f / 60.0
-    dx, dy = m.x1 - m.x0, m.y1 - m.y0
-    length = math.hypot(dx, dy)
-    if length > 1e-9:
-        ux, uy, epm = abs(dx) / length, abs(dy) / length, max(m.e, 0.0) / length
-        k_here = _xy_steps(pm.steps_per_mm.x, pm.steps_per_mm.y, ux, uy)
-    else:
-        ux, uy, epm, k_here = 1.0, 0.0, 0.0, pm.steps_per_mm.x
-    here = Piece(ux, uy, epm, f, k_here)
+    here = stopmodel.piece_of(pm, m)
+    length = math.hypot(m.x1 - m.x0, m.y1 - m.y0)
     rest = max(0.0, owed - stop_n / spm)
-    after = Piece(ux, uy, epm + (rest / length if length > 1e-9 else 0.0), f, k, length)
+    after = Piece(here.ux, here.uy, here.e_per_mm + (rest / length if length > 1e-9 else 0.0), f, k,
+                  length)
     if nxt is not None and nxt.kind == "line":
         ndx, ndy = nxt.x - at[0], nxt.y - at[1]
         nlen = math.hypot(ndx, ndy)

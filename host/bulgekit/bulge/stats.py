@@ -238,7 +238,7 @@ class StopTimer:
         if not m.extruding:
             self._last = None
             return
-        piece = _piece(self.printer, m)
+        piece = stopmodel.piece_of(self.printer, m)
         cx, cy = m.x0, m.y0
         for a in actions:
             if a.kind == "line":
@@ -249,16 +249,6 @@ class StopTimer:
                 self.ramp_stops.append((a.ms, stopmodel.RampStop(piece, 0.0, 0.0, gap)))
                 last_stop = s
         self._last = (m.index, s, last_stop)
-
-
-def _piece(pm, m) -> stopmodel.Piece:
-    dx, dy = abs(m.x1 - m.x0), abs(m.y1 - m.y0)
-    length = math.hypot(dx, dy)
-    if length <= 1e-9:
-        return stopmodel.Piece(1.0, 0.0, 0.0, m.f / 60.0, pm.steps_per_mm.x)
-    ux, uy = dx / length, dy / length
-    k = max(pm.steps_per_mm.x * ux, pm.steps_per_mm.y * uy)
-    return stopmodel.Piece(ux, uy, max(m.e, 0.0) / length, m.f / 60.0, k)
 
 
 def print_stats(gcode_path, map_bytes: bytes, settings: Settings, arena: int = ARENA_BYTES,

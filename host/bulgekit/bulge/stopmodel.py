@@ -103,6 +103,18 @@ class Piece:
     length: float = 0.0     # mm (0: not known)
 
 
+def piece_of(pm: PrinterModel, m) -> Piece:
+    """A move (x0, y0, x1, y1, e, f: gcode.Move) as a Piece: its X/Y direction, filament per mm,
+    feed, and its leading X/Y axis's steps per mm of path (a move without X/Y motion: along X)."""
+    dx, dy = abs(m.x1 - m.x0), abs(m.y1 - m.y0)
+    length = math.hypot(dx, dy)
+    if length <= 1e-9:
+        return Piece(1.0, 0.0, 0.0, m.f / 60.0, pm.steps_per_mm.x)
+    ux, uy = dx / length, dy / length
+    return Piece(ux, uy, max(m.e, 0.0) / length, m.f / 60.0,
+                 max(pm.steps_per_mm.x * ux, pm.steps_per_mm.y * uy))
+
+
 def floor_rate(pm: PrinterModel) -> float:
     return pm.min_step_rate if pm.min_step_rate > 0 else 1.0
 
