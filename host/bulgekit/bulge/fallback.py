@@ -1291,19 +1291,12 @@ def rewrite(lines: Iterable[str], bmap: mapformat.BulgeMap, settings: Settings,
     if sw.kp is not None:
         yield from _rewrite_klipper(lines, source, st, planner, res, sw, on_move, arcs)
     else:
-        for ln in parse_lines(lines, source, st):
-            res.lines_in += 1
-            raw = ln.raw if ln.raw.endswith("\n") else ln.raw.rstrip("\r") + "\n"
-            if not ln.moves:
+        for ln, raw, per_move in _planned(lines, source, st, planner, res, arcs, on_move):
+            if per_move is None:
                 if ln.cmd == "M92":
                     sw.note_m92(ln.line_no, ln.raw)
                 yield raw
                 continue
-            per_move = [(m, planner.plan(m)) for m in ln.moves]
-            for m, acts in per_move:
-                arcs(m, acts)
-                if on_move is not None:
-                    on_move(m, acts)
             unchanged = all(_unchanged(m, a) for m, a in per_move)
             if unchanged and ln.line_no not in arcs.lines:
                 if any(a.dropped for _, acts in per_move for a in acts):
@@ -1320,6 +1313,24 @@ def rewrite(lines: Iterable[str], bmap: mapformat.BulgeMap, settings: Settings,
     res.unreached = unreached_message(planner, source)
 
 
+def _planned(lines, source, st, planner, res, arcs: "ArcLines", on_move):
+    """rewrite()'s lines as both its loops take them: (line, its text with a line end, its
+    [(move, actions)], None for a line without moves), each move planned and handed to the arcs'
+    hook and to on_move as it is planned."""
+    for ln in parse_lines(lines, source, st):
+        res.lines_in += 1
+        raw = ln.raw if ln.raw.endswith("\n") else ln.raw.rstrip("\r") + "\n"
+        if not ln.moves:
+            yield ln, raw, None
+            continue
+        per_move = [(m, planner.plan(m)) for m in ln.moves]
+        for m, acts in per_move:
+            arcs(m, acts)
+            if on_move is not None:
+                on_move(m, acts)
+        yield ln, raw, per_move
+
+
 def _rewrite_klipper(lines, source, st, planner, res, sw: StopWriter, on_move,
                      arcs: "ArcLines") -> Iterator[str]:
     """rewrite()'s loop for Klipper's form: the same lines, and (a) the toolhead's accel as the
@@ -1327,10 +1338,8 @@ def _rewrite_klipper(lines, source, st, planner, res, sw: StopWriter, on_move,
     move's start decelerated on it), (c) a stop at the end of a line held until the next move
     with motion shows where the head goes on (_KlipperPending)."""
     pend, held = None, []
-    for ln in parse_lines(lines, source, st):
-        res.lines_in += 1
-        raw = ln.raw if ln.raw.endswith("\n") else ln.raw.rstrip("\r") + "\n"
-        if not ln.moves:
+    for ln, raw, per_move in _planned(lines, source, st, planner, res, arcs, on_move):
+        if per_move is None:
             sw.note_accel(ln.raw)
             outs = [raw]
         else:
@@ -1344,11 +1353,6 @@ def _rewrite_klipper(lines, source, st, planner, res, sw: StopWriter, on_move,
                     held[0] = pend.resolve(_unit_xy(kin) if same else None)
                     yield from held
                     pend, held = None, []
-            per_move = [(m, planner.plan(m)) for m in ln.moves]
-            for m, acts in per_move:
-                arcs(m, acts)
-                if on_move is not None:
-                    on_move(m, acts)
             unchanged = all(_unchanged(m, a) for m, a in per_move) and ln.line_no not in arcs.lines
             if unchanged and sw.spill > 0:     # extra owed past the cross-section limit
                 if any(m.e > 0 and (m.x0, m.y0) != (m.x1, m.y1) for m in ln.moves):
