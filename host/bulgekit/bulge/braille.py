@@ -22,7 +22,6 @@ does not see Debian's packages: the binding is plain ctypes over liblouis.so.20.
 from __future__ import annotations
 
 import importlib.util
-import math
 import os
 from dataclasses import dataclass
 

@@ -290,7 +290,7 @@ def picture(lay: Layout, o: CalibrationOptions, path) -> None:
     ax.set_xlabel("along the front face, mm")
     ax.set_ylabel("height above the bed, mm")
     ax.set_title("bulgekit calibrate: the front face, seen from the front. "
-                 f"Then M720 P<dwell> E<extra> and M500", fontsize=9)
+                 "Then M720 P<dwell> E<extra> and M500", fontsize=9)
     fig.tight_layout()
     fig.savefig(path, format="png")
     plt.close(fig)

@@ -26,7 +26,7 @@ import math
 import os
 import re
 import tomllib
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 
 from ..errors import BulgekitError, MissingInputError
 
